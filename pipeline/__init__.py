@@ -1,0 +1,1 @@
+"""nvf-bench harness: Hydra entry points, scenes, ground-truth rendering, episodes, metrics, records, tables."""
