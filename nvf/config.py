@@ -1,0 +1,136 @@
+"""Typed settings of the method library, one dataclass per concern (METHOD.md section 16).
+
+These are plain dataclasses: Hydra's structured configs in ``pipeline.config`` embed them, so every
+value has exactly one home and one default. Defaults are the ``paper`` budget; smaller budgets
+override resolutions and iteration counts only.
+"""
+
+import math
+from dataclasses import dataclass, field
+
+
+@dataclass
+class FieldConfig:
+    """Backbone and heads (METHOD.md section 3)."""
+
+    kind: str = "hashgrid"  # hashgrid (Instant-NGP, the paper's) | densegrid (DVGO-style, cheap on CPU)
+    num_levels: int = 16
+    features_per_level: int = 2
+    log2_hashmap_size: int = 19
+    base_resolution: int = 16
+    max_resolution: int = 512
+    dense_resolution: int = 128  # densegrid only
+    dense_features: int = 32  # densegrid only: feature channels per voxel
+    hidden_dim: int = 64
+    geo_feat_dim: int = 15
+    mlp_bias: bool = False  # tiny-cuda-nn fused MLPs have no biases
+    appearance_embedding: bool = False  # D8: the reference's per-image embedding
+    backend: str = "auto"  # hash-grid gather/scatter: auto | torch | cpp
+
+
+@dataclass
+class SamplerConfig:
+    """Occupancy grid and ray marching (METHOD.md section 4, M5, M6)."""
+
+    grid_resolution: int = 128
+    step_size: float = 4.0 * math.sqrt(3.0) / 1000.0  # D16: the same for every scene
+    cone_angle: float = 0.004
+    near: float = 0.05
+    far: float = 1000.0
+    alpha_threshold: float = 0.01
+    early_stop_eps: float = 1e-4
+    update_every: int = 16
+    warmup_iters: int = 256
+    occ_threshold: float = 0.01
+    occ_decay: float = 0.95
+    inference_jitter: bool = False  # D15: the reference jitters every render
+    max_samples_per_ray: int = 1024
+    uniform_samples: int = 50  # entropy sampler=uniform: stratified on [0, uniform_far]
+    uniform_far: float = 10.0
+
+
+@dataclass
+class EntropyConfig:
+    """NVF view entropy and its ablation switches (METHOD.md sections 5-8, 11)."""
+
+    logdet_coeff: float = 0.5  # D1: the reference uses 1.0
+    bound: str = "huber"  # huber (M10) | moment_matched (M12, "Loose")
+    use_visibility: bool = True  # false: w/o Vis.
+    use_variance: bool = True  # false: w/o Var.
+    d0: float | None = None  # None: the scene's value (1.0, Room 6.0); 0 disables (Ind. Rays); -1: auto
+    corr: str = "quadratic"  # quadratic | exp (M13)
+    depth_mode: str = "pixel"  # pixel | chunk (D3, reference bug)
+    chunk_rays: int = 4096  # depth_mode=chunk: row-major chunk size
+    sampler: str = "occupancy"  # occupancy | uniform
+    beta: float = 0.95
+    alpha_un: float = 1.0 - math.exp(-0.01)
+    mu_un: float = 0.5
+    var_un: float = 1.0
+    var_bg: float = 1e-4
+
+
+@dataclass
+class BaselineConfig:
+    """Options of the baselines (METHOD.md section 12)."""
+
+    rmap_occlusion_weighted: bool = False  # M23 alternative
+    air_reduce: str = "mean"  # mean | sum (M24)
+    air_view_score: str = "pixel_mean"  # pixel_mean | topk
+    activenerf_variant: str = "A"  # A | B (M25)
+    neurar_loss: str = "residual_mse"  # residual_mse (M27) | nll
+    neurar_detach: bool = True
+
+
+@dataclass
+class StageBudget:
+    """Iterations, batch size (rays or points) and learning rate of one training stage."""
+
+    iters: int
+    batch: int
+    lr: float
+
+
+@dataclass
+class TrainConfig:
+    """The three training stages (METHOD.md section 10)."""
+
+    backbone: StageBudget = field(default_factory=lambda: StageBudget(5000, 4096, 1e-2))
+    variance: StageBudget = field(default_factory=lambda: StageBudget(500, 4096, 1e-3))
+    visibility: StageBudget = field(default_factory=lambda: StageBudget(500, 65536, 1e-3))
+    schedule: str = "paper"  # paper | reference (D5-D7)
+    stage_order: str = "var_first"  # var_first | vis_first
+    var_loss_background: str = "random"  # random | black (M21)
+    ablation_affects_training: bool = False
+    lr_decay_horizon: int = 10000  # backbone lr(k) = lr * 0.01 ** (k / horizon)
+    label_samples: int = 200  # M17: samples on each camera-to-point segment
+    label_max_depth: float = 10.0
+    warm_start: bool = False  # deviation: reuse the previous step's weights instead of retraining
+
+
+@dataclass
+class OptConfig:
+    """Gradient refinement of the top candidates, -OPT (METHOD.md section 14)."""
+
+    top_k: int = 3
+    iters: int = 20
+    lr: float = 1e-4
+    ray_fraction: float = 0.1
+    chunk_rays: int = 4096
+    param: str = "quat_raw"  # quat_raw | se3
+
+
+@dataclass
+class PlannerConfig:
+    """Candidate poses, filters and selection (METHOD.md section 13)."""
+
+    name: str = "argmax"  # argmax | opt
+    num_candidates: int = 512
+    oversample: float = 1.2  # base sampler draws floor(1.2 N); collision-free draws 3 N
+    resolution: int = 300  # planning image side (f = W / 2)
+    density_threshold: float | None = None  # None: the scene's tau (1e-4, Hubble 1e-3)
+    collision_free: bool | None = None  # None: the scene's choice (Room only)
+    los_samples: int = 200
+    los_threshold: float = 0.95
+    random_filters: bool = False
+    score_chunk_rays: int = 8192
+    opt: OptConfig = field(default_factory=OptConfig)
