@@ -1,0 +1,161 @@
+"""Structured Hydra configuration of one run, and the validation that rejects impossible values.
+
+The schema embeds the method library's own dataclasses (``nvf.config``), so every value has one
+home. ``validate`` runs before any work and raises ``ConfigError`` with one line naming the key.
+"""
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+from hydra.core.config_store import ConfigStore
+from omegaconf import MISSING, DictConfig, OmegaConf
+
+from nvf.config import (
+    BaselineConfig,
+    EntropyConfig,
+    FieldConfig,
+    PlannerConfig,
+    SamplerConfig,
+    TrainConfig,
+)
+
+METHODS = ("random", "wd", "activermap", "air", "activenerf", "neurar", "nvf")
+STAGES = ("backbone", "variance", "visibility")
+AUX_LOSSES = ("none", "activenerf", "neurar")
+ABLATIONS = ("none", "wo_vis", "wo_var", "ind_rays", "loose")
+
+
+class ConfigError(ValueError):
+    """An impossible configuration value; the message is one line naming the key."""
+
+
+@dataclass
+class PathsConfig:
+    assets: str = MISSING
+    outputs: str = "outputs"
+    results: str = "results"
+
+
+@dataclass
+class SceneConfig:
+    name: str = "default"
+
+
+@dataclass
+class MethodConfig:
+    name: str = "nvf"
+    stages: list[str] = dataclasses.field(default_factory=lambda: list(STAGES))
+    aux_loss: str = "none"
+
+
+@dataclass
+class AblationConfig:
+    name: str = "none"
+
+
+@dataclass
+class BudgetConfig:
+    """What a budget scales besides training, planning and field sizes (DESIGN.md, budgets)."""
+
+    name: str = "paper"
+    image_size: int = 512  # ground truth and training images (square, 90 degree FoV)
+    eval_size: int = 512  # evaluation renders of the 20 evaluation views
+    horizon: int = 20  # active-mapping steps
+    gt_points: int = 500_000  # area-uniform samples of the GT mesh (PROTOCOL 4.2)
+    recon_points: int = 500_000  # reconstructed points from training-view rays
+    recon_batch: int = 16_384  # pixels drawn per point-cloud batch
+
+
+@dataclass
+class NvfConfig:
+    entropy: EntropyConfig = dataclasses.field(default_factory=EntropyConfig)
+
+
+@dataclass
+class RunConfig:
+    """One run = (scene, method, planner, ablation, budget, seed)."""
+
+    paths: PathsConfig = dataclasses.field(default_factory=PathsConfig)
+    scene: SceneConfig = dataclasses.field(default_factory=SceneConfig)
+    method: MethodConfig = dataclasses.field(default_factory=MethodConfig)
+    ablation: AblationConfig = dataclasses.field(default_factory=AblationConfig)
+    planner: PlannerConfig = dataclasses.field(default_factory=PlannerConfig)
+    budget: BudgetConfig = dataclasses.field(default_factory=BudgetConfig)
+    field: FieldConfig = dataclasses.field(default_factory=FieldConfig)
+    sampler: SamplerConfig = dataclasses.field(default_factory=SamplerConfig)
+    train: TrainConfig = dataclasses.field(default_factory=TrainConfig)
+    nvf: NvfConfig = dataclasses.field(default_factory=NvfConfig)
+    baseline: BaselineConfig = dataclasses.field(default_factory=BaselineConfig)
+    seed: int = 100
+    device: str = "auto"  # auto | cpu | cuda | cuda:N
+    save_images: bool = True
+
+
+def register_configs() -> None:
+    """Register the schema under the name ``run_schema`` (first entry of conf/config.yaml's defaults)."""
+    ConfigStore.instance().store(name="run_schema", node=RunConfig)
+
+
+_CHOICES: dict[str, tuple[Any, ...]] = {
+    "method.name": METHODS,
+    "method.aux_loss": AUX_LOSSES,
+    "ablation.name": ABLATIONS,
+    "planner.name": ("argmax", "opt"),
+    "planner.opt.param": ("quat_raw", "se3"),
+    "field.kind": ("hashgrid", "densegrid"),
+    "field.backend": ("auto", "torch", "cpp"),
+    "nvf.entropy.bound": ("huber", "moment_matched"),
+    "nvf.entropy.corr": ("quadratic", "exp"),
+    "nvf.entropy.depth_mode": ("pixel", "chunk"),
+    "nvf.entropy.sampler": ("occupancy", "uniform"),
+    "nvf.entropy.logdet_coeff": (0.5, 1.0),
+    "train.schedule": ("paper", "reference"),
+    "train.stage_order": ("var_first", "vis_first"),
+    "train.var_loss_background": ("random", "black"),
+    "baseline.air_reduce": ("mean", "sum"),
+    "baseline.air_view_score": ("pixel_mean", "topk"),
+    "baseline.activenerf_variant": ("A", "B"),
+    "baseline.neurar_loss": ("residual_mse", "nll"),
+}
+
+_POSITIVE = (
+    "budget.image_size", "budget.eval_size", "budget.horizon", "budget.gt_points", "budget.recon_points",
+    "budget.recon_batch", "planner.num_candidates", "planner.resolution", "planner.los_samples",
+    "planner.score_chunk_rays", "planner.opt.top_k", "planner.opt.iters", "planner.opt.chunk_rays",
+    "train.backbone.iters", "train.backbone.batch", "train.variance.iters", "train.variance.batch",
+    "train.visibility.iters", "train.visibility.batch", "train.lr_decay_horizon", "train.label_samples",
+    "field.num_levels", "field.features_per_level", "field.log2_hashmap_size", "field.base_resolution",
+    "field.max_resolution", "field.dense_resolution", "field.dense_features", "field.hidden_dim",
+    "sampler.grid_resolution", "sampler.step_size", "sampler.update_every", "sampler.max_samples_per_ray",
+    "sampler.uniform_samples", "sampler.uniform_far",
+    "train.backbone.lr", "train.variance.lr", "train.visibility.lr", "planner.opt.lr", "train.label_max_depth",
+)  # fmt: skip
+
+
+def validate(cfg: DictConfig) -> None:
+    """Reject impossible values before any work starts (one line naming the key)."""
+    for key, choices in _CHOICES.items():
+        value = OmegaConf.select(cfg, key)
+        if value not in choices:
+            raise ConfigError(f"{key}={value!r} is not one of {', '.join(map(str, choices))}")
+    for key in _POSITIVE:
+        value = OmegaConf.select(cfg, key)
+        if value is None or value <= 0:
+            raise ConfigError(f"{key}={value!r} must be positive")
+    stages = list(cfg.method.stages)
+    if not stages or stages[0] != "backbone" or any(s not in STAGES for s in stages):
+        raise ConfigError(f"method.stages={stages} must start with 'backbone' and use only {', '.join(STAGES)}")
+    if not 0.0 < cfg.planner.opt.ray_fraction <= 1.0:
+        raise ConfigError(f"planner.opt.ray_fraction={cfg.planner.opt.ray_fraction} must be in (0, 1]")
+    if cfg.planner.oversample < 1.0:
+        raise ConfigError(f"planner.oversample={cfg.planner.oversample} must be >= 1")
+    if cfg.field.max_resolution < cfg.field.base_resolution:
+        raise ConfigError(
+            f"field.max_resolution={cfg.field.max_resolution} is below field.base_resolution={cfg.field.base_resolution}"
+        )
+    d0 = cfg.nvf.entropy.d0
+    if d0 is not None and d0 < 0 and d0 != -1:
+        raise ConfigError(f"nvf.entropy.d0={d0} must be >= 0, -1 (auto) or null (the scene's value)")
+    if cfg.device != "auto" and not (cfg.device == "cpu" or str(cfg.device).startswith("cuda")):
+        raise ConfigError(f"device={cfg.device!r} must be auto, cpu, cuda or cuda:N")
