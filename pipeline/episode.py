@@ -1,0 +1,172 @@
+"""One active-mapping episode, Algorithm 1 (PROTOCOL 3, supplement Alg. S1).
+
+Each step: train a fresh model on every view observed so far (the method's stages), evaluate it,
+score candidate poses and select the next view, render that view and add it. A step's row is
+written atomically once the step is complete, so a killed run resumes at its first missing step
+and, with the same seed, selects the same poses (every draw is seeded from (seed, step, purpose)).
+"""
+
+import dataclasses
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import torch
+from omegaconf import DictConfig, OmegaConf
+
+from nvf.cameras import Intrinsics, matrix_to_pose, pose_to_matrix
+from nvf.config import BaselineConfig, EntropyConfig, FieldConfig, PlannerConfig, SamplerConfig, TrainConfig
+from nvf.model import SceneModel
+from nvf.planning import generator_factory, seeded_generator, select_next_view
+from nvf.training import Observations, train_model
+from nvf.uncertainty import make_scorer
+from pipeline.evaluation import Evaluator
+from pipeline.metrics import LpipsMetric
+from pipeline.render import GroundTruthRenderer, GTView
+from pipeline.scenes import Scene
+
+# (stage, iteration, total, loss) -> None: drives the inner progress bar
+TrainProgress = Callable[[str, int, int, float], None]
+
+
+def resolve_device(name: str) -> torch.device:
+    """``auto`` is CUDA when present, else CPU."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
+def typed(cfg: DictConfig, cls: type):
+    """A plain dataclass instance of ``cls`` from a config node (nvf/ never sees OmegaConf)."""
+    return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(cls), cfg))
+
+
+@dataclass
+class EpisodeSettings:
+    """The resolved, typed settings of one run, with scene defaults filled in."""
+
+    field: FieldConfig
+    sampler: SamplerConfig
+    train: TrainConfig
+    entropy: EntropyConfig
+    baseline: BaselineConfig
+    planner: PlannerConfig
+    tau: float
+    collision_free: bool
+
+    @staticmethod
+    def of(cfg: DictConfig, scene: Scene) -> "EpisodeSettings":
+        entropy = typed(cfg.nvf.entropy, EntropyConfig)
+        if entropy.d0 is None:
+            entropy = dataclasses.replace(entropy, d0=scene.d0)
+        elif entropy.d0 == -1:  # auto: 0.25 x the object AABB's diagonal (METHOD 8, D4)
+            entropy = dataclasses.replace(entropy, d0=0.25 * float(torch.linalg.norm(scene.object_aabb[1] - scene.object_aabb[0])))
+        planner = typed(cfg.planner, PlannerConfig)
+        tau = planner.density_threshold if planner.density_threshold is not None else scene.density_threshold
+        collision_free = planner.collision_free if planner.collision_free is not None else scene.collision_free
+        return EpisodeSettings(
+            field=typed(cfg.field, FieldConfig),
+            sampler=typed(cfg.sampler, SamplerConfig),
+            train=typed(cfg.train, TrainConfig),
+            entropy=entropy,
+            baseline=typed(cfg.baseline, BaselineConfig),
+            planner=planner,
+            tau=float(tau),
+            collision_free=bool(collision_free),
+        )
+
+
+class Episode:
+    """The state of one episode: the scene, its renderer, the observed views and the evaluator."""
+
+    def __init__(self, cfg: DictConfig, scene: Scene, device: torch.device, lpips: LpipsMetric):
+        self.cfg = cfg
+        self.scene = scene
+        self.device = device
+        self.settings = EpisodeSettings.of(cfg, scene)
+        self.renderer = GroundTruthRenderer(scene.mesh)
+        size = cfg.budget.image_size
+        self.intrinsics = Intrinsics.from_fov(size, size)
+        self.plan_intrinsics = Intrinsics.from_fov(cfg.planner.resolution, cfg.planner.resolution)
+        self.scorer = make_scorer(cfg.method.name, self.settings.entropy, self.settings.baseline)
+        self.evaluator = Evaluator(scene, self.renderer, cfg, device, lpips)
+        self.poses: list[torch.Tensor] = []
+        self.views: list[GTView] = []
+        for c2w in scene.init_poses:
+            self.observe(c2w)
+        self.previous_model: SceneModel | None = None
+
+    def observe(self, c2w: torch.Tensor) -> None:
+        """Render the ground truth at ``c2w`` and add it to the observations."""
+        c2w = c2w.to(torch.float32).cpu()
+        self.poses.append(c2w)
+        self.views.append(self.renderer.render(c2w, self.intrinsics))
+
+    def observations(self) -> Observations:
+        images = torch.stack(
+            [torch.cat([torch.from_numpy(v.rgb), torch.from_numpy(v.mask)[..., None].float()], dim=-1) for v in self.views]
+        )
+        return Observations(images.to(self.device), torch.stack(self.poses).to(self.device), self.intrinsics)
+
+    def new_model(self, step: int) -> SceneModel:
+        """A freshly initialised model, seeded from (seed, step) (METHOD 10: retrained from scratch)."""
+        s = self.settings
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(int(seeded_generator(self.cfg.seed, step, "init").initial_seed()))
+            model = SceneModel(self.scene.object_aabb, s.field, s.sampler, num_images=len(self.views))
+        model = model.to(self.device)
+        if s.train.warm_start and self.previous_model is not None:
+            # Deviation (documented in conf): reuse the previous step's weights instead of retraining.
+            state = {k: v for k, v in self.previous_model.state_dict().items() if "appearance" not in k}
+            model.load_state_dict(state, strict=False)
+        return model
+
+    def step(self, step: int, progress: TrainProgress | None = None) -> tuple[dict, dict]:
+        """Run step ``step``; returns the step row and the images to save (name -> HxWx{1,3} array)."""
+        cfg, s = self.cfg, self.settings
+        obs = self.observations()
+        model = self.new_model(step)
+        t0 = time.perf_counter()
+        stats = train_model(
+            model, obs, s.train, list(cfg.method.stages), s.entropy,
+            seeded_generator(cfg.seed, step, "train", self.device), cfg.method.aux_loss, progress,
+        )  # fmt: skip
+        t1 = time.perf_counter()
+        metrics, images = self.evaluator.evaluate(model, self.scorer, self.views, obs, step)
+        t2 = time.perf_counter()
+        current = matrix_to_pose(self.poses[-1]).to(self.device)
+        selection = select_next_view(
+            model, self.scorer, s.planner, self.scene.camera_box.to(self.device), current,
+            self.plan_intrinsics, s.tau, s.collision_free, generator_factory(cfg.seed, step, self.device),
+        )  # fmt: skip
+        t3 = time.perf_counter()
+        self.previous_model = model if s.train.warm_start else None
+        row = {
+            "step": step,
+            "n_views": len(self.views),
+            "status": "ok",
+            "metrics": metrics,
+            "selected_pose": selection.pose.detach().cpu().tolist(),
+            "selected_index": selection.index,
+            "selected_score": selection.score,
+            "refined": selection.refined,
+            "candidate_scores": dataclasses.asdict(selection.candidate_scores) if selection.candidate_scores else
+            {"count": selection.num_candidates, "min": None, "mean": None, "max": None, "std": None},
+            "train": stats.stages,
+            "seconds": {"train": t1 - t0, "eval": t2 - t1, "plan": t3 - t2},
+        }  # fmt: skip
+        if selection.opt is not None:
+            row["opt"] = {
+                "original_scores": selection.opt.original_scores.tolist(),
+                "refined_scores": selection.opt.refined_scores.tolist(),
+            }
+        return row, images
+
+    def observe_pose(self, pose: list[float]) -> None:
+        """Observe a pose vector ``[qx, qy, qz, qw, x, y, z]`` (a selected view)."""
+        self.observe(pose_to_matrix(torch.tensor(pose, dtype=torch.float32)))
+
+    def replay(self, rows: list[dict]) -> None:
+        """Re-observe the poses selected by completed steps (resume)."""
+        for row in rows:
+            self.observe_pose(row["selected_pose"])

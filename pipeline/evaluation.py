@@ -1,0 +1,128 @@
+"""Evaluation of one step's model (PROTOCOL 4): image metrics on the 20 evaluation views, geometry
+from training-view rays, visual coverage of the observed poses, and uncertainty-error correlation.
+"""
+
+import math
+
+import numpy as np
+import torch
+from jaxtyping import Float
+from omegaconf import DictConfig
+from torch import Tensor
+
+from nvf.cameras import Intrinsics, pixel_rays
+from nvf.model import SceneModel
+from nvf.planning import seeded_generator
+from nvf.training import Observations
+from pipeline.metrics import (
+    LpipsMetric,
+    geometry_metrics,
+    image_metrics,
+    points_from_rays,
+    seen_faces,
+    uncertainty_correlation,
+    visual_coverage,
+)
+from pipeline.render import GroundTruthRenderer, GTView
+from pipeline.scenes import Scene
+
+RENDER_CHUNK = 4096  # rays per model call at inference
+PATCHES_PER_SIDE = 16  # PROTOCOL 4.4: 32x32 patches of a 512x512 view
+
+
+@torch.no_grad()
+def render_view(
+    model: SceneModel, scorer, c2w: Float[Tensor, "4 4"], intr: Intrinsics, chunk: int = RENDER_CHUNK
+) -> dict[str, np.ndarray]:
+    """Colour [H,W,3], expected depth [H,W], accumulation [H,W] and the scorer's per-pixel score [H,W]
+    (NaN without a scorer) of one view, rendered in row-major chunks of rays (M3)."""
+    origins, dirs = pixel_rays(c2w, intr)
+    heads = frozenset({"rgb"}) | (scorer.heads if scorer is not None else frozenset())
+    shared = scorer is None or scorer.sampler == "occupancy"
+    parts: dict[str, list[Tensor]] = {"rgb": [], "depth": [], "acc": [], "score": []}
+    for start in range(0, intr.num_pixels, chunk):
+        o, d = origins[start : start + chunk], dirs[start : start + chunk]
+        result = model.render(o, d, heads=heads if shared else frozenset({"rgb"}))
+        parts["rgb"].append(result.rgb)
+        parts["depth"].append(result.depth)
+        parts["acc"].append(result.acc)
+        if scorer is None:
+            parts["score"].append(torch.full_like(result.depth, math.nan))
+            continue
+        if not shared:
+            result = model.render(o, d, heads=heads, sampler=scorer.sampler)
+        index = torch.arange(start, start + o.shape[0], device=o.device)
+        parts["score"].append(scorer.pixel_scores(result, pixel_index=index))
+    shape = (intr.height, intr.width)
+    return {
+        key: torch.cat(values).reshape(*shape, -1).squeeze(-1).float().cpu().numpy()
+        for key, values in parts.items()
+    }
+
+
+@torch.no_grad()
+def reconstruct_points(
+    model: SceneModel, obs: Observations, num_points: int, batch: int, generator: torch.Generator
+) -> np.ndarray:
+    """Points ``o + D d`` of training-view rays with accumulation > 0.5 (PROTOCOL 4.2), drawn in
+    batches of pixels uniformly over all training images until ``num_points`` (at most 4x the
+    nominal number of batches, so a model that predicts little surface cannot loop forever)."""
+    points: list[np.ndarray] = []
+    count = 0
+    for _ in range(4 * math.ceil(num_points / batch)):
+        origins, dirs, _ = obs.sample_rays(batch, generator)
+        result = model.render(origins, dirs)
+        new = points_from_rays(origins, dirs, result.depth, result.acc).cpu().numpy()
+        points.append(new)
+        count += len(new)
+        if count >= num_points:
+            break
+    return np.concatenate(points)[:num_points] if points else np.zeros((0, 3))
+
+
+class Evaluator:
+    """Holds the evaluation views' ground truth and computes a step's metrics (PROTOCOL 4)."""
+
+    def __init__(
+        self, scene: Scene, renderer: GroundTruthRenderer, cfg: DictConfig, device: torch.device, lpips: LpipsMetric
+    ):
+        self.scene, self.cfg, self.device, self.lpips = scene, cfg, device, lpips
+        size = int(cfg.budget.eval_size)
+        self.intrinsics = Intrinsics.from_fov(size, size)
+        self.gt = np.stack([renderer.render(c2w, self.intrinsics).rgb for c2w in scene.eval_poses])
+        self.patch = max(1, size // PATCHES_PER_SIDE)
+
+    def evaluate(self, model: SceneModel, scorer, views: list[GTView], obs: Observations, step: int) -> tuple[dict, dict]:
+        """Metrics of ``model`` after training on ``views`` (step ``step``), and images of view 0."""
+        cfg, scene = self.cfg, self.scene
+        renders = [render_view(model, scorer, c2w.to(self.device), self.intrinsics) for c2w in scene.eval_poses]
+        pred = np.stack([r["rgb"] for r in renders]).clip(0.0, 1.0)
+        images = image_metrics(pred, self.gt, self.lpips)
+        seed = int(cfg.seed)
+        points = reconstruct_points(
+            model, obs, int(cfg.budget.recon_points), int(cfg.budget.recon_batch),
+            seeded_generator(seed, step, "recon_points", self.device),
+        )  # fmt: skip
+        geometry = geometry_metrics(
+            points, scene.mesh, scene.cr_threshold,
+            seed=int(seeded_generator(seed, step, "gt_points").initial_seed() % 2**32),
+            num_gt_samples=int(cfg.budget.gt_points),
+        )  # fmt: skip
+        num_faces = len(scene.mesh.faces)
+        seen = np.zeros(num_faces, dtype=bool)
+        for view in views:
+            seen |= seen_faces(view.face_id, num_faces)
+        coverage = visual_coverage(seen, scene.mesh)
+        nan = math.nan
+        corr = (nan, nan)
+        if scorer is not None:
+            c = uncertainty_correlation(pred, self.gt, np.stack([r["score"] for r in renders]), self.patch)
+            corr = (c.patch_pearson, c.view_pearson)
+        metrics = {
+            "psnr": images.psnr, "ssim": images.ssim, "lpips": images.lpips, "rgb": images.rgb,
+            "acc": geometry.acc, "comp": geometry.comp, "cr": geometry.cr, "vis": coverage.vis,
+            "vis_area": coverage.vis_area, "num_points": geometry.num_points,
+            "patch_pearson": corr[0], "view_pearson": corr[1],
+        }  # fmt: skip
+        first = renders[0]
+        return metrics, {"gt": self.gt[0], "pred": pred[0], "score": first["score"], "depth": first["depth"]}

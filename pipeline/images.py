@@ -1,0 +1,34 @@
+"""Per-step images of a run: GT | prediction | score map | depth of evaluation view 0, as PNGs."""
+
+from pathlib import Path
+
+import imageio.v3 as iio
+import matplotlib
+import numpy as np
+from jaxtyping import Float
+
+
+def to_uint8(image: Float[np.ndarray, "H W 3"]) -> np.ndarray:
+    return (np.nan_to_num(image).clip(0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+
+def colorize(values: Float[np.ndarray, "H W"], cmap: str) -> np.ndarray:
+    """A scalar map in a matplotlib colour map, scaled to its own finite range (NaN: black)."""
+    finite = np.isfinite(values)
+    out = np.zeros((*values.shape, 3))
+    if finite.any():
+        lo, hi = values[finite].min(), values[finite].max()
+        scaled = (values - lo) / (hi - lo) if hi > lo else np.zeros_like(values)
+        out = matplotlib.colormaps[cmap](np.where(finite, scaled, 0.0))[..., :3]
+        out[~finite] = 0.0
+    return out
+
+
+def save_step_images(directory: Path, step: int, images: dict[str, np.ndarray]) -> None:
+    """Write ``step_XX_{gt,pred,score,depth}.png`` (maps colourised) under ``directory``."""
+    directory.mkdir(parents=True, exist_ok=True)
+    for name, image in images.items():
+        rgb = image if image.ndim == 3 else colorize(image, "magma" if name == "score" else "viridis")
+        tmp = directory / f".step_{step:02d}_{name}.png.tmp"
+        iio.imwrite(tmp, to_uint8(rgb), extension=".png")
+        tmp.replace(directory / f"step_{step:02d}_{name}.png")
