@@ -1,0 +1,257 @@
+"""Occupancy grid and ray marching, a pure-torch nerfacc ``OccGridEstimator`` (METHOD.md section 4, M5, M6).
+
+One level only: the grid covers the object AABB. nerfacc's coarser levels (the AABB scaled by
+``2^l``) never become occupied where a point would be looked up in them, because the field has
+``sigma = 0`` outside the AABB, so marching is unchanged. The one difference is that nerfacc's
+``mean(occ)`` (occupancy threshold of M5, alpha-skipping threshold) averages over all four levels;
+here it averages over level 0.
+
+Cells are indexed ``(ix * res + iy) * res + iz`` (x-major) over the AABB ``[lo, hi]``.
+"""
+
+import math
+from collections.abc import Callable
+
+import torch
+from jaxtyping import Float, Int
+from torch import Tensor, nn
+
+from nvf.config import SamplerConfig
+from nvf.rendering import Samples
+
+# Marching and grid updates handle at most this many steps / probe points at once (memory bound).
+_STEP_BUDGET = 1 << 21
+_PROBE_CHUNK = 1 << 18
+
+
+def ray_aabb(
+    origins: Float[Tensor, "R 3"], dirs: Float[Tensor, "R 3"], lo: Float[Tensor, "3"], hi: Float[Tensor, "3"]
+) -> tuple[Float[Tensor, " R"], Float[Tensor, " R"]]:
+    """Entry and exit ``t`` of each ray through the box ``[lo, hi]`` (slab test); exit < entry on a miss."""
+    tiny = torch.where(dirs >= 0, 1e-12, -1e-12)
+    inv = 1.0 / torch.where(dirs.abs() > 1e-12, dirs, tiny)
+    t1, t2 = (lo - origins) * inv, (hi - origins) * inv
+    return torch.minimum(t1, t2).amax(-1), torch.maximum(t1, t2).amin(-1)
+
+
+class OccupancyGrid(nn.Module):
+    """Binary occupancy over the object AABB with the M5 update and the M6 marcher.
+
+    Buffers: ``occ`` (float ``[res^3]``, the running ``sigma * step_size`` maxima) and ``occupied``
+    (bool ``[res^3]``). Both start at zero / empty, as in nerfacc: nothing is marched before the
+    first :meth:`update`.
+    """
+
+    def __init__(self, aabb: Float[Tensor, "2 3"], cfg: SamplerConfig):
+        super().__init__()
+        self.cfg = cfg
+        self.resolution = cfg.grid_resolution
+        cells = self.resolution**3
+        self.register_buffer("aabb", aabb.detach().clone().to(torch.float32))
+        self.register_buffer("occ", torch.zeros(cells, device=aabb.device))
+        self.register_buffer("occupied", torch.zeros(cells, dtype=torch.bool, device=aabb.device))
+
+    @property
+    def mean_occupancy(self) -> float:
+        """``mean(occ)``: enters the M5 threshold and the alpha-skipping threshold (section 4)."""
+        return float(self.occ.mean())
+
+    @property
+    def cell_size(self) -> Float[Tensor, "3"]:
+        return (self.aabb[1] - self.aabb[0]) / self.resolution
+
+    def cell_centers(self) -> Float[Tensor, "N 3"]:
+        """World positions of all cell centres, in cell-index order."""
+        return self._cell_points(torch.arange(self.resolution**3, device=self.occ.device), 0.5)
+
+    def _cell_points(self, idx: Int[Tensor, " N"], offset: Float[Tensor, "N 3"] | float) -> Float[Tensor, "N 3"]:
+        res = self.resolution
+        coords = torch.stack([idx // (res * res), (idx // res) % res, idx % res], dim=-1).to(torch.float32)
+        return self.aabb[0] + (coords + offset) * self.cell_size
+
+    @torch.no_grad()
+    def update(
+        self, iteration: int, density_fn: Callable[[Tensor], Tensor], generator: torch.Generator | None = None
+    ) -> None:
+        """(M5) Refresh the grid; a no-op unless ``iteration % cfg.update_every == 0`` (nerfacc's
+        ``update_every_n_steps``), so call it at every training iteration.
+
+        Evaluates every cell while ``iteration < warmup_iters``, afterwards ``cells/4`` uniformly drawn
+        cells plus ``cells/4`` drawn among the occupied ones (all of them if fewer). Each evaluated cell
+        is probed at one uniform random point: ``occ <- max(decay * occ, sigma(x) * step_size)``, then
+        ``occupied = occ > min(mean(occ), occ_threshold)``. ``density_fn``: ``[N,3] -> sigma [N]``.
+        """
+        cfg = self.cfg
+        if iteration % cfg.update_every != 0:
+            return
+        device = self.occ.device
+        cells = self.occ.shape[0]
+        if iteration < cfg.warmup_iters:
+            idx = torch.arange(cells, device=device)
+        else:
+            quarter = cells // 4
+            uniform = torch.randint(cells, (quarter,), generator=generator, device=device)
+            occupied = torch.nonzero(self.occupied)[:, 0]
+            if quarter < occupied.shape[0]:
+                pick = torch.randint(occupied.shape[0], (quarter,), generator=generator, device=device)
+                occupied = occupied[pick]
+            idx = torch.cat([uniform, occupied])
+        offsets = torch.rand((idx.shape[0], 3), generator=generator, device=device)
+        sigma = torch.cat(
+            [
+                density_fn(self._cell_points(idx[i : i + _PROBE_CHUNK], offsets[i : i + _PROBE_CHUNK])).reshape(-1)
+                for i in range(0, idx.shape[0], _PROBE_CHUNK)
+            ]
+        )
+        values = torch.maximum(self.occ[idx] * cfg.occ_decay, sigma.to(self.occ.dtype) * cfg.step_size)
+        # amax over duplicate draws of one cell: deterministic, decay applied once per update.
+        self.occ.scatter_reduce_(0, idx, values, reduce="amax", include_self=False)
+        threshold = torch.clamp(self.occ.mean(), max=cfg.occ_threshold)
+        self.occupied.copy_(self.occ > threshold)
+
+    def _occupied_box(self) -> tuple[Float[Tensor, "3"], Float[Tensor, "3"]] | None:
+        """World bounds of the occupied cells (None if no cell is occupied)."""
+        res = self.resolution
+        grid = self.occupied.view(res, res, res)
+        bounds = []
+        for axes in ((1, 2), (0, 2), (0, 1)):
+            nz = torch.nonzero(grid.any(dim=axes[1]).any(dim=axes[0]))[:, 0]
+            if nz.shape[0] == 0:
+                return None
+            bounds.append((nz[0], nz[-1] + 1))
+        first = torch.stack([b[0] for b in bounds]).to(torch.float32)
+        last = torch.stack([b[1] for b in bounds]).to(torch.float32)
+        lo = self.aabb[0]
+        return lo + first * self.cell_size, lo + last * self.cell_size
+
+    def _t_of_k(
+        self, k: Float[Tensor, " N"], t0: Float[Tensor, " N"], k1: Float[Tensor, " N"], t1: Float[Tensor, " N"]
+    ) -> Float[Tensor, " N"]:
+        """(M6) Knot ``t_k`` of the step grid ``t_{k+1} = t_k + max(step, cone * t_k)`` from ``t_0``.
+
+        Closed form: ``t_0 + k step`` up to the knot ``k1`` (the first with ``t >= step / cone``, at
+        ``t1``), then geometric ``t1 (1 + cone)^(k - k1)``.
+        """
+        linear = t0 + k * self.cfg.step_size
+        if self.cfg.cone_angle <= 0:
+            return linear
+        return torch.where(k <= k1, linear, t1 * torch.exp((k - k1) * math.log1p(self.cfg.cone_angle)))
+
+    def _k_of_t(
+        self, t: Float[Tensor, " R"], t0: Float[Tensor, " R"], k1: Float[Tensor, " R"], t1: Float[Tensor, " R"]
+    ) -> Float[Tensor, " R"]:
+        """Index of the step containing ``t`` (inverse of :meth:`_t_of_k`, up to rounding), ``>= 0``."""
+        step, cone = self.cfg.step_size, self.cfg.cone_angle
+        k = torch.floor((t - t0) / step)
+        if cone > 0:
+            geometric = k1 + torch.floor(torch.log(torch.clamp(t / t1, min=1.0)) / math.log1p(cone))
+            k = torch.where(t < t1, k, geometric)
+        return torch.clamp(k, min=0.0)
+
+    @torch.no_grad()
+    def march(
+        self,
+        origins: Float[Tensor, "R 3"],
+        dirs: Float[Tensor, "R 3"],
+        jitter: bool,
+        generator: torch.Generator | None = None,
+    ) -> Samples:
+        """(M6) Packed samples of the rays ``o + t d`` (unit ``d``) through occupied cells.
+
+        Each ray is clipped to the AABB and to ``[near, far]`` giving ``[t_min, t_max]``, and stepped
+        from ``t_0 = t_min`` (plus ``U[0, step_size)`` when ``jitter``, nerfacc's stratified offset) by
+        ``dt(t) = max(step_size, cone_angle * t)``. Step ``[t_k, t_{k+1}]`` (with ``t_{k+1} <= t_max``)
+        is a sample if its midpoint lies in an occupied cell; at most ``max_samples_per_ray`` (the
+        first ones) per ray. Only steps near the bounding box of the occupied cells are generated;
+        rays are processed in chunks of at most ``2^21`` steps. Deterministic unless ``jitter``.
+        """
+        cfg = self.cfg
+        device = origins.device
+        n_rays = origins.shape[0]
+        empty = Samples(
+            torch.zeros(0, dtype=torch.long, device=device),
+            torch.zeros(0, device=device),
+            torch.zeros(0, device=device),
+            n_rays,
+        )
+        box = self._occupied_box()
+        if box is None or n_rays == 0:
+            return empty
+        origins, dirs = origins.detach().to(torch.float32), dirs.detach().to(torch.float32)
+        t_min, t_max = ray_aabb(origins, dirs, self.aabb[0], self.aabb[1])
+        t_min = torch.clamp(t_min, min=cfg.near)
+        t_max = torch.clamp(t_max, max=cfg.far)
+        t0 = t_min
+        if jitter:
+            t0 = t0 + torch.rand(n_rays, generator=generator, device=device) * cfg.step_size
+        if cfg.cone_angle > 0:
+            k1 = torch.clamp(torch.ceil((cfg.step_size / cfg.cone_angle - t0) / cfg.step_size), min=0.0)
+        else:
+            k1 = torch.zeros_like(t0)
+        t1 = t0 + k1 * cfg.step_size
+        # Steps whose midpoint can be occupied lie in [s_min, s_max]; one step of margin for rounding.
+        s_min, s_max = ray_aabb(origins, dirs, box[0], box[1])
+        s_min, s_max = torch.maximum(s_min, t0), torch.minimum(s_max, t_max)
+        k_lo = torch.clamp(self._k_of_t(s_min, t0, k1, t1) - 1.0, min=0.0)
+        k_hi = self._k_of_t(s_max, t0, k1, t1) + 2.0
+        # Knots k_lo .. k_hi per ray: the steps are consecutive knot pairs of one ray.
+        knots = torch.where(s_max > s_min, k_hi - k_lo + 1.0, 0.0).long()
+        res = self.resolution
+        inv_cell = 1.0 / self.cell_size
+        params = torch.cat(
+            [
+                (origins - self.aabb[0]) * inv_cell,  # origin in cell units
+                dirs * inv_cell,  # direction in cell units
+                torch.stack([t0, k1, t1, t_max, k_lo], dim=-1),
+            ],
+            dim=-1,
+        )
+        ends = torch.cumsum(knots, 0)
+        total = int(ends[-1])
+        bounds = [0]
+        if total > _STEP_BUDGET:
+            split_at = torch.arange(_STEP_BUDGET, total, _STEP_BUDGET, device=device)
+            bounds += torch.searchsorted(ends, split_at, right=True).tolist()
+        bounds.append(n_rays)
+        ray_chunks, start_chunks, end_chunks = [], [], []
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            if b <= a:
+                continue
+            count = knots[a:b]
+            n = int(count.sum())
+            if n == 0:
+                continue
+            ray = torch.repeat_interleave(torch.arange(a, b, device=device), count, output_size=n)
+            first = torch.cumsum(count, 0) - count
+            local = torch.arange(n, device=device) - first.repeat_interleave(count, output_size=n)
+            p = params[ray]
+            k = p[:, 10] + local.to(torch.float32)
+            t = self._t_of_k(k, p[:, 6], p[:, 7], p[:, 8])
+            # Step i = [t_i, t_{i+1}], valid unless knot i is its ray's last one.
+            t_next = torch.cat([t[1:], t[-1:]])
+            not_last = torch.ones(n, dtype=torch.bool, device=device)
+            not_last[torch.cumsum(count, 0)[count > 0] - 1] = False
+            mid = 0.5 * (t + t_next)
+            cell = torch.floor(p[:, 0:3] + mid[:, None] * p[:, 3:6]).long()
+            inside = ((cell >= 0) & (cell < res)).all(-1)
+            cell = cell.clamp_(0, res - 1)
+            flat = (cell[:, 0] * res + cell[:, 1]) * res + cell[:, 2]
+            keep = self.occupied[flat] & inside & not_last & (t_next <= p[:, 9])
+            sel = torch.nonzero(keep)[:, 0]
+            ray_chunks.append(ray[sel])
+            start_chunks.append(t[sel])
+            end_chunks.append(t_next[sel])
+        if not ray_chunks:
+            return empty
+        samples = Samples(torch.cat(ray_chunks), torch.cat(start_chunks), torch.cat(end_chunks), n_rays)
+        return self._cap(samples)
+
+    def _cap(self, samples: Samples) -> Samples:
+        """Keep the first ``max_samples_per_ray`` samples of each ray."""
+        limit = self.cfg.max_samples_per_ray
+        counts = torch.bincount(samples.ray_idx, minlength=samples.n_rays)
+        if samples.num_samples == 0 or int(counts.max()) <= limit:
+            return samples
+        first = torch.cumsum(counts, 0) - counts
+        rank = torch.arange(samples.num_samples, device=counts.device) - first[samples.ray_idx]
+        return samples.select(rank < limit)

@@ -1,0 +1,398 @@
+"""Candidate poses, filters, view scoring, argmax selection and -OPT refinement (METHOD.md 12-14).
+
+Pose vectors are ``[qx, qy, qz, qw, x, y, z]`` (nvf.cameras). The model is anything following the
+``SceneModel`` contract (``.aabb``, ``.field.density(x) -> (sigma, geo)``, ``.render(origins, dirs,
+heads, train, generator, sampler)``); the scorer follows the ``ViewScorer`` protocol (``.heads``,
+``.sampler``, ``.pixel_scores(result, pixel_index)``). ``scorer=None`` is the Random method (M12).
+
+Randomness (PROTOCOL.md 3): every draw uses a generator from a ``GeneratorFactory``, a callable that
+maps a purpose string to a fresh generator seeded from ``(run seed, step, purpose)``; see
+``generator_factory``. Purposes used here: ``"candidates"`` (pose draws and the M29 jitter),
+``"random_pick"`` (Random) and ``"opt_rays/<iteration>"`` (-OPT ray subsets).
+"""
+
+import functools
+import hashlib
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import torch
+from jaxtyping import Bool, Float, Int
+from torch import Tensor, nn
+
+from nvf.cameras import (
+    Intrinsics,
+    camera_directions,
+    matrix_to_pose,
+    pose_to_matrix,
+    rays_from_camera_dirs,
+    se3_update,
+)
+from nvf.config import OptConfig, PlannerConfig
+
+GeneratorFactory = Callable[[str], torch.Generator]
+
+_QUAT_EPS = 1e-9  # METHOD 13 step 2
+_POINT_CHUNK = 1 << 16  # density queries per field call in the M29 line-of-sight test
+
+
+class NoCandidatesError(RuntimeError):
+    """Every candidate pose was rejected by a filter (METHOD 13: an error of the step)."""
+
+
+def seeded_generator(seed: int, step: int, purpose: str, device: torch.device | str = "cpu") -> torch.Generator:
+    """Generator seeded from ``(seed, step, purpose)`` via SHA-256 (stable across processes)."""
+    digest = hashlib.sha256(f"{seed}/{step}/{purpose}".encode()).digest()
+    generator = torch.Generator(device=device)
+    generator.manual_seed(int.from_bytes(digest[:8], "little") & ((1 << 63) - 1))
+    return generator
+
+
+def generator_factory(seed: int, step: int, device: torch.device | str = "cpu") -> GeneratorFactory:
+    """``purpose -> seeded_generator(seed, step, purpose, device)`` for one planning step."""
+    return functools.partial(seeded_generator, seed, step, device=device)
+
+
+# ----------------------------------------------------------------------------------------------
+# Candidates and filters (METHOD 13, M28, M29)
+# ----------------------------------------------------------------------------------------------
+
+
+def sample_poses(n: int, camera_box: Float[Tensor, "2 3"], generator: torch.Generator) -> Float[Tensor, "n 7"]:
+    """``n`` random poses: positions uniform in ``camera_box`` (rows min, max), orientations a
+    normalised 4-D standard normal read as ``[qx,qy,qz,qw]``; no look-at (METHOD 13, D10).
+
+    Positions are drawn first, then quaternions, on the generator's device; the result lives on
+    ``camera_box``'s device.
+    """
+    gdev = generator.device
+    lo, hi = camera_box[0].to(gdev), camera_box[1].to(gdev)
+    positions = lo + (hi - lo) * torch.rand(n, 3, generator=generator, device=gdev)
+    quats = torch.randn(n, 4, generator=generator, device=gdev)
+    quats = quats / torch.linalg.norm(quats, dim=-1, keepdim=True)
+    return torch.cat([quats, positions], dim=-1).to(camera_box.device)
+
+
+def valid_pose_mask(poses: Float[Tensor, "n 7"]) -> Bool[Tensor, "n"]:
+    """Quaternion filter (METHOD 13 step 2): quaternion norm > 1e-9 and no NaN in the pose."""
+    return (torch.linalg.norm(poses[:, :4], dim=-1) > _QUAT_EPS) & ~poses.isnan().any(dim=-1)
+
+
+@torch.no_grad()
+def density_mask(model: nn.Module, positions: Float[Tensor, "n 3"], tau: float) -> Bool[Tensor, "n"]:
+    """(M28) Keep a camera centre if ``sigma(x) < tau``; the field returns 0 outside the AABB."""
+    sigma, _ = model.field.density(positions)
+    return sigma < tau
+
+
+@torch.no_grad()
+def line_of_sight_transmittance(
+    density_fn: Callable[[Tensor], tuple[Tensor, Tensor]],
+    origin: Float[Tensor, "3"],
+    targets: Float[Tensor, "n 3"],
+    num_samples: int,
+    generator: torch.Generator,
+) -> Float[Tensor, "n"]:
+    """(M17 as used by M29) Transmittance from ``origin`` to each target.
+
+    ``K = num_samples`` stratified samples on ``[0, L]`` (``L = |target - origin|``, ``delta = L/K``),
+    sample ``k`` jittered uniformly inside its interval; ``T = exp(-sum_{k<K-1} sigma(y_k) delta)``,
+    the last interval (ending at the target) excluded. ``density_fn`` is ``field.density``:
+    ``[S,3] -> (sigma [S], geo)``, 0 outside the AABB.
+    """
+    gdev = generator.device
+    seg = targets - origin  # [n,3]
+    delta = torch.linalg.norm(seg, dim=-1) / num_samples  # [n]
+    optical = torch.zeros_like(delta)
+    per_chunk = max(1, _POINT_CHUNK // num_samples)
+    for start in range(0, targets.shape[0], per_chunk):
+        stop = min(start + per_chunk, targets.shape[0])
+        jitter = torch.rand(stop - start, num_samples - 1, generator=generator, device=gdev).to(targets)
+        frac = (torch.arange(num_samples - 1, device=targets.device, dtype=targets.dtype) + jitter) / num_samples
+        points = origin + frac[..., None] * seg[start:stop, None, :]  # [c, K-1, 3]
+        sigma = density_fn(points.reshape(-1, 3))[0].reshape(stop - start, num_samples - 1)
+        optical[start:stop] = sigma.sum(dim=-1) * delta[start:stop]
+    return torch.exp(-optical)
+
+
+def candidate_poses(
+    model: nn.Module,
+    cfg: PlannerConfig,
+    camera_box: Float[Tensor, "2 3"],
+    current_pose: Float[Tensor, "7"] | None,
+    tau: float,
+    collision_free: bool,
+    generator: torch.Generator,
+    apply_filters: bool = True,
+) -> Float[Tensor, "m 7"]:
+    """Candidate poses of one planning step (METHOD 13), ``m <= cfg.num_candidates``.
+
+    Base sampler: draw ``floor(cfg.oversample * N)`` poses; collision-free sampler: draw ``3N``.
+    Always drop invalid quaternions; with ``apply_filters`` also apply the density filter (M28,
+    threshold ``tau``) and, if ``collision_free``, the line-of-sight filter from ``current_pose``'s
+    centre (M29, ``cfg.los_samples`` samples, ``T > cfg.los_threshold``). Keep the first
+    ``min(N, count)``. Raises ``NoCandidatesError`` when a filter leaves nothing.
+    """
+    n = cfg.num_candidates
+    drawn = 3 * n if collision_free else math.floor(cfg.oversample * n)
+    poses = sample_poses(drawn, camera_box, generator).to(model.aabb.device)
+    stages: list[tuple[str, Callable[[Tensor], Tensor]]] = [("quaternion filter", valid_pose_mask)]
+    if apply_filters:
+        stages.append((f"density filter M28 (tau={tau:g})", lambda p: density_mask(model, p[:, 4:], tau)))
+        if collision_free:
+            if current_pose is None:
+                raise ValueError("the collision-free sampler (M29) needs the current pose")
+            origin = current_pose[4:].to(poses)
+
+            def los(p: Tensor) -> Tensor:
+                trans = line_of_sight_transmittance(model.field.density, origin, p[:, 4:], cfg.los_samples, generator)
+                return trans > cfg.los_threshold
+
+            stages.append((f"line-of-sight filter M29 (T > {cfg.los_threshold:g})", los))
+    for name, keep in stages:
+        before = poses.shape[0]
+        poses = poses[keep(poses)]
+        if poses.shape[0] == 0:
+            raise NoCandidatesError(f"no candidate poses left: the {name} rejected all {before} of {drawn} drawn poses")
+    return poses[:n]
+
+
+# ----------------------------------------------------------------------------------------------
+# Scoring and selection (M16, METHOD 13)
+# ----------------------------------------------------------------------------------------------
+
+
+def _check_finite(scores: Tensor, what: str) -> None:
+    bad = (~torch.isfinite(scores)).nonzero().flatten()
+    if bad.numel() > 0:
+        raise FloatingPointError(f"non-finite view score for {what} {bad.tolist()[:8]} (scorer bug)")
+
+
+@torch.no_grad()
+def score_poses(
+    model: nn.Module,
+    scorer,
+    poses: Float[Tensor, "m 7"],
+    intrinsics: Intrinsics,
+    chunk_rays: int,
+) -> Float[Tensor, "m"]:
+    """(M16) View reward ``R(p)`` of each pose: mean of ``scorer.pixel_scores`` over the full image.
+
+    Each pose's rays are rendered in row-major chunks of ``chunk_rays`` (use a multiple of the
+    scorer's depth chunk, 4096, for ``depth_mode=chunk``) with ``scorer.heads`` and
+    ``scorer.sampler``; ``pixel_index`` (row-major id) is always passed. float64; raises
+    ``FloatingPointError`` on a non-finite score.
+    """
+    cam_dirs = camera_directions(intrinsics, poses.device)
+    num_pixels = cam_dirs.shape[0]
+    scores = torch.zeros(poses.shape[0], dtype=torch.float64, device=poses.device)
+    for i, c2w in enumerate(pose_to_matrix(poses)):
+        origins, dirs = rays_from_camera_dirs(c2w, cam_dirs)
+        for start in range(0, num_pixels, chunk_rays):
+            index = torch.arange(start, min(start + chunk_rays, num_pixels), device=poses.device)
+            result = model.render(origins[index], dirs[index], heads=scorer.heads, train=False, sampler=scorer.sampler)
+            scores[i] += scorer.pixel_scores(result, pixel_index=index).to(torch.float64).sum()
+    scores = scores / num_pixels
+    _check_finite(scores, "pose")
+    return scores
+
+
+@dataclass
+class ScoreSummary:
+    """Statistics of the candidates' view rewards (population std)."""
+
+    count: int
+    min: float
+    mean: float
+    max: float
+    std: float
+
+    @staticmethod
+    def of(scores: Float[Tensor, "m"]) -> "ScoreSummary":
+        s = scores.to(torch.float64)
+        return ScoreSummary(
+            s.numel(), s.min().item(), s.mean().item(), s.max().item(), s.std(correction=0).item()
+        )
+
+
+@dataclass
+class OptTrace:
+    """What -OPT did (METHOD 14): the top-k candidates and the refined poses, re-scored."""
+
+    original_indices: Int[Tensor, "k"]  # candidate indices of the top-k, best first
+    original_scores: Float[Tensor, "k"]  # their full-image scores (re-scored)
+    refined_poses: Float[Tensor, "j 7"]  # refined poses without NaN
+    refined_from: Int[Tensor, "j"]  # candidate index each refined pose started from
+    refined_scores: Float[Tensor, "j"]  # their full-image scores
+
+
+@dataclass
+class Selection:
+    """The chosen next view. ``index`` is the candidate it is (or, for -OPT, was refined from)."""
+
+    pose: Float[Tensor, "7"]
+    index: int
+    score: float | None  # full-image R(p); None for Random
+    num_candidates: int
+    candidate_scores: ScoreSummary | None  # None for Random
+    refined: bool = False  # -OPT: the pose is a refined one
+    opt: OptTrace | None = None
+
+
+def argmax_first(scores: Float[Tensor, "m"]) -> int:
+    """Index of the maximum; ties go to the lowest index (METHOD 13)."""
+    return int((scores == scores.max()).nonzero()[0, 0])
+
+
+def top_k_first(scores: Float[Tensor, "m"], k: int) -> Int[Tensor, "k2"]:
+    """Indices of the ``min(k, m)`` best scores, best first; ties keep the lower index first."""
+    return torch.sort(scores, descending=True, stable=True).indices[: min(k, scores.shape[0])]
+
+
+# ----------------------------------------------------------------------------------------------
+# -OPT (METHOD 14, supplement Alg. S2)
+# ----------------------------------------------------------------------------------------------
+
+
+def ray_subset(
+    num_pixels: int, chunk_rays: int, fraction: float, generator: torch.Generator
+) -> Int[Tensor, "n"]:
+    """Sorted row-major pixel ids: a random ``floor(fraction * n)`` of each ``chunk_rays`` chunk
+    of ``n`` pixels (METHOD 14; 8,987 of a 300x300 image at 10 %). On the generator's device."""
+    parts = []
+    for start in range(0, num_pixels, chunk_rays):
+        n = min(chunk_rays, num_pixels - start)
+        pick = torch.randperm(n, generator=generator, device=generator.device)[: math.floor(fraction * n)]
+        parts.append(start + pick.sort().values)
+    return torch.cat(parts)
+
+
+def refine_poses(
+    model: nn.Module,
+    scorer,
+    poses: Float[Tensor, "k 7"],
+    camera_box: Float[Tensor, "2 3"],
+    intrinsics: Intrinsics,
+    opt: OptConfig,
+    generators: GeneratorFactory,
+) -> tuple[Float[Tensor, "j 7"], Int[Tensor, "j"]]:
+    """-OPT gradient refinement (METHOD 14, Alg. S2) of the ``k`` starting poses.
+
+    One Adam (``opt.lr``) for ``opt.iters`` iterations over all poses. Iteration ``i`` renders,
+    per pose, the ``ray_subset`` (``opt.ray_fraction`` of each ``opt.chunk_rays`` chunk) drawn from
+    ``generators(f"opt_rays/{i}")``, with rays that depend differentiably on the pose, and minimises
+    ``-sum_poses mean_rays pixel_scores``. Gradients reach the field through the sample positions
+    and view directions; only the pose parameters are stepped (model ``.grad`` is left untouched).
+
+    Parameterisations (``opt.param``):
+    - ``quat_raw``: the raw 7-vectors are the leaf; the rotation uses the un-normalised quaternion;
+      after each step quaternions are renormalised and positions clipped to ``camera_box``.
+    - ``se3``: 6 parameters per pose, ``xi = [rho, phi]``, applied left-multiplicatively,
+      ``c2w = se3_exp(xi) @ c2w_base`` (nvf.cameras.se3_update). After each step the update is
+      folded into the base pose (position clipped to ``camera_box``, rotation re-orthonormalised
+      through its quaternion) and ``xi`` is reset to 0; Adam's moments carry over.
+
+    Returns the refined poses without rows containing NaN and the input row each came from.
+    """
+    if opt.param not in ("quat_raw", "se3"):
+        raise ValueError(f"unknown -OPT parameterisation {opt.param!r} (quat_raw | se3)")
+    box = camera_box.to(poses)
+    cam_dirs = camera_directions(intrinsics, poses.device)
+    if opt.param == "quat_raw":
+        leaf = poses.detach().clone().requires_grad_(True)
+    else:
+        base = poses.detach().clone()
+        leaf = torch.zeros(poses.shape[0], 6, dtype=poses.dtype, device=poses.device, requires_grad=True)
+    optimiser = torch.optim.Adam([leaf], lr=opt.lr)
+
+    def c2w_of(i: int) -> Tensor:
+        if opt.param == "quat_raw":
+            return pose_to_matrix(leaf[i])
+        return se3_update(pose_to_matrix(base[i]), leaf[i])
+
+    for iteration in range(opt.iters):
+        generator = generators(f"opt_rays/{iteration}")
+        grad = torch.zeros_like(leaf)
+        for i in range(poses.shape[0]):
+            index = ray_subset(cam_dirs.shape[0], opt.chunk_rays, opt.ray_fraction, generator).to(poses.device)
+            with torch.enable_grad():
+                origins, dirs = rays_from_camera_dirs(c2w_of(i), cam_dirs[index])
+                result = model.render(origins, dirs, heads=scorer.heads, train=False, sampler=scorer.sampler)
+                loss = -scorer.pixel_scores(result, pixel_index=index).mean()
+                if loss.requires_grad:
+                    (g,) = torch.autograd.grad(loss, [leaf], allow_unused=True)
+                    if g is not None:
+                        grad += g
+        leaf.grad = grad
+        optimiser.step()
+        with torch.no_grad():
+            if opt.param == "quat_raw":
+                leaf[:, :4] /= torch.linalg.norm(leaf[:, :4], dim=-1, keepdim=True)
+                leaf[:, 4:] = torch.minimum(torch.maximum(leaf[:, 4:], box[0]), box[1])
+            else:
+                moved = matrix_to_pose(se3_update(pose_to_matrix(base), leaf))
+                moved[:, 4:] = torch.minimum(torch.maximum(moved[:, 4:], box[0]), box[1])
+                base = moved
+                leaf.zero_()
+    refined = (leaf if opt.param == "quat_raw" else base).detach()
+    keep = ~refined.isnan().any(dim=-1)
+    return refined[keep], keep.nonzero().flatten()
+
+
+# ----------------------------------------------------------------------------------------------
+# One planning step
+# ----------------------------------------------------------------------------------------------
+
+
+def select_next_view(
+    model: nn.Module,
+    scorer,
+    cfg: PlannerConfig,
+    camera_box: Float[Tensor, "2 3"],
+    current_pose: Float[Tensor, "7"] | None,
+    intrinsics: Intrinsics,
+    tau: float,
+    collision_free: bool,
+    generators: GeneratorFactory,
+) -> Selection:
+    """Choose the next view (METHOD 12-14).
+
+    - ``scorer is None`` (Random, METHOD 12): candidates without the M28/M29 filters unless
+      ``cfg.random_filters``; one picked uniformly with ``generators("random_pick")``.
+    - ``cfg.name == "argmax"``: score every candidate on the full planning image (``intrinsics``,
+      chunks of ``cfg.score_chunk_rays``) and take the argmax, ties to the lowest index.
+    - ``cfg.name == "opt"``: refine the top ``cfg.opt.top_k`` (``refine_poses``), re-score the
+      original top-k followed by the refined poses on the full image and take the argmax (ties to
+      the earlier entry, i.e. an original over its refinement). The choice therefore never scores
+      below the best starting candidate. No filter re-check after refinement (METHOD 14.4).
+
+    ``tau`` and ``collision_free`` are the resolved scene values; ``current_pose`` is the most
+    recently observed pose (needed by the collision-free sampler).
+    """
+    filters = scorer is not None or cfg.random_filters
+    candidates = candidate_poses(
+        model, cfg, camera_box, current_pose, tau, collision_free, generators("candidates"), apply_filters=filters
+    )
+    m = candidates.shape[0]
+    if scorer is None:
+        g = generators("random_pick")
+        index = int(torch.randint(m, (1,), generator=g, device=g.device))
+        return Selection(candidates[index], index, None, m, None)
+    if cfg.name not in ("argmax", "opt"):
+        raise ValueError(f"unknown planner {cfg.name!r} (argmax | opt; Random is scorer=None)")
+    scores = score_poses(model, scorer, candidates, intrinsics, cfg.score_chunk_rays)
+    summary = ScoreSummary.of(scores)
+    if cfg.name == "argmax":
+        index = argmax_first(scores)
+        return Selection(candidates[index], index, scores[index].item(), m, summary)
+
+    top = top_k_first(scores, cfg.opt.top_k)
+    refined, kept = refine_poses(model, scorer, candidates[top], camera_box, intrinsics, cfg.opt, generators)
+    pool = torch.cat([candidates[top], refined])
+    pool_scores = score_poses(model, scorer, pool, intrinsics, cfg.score_chunk_rays)
+    best = argmax_first(pool_scores)
+    k = top.shape[0]
+    origin = top[best] if best < k else top[kept[best - k]]
+    trace = OptTrace(top, pool_scores[:k], refined, top[kept], pool_scores[k:])
+    return Selection(pool[best], int(origin), pool_scores[best].item(), m, summary, refined=best >= k, opt=trace)

@@ -1,0 +1,130 @@
+"""Ray entropy of the NVF mixture and its per-pixel correction (METHOD.md sections 7-8, M10-M15).
+
+Entropies are in nats. ``H_MIN`` (M11) is the floor: the entropy of the background Gaussian.
+"""
+
+import math
+
+import torch
+from jaxtyping import Float, Int
+from torch import Tensor
+
+from nvf.rendering import ray_sum
+from nvf.uncertainty.mixture import RayMixture
+
+LOG_2PIE = math.log(2.0 * math.pi * math.e)
+LOG_EPS = 1e-9  # M10: inside ln(pi) and ln(q)
+DEPTH_EPS = 1e-10  # M15
+
+
+def entropy_floor(var_bg: float) -> float:
+    """(M11) ``(3/2) ln(2 pi e) + (3/2) ln var_bg``: the background Gaussian's entropy."""
+    return 1.5 * LOG_2PIE + 1.5 * math.log(var_bg)
+
+
+H_MIN = entropy_floor(1e-4)  # M11: -9.558695 nats
+
+
+def mixture_entropy_upper_bound(mix: RayMixture, logdet_coeff: float = 0.5) -> Float[Tensor, "R"]:
+    """(M10) Packed component-wise bound
+    ``sum_k pi_k [-ln(pi_k + 1e-9) + (3/2) ln(2 pi e) + c sum_ch ln(q_k,ch + 1e-9)]``.
+
+    ``c = logdet_coeff`` (0.5: S7; 1.0: the reference, D1). A NaN bracket counts as 0.
+    """
+    bracket = (
+        -torch.log(mix.weights + LOG_EPS)
+        + 1.5 * LOG_2PIE
+        + logdet_coeff * torch.log(mix.variances + LOG_EPS).sum(-1)
+    )
+    bracket = torch.where(torch.isnan(bracket), 0.0, bracket)
+    return ray_sum(mix.weights * bracket, mix.ray_idx, mix.n_rays)
+
+
+def mixture_moment_matched_entropy(mix: RayMixture) -> Float[Tensor, "R"]:
+    """(M12) Packed "Loose" bound: entropy ``(3/2) ln(2 pi e) + (1/2) logdet Sigma`` of the
+    moment-matched Gaussian, ``Sigma = sum_k pi_k (diag q_k + (mu_k - mu_bar)(mu_k - mu_bar)^T)``
+    (full 3x3, float64)."""
+    weights = mix.weights.to(torch.float64)
+    means = mix.means.to(torch.float64)
+    mean = ray_sum(weights[:, None] * means, mix.ray_idx, mix.n_rays)
+    centred = means - mean[mix.ray_idx]
+    spread = torch.diag_embed(mix.variances.to(torch.float64)) + centred[:, :, None] * centred[:, None, :]
+    cov = ray_sum(weights[:, None, None] * spread, mix.ray_idx, mix.n_rays)
+    return (1.5 * LOG_2PIE + 0.5 * torch.linalg.slogdet(cov).logabsdet).to(mix.weights.dtype)
+
+
+def _packed(
+    weights: Float[Tensor, "R K"], means: Float[Tensor, "R K 3"], variances: Float[Tensor, "R K 3"]
+) -> RayMixture:
+    n_rays, n_comp = weights.shape
+    ray_idx = torch.arange(n_rays, device=weights.device).repeat_interleave(n_comp)
+    return RayMixture(weights.reshape(-1), means.reshape(-1, 3), variances.reshape(-1, 3), ray_idx, n_rays)
+
+
+def gmm_entropy_upper_bound(
+    weights: Float[Tensor, "R K"],
+    means: Float[Tensor, "R K 3"],
+    variances: Float[Tensor, "R K 3"],
+    logdet_coeff: float = 0.5,
+) -> Float[Tensor, "R"]:
+    """(M10) Upper bound on the entropy of ``R`` padded diagonal mixtures (means do not enter it)."""
+    return mixture_entropy_upper_bound(_packed(weights, means, variances), logdet_coeff)
+
+
+def moment_matched_entropy(
+    weights: Float[Tensor, "R K"], means: Float[Tensor, "R K 3"], variances: Float[Tensor, "R K 3"]
+) -> Float[Tensor, "R"]:
+    """(M12) Moment-matched Gaussian entropy of ``R`` padded diagonal mixtures."""
+    return mixture_moment_matched_entropy(_packed(weights, means, variances))
+
+
+def correlation_factor(depth: Float[Tensor, "R"], d0: float, corr: str) -> Float[Tensor, "R"]:
+    """(M13) ``1 - rho``: ``min(d/d0, 1)^2`` (quadratic) or ``1 - exp(-d/d0)`` (exp); 1 if ``d0 = 0``."""
+    if d0 < 0:
+        raise ValueError(f"d0 must be >= 0 (resolve auto/scene values first), got {d0}")
+    if d0 == 0:
+        return torch.ones_like(depth)
+    if corr == "quadratic":
+        return (depth / d0).clamp(max=1.0).square()
+    if corr == "exp":
+        return 1.0 - torch.exp(-depth / d0)
+    raise ValueError(f"unknown correlation {corr!r} (quadratic | exp)")
+
+
+def corrected_entropy(
+    entropy: Float[Tensor, "R"], depth: Float[Tensor, "R"], d0: float, corr: str, h_min: float = H_MIN
+) -> Float[Tensor, "R"]:
+    """(M13, M14) ``H' = max(H_min + (1 - rho)(H - H_min), H_min)``; ``d0 = 0``: ``max(H, H_min)``."""
+    corrected = h_min + correlation_factor(depth, d0, corr) * (entropy - h_min)
+    return corrected.clamp(min=h_min)
+
+
+def equivalent_depth(
+    eq_weights: Float[Tensor, "S"],
+    t_mid: Float[Tensor, "S"],
+    ray_idx: Int[Tensor, "S"],
+    n_rays: int,
+    depth_mode: str = "pixel",
+    pixel_index: Int[Tensor, "R"] | None = None,
+    chunk_rays: int = 4096,
+) -> Float[Tensor, "R"]:
+    """(M15) ``d = sum_i w_bar_i t_m,i / (sum_i w_bar_i + 1e-10)`` with the equivalent weights (M8).
+
+    ``depth_mode="pixel"``: per ray (0 for a ray without samples). ``"chunk"`` reproduces the
+    reference bug (D3): one weighted-mean depth shared by all rays whose row-major ``pixel_index``
+    falls in the same ``chunk_rays`` block (``pixel_index`` is required).
+    """
+    if depth_mode == "pixel":
+        group, n_groups = ray_idx, n_rays
+    elif depth_mode == "chunk":
+        if pixel_index is None:
+            raise ValueError("depth_mode='chunk' needs the rays' row-major pixel_index")
+        chunk = torch.div(pixel_index, chunk_rays, rounding_mode="floor")
+        n_groups = int(chunk.max()) + 1 if n_rays > 0 else 0
+        group = chunk[ray_idx]
+    else:
+        raise ValueError(f"unknown depth_mode {depth_mode!r} (pixel | chunk)")
+    total = ray_sum(eq_weights * t_mid, group, n_groups)
+    mass = ray_sum(eq_weights, group, n_groups)
+    depth = total / (mass + DEPTH_EPS)
+    return depth if depth_mode == "pixel" else depth[chunk]

@@ -1,0 +1,73 @@
+"""NVF's per-pixel view entropy ``H'`` (METHOD.md sections 5-8, M7-M15, ablations section 11)."""
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import torch
+from jaxtyping import Float, Int
+from torch import Tensor
+
+from nvf.config import EntropyConfig
+from nvf.uncertainty.entropy import (
+    corrected_entropy,
+    entropy_floor,
+    equivalent_depth,
+    mixture_entropy_upper_bound,
+    mixture_moment_matched_entropy,
+)
+from nvf.uncertainty.mixture import ray_mixture
+
+BOUNDS = ("huber", "moment_matched")
+CORRELATIONS = ("quadratic", "exp")
+DEPTH_MODES = ("pixel", "chunk")
+SAMPLERS = ("occupancy", "uniform")
+
+
+@dataclass(frozen=True)
+class NVFEntropyScorer:
+    """Per-ray ``alpha -> alpha_bar (M7) -> w_bar (M8) -> mixture (M9) -> H (M10 | M12) -> d (M15)
+    -> H' (M13, M14)``.
+
+    ``d0``: the resolved correlation length (``cfg.d0`` is not read here); 0 disables the
+    correction (Ind. Rays: ``H' = max(H, H_min)``). Rays without samples get exactly the floor
+    ``H_min`` (M11, from ``cfg.var_bg``).
+    """
+
+    cfg: EntropyConfig
+    d0: float
+    name: ClassVar[str] = "nvf"
+
+    def __post_init__(self) -> None:
+        for key, allowed in (("bound", BOUNDS), ("corr", CORRELATIONS), ("depth_mode", DEPTH_MODES), ("sampler", SAMPLERS)):
+            if getattr(self.cfg, key) not in allowed:
+                raise ValueError(f"nvf.entropy.{key}={getattr(self.cfg, key)!r} not in {allowed}")
+        if self.d0 < 0:
+            raise ValueError(f"d0 must be >= 0 (resolve auto/scene values first), got {self.d0}")
+
+    @property
+    def heads(self) -> frozenset[str]:
+        """rgb (the component means), plus variance and visibility unless ablated."""
+        optional = {"variance": self.cfg.use_variance, "visibility": self.cfg.use_visibility}
+        return frozenset({"rgb"} | {head for head, used in optional.items() if used})
+
+    @property
+    def sampler(self) -> str:
+        return self.cfg.sampler
+
+    def pixel_scores(self, result, pixel_index: Int[Tensor, "R"] | None = None) -> Float[Tensor, "R"]:
+        """``H' [R]`` of each rendered ray (nats)."""
+        cfg, samples = self.cfg, result.samples
+        mixture, eq_weights = ray_mixture(
+            result.alpha, result.rgb_s, result.variance, result.visibility, samples.ray_idx, samples.n_rays, cfg
+        )
+        if cfg.bound == "huber":
+            entropy = mixture_entropy_upper_bound(mixture, cfg.logdet_coeff)
+        else:
+            entropy = mixture_moment_matched_entropy(mixture)
+        depth = equivalent_depth(
+            eq_weights, samples.t_mid, samples.ray_idx, samples.n_rays, cfg.depth_mode, pixel_index, cfg.chunk_rays
+        )
+        floor = entropy_floor(cfg.var_bg)
+        scores = corrected_entropy(entropy, depth, self.d0, cfg.corr, floor)
+        empty = torch.bincount(samples.ray_idx, minlength=samples.n_rays) == 0
+        return torch.where(empty, floor, scores)

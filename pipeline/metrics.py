@@ -1,0 +1,325 @@
+"""Benchmark metrics (PROTOCOL.md 4): image quality, geometry, visual coverage, uncertainty quality.
+
+Images are ``[V, H, W, 3]`` floats (numpy or torch) and are clipped to ``[0, 1]`` first (4.1);
+points are ``[P, 3]`` in scene units; meshes are ``trimesh.Trimesh``. Every metric returns plain
+Python floats. ``METRICS`` lists names, display labels and the better direction for tables.
+"""
+
+import math
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from types import MappingProxyType
+
+import numpy as np
+import open3d as o3d
+import torch
+import torch.nn.functional as F
+import trimesh
+from jaxtyping import Bool, Float, Int
+from scipy.spatial import cKDTree
+from torch import Tensor
+
+from pipeline.lpips_weights import LpipsUnavailable, load_lpips_alex
+
+Array = np.ndarray | Tensor
+
+
+@dataclass(frozen=True)
+class MetricInfo:
+    """How a metric is shown in tables: ``label`` and whether higher values are better."""
+
+    name: str
+    label: str
+    higher_is_better: bool
+    paper: bool  # one of the paper's eight reported metrics
+
+    @property
+    def arrow(self) -> str:
+        return "↑" if self.higher_is_better else "↓"
+
+
+METRICS: Mapping[str, MetricInfo] = MappingProxyType(
+    {
+        m.name: m
+        for m in (
+            MetricInfo("psnr", "PSNR", True, True),
+            MetricInfo("ssim", "SSIM", True, True),
+            MetricInfo("lpips", "LPIPS", False, True),
+            MetricInfo("rgb", "RGB", False, True),
+            MetricInfo("acc", "Acc.", False, True),
+            MetricInfo("comp", "Comp.", False, True),
+            MetricInfo("cr", "C.R.", True, True),
+            MetricInfo("vis", "Vis.", True, True),
+            MetricInfo("vis_area", "Vis. (area)", True, False),
+            MetricInfo("patch_pearson", "Patch r", True, False),
+            MetricInfo("view_pearson", "View r", True, False),
+        )
+    }
+)
+
+
+def _tensor(x: Array) -> Tensor:
+    return x if isinstance(x, Tensor) else torch.from_numpy(np.asarray(x))
+
+
+def _numpy(x: Array) -> np.ndarray:
+    return x.detach().cpu().numpy() if isinstance(x, Tensor) else np.asarray(x)
+
+
+def _clipped(images: Float[Array, "V H W 3"]) -> Float[Tensor, "V 3 H W"]:
+    """Images as float64 ``[V, 3, H, W]`` clipped to [0, 1], on their own device."""
+    return _tensor(images).to(torch.float64).clamp(0.0, 1.0).permute(0, 3, 1, 2)
+
+
+# --- 4.1 image metrics -------------------------------------------------------------------------
+
+
+def rgb_mse(pred: Float[Array, "V H W 3"], gt: Float[Array, "V H W 3"]) -> float:
+    """RGB: MSE pooled over every value of the clipped stacks (4.1)."""
+    return (_clipped(pred) - _clipped(gt)).square().mean().item()
+
+
+def psnr_from_mse(mse: float) -> float:
+    """PSNR in dB of a pooled MSE for peak 1: ``10 log10(1 / mse)`` (4.1)."""
+    return 10.0 * math.log10(1.0 / mse) if mse > 0 else math.inf
+
+
+def psnr(pred: Float[Array, "V H W 3"], gt: Float[Array, "V H W 3"]) -> float:
+    """PSNR of the pooled MSE, not a mean of per-image PSNRs (4.1)."""
+    return psnr_from_mse(rgb_mse(pred, gt))
+
+
+def _gaussian_1d(size: int, sigma: float, like: Tensor) -> Tensor:
+    x = torch.arange(size, dtype=like.dtype, device=like.device) - (size - 1) / 2
+    g = torch.exp(-0.5 * (x / sigma) ** 2)
+    return g / g.sum()
+
+
+def ssim(
+    pred: Float[Array, "V H W 3"],
+    gt: Float[Array, "V H W 3"],
+    data_range: float | None = None,
+    window: int = 11,
+    sigma: float = 1.5,
+) -> float:
+    """Mean SSIM as torchmetrics computes it (4.1).
+
+    Gaussian ``window`` x ``window`` (sigma 1.5), K1 = 0.01, K2 = 0.03, population statistics,
+    per channel; the SSIM map keeps only pixels whose window lies inside the image (a 5-pixel
+    border is discarded); mean over pixels, channels and images. ``data_range=None`` uses
+    ``max(range(pred stack), range(gt stack))``.
+    """
+    x, y = _clipped(pred), _clipped(gt)
+    if min(x.shape[-2:]) < window:
+        raise ValueError(f"SSIM needs images of at least {window} x {window} pixels, got {tuple(x.shape[-2:])}")
+    if data_range is None:
+        data_range = max((x.max() - x.min()).item(), (y.max() - y.min()).item())
+    c1, c2 = (0.01 * data_range) ** 2, (0.03 * data_range) ** 2
+    g = _gaussian_1d(window, sigma, x)
+    kernel_h, kernel_w = g.view(1, 1, window, 1).expand(3, 1, -1, -1), g.view(1, 1, 1, window).expand(3, 1, -1, -1)
+    total, count = 0.0, 0
+    for a, b in zip(x, y):  # one image at a time bounds memory at 512 x 512
+        maps = torch.stack([a, b, a * a, b * b, a * b])  # [5, 3, H, W]
+        mu_a, mu_b, e_aa, e_bb, e_ab = F.conv2d(F.conv2d(maps, kernel_h, groups=3), kernel_w, groups=3)
+        var_a, var_b = (e_aa - mu_a**2).clamp_min(0.0), (e_bb - mu_b**2).clamp_min(0.0)
+        cov = e_ab - mu_a * mu_b
+        s = ((2 * mu_a * mu_b + c1) * (2 * cov + c2)) / ((mu_a**2 + mu_b**2 + c1) * (var_a + var_b + c2))
+        total += s.sum().item()
+        count += s.numel()
+    return total / count
+
+
+class LpipsMetric:
+    """LPIPS (AlexNet, v0.1), mean over images (4.1); holds the model or the reason it is missing.
+
+    ``sources`` as in ``pipeline.lpips_weights.load_lpips_alex`` (None: ``default_sources()``).
+    When no verified weights exist, ``missing`` holds the reason, a warning is issued once, and
+    every call returns NaN: LPIPS is never computed with random weights.
+    """
+
+    def __init__(self, sources: Sequence[str | Path] | None = None):
+        self.model, self.missing = None, None
+        try:
+            self.model = load_lpips_alex(sources)
+        except LpipsUnavailable as err:
+            self.missing = str(err)
+            warnings.warn(f"LPIPS will be reported as missing: {err}", stacklevel=2)
+
+    @torch.inference_mode()
+    def __call__(self, pred: Float[Array, "V H W 3"], gt: Float[Array, "V H W 3"]) -> float:
+        if self.model is None:
+            return math.nan
+        x, y = _clipped(pred), _clipped(gt)
+        model = self.model.to(x.device)
+        values = [model(a[None].float(), b[None].float(), normalize=True).item() for a, b in zip(x, y)]
+        return float(np.mean(values))
+
+
+@dataclass(frozen=True)
+class ImageMetrics:
+    """PROTOCOL 4.1 image metrics of one evaluation; ``lpips`` is NaN when ``lpips_missing`` says why."""
+
+    psnr: float
+    ssim: float
+    lpips: float
+    rgb: float
+    lpips_missing: str | None = None
+
+
+def image_metrics(
+    pred: Float[Array, "V H W 3"],
+    gt: Float[Array, "V H W 3"],
+    lpips_metric: LpipsMetric,
+    ssim_data_range: float | None = None,
+) -> ImageMetrics:
+    """PSNR, SSIM, LPIPS and RGB of rendered evaluation views against the GT views (4.1)."""
+    mse = rgb_mse(pred, gt)
+    return ImageMetrics(
+        psnr=psnr_from_mse(mse),
+        ssim=ssim(pred, gt, data_range=ssim_data_range),
+        lpips=lpips_metric(pred, gt),
+        rgb=mse,
+        lpips_missing=lpips_metric.missing,
+    )
+
+
+# --- 4.2 geometry ------------------------------------------------------------------------------
+
+
+def points_from_rays(
+    origins: Float[Array, "R 3"],
+    dirs: Float[Array, "R 3"],
+    depth: Float[Array, "R"],
+    acc: Float[Array, "R"],
+    min_acc: float = 0.5,
+) -> Float[Array, "P 3"]:
+    """Reconstructed points ``o + D d`` of the rays with accumulation ``A > min_acc`` (4.2, M3)."""
+    keep = acc > min_acc
+    return origins[keep] + depth[keep][:, None] * dirs[keep]
+
+
+def sample_surface(mesh: trimesh.Trimesh, count: int, seed: int) -> Float[np.ndarray, "N 3"]:
+    """``count`` area-uniform samples of the mesh surface, reproducible from ``seed`` (4.2)."""
+    points, _ = trimesh.sample.sample_surface(mesh, count, seed=seed)
+    return np.asarray(points, dtype=np.float64)
+
+
+def remove_statistical_outliers(
+    points: Float[Array, "P 3"], neighbors: int = 20, std_ratio: float = 10.0
+) -> Float[np.ndarray, "M 3"]:
+    """Drop points whose mean distance to their ``neighbors`` nearest points exceeds the global
+    mean + ``std_ratio`` std of that quantity (open3d ``remove_statistical_outlier``, 4.2)."""
+    pts = np.ascontiguousarray(_numpy(points), dtype=np.float64)
+    if len(pts) == 0:
+        return pts.reshape(0, 3)
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+    _, kept = cloud.remove_statistical_outlier(nb_neighbors=neighbors, std_ratio=std_ratio)
+    return pts[np.asarray(kept, dtype=np.int64)]
+
+
+@dataclass(frozen=True)
+class GeometryMetrics:
+    """Acc. and Comp. (mean NN distances, NaN for an empty reconstruction), C.R. and the point count used."""
+
+    acc: float
+    comp: float
+    cr: float
+    num_points: int
+
+
+def geometry_metrics(
+    points: Float[Array, "P 3"],
+    mesh: trimesh.Trimesh,
+    threshold: float,
+    seed: int = 0,
+    num_gt_samples: int = 500_000,
+    outlier_neighbors: int = 20,
+    outlier_std_ratio: float = 10.0,
+) -> GeometryMetrics:
+    """Acc., Comp. and C.R. of reconstructed points against the GT mesh (4.2).
+
+    Outliers are removed from ``points`` first; GT points are ``num_gt_samples`` area-uniform samples
+    drawn with ``seed``; C.R. counts GT points whose nearest reconstructed point is closer than
+    ``threshold`` (0.01; Room 0.1). An empty reconstruction gives Acc = Comp = NaN and C.R. = 0.
+    """
+    rec = remove_statistical_outliers(points, outlier_neighbors, outlier_std_ratio)
+    if len(rec) == 0:
+        return GeometryMetrics(acc=math.nan, comp=math.nan, cr=0.0, num_points=0)
+    gt = sample_surface(mesh, num_gt_samples, seed)
+    to_gt, _ = cKDTree(gt).query(rec)
+    to_rec, _ = cKDTree(rec).query(gt)
+    return GeometryMetrics(
+        acc=float(to_gt.mean()),
+        comp=float(to_rec.mean()),
+        cr=float((to_rec < threshold).mean()),
+        num_points=len(rec),
+    )
+
+
+# --- 4.3 visual coverage -----------------------------------------------------------------------
+
+
+def seen_faces(face_ids: Int[Array, "*views H W"], num_faces: int) -> Bool[np.ndarray, "F"]:
+    """Mask of the faces hit by at least one pixel of the face-id images (-1 = miss) (4.3)."""
+    ids = _numpy(face_ids).ravel()
+    seen = np.zeros(num_faces, dtype=bool)
+    seen[ids[ids >= 0]] = True
+    return seen
+
+
+@dataclass(frozen=True)
+class Coverage:
+    """Vis. (fraction of faces seen) and the area-weighted fraction ``vis_area`` (logged only)."""
+
+    vis: float
+    vis_area: float
+
+
+def visual_coverage(seen: Bool[np.ndarray, "F"], mesh: trimesh.Trimesh) -> Coverage:
+    """Vis. = |seen faces| / |faces| and the seen fraction of the surface area (4.3).
+
+    ``seen`` is the union over all observed poses, e.g. ``seen_faces(...) | seen_faces(...)``.
+    """
+    if len(seen) != len(mesh.faces):
+        raise ValueError(f"seen mask has {len(seen)} entries, the mesh has {len(mesh.faces)} faces")
+    areas = np.asarray(mesh.area_faces, dtype=np.float64)
+    return Coverage(vis=float(seen.mean()), vis_area=float(areas[seen].sum() / areas.sum()))
+
+
+# --- 4.4 uncertainty quality -------------------------------------------------------------------
+
+
+def _pearson(a: np.ndarray, b: np.ndarray) -> float:
+    a, b = a - a.mean(), b - b.mean()
+    denom = math.sqrt(float((a * a).sum() * (b * b).sum()))
+    return float((a * b).sum() / denom) if denom > 0 else math.nan
+
+
+@dataclass(frozen=True)
+class UncertaintyCorrelation:
+    """Pearson r between error and uncertainty over 32 x 32 patches and over views (4.4)."""
+
+    patch_pearson: float
+    view_pearson: float
+
+
+def uncertainty_correlation(
+    pred: Float[Array, "V H W 3"], gt: Float[Array, "V H W 3"], scores: Float[Array, "V H W"], patch: int = 32
+) -> UncertaintyCorrelation:
+    """Correlation of the per-pixel error ``sum_ch |pred - gt|`` with the per-pixel score (4.4).
+
+    Patch level: both are average-pooled over ``patch`` x ``patch`` tiles (H and W must be multiples);
+    view level: per-view sums. NaN where either side is constant.
+    """
+    err = (_clipped(pred) - _clipped(gt)).abs().sum(1).cpu().numpy()
+    u = _numpy(scores).astype(np.float64)
+    v, h, w = err.shape
+    if h % patch or w % patch:
+        raise ValueError(f"image size {h} x {w} is not a multiple of the {patch}-pixel patch")
+    tiles = (v, h // patch, patch, w // patch, patch)
+    return UncertaintyCorrelation(
+        patch_pearson=_pearson(err.reshape(tiles).mean((2, 4)).ravel(), u.reshape(tiles).mean((2, 4)).ravel()),
+        view_pearson=_pearson(err.sum((1, 2)), u.sum((1, 2))),
+    )

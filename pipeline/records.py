@@ -1,0 +1,299 @@
+"""Run records: one directory per run with run.json, steps.jsonl and a DONE or FAILED marker.
+
+Layout: ``<outputs>/<scene>/<method>-<planner>-<ablation>/<budget>/seed_<seed>/``, derived only
+from validated keys. Every write is atomic (temp file in the same directory, fsync, ``os.replace``,
+fsync of the directory): a killed run leaves the old file or the new one, never a half-written row.
+Values are strict JSON: numpy/torch scalars and arrays become numbers and lists, and non-finite
+floats (NaN, inf) are written as ``null``; readers (``pipeline.tables``) read ``null`` back as NaN.
+"""
+
+import importlib.metadata
+import json
+import math
+import os
+import re
+import subprocess
+import tempfile
+import warnings
+from datetime import datetime, timezone
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any
+
+KEY_PATTERN = re.compile(r"[A-Za-z0-9_.-]+")
+IDENTITY_KEYS = ("scene", "method", "planner", "ablation", "budget", "seed")
+RUN_JSON = "run.json"
+STEPS = "steps.jsonl"
+DONE = "DONE"
+FAILED = "FAILED"
+
+# Distribution names to try per package (the first one installed wins).
+PACKAGES = (
+    ("torch", ("torch",)),
+    ("numpy", ("numpy",)),
+    ("nvf-bench", ("nvf-bench",)),
+    ("hydra-core", ("hydra-core",)),
+    ("lpips", ("lpips",)),
+    ("open3d", ("open3d", "open3d-cpu")),
+    ("trimesh", ("trimesh",)),
+    ("pyrender", ("pyrender", "pyrender-maintained")),
+)
+
+METRIC_DEFINITIONS = MappingProxyType(
+    {
+        "psnr": "10 log10(1 / RGB), RGB the MSE pooled over the 20 evaluation views (PROTOCOL 4.1)",
+        "ssim": "Gaussian 11x11 window, sigma 1.5, 5-pixel border dropped, mean over views (PROTOCOL 4.1)",
+        "lpips": "AlexNet v0.1 linear heads, inputs mapped to [-1, 1], mean over views; null when weights are unavailable",
+        "rgb": "MSE pooled over all evaluation pixels and channels, black background (PROTOCOL 4.1)",
+        "acc": "mean distance reconstructed point -> nearest GT point; null for an empty reconstruction (PROTOCOL 4.2)",
+        "comp": "mean distance GT point -> nearest reconstructed point; null for an empty reconstruction (PROTOCOL 4.2)",
+        "cr": "fraction of GT points within the scene's C.R. threshold of a reconstructed point (PROTOCOL 4.2)",
+        "vis": "seen GT faces / all GT faces over the observed poses, a face count (PROTOCOL 4.3)",
+        "vis_area": "area-weighted fraction of seen GT faces (logged, not reported)",
+        "patch_pearson": "Pearson r of 32x32-patch means of error and uncertainty (PROTOCOL 4.4)",
+        "view_pearson": "Pearson r of per-view sums of error and uncertainty (PROTOCOL 4.4)",
+    }
+)
+
+
+def check_key(name: str, value: str) -> str:
+    """Return ``value`` if it is a safe single path component, else raise ValueError naming the key."""
+    if not isinstance(value, str) or not KEY_PATTERN.fullmatch(value) or value in (".", ".."):
+        raise ValueError(f"run key {name}={value!r} is not a plain name: use letters, digits, '_', '.', '-'")
+    return value
+
+
+def run_dir(outputs: Path, scene: str, method: str, planner: str, ablation: str, budget: str, seed: int) -> Path:
+    """Directory of one run, derived only from validated keys (never outside ``outputs``)."""
+    for name, value in (("method", method), ("planner", planner), ("ablation", ablation)):
+        if "-" in check_key(name, value):
+            raise ValueError(f"run key {name}={value!r} must not contain '-' (it separates method-planner-ablation)")
+    if isinstance(seed, bool) or seed < 0:
+        raise ValueError(f"run key seed={seed!r} must be a non-negative integer")
+    group = f"{method}-{planner}-{ablation}"
+    return Path(outputs) / check_key("scene", scene) / group / check_key("budget", budget) / f"seed_{seed}"
+
+
+def to_jsonable(value: Any) -> Any:
+    """Strict-JSON copy of ``value``: numpy/torch scalars and arrays to Python, non-finite floats to None."""
+    if value is None or isinstance(value, (bool, str)):
+        return value
+    if isinstance(value, int):
+        return int(value)
+    if isinstance(value, float):
+        return float(value) if math.isfinite(value) else None
+    if isinstance(value, Path):
+        return str(value)
+    if isinstance(value, dict):
+        return {str(k): to_jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [to_jsonable(v) for v in value]
+    if hasattr(value, "tolist"):  # numpy and torch scalars/arrays (moved to the CPU first)
+        return to_jsonable(value.cpu().tolist() if hasattr(value, "cpu") else value.tolist())
+    raise TypeError(f"cannot record a value of type {type(value).__name__} in a run record")
+
+
+def utc_now() -> str:
+    """Current UTC time, ISO 8601 with seconds."""
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` via a temp file in the same directory, fsync and ``os.replace``."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    dir_fd = os.open(path.parent, os.O_RDONLY)
+    try:
+        os.fsync(dir_fd)
+    finally:
+        os.close(dir_fd)
+
+
+def dumps(value: Any) -> str:
+    """One-line strict JSON of ``value`` (after ``to_jsonable``)."""
+    return json.dumps(to_jsonable(value), allow_nan=False, separators=(",", ":"))
+
+
+def git_state(repo: Path) -> dict[str, Any]:
+    """``{"commit", "dirty"}`` of the git checkout at ``repo``; both None when it is not one."""
+    try:
+        head = subprocess.run(["git", "-C", str(repo), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=30)
+        status = subprocess.run(["git", "-C", str(repo), "status", "--porcelain"], capture_output=True, text=True, timeout=30)
+    except (OSError, subprocess.TimeoutExpired):
+        return {"commit": None, "dirty": None}
+    if head.returncode != 0 or status.returncode != 0:
+        return {"commit": None, "dirty": None}
+    return {"commit": head.stdout.strip(), "dirty": bool(status.stdout.strip())}
+
+
+def package_versions() -> dict[str, str | None]:
+    """Installed versions of the packages a run depends on (None when absent); imports nothing."""
+    versions: dict[str, str | None] = {}
+    for name, distributions in PACKAGES:
+        versions[name] = None
+        for dist in distributions:
+            try:
+                versions[name] = importlib.metadata.version(dist)
+                break
+            except importlib.metadata.PackageNotFoundError:
+                continue
+    return versions
+
+
+def read_steps(path: Path) -> tuple[list[dict], str | None]:
+    """Valid rows of a steps.jsonl (read-only) and a note on a dropped truncated/corrupt last line.
+
+    A bad line before the last one is not a kill artifact: ValueError.
+    """
+    if not path.is_file():
+        return [], None
+    text = path.read_text(encoding="utf-8")
+    lines = text.split("\n")
+    complete, tail = lines[:-1], lines[-1]  # tail is "" when the file ends with a newline
+    rows: list[dict] = []
+    for number, line in enumerate(complete, start=1):
+        row = _parse_row(line)
+        if row is None:
+            if number < len(complete) or tail:
+                raise ValueError(f"{path}: line {number} is corrupt and not the last one; fix or delete the run")
+            return rows, f"{path}: dropped a corrupt last line (line {number})"
+        rows.append(row)
+    if tail:
+        return rows, f"{path}: dropped a truncated last line (line {len(complete) + 1}, no newline)"
+    return rows, None
+
+
+def _parse_row(line: str) -> dict | None:
+    try:
+        row = json.loads(line)
+    except json.JSONDecodeError:
+        return None
+    if not isinstance(row, dict) or not isinstance(row.get("step"), int) or isinstance(row.get("step"), bool):
+        return None
+    return row
+
+
+def record_status(info: dict, directory: Path) -> str:
+    """``done``, ``failed`` or ``unfinished`` from the markers or from run.json (committed records)."""
+    if (directory / DONE).is_file() or info.get("status") == "done":
+        return "done"
+    if (directory / FAILED).is_file() or info.get("status") == "failed":
+        return "failed"
+    return "unfinished"
+
+
+class RunRecord:
+    """The files of one run directory: run.json, steps.jsonl and the DONE / FAILED markers."""
+
+    def __init__(self, directory: Path):
+        self.directory = Path(directory)
+        self.run_json = self.directory / RUN_JSON
+        self.steps_path = self.directory / STEPS
+
+    def info(self) -> dict:
+        """Contents of run.json ({} when the run has not started)."""
+        if not self.run_json.is_file():
+            return {}
+        try:
+            return json.loads(self.run_json.read_text(encoding="utf-8"))
+        except json.JSONDecodeError as err:
+            raise ValueError(f"{self.run_json} is not valid JSON ({err.msg}); delete the run directory") from None
+
+    def start(self, info: dict, repo: Path | None = None) -> None:
+        """Create the directory and write run.json: ``info`` plus git state, versions, definitions, timings.
+
+        ``info`` holds at least the identity keys (scene, method, planner, ablation, budget, seed) and
+        ``config``. Resuming keeps the first start time; a different identity or config is refused.
+        """
+        missing = [key for key in (*IDENTITY_KEYS, "config") if key not in info]
+        if missing:
+            raise ValueError(f"run info for {self.directory} lacks {', '.join(missing)}")
+        if self.status() != "unfinished":
+            raise ValueError(f"run {self.directory} is already {self.status()}; delete it to run it again")
+        previous = self.info()
+        now = utc_now()
+        timings = {"started": now, "resumed": [], "ended": None}
+        if previous:
+            for key in (*IDENTITY_KEYS, "config"):
+                if to_jsonable(previous.get(key)) != to_jsonable(info[key]):
+                    raise ValueError(
+                        f"run {self.directory} was started with a different {key}; delete it or restore the config"
+                    )
+            timings = {**previous.get("timings", timings), "ended": None}
+            timings["resumed"] = [*timings.get("resumed", []), now]
+        repo = Path(__file__).resolve().parents[1] if repo is None else repo
+        record = {
+            **info,
+            "status": "running",
+            "git": git_state(repo),
+            "versions": package_versions(),
+            "metric_definitions": dict(METRIC_DEFINITIONS),
+            "timings": timings,
+        }
+        atomic_write_text(self.run_json, json.dumps(to_jsonable(record), indent=2, allow_nan=False) + "\n")
+
+    def completed_steps(self) -> list[dict]:
+        """Valid step rows; a truncated/corrupt last line is dropped, the file rewritten and a warning issued."""
+        rows, dropped = read_steps(self.steps_path)
+        if dropped is not None:
+            self._write_steps(rows)
+            restart = rows[-1]["step"] + 1 if rows else 0
+            warnings.warn(f"{dropped}; restarting from step {restart}", RuntimeWarning, stacklevel=2)
+        return rows
+
+    def append_step(self, row: dict) -> None:
+        """Append one step row (JSON-safe copy); the whole file is rewritten atomically."""
+        clean = to_jsonable(row)
+        step = clean.get("step")
+        if not isinstance(step, int) or isinstance(step, bool):
+            raise ValueError(f"step row for {self.directory} needs an integer 'step'")
+        rows = self.completed_steps()
+        if rows and step <= rows[-1]["step"]:
+            raise ValueError(f"step {step} already recorded in {self.steps_path} (last step {rows[-1]['step']})")
+        self._write_steps([*rows, clean])
+
+    def _write_steps(self, rows: list[dict]) -> None:
+        atomic_write_text(self.steps_path, "".join(dumps(row) + "\n" for row in rows))
+
+    def mark_done(self) -> None:
+        """Record the run as finished: run.json status and end time, then the DONE marker."""
+        self._finish("done", {})
+        atomic_write_text(self.directory / DONE, utc_now() + "\n")
+
+    def is_done(self) -> bool:
+        """True when the run finished (DONE marker or a committed run.json saying so)."""
+        return self.status() == "done"
+
+    def mark_failed(self, reason: str) -> None:
+        """Record the run as failed (e.g. a diverged step) with a one-line reason."""
+        self._finish("failed", {"failure_reason": reason})
+        atomic_write_text(self.directory / FAILED, reason.strip() + "\n")
+
+    def failure(self) -> str | None:
+        """The failure reason, or None when the run has not failed."""
+        if self.status() != "failed":
+            return None
+        marker = self.directory / FAILED
+        fallback = marker.read_text(encoding="utf-8").strip() if marker.is_file() else "unknown"
+        return self.info().get("failure_reason") or fallback
+
+    def status(self) -> str:
+        """``done``, ``failed`` or ``unfinished``."""
+        return record_status(self.info(), self.directory)
+
+    def _finish(self, status: str, extra: dict) -> None:
+        info = self.info()
+        if not info:
+            raise ValueError(f"run {self.directory} has no run.json; call start() first")
+        timings = {**info.get("timings", {}), "ended": utc_now()}
+        record = {**info, **extra, "status": status, "timings": timings}
+        atomic_write_text(self.run_json, json.dumps(to_jsonable(record), indent=2, allow_nan=False) + "\n")

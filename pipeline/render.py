@@ -1,0 +1,186 @@
+"""Ground-truth renderer: RGB, depth, hit mask and per-pixel face ids of a mesh, headless (PROTOCOL.md 1, 4.3).
+
+RGB and depth come from pyrender (unlit, ``RenderFlags.FLAT``: the RGB is the object colour, black
+where the mesh is missed); face ids come from open3d ray casting of the exact pixel-centre rays of
+``nvf.cameras.pixel_rays``, so they do not depend on rasterisation or multisampling.
+
+pyrender is imported lazily, after ``PYOPENGL_PLATFORM`` is chosen (osmesa on CPU, egl on CUDA).
+Measured on the CPU machine kind: importing ``triton`` *after* pyrender with OSMesa segfaults (two
+LLVM copies clash), while importing it *before* pyrender works; torchvision, lpips and torch._dynamo
+import triton, so ``_import_pyrender`` imports triton first whenever it is installed.
+"""
+
+import importlib
+import importlib.util
+import os
+import sys
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import trimesh
+from jaxtyping import Bool, Float, Int
+from torch import Tensor
+
+from nvf.cameras import Intrinsics, pixel_rays
+
+BACKENDS = ("auto", "osmesa", "egl")
+
+
+@dataclass
+class GTView:
+    """One ground-truth view (PROTOCOL.md 1): black background, depth along the camera's -z axis."""
+
+    rgb: Float[np.ndarray, "H W 3"]  # float32 in [0, 1]
+    depth: Float[np.ndarray, "H W"]  # float32, 0 where the mesh is missed
+    mask: Bool[np.ndarray, "H W"]
+    face_id: Int[np.ndarray, "H W"]  # int64, -1 where the mesh is missed
+
+
+def resolve_backend(backend: str) -> str:
+    """``osmesa`` or ``egl``: an explicit argument wins, then an existing ``PYOPENGL_PLATFORM``, then CUDA."""
+    if backend not in BACKENDS:
+        raise ValueError(f"renderer backend must be one of {BACKENDS}, got {backend!r}")
+    if backend != "auto":
+        return backend
+    return os.environ.get("PYOPENGL_PLATFORM") or ("egl" if torch.cuda.is_available() else "osmesa")
+
+
+def _import_pyrender(platform: str):
+    """Import pyrender for ``platform``; PyOpenGL fixes its platform at first import, so it cannot change later."""
+    current = os.environ.get("PYOPENGL_PLATFORM")
+    if "OpenGL" in sys.modules and current != platform:
+        raise RuntimeError(
+            f"PyOpenGL is already loaded for platform {current!r}; cannot switch the renderer to {platform!r} "
+            "in this process (set PYOPENGL_PLATFORM before anything imports pyrender/OpenGL)"
+        )
+    os.environ["PYOPENGL_PLATFORM"] = platform
+    if importlib.util.find_spec("triton") is not None:
+        importlib.import_module("triton")  # before pyrender: see the module docstring (LLVM clash under OSMesa)
+    return importlib.import_module("pyrender")
+
+
+def _as_opaque_primitive(pyrender, part: trimesh.Trimesh):
+    """One unlit, double-sided pyrender primitive per part: vertex/face colours or a base-colour texture."""
+    positions = part.vertices[part.faces].reshape(-1, 3).astype(np.float32)
+    color_0 = texcoord_0 = texture = None
+    factor = np.ones(4)
+    visual = part.visual
+    if visual.kind == "texture" and getattr(visual.material, "baseColorTexture", None) is not None:
+        texcoord_0 = visual.uv[part.faces].reshape(-1, 2).astype(np.float32)
+        texture = visual.material.baseColorTexture
+        if visual.material.baseColorFactor is not None:
+            factor = np.asarray(visual.material.baseColorFactor, dtype=np.float64) / 255.0
+    elif visual.kind == "vertex":
+        color_0 = visual.vertex_colors[part.faces].reshape(-1, 4)
+    elif visual.kind == "face":
+        color_0 = np.repeat(visual.face_colors, 3, axis=0)
+    else:
+        color_0 = np.repeat(visual.to_color().face_colors, 3, axis=0) if visual.defined else None
+    if color_0 is not None:
+        color_0 = color_0.astype(np.float32) / 255.0
+    material = pyrender.MetallicRoughnessMaterial(
+        baseColorFactor=factor, baseColorTexture=texture, alphaMode="OPAQUE", doubleSided=True
+    )
+    return pyrender.Primitive(
+        positions=positions, color_0=color_0, texcoord_0=texcoord_0, material=material, mode=4
+    )
+
+
+def _base_color_texture_mesh(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """Textured meshes with a non-PBR material get a PBR copy so the base-colour texture is found."""
+    if mesh.visual.kind == "texture" and not isinstance(mesh.visual.material, trimesh.visual.material.PBRMaterial):
+        mesh = mesh.copy()
+        mesh.visual.material = mesh.visual.material.to_pbr()
+    return mesh
+
+
+class GroundTruthRenderer:
+    """Renders one mesh from c2w poses (OpenGL axes, PROTOCOL.md 1) with pixel-centre rays.
+
+    Keeps one offscreen context per image size; call ``close()`` (or use it as a context manager)
+    to release them.
+    """
+
+    def __init__(self, mesh: trimesh.Trimesh, backend: str = "auto") -> None:
+        self.backend = resolve_backend(backend)
+        self._pyrender = _import_pyrender(self.backend)
+        import open3d as o3d  # after pyrender's platform is set; open3d-cpu is headless
+
+        self.mesh = mesh
+        pr = self._pyrender
+        self._scene = pr.Scene(bg_color=np.zeros(4), ambient_light=np.ones(3))
+        self._scene.add(pr.Mesh([_as_opaque_primitive(pr, _base_color_texture_mesh(mesh))]))
+        self._camera_node = None
+        self._renderers: dict = {}
+        self._bounds = np.asarray(mesh.bounds, dtype=np.float64)
+        self._raycaster = o3d.t.geometry.RaycastingScene()
+        self._raycaster.add_triangles(
+            o3d.core.Tensor(np.ascontiguousarray(mesh.vertices, dtype=np.float32)),
+            o3d.core.Tensor(np.ascontiguousarray(mesh.faces, dtype=np.uint32)),
+        )
+        self._o3d = o3d
+
+    def _clip_range(self, position: np.ndarray) -> tuple[float, float]:
+        """Near/far planes enclosing the mesh bounds from ``position``, near as far out as possible.
+
+        The depth buffer's resolution scales with ``near`` (error ~ z^2 / (near * 2^24)), so near is
+        95% of the distance to the bounds (at least 1e-3 of their diagonal when inside them).
+        """
+        lo, hi = self._bounds
+        corners = np.array(np.meshgrid(*self._bounds.T, indexing="ij")).reshape(3, -1).T
+        far = float(np.linalg.norm(corners - position, axis=1).max()) * 1.01
+        outside = float(np.linalg.norm(np.maximum(lo - position, 0.0) + np.maximum(position - hi, 0.0)))
+        near = max(1e-3 * float(np.linalg.norm(hi - lo)), 0.95 * outside)
+        return near, max(far, 2.0 * near)
+
+    def _offscreen(self, intr: Intrinsics):
+        key = (intr.width, intr.height)
+        if key not in self._renderers:
+            self._renderers[key] = self._pyrender.OffscreenRenderer(intr.width, intr.height)
+        return self._renderers[key]
+
+    def render_rgb_depth(
+        self, c2w: Float[np.ndarray, "4 4"], intr: Intrinsics
+    ) -> tuple[Float[np.ndarray, "H W 3"], Float[np.ndarray, "H W"]]:
+        """Unlit RGB in [0, 1] (black background) and camera z-distance (0 = miss) from pyrender."""
+        pr = self._pyrender
+        znear, zfar = self._clip_range(c2w[:3, 3])
+        camera = pr.IntrinsicsCamera(
+            intr.focal, intr.focal, intr.width / 2.0, intr.height / 2.0, znear=znear, zfar=zfar
+        )
+        if self._camera_node is not None:
+            self._scene.remove_node(self._camera_node)
+        self._camera_node = self._scene.add(camera, pose=c2w.astype(np.float64))
+        color, depth = self._offscreen(intr).render(self._scene, flags=pr.RenderFlags.FLAT)
+        return (color[..., :3].astype(np.float32) / 255.0), depth.astype(np.float32)
+
+    def face_ids(self, c2w: Float[np.ndarray, "4 4"], intr: Intrinsics) -> Int[np.ndarray, "H W"]:
+        """Face hit by each pixel-centre ray (``nvf.cameras.pixel_rays``), -1 = miss (PROTOCOL.md 4.3)."""
+        origins, dirs = pixel_rays(torch.from_numpy(c2w.astype(np.float32)), intr)
+        rays = torch.cat([origins, dirs], dim=-1).numpy()
+        hits = self._raycaster.cast_rays(self._o3d.core.Tensor(rays))
+        ids = hits["primitive_ids"].numpy().astype(np.int64)
+        ids[~np.isfinite(hits["t_hit"].numpy())] = -1
+        return ids.reshape(intr.height, intr.width)
+
+    def render(self, c2w: Float[Tensor, "4 4"] | Float[np.ndarray, "4 4"], intr: Intrinsics) -> GTView:
+        """Render RGB, depth, mask and face ids of the mesh seen from ``c2w``."""
+        pose = c2w.detach().cpu().numpy() if isinstance(c2w, Tensor) else np.asarray(c2w)
+        pose = pose.astype(np.float64)
+        rgb, depth = self.render_rgb_depth(pose, intr)
+        mask = depth > 0
+        return GTView(rgb=np.where(mask[..., None], rgb, 0.0).astype(np.float32), depth=depth, mask=mask,
+                      face_id=self.face_ids(pose, intr))
+
+    def close(self) -> None:
+        """Release the offscreen contexts."""
+        for renderer in self._renderers.values():
+            renderer.delete()
+        self._renderers.clear()
+
+    def __enter__(self) -> "GroundTruthRenderer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

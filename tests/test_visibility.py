@@ -1,0 +1,164 @@
+"""nvf/visibility.py: frustum test, transmittance (M17), noisy-OR with early skip (M18)."""
+
+import math
+
+import pytest
+import torch
+
+from nvf.cameras import Intrinsics, look_at
+from nvf.config import TrainConfig
+from nvf.visibility import SATURATION, frustum_mask, segment_transmittance, visibility_labels
+
+RADIUS = 0.5
+INTR = Intrinsics.from_fov(16, 16, 90.0)
+AABB = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+
+
+def sphere_density(x: torch.Tensor) -> torch.Tensor:
+    """An opaque ball of radius 0.5 at the origin (sigma = 1e3 inside, 0 outside)."""
+    return torch.where(x.norm(dim=-1) < RADIUS, 1e3, 0.0)
+
+
+def first_hit(origin: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """Distance along ``o -> x`` to the first ray-sphere intersection (inf when the line misses)."""
+    seg = points - origin
+    length = seg.norm(dim=-1)
+    d = seg / length[:, None]
+    b = (d * origin).sum(-1)
+    disc = b * b - (origin.norm() ** 2 - RADIUS**2)
+    return torch.where(disc > 0, -b - disc.clamp_min(0).sqrt(), torch.full_like(b, math.inf))
+
+
+def test_frustum_mask_depth_and_image_bounds():
+    c2w = look_at(torch.tensor([0.0, -3.0, 0.0]), torch.zeros(3))
+    points = torch.tensor(
+        [
+            [0.0, 0.0, 0.0],  # centre of the image, depth 3
+            [0.0, -4.0, 0.0],  # behind the camera
+            [0.0, 8.0, 0.0],  # depth 11 > label_max_depth 10
+            [3.5, 0.0, 0.0],  # 3.5 right at depth 3: outside a 90-degree FoV
+            [2.9, 0.0, 0.0],  # inside
+        ]
+    )
+    mask = frustum_mask(points, c2w, INTR, 10.0)
+    assert mask.tolist() == [True, False, False, False, True]
+
+
+def test_transmittance_constant_density_is_exact():
+    """(M17) with constant sigma: ``T = exp(-sigma |x-o| (K-1)/K)``, the last interval excluded."""
+    origin = torch.zeros(3)
+    points = torch.tensor([[1.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 0.0]])
+    k, sigma = 10, 0.3
+
+    def density(x: torch.Tensor) -> torch.Tensor:
+        return torch.full(x.shape[:1], sigma)
+
+    expected = torch.exp(-sigma * points.norm(dim=-1) * (k - 1) / k)
+    for gen in (None, torch.Generator().manual_seed(1)):
+        got = segment_transmittance(density, origin, points, k, gen, chunk_samples=7)
+        assert torch.allclose(got, expected, atol=1e-6)
+
+
+def test_transmittance_stratified_positions_stay_in_their_bins():
+    origin, point, k = torch.zeros(3), torch.tensor([[2.0, 0.0, 0.0]]), 8
+    seen = []
+
+    def density(x: torch.Tensor) -> torch.Tensor:
+        seen.append(x[:, 0].clone())
+        return torch.zeros(x.shape[0])
+
+    segment_transmittance(density, origin, point, k, torch.Generator().manual_seed(0))
+    t = torch.cat(seen)
+    assert t.numel() == k - 1  # the interval ending at x is excluded
+    bins = torch.arange(k - 1) * 2.0 / k
+    assert ((t >= bins) & (t < bins + 2.0 / k)).all()
+    segment_transmittance(density, origin, point, k)  # deterministic: bin centres
+    assert torch.allclose(seen[-1], bins + 1.0 / k)
+
+
+@pytest.mark.parametrize("jitter", [False, True])
+def test_labels_match_analytic_depth_test(jitter):
+    """M17-M18 on an opaque sphere seen by two cameras: >= 90% agreement with ray-sphere visibility."""
+    cfg = TrainConfig(label_samples=200)
+    cams = [torch.tensor([0.0, -3.0, 0.0]), torch.tensor([3.0, 0.0, 0.5])]
+    c2w = torch.stack([look_at(p, torch.zeros(3)) for p in cams])
+    gen = torch.Generator().manual_seed(0)
+    points = torch.rand(3000, 3, generator=gen) * 2.0 - 1.0
+    labels = visibility_labels(sphere_density, points, c2w, INTR, cfg, generator=gen if jitter else None, aabb=AABB)
+    assert labels.min() >= 0.0 and labels.max() <= 1.0
+
+    expected = torch.zeros(points.shape[0], dtype=torch.bool)
+    for pos, cam in zip(cams, c2w):
+        reach = first_hit(pos, points) >= (points - pos).norm(dim=-1)
+        expected |= frustum_mask(points, cam, INTR, cfg.label_max_depth) & reach
+    agree = (labels > 0.5) == expected
+    assert agree.float().mean().item() >= 0.9
+    assert agree[expected].float().mean().item() >= 0.9  # both classes are populated and recovered
+    assert agree[~expected].float().mean().item() >= 0.9
+    assert expected.sum() > 100 and (~expected).sum() > 100
+
+
+def test_near_surface_visible_far_surface_hidden_outside_zero():
+    cfg = TrainConfig()
+    pos = torch.tensor([0.0, -3.0, 0.0])
+    c2w = look_at(pos, torch.zeros(3))[None]
+    gen = torch.Generator().manual_seed(3)
+    n = torch.nn.functional.normalize(torch.randn(4000, 3, generator=gen), dim=-1)
+    facing = n @ (pos / pos.norm())  # cosine between the normal and the direction to the camera
+    near = n[facing > 0.5] * RADIUS * 1.001
+    far = n[facing < -0.5] * RADIUS * 1.001
+    outside = torch.tensor([[0.0, -4.0, 0.0], [0.0, 8.0, 0.0], [0.9, -2.4, 0.0]])  # behind, too deep, off-image
+    points = torch.cat([near, far, outside])
+    labels = visibility_labels(sphere_density, points, c2w, INTR, cfg, aabb=AABB)
+    assert (labels[: len(near)] > 0.99).all()
+    assert (labels[len(near) : len(near) + len(far)] < 1e-3).all()
+    assert (labels[-3:] == 0).all()
+
+
+def test_early_skip_saturates_near_099():
+    """M18: cameras in order; a point stops once its running product is <= 0.01."""
+    cfg = TrainConfig(label_samples=20)
+    origin_dist, t_single = 2.0, 0.5
+    sigma = -math.log(t_single) / (origin_dist * (cfg.label_samples - 1) / cfg.label_samples)
+    calls = []
+
+    def density(x: torch.Tensor) -> torch.Tensor:
+        calls.append(x.shape[0])
+        return torch.full(x.shape[:1], sigma)
+
+    c2w = look_at(torch.tensor([0.0, -origin_dist, 0.0]), torch.zeros(3))[None].repeat(10, 1, 1)
+    label = visibility_labels(density, torch.zeros(1, 3), c2w, INTR, cfg)
+    n_used = math.ceil(math.log(SATURATION) / math.log(t_single))  # 0.5^7 <= 0.01 < 0.5^6
+    assert n_used == 7
+    assert label.item() == pytest.approx(1 - 0.5**n_used, abs=1e-5)
+    assert len(calls) == n_used and sum(calls) == n_used * (cfg.label_samples - 1)
+
+
+def test_labels_zero_outside_every_frustum_and_without_cameras():
+    cfg = TrainConfig(label_samples=8)
+    points = torch.rand(50, 3)
+    c2w = look_at(torch.tensor([0.0, -3.0, 0.0]), torch.tensor([0.0, -6.0, 0.0]))[None]  # looks away
+    assert (visibility_labels(sphere_density, points, c2w, INTR, cfg) == 0).all()
+    assert (visibility_labels(sphere_density, points, torch.zeros(0, 4, 4), INTR, cfg) == 0).all()
+
+
+def test_aabb_skip_and_chunking_do_not_change_labels():
+    cfg = TrainConfig(label_samples=64)
+    c2w = torch.stack([look_at(torch.tensor([0.3, -3.0, 0.2]), torch.zeros(3)), look_at(torch.tensor([0.0, 0.0, 3.0]), torch.zeros(3))])
+    points = torch.rand(500, 3, generator=torch.Generator().manual_seed(5)) * 2 - 1
+
+    def boxed(x: torch.Tensor) -> torch.Tensor:  # density 0 outside the AABB, as the field's
+        inside = ((x >= AABB[0]) & (x <= AABB[1])).all(-1)
+        return torch.where(inside, sphere_density(x) + 0.5, 0.0)
+
+    full = visibility_labels(boxed, points, c2w, INTR, cfg)
+    skipped = visibility_labels(boxed, points, c2w, INTR, cfg, aabb=AABB, chunk_samples=100)
+    assert torch.allclose(full, skipped, atol=1e-6)
+
+
+def test_labels_do_not_track_gradients():
+    lin = torch.nn.Linear(3, 1)
+    labels = visibility_labels(
+        lambda x: torch.relu(lin(x)[:, 0]), torch.rand(10, 3), look_at(torch.tensor([0.0, -3.0, 0.0]), torch.zeros(3))[None], INTR, TrainConfig(label_samples=8)
+    )
+    assert not labels.requires_grad
