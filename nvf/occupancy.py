@@ -13,7 +13,7 @@ import math
 from collections.abc import Callable
 
 import torch
-from jaxtyping import Float, Int
+from jaxtyping import Bool, Float, Int
 from torch import Tensor, nn
 
 from nvf.config import SamplerConfig
@@ -22,6 +22,9 @@ from nvf.rendering import Samples
 # Marching and grid updates handle at most this many steps / probe points at once (memory bound).
 _STEP_BUDGET = 1 << 21
 _PROBE_CHUNK = 1 << 18
+# Empty-space skipping: block edge in cells, and the longest run of steps tested against one block.
+_BLOCK = 8
+_MAX_RUN = 32.0
 
 
 def ray_aabb(
@@ -125,8 +128,8 @@ class OccupancyGrid(nn.Module):
         return lo + first * self.cell_size, lo + last * self.cell_size
 
     def _t_of_k(
-        self, k: Float[Tensor, " N"], t0: Float[Tensor, " N"], k1: Float[Tensor, " N"], t1: Float[Tensor, " N"]
-    ) -> Float[Tensor, " N"]:
+        self, k: Float[Tensor, "*#N"], t0: Float[Tensor, "*#N"], k1: Float[Tensor, "*#N"], t1: Float[Tensor, "*#N"]
+    ) -> Float[Tensor, "*#N"]:
         """(M6) Knot ``t_k`` of the step grid ``t_{k+1} = t_k + max(step, cone * t_k)`` from ``t_0``.
 
         Closed form: ``t_0 + k step`` up to the knot ``k1`` (the first with ``t >= step / cone``, at
@@ -148,6 +151,65 @@ class OccupancyGrid(nn.Module):
             k = torch.where(t < t1, k, geometric)
         return torch.clamp(k, min=0.0)
 
+    def _block_grid(self) -> Bool[Tensor, "B B B"]:
+        """Occupancy of ``8^3``-cell blocks, dilated by one block (3x3x3 max-pool)."""
+        res, b = self.resolution, _BLOCK
+        n = -(-res // b)
+        grid = self.occupied.view(res, res, res)
+        if n * b != res:
+            grid = nn.functional.pad(grid, (0, n * b - res, 0, n * b - res, 0, n * b - res))
+        blocks = grid.view(n, b, n, b, n, b).any(dim=5).any(dim=3).any(dim=1)
+        dilated = nn.functional.max_pool3d(blocks[None, None].to(torch.float32), 3, stride=1, padding=1)
+        return dilated[0, 0] > 0
+
+    def _scan(
+        self, params: Float[Tensor, "U 13"], knots: Int[Tensor, " U"], grid: Bool[Tensor, "N N N"], coarse: bool
+    ) -> tuple[Int[Tensor, " K"], Float[Tensor, " K"], Float[Tensor, " K"], Float[Tensor, " K"], Float[Tensor, " K"]]:
+        """Steps between consecutive knots of each unit whose midpoint lies in an occupied ``grid`` cell.
+
+        A unit is a run of knots ``k_j = min(k_start + stride j, k_end)``, ``j < knots``, of one ray
+        (``params`` columns: origin and direction in cell units (6), ``t_0, k1, t1, t_max, k_start,
+        stride, k_end``). ``coarse``: ``grid`` is the dilated block grid, looked up with clamped block
+        coordinates and no ``t_max`` test. Units are padded to the longest one and processed in chunks
+        of at most ``_STEP_BUDGET`` knots. Returns (unit, t_start, t_end, k_start, k_end) of the kept
+        steps, sorted by unit then ``k``.
+        """
+        device = params.device
+        res = grid.shape[0]
+        scale = 1.0 / _BLOCK if coarse else 1.0
+        flat_grid = grid.reshape(-1)
+        width = int(knots.max()) if knots.shape[0] else 0
+        outputs = []
+        if width >= 2:
+            local = torch.arange(width, device=device, dtype=torch.float32)
+            rows = max(1, _STEP_BUDGET // width)
+            for a in range(0, knots.shape[0], rows):
+                p = params[a : a + rows].t()[:, :, None]  # 13 x [U, 1]
+                k = torch.minimum(p[10] + p[11] * local, p[12])
+                t = self._t_of_k(k, p[6], p[7], p[8])
+                # Step j = [t_j, t_{j+1}] for j < knots - 1.
+                t_start, t_end = t[:, :-1], t[:, 1:]
+                valid = local[:-1] < (knots[a : a + rows, None] - 1)
+                if not coarse:
+                    valid &= t_end <= p[9]
+                mid = 0.5 * (t_start + t_end)
+                flat = torch.zeros_like(mid)
+                for axis in range(3):
+                    cell = torch.floor((p[axis] + mid * p[3 + axis]) * scale)
+                    if not coarse:
+                        valid &= (cell >= 0) & (cell < res)
+                    flat = flat * res + cell.clamp_(0, res - 1)
+                valid &= flat_grid.index_select(0, flat.reshape(-1).long()).view_as(valid)
+                sel = torch.nonzero(valid.reshape(-1))[:, 0]
+                unit = a + torch.div(sel, width - 1, rounding_mode="floor")
+                values = (x.reshape(-1).index_select(0, sel) for x in (t_start, t_end, k[:, :-1], k[:, 1:]))
+                outputs.append((unit, *values))
+        if not outputs:
+            empty = torch.zeros(0, device=device)
+            return torch.zeros(0, dtype=torch.long, device=device), empty, empty, empty, empty
+        unit, t_start, t_end, k_start, k_end = (torch.cat(parts) for parts in zip(*outputs))
+        return unit, t_start, t_end, k_start, k_end
+
     @torch.no_grad()
     def march(
         self,
@@ -162,8 +224,12 @@ class OccupancyGrid(nn.Module):
         from ``t_0 = t_min`` (plus ``U[0, step_size)`` when ``jitter``, nerfacc's stratified offset) by
         ``dt(t) = max(step_size, cone_angle * t)``. Step ``[t_k, t_{k+1}]`` (with ``t_{k+1} <= t_max``)
         is a sample if its midpoint lies in an occupied cell; at most ``max_samples_per_ray`` (the
-        first ones) per ray. Only steps near the bounding box of the occupied cells are generated;
-        rays are processed in chunks of at most ``2^21`` steps. Deterministic unless ``jitter``.
+        first ones) per ray. Deterministic unless ``jitter``.
+
+        Empty-space skipping (exact, same samples): only steps within the bounding box of the occupied
+        cells are considered, first in runs of up to 32 steps short enough that every midpoint of a
+        run lies in the dilated block (``8^3`` cells) of the run's midpoint; the steps of runs whose
+        dilated block is occupied are then tested cell by cell. At most ``2^21`` steps at once.
         """
         cfg = self.cfg
         device = origins.device
@@ -192,59 +258,36 @@ class OccupancyGrid(nn.Module):
         # Steps whose midpoint can be occupied lie in [s_min, s_max]; one step of margin for rounding.
         s_min, s_max = ray_aabb(origins, dirs, box[0], box[1])
         s_min, s_max = torch.maximum(s_min, t0), torch.minimum(s_max, t_max)
+        hit = s_max > s_min
         k_lo = torch.clamp(self._k_of_t(s_min, t0, k1, t1) - 1.0, min=0.0)
-        k_hi = self._k_of_t(s_max, t0, k1, t1) + 2.0
-        # Knots k_lo .. k_hi per ray: the steps are consecutive knot pairs of one ray.
-        knots = torch.where(s_max > s_min, k_hi - k_lo + 1.0, 0.0).long()
-        res = self.resolution
+        k_hi = torch.where(hit, self._k_of_t(s_max, t0, k1, t1) + 2.0, k_lo)
+        # Run length: half a run (<= stride * dt_max / 2) must move less than one block (8 cells) along
+        # every axis; dt_max bounds the steps up to k_hi (<= 3 steps past s_max).
         inv_cell = 1.0 / self.cell_size
+        far_t = s_max * (1.0 + cfg.cone_angle) ** 3 + 3.0 * cfg.step_size
+        dt_max = torch.clamp(cfg.cone_angle * far_t, min=cfg.step_size)
+        reach = 0.99 * 2.0 * _BLOCK / (dirs.abs() * inv_cell).amax(-1).clamp(min=1e-12)
+        stride = torch.clamp(torch.floor(reach / dt_max), 1.0, _MAX_RUN)
         params = torch.cat(
             [
                 (origins - self.aabb[0]) * inv_cell,  # origin in cell units
                 dirs * inv_cell,  # direction in cell units
-                torch.stack([t0, k1, t1, t_max, k_lo], dim=-1),
+                torch.stack([t0, k1, t1, t_max, k_lo, stride, k_hi], dim=-1),
             ],
             dim=-1,
         )
-        ends = torch.cumsum(knots, 0)
-        total = int(ends[-1])
-        bounds = [0]
-        if total > _STEP_BUDGET:
-            split_at = torch.arange(_STEP_BUDGET, total, _STEP_BUDGET, device=device)
-            bounds += torch.searchsorted(ends, split_at, right=True).tolist()
-        bounds.append(n_rays)
-        ray_chunks, start_chunks, end_chunks = [], [], []
-        for a, b in zip(bounds[:-1], bounds[1:]):
-            if b <= a:
-                continue
-            count = knots[a:b]
-            n = int(count.sum())
-            if n == 0:
-                continue
-            ray = torch.repeat_interleave(torch.arange(a, b, device=device), count, output_size=n)
-            first = torch.cumsum(count, 0) - count
-            local = torch.arange(n, device=device) - first.repeat_interleave(count, output_size=n)
-            p = params[ray]
-            k = p[:, 10] + local.to(torch.float32)
-            t = self._t_of_k(k, p[:, 6], p[:, 7], p[:, 8])
-            # Step i = [t_i, t_{i+1}], valid unless knot i is its ray's last one.
-            t_next = torch.cat([t[1:], t[-1:]])
-            not_last = torch.ones(n, dtype=torch.bool, device=device)
-            not_last[torch.cumsum(count, 0)[count > 0] - 1] = False
-            mid = 0.5 * (t + t_next)
-            cell = torch.floor(p[:, 0:3] + mid[:, None] * p[:, 3:6]).long()
-            inside = ((cell >= 0) & (cell < res)).all(-1)
-            cell = cell.clamp_(0, res - 1)
-            flat = (cell[:, 0] * res + cell[:, 1]) * res + cell[:, 2]
-            keep = self.occupied[flat] & inside & not_last & (t_next <= p[:, 9])
-            sel = torch.nonzero(keep)[:, 0]
-            ray_chunks.append(ray[sel])
-            start_chunks.append(t[sel])
-            end_chunks.append(t_next[sel])
-        if not ray_chunks:
-            return empty
-        samples = Samples(torch.cat(ray_chunks), torch.cat(start_chunks), torch.cat(end_chunks), n_rays)
-        return self._cap(samples)
+        runs = torch.ceil((k_hi - k_lo) / stride).long()
+        knots = torch.where(hit, runs + 1, 0)
+        run_ray, _, _, run_start, run_end = self._scan(params, knots, self._block_grid(), coarse=True)
+        fine = params.index_select(0, run_ray)
+        fine[:, 10], fine[:, 11], fine[:, 12] = run_start, 1.0, run_end
+        unit, t_start, t_end, _, _ = self._scan(fine, (run_end - run_start).long() + 1, self._fine_grid(), coarse=False)
+        return self._cap(Samples(run_ray.index_select(0, unit), t_start, t_end, n_rays))
+
+    def _fine_grid(self) -> Bool[Tensor, "N N N"]:
+        """``occupied`` as a ``[res, res, res]`` view."""
+        res = self.resolution
+        return self.occupied.view(res, res, res)
 
     def _cap(self, samples: Samples) -> Samples:
         """Keep the first ``max_samples_per_ray`` samples of each ray."""

@@ -2,8 +2,8 @@
 
 Pose vectors are ``[qx, qy, qz, qw, x, y, z]`` (nvf.cameras). The model is anything following the
 ``SceneModel`` contract (``.aabb``, ``.field.density(x) -> (sigma, geo)``, ``.render(origins, dirs,
-heads, train, generator, sampler)``); the scorer follows the ``ViewScorer`` protocol (``.heads``,
-``.sampler``, ``.pixel_scores(result, pixel_index)``). ``scorer=None`` is the Random method (M12).
+heads, train, generator, sampler)``); the scorer is a ``nvf.uncertainty.ViewScorer``.
+``scorer=None`` is the Random method (METHOD 12).
 
 Randomness (PROTOCOL.md 3): every draw uses a generator from a ``GeneratorFactory``, a callable that
 maps a purpose string to a fresh generator seeded from ``(run seed, step, purpose)``; see
@@ -30,11 +30,12 @@ from nvf.cameras import (
     se3_update,
 )
 from nvf.config import OptConfig, PlannerConfig
+from nvf.uncertainty import ViewScorer
+from nvf.visibility import segment_transmittance
 
 GeneratorFactory = Callable[[str], torch.Generator]
 
 _QUAT_EPS = 1e-9  # METHOD 13 step 2
-_POINT_CHUNK = 1 << 16  # density queries per field call in the M29 line-of-sight test
 
 
 class NoCandidatesError(RuntimeError):
@@ -86,36 +87,6 @@ def density_mask(model: nn.Module, positions: Float[Tensor, "n 3"], tau: float) 
     return sigma < tau
 
 
-@torch.no_grad()
-def line_of_sight_transmittance(
-    density_fn: Callable[[Tensor], tuple[Tensor, Tensor]],
-    origin: Float[Tensor, "3"],
-    targets: Float[Tensor, "n 3"],
-    num_samples: int,
-    generator: torch.Generator,
-) -> Float[Tensor, "n"]:
-    """(M17 as used by M29) Transmittance from ``origin`` to each target.
-
-    ``K = num_samples`` stratified samples on ``[0, L]`` (``L = |target - origin|``, ``delta = L/K``),
-    sample ``k`` jittered uniformly inside its interval; ``T = exp(-sum_{k<K-1} sigma(y_k) delta)``,
-    the last interval (ending at the target) excluded. ``density_fn`` is ``field.density``:
-    ``[S,3] -> (sigma [S], geo)``, 0 outside the AABB.
-    """
-    gdev = generator.device
-    seg = targets - origin  # [n,3]
-    delta = torch.linalg.norm(seg, dim=-1) / num_samples  # [n]
-    optical = torch.zeros_like(delta)
-    per_chunk = max(1, _POINT_CHUNK // num_samples)
-    for start in range(0, targets.shape[0], per_chunk):
-        stop = min(start + per_chunk, targets.shape[0])
-        jitter = torch.rand(stop - start, num_samples - 1, generator=generator, device=gdev).to(targets)
-        frac = (torch.arange(num_samples - 1, device=targets.device, dtype=targets.dtype) + jitter) / num_samples
-        points = origin + frac[..., None] * seg[start:stop, None, :]  # [c, K-1, 3]
-        sigma = density_fn(points.reshape(-1, 3))[0].reshape(stop - start, num_samples - 1)
-        optical[start:stop] = sigma.sum(dim=-1) * delta[start:stop]
-    return torch.exp(-optical)
-
-
 def candidate_poses(
     model: nn.Module,
     cfg: PlannerConfig,
@@ -131,8 +102,9 @@ def candidate_poses(
     Base sampler: draw ``floor(cfg.oversample * N)`` poses; collision-free sampler: draw ``3N``.
     Always drop invalid quaternions; with ``apply_filters`` also apply the density filter (M28,
     threshold ``tau``) and, if ``collision_free``, the line-of-sight filter from ``current_pose``'s
-    centre (M29, ``cfg.los_samples`` samples, ``T > cfg.los_threshold``). Keep the first
-    ``min(N, count)``. Raises ``NoCandidatesError`` when a filter leaves nothing.
+    centre (M29: M17's ``segment_transmittance`` with ``cfg.los_samples`` stratified samples jittered
+    by ``generator``, keep ``T > cfg.los_threshold``). Keep the first ``min(N, count)``. Raises
+    ``NoCandidatesError`` when a filter leaves nothing.
     """
     n = cfg.num_candidates
     drawn = 3 * n if collision_free else math.floor(cfg.oversample * n)
@@ -146,7 +118,9 @@ def candidate_poses(
             origin = current_pose[4:].to(poses)
 
             def los(p: Tensor) -> Tensor:
-                trans = line_of_sight_transmittance(model.field.density, origin, p[:, 4:], cfg.los_samples, generator)
+                trans = segment_transmittance(
+                    lambda x: model.field.density(x)[0], origin, p[:, 4:], cfg.los_samples, generator, model.aabb
+                )
                 return trans > cfg.los_threshold
 
             stages.append((f"line-of-sight filter M29 (T > {cfg.los_threshold:g})", los))
@@ -172,7 +146,7 @@ def _check_finite(scores: Tensor, what: str) -> None:
 @torch.no_grad()
 def score_poses(
     model: nn.Module,
-    scorer,
+    scorer: ViewScorer,
     poses: Float[Tensor, "m 7"],
     intrinsics: Intrinsics,
     chunk_rays: int,
@@ -270,7 +244,7 @@ def ray_subset(
 
 def refine_poses(
     model: nn.Module,
-    scorer,
+    scorer: ViewScorer,
     poses: Float[Tensor, "k 7"],
     camera_box: Float[Tensor, "2 3"],
     intrinsics: Intrinsics,
@@ -293,7 +267,8 @@ def refine_poses(
       folded into the base pose (position clipped to ``camera_box``, rotation re-orthonormalised
       through its quaternion) and ``xi`` is reset to 0; Adam's moments carry over.
 
-    Returns the refined poses without rows containing NaN and the input row each came from.
+    A pose that turns NaN is not rendered again. Returns the refined poses without rows containing
+    NaN and the input row each came from.
     """
     if opt.param not in ("quat_raw", "se3"):
         raise ValueError(f"unknown -OPT parameterisation {opt.param!r} (quat_raw | se3)")
@@ -314,8 +289,11 @@ def refine_poses(
     for iteration in range(opt.iters):
         generator = generators(f"opt_rays/{iteration}")
         grad = torch.zeros_like(leaf)
+        state = leaf.detach() if opt.param == "quat_raw" else base
         for i in range(poses.shape[0]):
             index = ray_subset(cam_dirs.shape[0], opt.chunk_rays, opt.ray_fraction, generator).to(poses.device)
+            if state[i].isnan().any():
+                continue  # diverged: never rendered again, dropped at the end
             with torch.enable_grad():
                 origins, dirs = rays_from_camera_dirs(c2w_of(i), cam_dirs[index])
                 result = model.render(origins, dirs, heads=scorer.heads, train=False, sampler=scorer.sampler)
@@ -347,7 +325,7 @@ def refine_poses(
 
 def select_next_view(
     model: nn.Module,
-    scorer,
+    scorer: ViewScorer | None,
     cfg: PlannerConfig,
     camera_box: Float[Tensor, "2 3"],
     current_pose: Float[Tensor, "7"] | None,

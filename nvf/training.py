@@ -54,6 +54,8 @@ class Observations:
     intrinsics: Intrinsics
 
     def __post_init__(self) -> None:
+        if self.c2w.shape[0] != self.images.shape[0]:
+            raise ValueError(f"{self.images.shape[0]} images but {self.c2w.shape[0]} poses")
         if self.images.shape[1:3] != (self.intrinsics.height, self.intrinsics.width):
             raise ValueError(
                 f"images are {tuple(self.images.shape[1:3])} (H, W) but the intrinsics are "
@@ -156,7 +158,9 @@ def visibility_bce(logits: Float[Tensor, "N"], labels: Float[Tensor, "N"]) -> Fl
 # ---------------------------------------------------------------------------------------- helpers
 
 
-def _background(batch: int, cfg_background: str, generator: torch.Generator, like: Tensor) -> Float[Tensor, "B 3"]:
+def _background(
+    batch: int, cfg_background: str, generator: torch.Generator, like: Float[Tensor, "..."]
+) -> Float[Tensor, "B 3"]:
     """Per-ray background ``b ~ U[0,1]^3`` (M4), or black."""
     if cfg_background == "black":
         return torch.zeros(batch, 3, dtype=like.dtype, device=like.device)
@@ -187,13 +191,13 @@ class _Recorder:
         self.steps = 0
         self.start = time.perf_counter()
 
-    def check(self, loss: Tensor, iteration: int) -> float:
+    def check(self, loss: Float[Tensor, ""], iteration: int) -> float:
         value = float(loss.detach())
         if not math.isfinite(value):
             raise TrainingDiverged(f"{self.stage} stage diverged at iteration {iteration}: loss = {value}")
         return value
 
-    def step(self, optimizer: torch.optim.Optimizer, loss: Tensor) -> None:
+    def step(self, optimizer: torch.optim.Optimizer, loss: Float[Tensor, ""]) -> None:
         """Adam step on ``loss`` (skipped if nothing requires grad, e.g. a batch with no samples)."""
         optimizer.zero_grad(set_to_none=True)
         if loss.requires_grad:
@@ -230,10 +234,11 @@ def train_backbone(
 ) -> dict[str, float]:
     """Stage 1: hash grid, density MLP and colour head on (M20) with the random background (M4).
 
-    Adam (eps 1e-15), ``lr(k) = lr * 0.01 ** (k / lr_decay_horizon)``, occupancy-grid update (M5)
-    every ``model.grid.cfg.update_every`` iterations. ``aux_loss`` ``activenerf`` (M25) or
-    ``neurar`` (M27) also trains the variance head in the same steps on
-    ``V_r = sum_i sg(w_i) q_i`` and the detached squared residual, so the backbone is unaffected.
+    Adam (eps 1e-15), ``lr(k) = lr * 0.01 ** (k / lr_decay_horizon)``; ``model.update_grid`` is
+    called every iteration and refreshes the occupancy grid (M5) every ``update_every``.
+    ``aux_loss`` ``activenerf`` (M25) or ``neurar`` (M27) also trains the variance head, in the
+    same Adam steps and with the same lr, on ``V_r = sum_i sg(w_i) q_i`` and the detached squared
+    residual, so the backbone is unaffected.
     """
     _require_images(obs)
     if aux_loss not in AUX_LOSSES:
@@ -245,12 +250,10 @@ def train_backbone(
         param_groups.append({"params": groups["variance"]})
         heads = heads | {"variance"}
     optimizer = torch.optim.Adam(param_groups, lr=cfg.backbone.lr, eps=BACKBONE_ADAM_EPS)
-    update_every = model.grid.cfg.update_every
     rec = _Recorder("backbone", cfg.backbone.iters, progress)
     aux_losses: list[float] = []
     for k in range(cfg.backbone.iters):
-        if k % update_every == 0:
-            model.update_grid(k, generator)
+        model.update_grid(k, generator)  # M5: a no-op unless k % sampler.update_every == 0
         for group in optimizer.param_groups:
             group["lr"] = backbone_lr(cfg, k)
         origins, dirs, rgba = obs.sample_rays(cfg.backbone.batch, generator)

@@ -21,6 +21,8 @@ import numpy as np
 import trimesh
 from jaxtyping import Float
 
+Vec = Sequence[float | int] | np.ndarray  # a point or vector; beartype rejects ints as floats
+
 Color = tuple[int, int, int]
 _Z = np.array([0.0, 0.0, 1.0])
 
@@ -30,22 +32,22 @@ def _paint(mesh: trimesh.Trimesh, color: Color) -> trimesh.Trimesh:
     return mesh
 
 
-def _box(lo: Sequence[float], hi: Sequence[float], color: Color) -> trimesh.Trimesh:
+def _box(lo: Vec, hi: Vec, color: Color) -> trimesh.Trimesh:
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
     return _paint(trimesh.creation.box(bounds=np.stack([lo, hi])), color)
 
 
-def _rod(p0: Sequence[float], p1: Sequence[float], radius: float, color: Color, sections: int = 8) -> trimesh.Trimesh:
+def _rod(p0: Vec, p1: Vec, radius: float, color: Color, sections: int = 8) -> trimesh.Trimesh:
     return _paint(trimesh.creation.cylinder(radius=radius, segment=np.array([p0, p1], float), sections=sections), color)
 
 
-def _sphere(center: Sequence[float], radius: float, color: Color, subdivisions: int = 2) -> trimesh.Trimesh:
+def _sphere(center: Vec, radius: float, color: Color, subdivisions: int = 2) -> trimesh.Trimesh:
     mesh = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
     mesh.apply_translation(center)
     return _paint(mesh, color)
 
 
-def _revolved(profile: Sequence[Sequence[float]], color: Color, sections: int = 32, angle: float = 2 * math.pi,
+def _revolved(profile: Sequence[Vec], color: Color, sections: int = 32, angle: float = 2 * math.pi,
               transform: np.ndarray | None = None) -> trimesh.Trimesh:
     """Surface of revolution of an ``(r, z)`` polyline about +z, then ``transform``."""
     mesh = trimesh.creation.revolve(np.asarray(profile, float), angle=angle, sections=sections)
@@ -62,7 +64,7 @@ def _recolor(mesh: trimesh.Trimesh, select: np.ndarray, color: Color) -> trimesh
     return mesh
 
 
-def _pose(rotation_axis: Sequence[float], angle: float, translation: Sequence[float]) -> np.ndarray:
+def _pose(rotation_axis: Vec, angle: float, translation: Vec) -> np.ndarray:
     matrix = trimesh.transformations.rotation_matrix(angle, rotation_axis)
     matrix[:3, 3] = translation
     return matrix
@@ -176,7 +178,7 @@ def _ficus(rng: np.random.Generator) -> trimesh.Trimesh:
 def _mic() -> trimesh.Trimesh:
     """Microphone on a stand: round base, thin pole, thin boom with a counterweight, one bulky head."""
     black, silver, dark = (30, 30, 30), (190, 190, 200), (60, 60, 70)
-    base = _revolved([(0.0, 0.0), (0.35, 0.0), (0.33, 0.06), (0.0, 0.06)], black, transform=_pose(_Z, 0, (0.55, -0.5, 0)))
+    base = _revolved([(0.0, 0.0), (0.35, 0.0), (0.33, 0.06), (0.0, 0.06)], black, transform=_pose(_Z, 0.0, (0.55, -0.5, 0)))
     pole = _rod((0.55, -0.5, 0.06), (0.55, -0.5, 1.0), 0.018, silver)
     joint = _sphere((0.55, -0.5, 1.0), 0.04, black, subdivisions=1)
     boom = _rod((0.95, -0.85, 0.8), (-0.45, 0.4, 1.4), 0.014, silver)
@@ -252,7 +254,7 @@ def _ship(rng: np.random.Generator) -> trimesh.Trimesh:
     return _assemble(parts)
 
 
-def _drum(centre: Sequence[float], axis: Sequence[float], radius: float, depth: float, shell: Color) -> trimesh.Trimesh:
+def _drum(centre: Vec, axis: Vec, radius: float, depth: float, shell: Color) -> trimesh.Trimesh:
     """A cylinder with white heads (faces facing along the axis) and a coloured shell."""
     axis = np.asarray(axis, float) / np.linalg.norm(axis)
     centre = np.asarray(centre, float)
@@ -260,13 +262,13 @@ def _drum(centre: Sequence[float], axis: Sequence[float], radius: float, depth: 
     return _recolor(drum, np.abs(drum.face_normals @ axis) > 0.9, (235, 235, 225))
 
 
-def _cymbal(centre: Sequence[float], radius: float, tilt: float) -> trimesh.Trimesh:
+def _cymbal(centre: Vec, radius: float, tilt: float) -> trimesh.Trimesh:
     """A thin, slightly domed bronze disc (about 1/60 of its radius thick), tilted about x."""
     profile = [(0.0, 0.05 * radius), (radius, 0.0), (radius, -0.015 * radius), (0.0, 0.035 * radius)]
     return _revolved(profile, (205, 165, 60), sections=32, transform=_pose((1, 0, 0), tilt, centre))
 
 
-def _stand(foot: Sequence[float], top: Sequence[float]) -> list[trimesh.Trimesh]:
+def _stand(foot: Vec, top: Vec) -> list[trimesh.Trimesh]:
     """A thin pole with a tripod of thin legs."""
     foot, top = np.asarray(foot, float), np.asarray(top, float)
     parts = [_rod(foot + [0, 0, 0.2], top, 0.01, (170, 170, 180), sections=6)]
@@ -299,7 +301,7 @@ def _drums() -> trimesh.Trimesh:
 
 def _chair() -> trimesh.Trimesh:
     """Wooden chair: four legs with stretchers (a cavity under the seat), cushion, slatted open back, arms."""
-    wood, cushion = (150, 100, 55), (190, 60, 40)
+    wood, dark_wood, cushion = (150, 100, 55), (105, 65, 35), (190, 60, 40)
     parts = []
     for x in (-0.55, 0.55):
         for y in (-0.55, 0.55):
@@ -308,12 +310,12 @@ def _chair() -> trimesh.Trimesh:
     parts.append(_box((-0.62, -0.62, 0.9), (0.62, 0.62, 0.98), wood))
     parts.append(_box((-0.55, -0.55, 0.98), (0.55, 0.5, 1.06), cushion))
     for y in (-0.55, 0.55):
-        parts.append(_box((-0.51, y - 0.02, 0.3), (0.51, y + 0.02, 0.35), wood))
+        parts.append(_box((-0.51, y - 0.02, 0.3), (0.51, y + 0.02, 0.35), dark_wood))
     for x in (-0.55, 0.55):
-        parts.append(_box((x - 0.02, -0.51, 0.3), (x + 0.02, 0.51, 0.35), wood))
+        parts.append(_box((x - 0.02, -0.51, 0.3), (x + 0.02, 0.51, 0.35), dark_wood))
     parts.append(_box((-0.59, 0.51, 1.85), (0.59, 0.59, 1.97), wood))
     parts.append(_box((-0.51, 0.52, 1.1), (0.51, 0.58, 1.15), wood))
-    parts += [_box((x - 0.035, 0.53, 1.15), (x + 0.035, 0.57, 1.85), wood) for x in (-0.25, 0.0, 0.25)]
+    parts += [_box((x - 0.035, 0.53, 1.15), (x + 0.035, 0.57, 1.85), dark_wood) for x in (-0.25, 0.0, 0.25)]
     for x in (-0.6, 0.6):
         parts.append(_box((x - 0.04, -0.6, 1.3), (x + 0.04, 0.55, 1.36), wood))
         parts.append(_box((x - 0.025, -0.55, 0.98), (x + 0.025, -0.5, 1.3), wood))

@@ -7,6 +7,7 @@ Values are strict JSON: numpy/torch scalars and arrays become numbers and lists,
 floats (NaN, inf) are written as ``null``; readers (``pipeline.tables``) read ``null`` back as NaN.
 """
 
+import dataclasses
 import importlib.metadata
 import json
 import math
@@ -15,6 +16,7 @@ import re
 import subprocess
 import tempfile
 import warnings
+from collections.abc import Mapping, Sequence
 from datetime import datetime, timezone
 from pathlib import Path
 from types import MappingProxyType
@@ -43,10 +45,10 @@ METRIC_DEFINITIONS = MappingProxyType(
     {
         "psnr": "10 log10(1 / RGB), RGB the MSE pooled over the 20 evaluation views (PROTOCOL 4.1)",
         "ssim": "Gaussian 11x11 window, sigma 1.5, 5-pixel border dropped, mean over views (PROTOCOL 4.1)",
-        "lpips": "AlexNet v0.1 linear heads, inputs mapped to [-1, 1], mean over views; null when weights are unavailable",
+        "lpips": "AlexNet v0.1 linear heads, inputs in [-1, 1], mean over views; null without weights (PROTOCOL 4.1)",
         "rgb": "MSE pooled over all evaluation pixels and channels, black background (PROTOCOL 4.1)",
         "acc": "mean distance reconstructed point -> nearest GT point; null for an empty reconstruction (PROTOCOL 4.2)",
-        "comp": "mean distance GT point -> nearest reconstructed point; null for an empty reconstruction (PROTOCOL 4.2)",
+        "comp": "mean distance GT point -> nearest reconstructed point; null for an empty reconstruction",
         "cr": "fraction of GT points within the scene's C.R. threshold of a reconstructed point (PROTOCOL 4.2)",
         "vis": "seen GT faces / all GT faces over the observed poses, a face count (PROTOCOL 4.3)",
         "vis_area": "area-weighted fraction of seen GT faces (logged, not reported)",
@@ -56,7 +58,7 @@ METRIC_DEFINITIONS = MappingProxyType(
 )
 
 
-def check_key(name: str, value: str) -> str:
+def check_key(name: str, value: object) -> str:
     """Return ``value`` if it is a safe single path component, else raise ValueError naming the key."""
     if not isinstance(value, str) or not KEY_PATTERN.fullmatch(value) or value in (".", ".."):
         raise ValueError(f"run key {name}={value!r} is not a plain name: use letters, digits, '_', '.', '-'")
@@ -75,7 +77,8 @@ def run_dir(outputs: Path, scene: str, method: str, planner: str, ablation: str,
 
 
 def to_jsonable(value: Any) -> Any:
-    """Strict-JSON copy of ``value``: numpy/torch scalars and arrays to Python, non-finite floats to None."""
+    """Strict-JSON copy of ``value``: mappings, sequences, dataclasses, numpy/torch scalars and arrays
+    to Python; non-finite floats to None."""
     if value is None or isinstance(value, (bool, str)):
         return value
     if isinstance(value, int):
@@ -84,10 +87,12 @@ def to_jsonable(value: Any) -> Any:
         return float(value) if math.isfinite(value) else None
     if isinstance(value, Path):
         return str(value)
-    if isinstance(value, dict):
+    if isinstance(value, Mapping):  # dict, OmegaConf DictConfig
         return {str(k): to_jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
+    if isinstance(value, Sequence):  # list, tuple, OmegaConf ListConfig (str handled above)
         return [to_jsonable(v) for v in value]
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return to_jsonable(dataclasses.asdict(value))
     if hasattr(value, "tolist"):  # numpy and torch scalars/arrays (moved to the CPU first)
         return to_jsonable(value.cpu().tolist() if hasattr(value, "cpu") else value.tolist())
     raise TypeError(f"cannot record a value of type {type(value).__name__} in a run record")
@@ -126,8 +131,10 @@ def dumps(value: Any) -> str:
 def git_state(repo: Path) -> dict[str, Any]:
     """``{"commit", "dirty"}`` of the git checkout at ``repo``; both None when it is not one."""
     try:
-        head = subprocess.run(["git", "-C", str(repo), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=30)
-        status = subprocess.run(["git", "-C", str(repo), "status", "--porcelain"], capture_output=True, text=True, timeout=30)
+        head, status = (
+            subprocess.run(["git", "-C", str(repo), *args], capture_output=True, text=True, timeout=30)
+            for args in (("rev-parse", "HEAD"), ("status", "--porcelain"))
+        )
     except (OSError, subprocess.TimeoutExpired):
         return {"commit": None, "dirty": None}
     if head.returncode != 0 or status.returncode != 0:
@@ -230,6 +237,8 @@ class RunRecord:
                     )
             timings = {**previous.get("timings", timings), "ended": None}
             timings["resumed"] = [*timings.get("resumed", []), now]
+        for stale in self.directory.glob(".*.tmp"):  # temp files of a killed write
+            stale.unlink()
         repo = Path(__file__).resolve().parents[1] if repo is None else repo
         record = {
             **info,

@@ -98,8 +98,8 @@ def _base_color_texture_mesh(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
 class GroundTruthRenderer:
     """Renders one mesh from c2w poses (OpenGL axes, PROTOCOL.md 1) with pixel-centre rays.
 
-    Keeps one offscreen context per image size; call ``close()`` (or use it as a context manager)
-    to release them.
+    Keeps one offscreen context (recreated when the image size changes); call ``close()`` (or use it
+    as a context manager) to release it.
     """
 
     def __init__(self, mesh: trimesh.Trimesh, backend: str = "auto") -> None:
@@ -112,7 +112,8 @@ class GroundTruthRenderer:
         self._scene = pr.Scene(bg_color=np.zeros(4), ambient_light=np.ones(3))
         self._scene.add(pr.Mesh([_as_opaque_primitive(pr, _base_color_texture_mesh(mesh))]))
         self._camera_node = None
-        self._renderers: dict = {}
+        self._renderer = None
+        self._size: tuple[int, int] | None = None
         self._bounds = np.asarray(mesh.bounds, dtype=np.float64)
         self._raycaster = o3d.t.geometry.RaycastingScene()
         self._raycaster.add_triangles(
@@ -135,10 +136,13 @@ class GroundTruthRenderer:
         return near, max(far, 2.0 * near)
 
     def _offscreen(self, intr: Intrinsics):
-        key = (intr.width, intr.height)
-        if key not in self._renderers:
-            self._renderers[key] = self._pyrender.OffscreenRenderer(intr.width, intr.height)
-        return self._renderers[key]
+        """The offscreen context for this image size; a new size replaces it (pyrender binds meshes to one context)."""
+        size = (intr.width, intr.height)
+        if self._renderer is not None and self._size != size:
+            self.close()
+        if self._renderer is None:
+            self._renderer, self._size = self._pyrender.OffscreenRenderer(*size), size
+        return self._renderer
 
     def render_rgb_depth(
         self, c2w: Float[np.ndarray, "4 4"], intr: Intrinsics
@@ -155,14 +159,21 @@ class GroundTruthRenderer:
         color, depth = self._offscreen(intr).render(self._scene, flags=pr.RenderFlags.FLAT)
         return (color[..., :3].astype(np.float32) / 255.0), depth.astype(np.float32)
 
+    def cast_rays(
+        self, origins: Float[np.ndarray, "N 3"], dirs: Float[np.ndarray, "N 3"]
+    ) -> tuple[Float[np.ndarray, "N"], Int[np.ndarray, "N"]]:
+        """Exact ray casting (open3d): hit distance along ``dirs`` (inf = miss) and face id (-1 = miss)."""
+        rays = np.concatenate([origins, dirs], axis=-1).astype(np.float32)
+        hits = self._raycaster.cast_rays(self._o3d.core.Tensor(rays))
+        t_hit = hits["t_hit"].numpy()
+        ids = hits["primitive_ids"].numpy().astype(np.int64)
+        ids[~np.isfinite(t_hit)] = -1
+        return t_hit, ids
+
     def face_ids(self, c2w: Float[np.ndarray, "4 4"], intr: Intrinsics) -> Int[np.ndarray, "H W"]:
         """Face hit by each pixel-centre ray (``nvf.cameras.pixel_rays``), -1 = miss (PROTOCOL.md 4.3)."""
         origins, dirs = pixel_rays(torch.from_numpy(c2w.astype(np.float32)), intr)
-        rays = torch.cat([origins, dirs], dim=-1).numpy()
-        hits = self._raycaster.cast_rays(self._o3d.core.Tensor(rays))
-        ids = hits["primitive_ids"].numpy().astype(np.int64)
-        ids[~np.isfinite(hits["t_hit"].numpy())] = -1
-        return ids.reshape(intr.height, intr.width)
+        return self.cast_rays(origins.numpy(), dirs.numpy())[1].reshape(intr.height, intr.width)
 
     def render(self, c2w: Float[Tensor, "4 4"] | Float[np.ndarray, "4 4"], intr: Intrinsics) -> GTView:
         """Render RGB, depth, mask and face ids of the mesh seen from ``c2w``."""
@@ -174,10 +185,10 @@ class GroundTruthRenderer:
                       face_id=self.face_ids(pose, intr))
 
     def close(self) -> None:
-        """Release the offscreen contexts."""
-        for renderer in self._renderers.values():
-            renderer.delete()
-        self._renderers.clear()
+        """Release the offscreen context."""
+        if self._renderer is not None:
+            self._renderer.delete()
+            self._renderer, self._size = None, None
 
     def __enter__(self) -> "GroundTruthRenderer":
         return self

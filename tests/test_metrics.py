@@ -170,7 +170,7 @@ def test_geometry_sphere():
     dirs = rng.standard_normal((20000, 3))
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     on = geometry_metrics(torch.from_numpy(dirs), mesh, threshold=0.05, num_gt_samples=20000)
-    assert on.acc < 0.01 and on.comp < 0.01 and on.cr > 0.99
+    assert on.acc < 0.02 and on.comp < 0.02 and on.cr > 0.99  # sample spacing ~0.0125
     outside = geometry_metrics(1.1 * dirs, mesh, threshold=0.05, num_gt_samples=20000)
     assert outside.acc == pytest.approx(0.1, abs=0.005) and outside.comp == pytest.approx(0.1, abs=0.01)
     assert outside.cr == 0.0

@@ -24,9 +24,10 @@ def sphere_grid(**overrides) -> OccupancyGrid:
 
 
 def random_rays(n: int, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
-    """Rays from a shell of radius ~3 aimed near the origin (some miss the box)."""
+    """Rays from 0.5-5.5 units off the centre aimed near it (some start inside, some miss the box)."""
     gen = torch.Generator().manual_seed(seed)
-    origins = torch.nn.functional.normalize(torch.randn(n, 3, generator=gen), dim=-1) * (2.0 + torch.rand(n, 1, generator=gen) * 4.0)
+    distance = 0.5 + torch.rand(n, 1, generator=gen) * 5.0
+    origins = torch.nn.functional.normalize(torch.randn(n, 3, generator=gen), dim=-1) * distance
     target = (torch.rand(n, 3, generator=gen) - 0.5) * 3.0
     return origins, torch.nn.functional.normalize(target - origins, dim=-1)
 
@@ -86,7 +87,7 @@ def test_update_schedule_decay_and_threshold() -> None:
 
 def test_march_samples_are_valid() -> None:
     """M6: samples sorted, inside the box, midpoints in occupied cells, dt = max(step, cone t)."""
-    grid = sphere_grid()  # step / cone = 1.73: rays enter the box at t in ~[1, 5], both regimes occur
+    grid = sphere_grid()  # step / cone = 1.73: both regimes of dt occur
     origins, dirs = random_rays(400)
     s = grid.march(origins, dirs, jitter=False)
     assert s.num_samples > 1000 and s.n_rays == 400
@@ -158,3 +159,25 @@ def test_march_chunking_and_cap(monkeypatch: pytest.MonkeyPatch) -> None:
     assert torch.equal(torch.bincount(capped.ray_idx, minlength=300), counts.clamp(max=7))
     first = full.select(torch.arange(full.num_samples) - (counts.cumsum(0) - counts)[full.ray_idx] < 7)
     assert torch.equal(first.t_start, capped.t_start)
+
+
+@pytest.mark.parametrize("distance", [1.5, 40.0])
+def test_empty_space_skipping_is_exact_on_scattered_cells(distance: float) -> None:
+    """M6: block-level skipping never drops a step whose midpoint is in an isolated occupied cell."""
+    grid = OccupancyGrid(AABB, SamplerConfig(grid_resolution=32))
+    gen = torch.Generator().manual_seed(5)
+    grid.occupied.copy_(torch.rand(grid.occupied.shape, generator=gen) < 0.02)
+    origins, dirs = random_rays(10, seed=7)
+    origins = origins / origins.norm(dim=-1, keepdim=True) * distance
+    dirs = torch.nn.functional.normalize((torch.rand(10, 3, generator=gen) - 0.5) * 1.2 - origins, dim=-1)
+    s = grid.march(origins, dirs, jitter=False)
+    t_entry, _ = ray_aabb(origins, dirs, AABB[0], AABB[1])
+    total = 0
+    for r in range(10):
+        ref = reference_march(grid, origins[r], dirs[r], max(float(t_entry[r]), grid.cfg.near))
+        got = s.select(s.ray_idx == r)
+        assert got.num_samples == len(ref)
+        total += len(ref)
+        if ref:
+            torch.testing.assert_close(got.t_start, torch.tensor([a for a, _ in ref]), rtol=1e-5, atol=1e-5)
+    assert total > 0

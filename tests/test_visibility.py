@@ -144,7 +144,8 @@ def test_labels_zero_outside_every_frustum_and_without_cameras():
 
 def test_aabb_skip_and_chunking_do_not_change_labels():
     cfg = TrainConfig(label_samples=64)
-    c2w = torch.stack([look_at(torch.tensor([0.3, -3.0, 0.2]), torch.zeros(3)), look_at(torch.tensor([0.0, 0.0, 3.0]), torch.zeros(3))])
+    positions = [torch.tensor([0.3, -3.0, 0.2]), torch.tensor([0.0, 0.0, 3.0])]
+    c2w = torch.stack([look_at(p, torch.zeros(3)) for p in positions])
     points = torch.rand(500, 3, generator=torch.Generator().manual_seed(5)) * 2 - 1
 
     def boxed(x: torch.Tensor) -> torch.Tensor:  # density 0 outside the AABB, as the field's
@@ -158,7 +159,7 @@ def test_aabb_skip_and_chunking_do_not_change_labels():
 
 def test_labels_do_not_track_gradients():
     lin = torch.nn.Linear(3, 1)
-    labels = visibility_labels(
-        lambda x: torch.relu(lin(x)[:, 0]), torch.rand(10, 3), look_at(torch.tensor([0.0, -3.0, 0.0]), torch.zeros(3))[None], INTR, TrainConfig(label_samples=8)
-    )
+    c2w = look_at(torch.tensor([0.0, -3.0, 0.0]), torch.zeros(3))[None]
+    cfg = TrainConfig(label_samples=8)
+    labels = visibility_labels(lambda x: torch.relu(lin(x)[:, 0]), torch.rand(10, 3), c2w, INTR, cfg)
     assert not labels.requires_grad

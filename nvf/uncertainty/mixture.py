@@ -123,7 +123,7 @@ def ray_mixture(
     rays = torch.arange(n_rays, device=ray_idx.device)
     mixture = RayMixture(
         weights=torch.cat([seen, unknown, background]),
-        means=torch.cat([rgb_s, per_ray * cfg.mu_un, per_ray * 0.0]),
+        means=torch.cat([rgb_s, per_ray * cfg.mu_un, torch.zeros_like(per_ray)]),
         variances=torch.cat([seen_var, per_ray * cfg.var_un, per_ray * cfg.var_bg]),
         ray_idx=torch.cat([ray_idx, rays, rays]),
         n_rays=n_rays,

@@ -8,6 +8,7 @@ from jaxtyping import Float, Int
 from torch import Tensor
 
 from nvf.config import EntropyConfig
+from nvf.model import RenderResult
 from nvf.uncertainty.entropy import (
     corrected_entropy,
     entropy_floor,
@@ -54,7 +55,7 @@ class NVFEntropyScorer:
     def sampler(self) -> str:
         return self.cfg.sampler
 
-    def pixel_scores(self, result, pixel_index: Int[Tensor, "R"] | None = None) -> Float[Tensor, "R"]:
+    def pixel_scores(self, result: RenderResult, pixel_index: Int[Tensor, "R"] | None = None) -> Float[Tensor, "R"]:
         """``H' [R]`` of each rendered ray (nats)."""
         cfg, samples = self.cfg, result.samples
         mixture, eq_weights = ray_mixture(

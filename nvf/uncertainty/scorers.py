@@ -10,6 +10,7 @@ from jaxtyping import Float, Int
 from torch import Tensor
 
 from nvf.config import BaselineConfig, EntropyConfig
+from nvf.model import RenderResult
 from nvf.uncertainty.baselines import ActiveRMAPScorer, AIRScorer, RenderedVarianceScorer, WDScorer
 from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
 
@@ -35,7 +36,7 @@ class ViewScorer(Protocol):
     @property
     def sampler(self) -> str: ...
 
-    def pixel_scores(self, result, pixel_index: Int[Tensor, "R"] | None = None) -> Float[Tensor, "R"]: ...
+    def pixel_scores(self, result: RenderResult, pixel_index: Int[Tensor, "R"] | None = None) -> Float[Tensor, "R"]: ...
 
 
 def make_scorer(method: str, entropy: EntropyConfig, baseline: BaselineConfig, d0: float) -> ViewScorer | None:

@@ -1,0 +1,30 @@
+"""``python -m pipeline.bench NAME [args]``: run the benchmark module ``pipeline/bench/NAME.py``.
+
+Each benchmark is a module of this package exposing ``main(argv: list[str]) -> None``; adding a
+benchmark is adding a module. Unknown names are one line on stderr and exit status 2.
+"""
+
+import importlib
+import pkgutil
+import sys
+from pathlib import Path
+
+
+def available() -> list[str]:
+    """Names of the benchmark modules in this package."""
+    return sorted(m.name for m in pkgutil.iter_modules([str(Path(__file__).parent)]) if not m.name.startswith("_"))
+
+
+def main(argv: list[str]) -> None:
+    names = available()
+    if not argv or argv[0] in ("-h", "--help"):
+        print(f"usage: python -m pipeline.bench {{{','.join(names)}}} [args]", file=sys.stderr)
+        raise SystemExit(0 if argv else 2)
+    if argv[0] not in names:
+        print(f"error: unknown benchmark '{argv[0]}'; choose one of: {', '.join(names)}", file=sys.stderr)
+        raise SystemExit(2)
+    importlib.import_module(f"pipeline.bench.{argv[0]}").main(argv[1:])
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

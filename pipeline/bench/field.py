@@ -1,0 +1,199 @@
+"""``python -m pipeline.bench field [--threads 2] [--iters 5]``: field throughput on this CPU.
+
+Measures, side by side in one run, for each backbone variant (hash grid with the paper's 2^19
+table on the torch and C++ backends, the CPU-budget hash grid, dense grids):
+
+- training samples/s: forward + backward + Adam step of the backbone (density + colour heads) on
+  ``rays x samples_per_ray`` ray-coherent samples, with the time split into encoding forward,
+  encoding backward, the rest of forward/backward (MLPs), and the optimiser step;
+- inference samples/s: ``no_grad``, density + colour + variance + visibility heads, in chunks;
+- ``fraction_of_limit``: MLP FLOPs/sample x samples/s over the measured ``[N,64] x [64,64]``
+  matmul rate, i.e. how close the variant runs to pure-matmul speed.
+
+Writes ``results/bench/field.json`` and prints a table. Timings are medians of ``--iters`` runs.
+"""
+
+import argparse
+import json
+import statistics
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import torch
+from jaxtyping import Float
+from torch import Tensor
+
+from nvf.config import FieldConfig
+from nvf.encoding import cpp_extension
+from nvf.field import HEADS, RadianceField, spherical_harmonics
+
+REPO = Path(__file__).resolve().parents[2]
+AABB = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+CPU_BUDGET_LOG2 = 15
+
+
+def variants() -> dict[str, FieldConfig]:
+    """The backbones compared: paper hash grid on both backends, the CPU-budget hash grid, dense grids."""
+    return {
+        "hash2^19-torch": FieldConfig(backend="torch"),
+        "hash2^19-cpp": FieldConfig(backend="cpp"),
+        f"hash2^{CPU_BUDGET_LOG2}-torch": FieldConfig(log2_hashmap_size=CPU_BUDGET_LOG2, backend="torch"),
+        f"hash2^{CPU_BUDGET_LOG2}-cpp": FieldConfig(log2_hashmap_size=CPU_BUDGET_LOG2, backend="cpp"),
+        "dense128x32-cpp": FieldConfig(kind="densegrid", dense_resolution=128, dense_features=32, backend="cpp"),
+        "dense64x32-cpp": FieldConfig(kind="densegrid", dense_resolution=64, dense_features=32, backend="cpp"),
+    }
+
+
+def ray_samples(
+    n_rays: int, per_ray: int, generator: torch.Generator
+) -> tuple[Float[Tensor, "S 3"], Float[Tensor, "S 3"]]:
+    """Points marched along random rays through the AABB (step 4 sqrt(3)/1000 as in M6), and their dirs."""
+    origins = torch.rand(n_rays, 3, generator=generator) * 1.6 - 0.8
+    dirs = torch.nn.functional.normalize(torch.randn(n_rays, 3, generator=generator), dim=-1)
+    t = torch.arange(per_ray, dtype=torch.float32) * (4.0 * 3.0**0.5 / 1000.0)
+    points = origins[:, None] + t[None, :, None] * dirs[:, None]
+    return points.reshape(-1, 3), dirs[:, None].expand(-1, per_ray, -1).reshape(-1, 3)
+
+
+def _median_seconds(fn: Callable[[], object], iters: int) -> float:
+    fn()  # warm-up
+    times = []
+    for _ in range(iters):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+def matmul_gflops(n: int, width: int, iters: int) -> float:
+    """Dense ``[n, width] x [width, width]`` float32 matmul rate (the MLP's roofline on this CPU)."""
+    a, b = torch.randn(n, width), torch.randn(width, width)
+    out = torch.empty(n, width)
+    return 2.0 * n * width * width / _median_seconds(lambda: torch.mm(a, b, out=out), iters * 4) / 1e9
+
+
+def mlp_flops(field: RadianceField, heads: frozenset[str], train: bool) -> float:
+    """FLOPs per sample of the MLPs evaluated for ``heads`` (x3 for forward + backward)."""
+    modules = [field.density_mlp]
+    modules += [field.color_head] if "rgb" in heads else []
+    modules += [field.variance_head] if "variance" in heads else []
+    modules += [field.vis_position, field.vis_head] if "visibility" in heads else []
+    macs = sum(p.numel() for m in modules for p in m.parameters() if p.dim() == 2)
+    return 2.0 * macs * (3.0 if train else 1.0)
+
+
+def bench_variant(cfg: FieldConfig, rays: int, per_ray: int, chunk: int, iters: int) -> dict[str, float]:
+    """Training and inference throughput of one field configuration, with a per-phase time split."""
+    generator = torch.Generator().manual_seed(0)
+    field = RadianceField(AABB, cfg)
+    optimizer = torch.optim.Adam(field.parameter_groups()["backbone"], lr=1e-2, eps=1e-15, fused=True)
+    x, d = ray_samples(rays, per_ray, generator)
+    target = torch.rand(x.shape[0], 3, generator=generator)
+    n = x.shape[0]
+    heads_train = frozenset({"rgb"})
+    phases = {"encode_fwd": [], "encode_bwd": [], "mlp_fwd_bwd": [], "optimizer": []}
+
+    sh = spherical_harmonics(d)
+
+    def train_step() -> None:
+        """The training step split in phases: the MLPs run on a detached copy of the features."""
+        t0 = time.perf_counter()
+        feats = field.encoding(field.normalize(x))
+        t1 = time.perf_counter()
+        leaf = feats.detach().requires_grad_()
+        h = field.density_mlp(leaf)
+        rgb = torch.sigmoid(field.color_head(torch.cat([sh, h[:, 1:]], dim=-1)))
+        loss = ((rgb - target) ** 2).mean() + 1e-3 * torch.exp(h[:, 0]).mean()
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        t2 = time.perf_counter()
+        feats.backward(leaf.grad)
+        t3 = time.perf_counter()
+        optimizer.step()
+        t4 = time.perf_counter()
+        for key, seconds in zip(phases, (t1 - t0, t3 - t2, t2 - t1, t4 - t3)):
+            phases[key].append(seconds)
+
+    def full_train_step() -> None:
+        out = field(x, d, heads_train)
+        loss = ((out.rgb - target) ** 2).mean() + 1e-3 * out.sigma.mean()
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+
+    train_s = _median_seconds(full_train_step, iters)
+    _median_seconds(train_step, iters)
+    split = {key: statistics.median(values[1:]) for key, values in phases.items()}
+
+    xi, di = ray_samples(4 * rays, per_ray, generator)
+
+    @torch.no_grad()
+    def infer() -> None:
+        for start in range(0, xi.shape[0], chunk):
+            field(xi[start : start + chunk], di[start : start + chunk], HEADS)
+
+    @torch.no_grad()
+    def infer_encoding() -> None:
+        for start in range(0, xi.shape[0], chunk):
+            field.encoding(field.normalize(xi[start : start + chunk]))
+
+    infer_s = _median_seconds(infer, iters)
+    infer_enc_s = _median_seconds(infer_encoding, iters)
+    return {
+        "params": sum(p.numel() for p in field.parameters()),
+        "train_samples_per_s": n / train_s,
+        "infer_samples_per_s": xi.shape[0] / infer_s,
+        "train_ms": 1e3 * train_s,
+        **{f"train_{key}_ms": 1e3 * value for key, value in split.items()},
+        "infer_ms_per_1e5": 1e8 * infer_s / xi.shape[0],
+        "infer_encoding_ms_per_1e5": 1e8 * infer_enc_s / xi.shape[0],
+        "mlp_flops_train": mlp_flops(field, heads_train, train=True),
+        "mlp_flops_infer": mlp_flops(field, HEADS, train=False),
+    }
+
+
+def main(argv: list[str]) -> None:
+    parser = argparse.ArgumentParser(prog="python -m pipeline.bench field", description=__doc__.splitlines()[0])
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--iters", type=int, default=5)
+    parser.add_argument("--rays", type=int, default=1024)
+    parser.add_argument("--samples-per-ray", type=int, default=25)
+    parser.add_argument("--chunk", type=int, default=8192)
+    parser.add_argument("--only", nargs="*", default=None, help="variant names to run (default: all)")
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    cpp_available = cpp_extension() is not None
+    gflops = matmul_gflops(args.rays * args.samples_per_ray, 64, args.iters)
+    results = {}
+    for name, cfg in variants().items():
+        if args.only and name not in args.only:
+            continue
+        if cfg.backend == "cpp" and not cpp_available:
+            continue
+        r = bench_variant(cfg, args.rays, args.samples_per_ray, args.chunk, args.iters)
+        r["fraction_of_limit_train"] = r["mlp_flops_train"] * r["train_samples_per_s"] / (gflops * 1e9)
+        r["fraction_of_limit_infer"] = r["mlp_flops_infer"] * r["infer_samples_per_s"] / (gflops * 1e9)
+        results[name] = r
+        print(
+            f"{name:18s} params {r['params'] / 1e6:6.2f}M  train {r['train_samples_per_s'] / 1e6:5.2f} M/s "
+            f"({r['train_ms']:6.1f} ms: enc fwd {r['train_encode_fwd_ms']:5.1f}, enc bwd {r['train_encode_bwd_ms']:5.1f}, "
+            f"mlp {r['train_mlp_fwd_bwd_ms']:5.1f}, adam {r['train_optimizer_ms']:5.1f})  "
+            f"infer {r['infer_samples_per_s'] / 1e6:5.2f} M/s (enc {r['infer_encoding_ms_per_1e5']:5.1f} of "
+            f"{r['infer_ms_per_1e5']:5.1f} ms/1e5)  frac train {r['fraction_of_limit_train']:.2f} "
+            f"infer {r['fraction_of_limit_infer']:.2f}",
+            flush=True,
+        )
+    report = {
+        "torch_threads": args.threads,
+        "batch_samples": args.rays * args.samples_per_ray,
+        "infer_chunk": args.chunk,
+        "matmul_gflops_64": gflops,
+        "cpp_available": cpp_available,
+        "goals": {"train_samples_per_s": 1e6, "infer_samples_per_s": 3e6},
+        "variants": results,
+    }
+    out = REPO / "results" / "bench" / "field.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(report, indent=2) + "\n")
+    print(f"matmul [N,64]x[64,64]: {gflops:.1f} GFLOP/s; wrote {out}")

@@ -1,0 +1,630 @@
+"""Run records -> long CSV -> paper-style tables (md, csv, tex), comparison with the paper, figures.
+
+``python -m pipeline.tables [paths.outputs=DIR] [paths.results=DIR]`` reads every run under
+``paths.outputs`` and ``${paths.results}/runs`` (committed records: run.json + steps.jsonl) and writes
+``${paths.results}/runs.csv``, ``tables/`` and ``figures/``. Only finished runs count; a cell is the
+mean +- population std over seeds of each run's last step (PROTOCOL.md 3). Step rows store NaN as
+``null`` (pipeline.records); it is read back as NaN and footnoted.
+"""
+
+import json
+import math
+import os
+import re
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+import pandas as pd
+from jaxtyping import Float
+from matplotlib.figure import Figure
+
+from pipeline.paper_numbers import paper_numbers
+from pipeline.records import IDENTITY_KEYS, RUN_JSON, STEPS, atomic_write_text, check_key, read_steps, record_status
+
+# (key, label, higher is better, decimals) in the paper's column order.
+METRICS = (
+    ("psnr", "PSNR", True, 2),
+    ("ssim", "SSIM", True, 3),
+    ("lpips", "LPIPS", False, 3),
+    ("rgb", "RGB", False, 4),
+    ("acc", "Acc", False, 4),
+    ("comp", "Comp", False, 4),
+    ("cr", "C.R.", True, 3),
+    ("vis", "Vis.", True, 3),
+)
+METRIC_KEYS = tuple(m[0] for m in METRICS)
+METHOD_NAMES = (
+    ("random", "Random"),
+    ("wd", "WD"),
+    ("activermap", "ActiveRMAP"),
+    ("air", "AIR"),
+    ("activenerf", "ActiveNeRF"),
+    ("neurar", "NeurAR"),
+    ("nvf", "NVF"),
+)
+ABLATION_NAMES = (
+    ("wo_vis", "w/o Vis."),
+    ("wo_var", "w/o Var."),
+    ("ind_rays", "Ind. Rays"),
+    ("loose", "Loose"),
+    ("none", "NVF"),
+)
+PLANNERS = ("argmax", "opt")
+OBJECT_SCENES = ("chair", "drums", "ficus", "hotdog", "lego", "materials", "mic", "ship")
+ROOM_SCENES = ("hubble", "room")
+OBJECT_MEAN = "object-scene mean"
+LONG_COLUMNS = (
+    "scene", "scene_source", "method", "planner", "ablation", "budget", "seed", "step", "n_views", "metric", "value"
+)
+FINAL_COLUMNS = (
+    *IDENTITY_KEYS, "scene_source", "status", "failure_reason", "lpips_missing_reason", "directory", "step", "n_views"
+)
+GROUP = ("budget", "scene", "method", "planner", "ablation")
+IMAGE_NAME = re.compile(r"step_(\d+)_(.+)\.png")
+IMAGE_KINDS = ("gt", "pred", "prediction", "rgb", "entropy", "uncertainty", "depth")
+
+
+@dataclass(frozen=True)
+class Runs:
+    """All run records: ``long`` (LONG_COLUMNS, finished runs), ``final`` (one row per run, last-step metrics)."""
+
+    long: pd.DataFrame
+    final: pd.DataFrame
+    skipped: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Table:
+    """One rendered table: aggregated rows in display order, header lines and footnotes."""
+
+    name: str
+    title: str
+    rows: pd.DataFrame
+    header: tuple[str, ...]
+    notes: tuple[str, ...]
+
+
+def _rank(names: tuple[tuple[str, str], ...], key: str) -> int:
+    keys = [k for k, _ in names]
+    return keys.index(key) if key in keys else len(keys)
+
+
+def method_label(method: str, planner: str, ablation: str) -> str:
+    """Display name: Random ... NVF, ablations as w/o Vis. etc., '-OPT' for planner=opt."""
+    label = dict(METHOD_NAMES).get(method, method)
+    if ablation != "none":
+        ablation_name = dict(ABLATION_NAMES).get(ablation, ablation)
+        label = ablation_name if method == "nvf" else f"{label} {ablation_name}"
+    if planner == "opt":
+        return f"{label}-OPT"
+    return label if planner == "argmax" else f"{label} ({planner})"
+
+
+def base_scene(scene: str) -> str:
+    """Paper scene a scene stands for: 'lego_proxy' -> 'lego'."""
+    return scene.removesuffix("_proxy")
+
+
+def _scene_rank(scene: str) -> tuple[int, str]:
+    order = (*ROOM_SCENES, *OBJECT_SCENES)
+    base = base_scene(scene)
+    return (order.index(base) if base in order else len(order) + (scene == OBJECT_MEAN), scene)
+
+
+def _metric_value(value: object) -> float | None:
+    """Float of a recorded metric (null -> NaN); None for non-numeric entries."""
+    if value is None:
+        return math.nan
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    return float(value)
+
+
+def _load_run(directory: Path) -> tuple[dict, list[dict]]:
+    info = json.loads((directory / RUN_JSON).read_text(encoding="utf-8"))
+    if not isinstance(info, dict):
+        raise ValueError("run.json is not an object")
+    missing = [key for key in IDENTITY_KEYS if key not in info]
+    if missing:
+        raise ValueError(f"run.json lacks {', '.join(missing)}")
+    for key in IDENTITY_KEYS[:-1]:
+        check_key(key, info[key])
+    if not isinstance(info["seed"], int):
+        raise ValueError(f"seed {info['seed']!r} is not an integer")
+    rows, _ = read_steps(directory / STEPS)  # a truncated last line is ignored, never repaired here
+    return info, rows
+
+
+def collect_runs(roots: list[Path]) -> Runs:
+    """Read every run directory (holding run.json) under ``roots``; a run found twice counts once
+    (a finished copy wins, then the first root)."""
+    records: dict[tuple, dict] = {}
+    skipped: list[str] = []
+    for root in roots:
+        for run_json in sorted(Path(root).rglob(RUN_JSON)) if Path(root).is_dir() else []:
+            directory = run_json.parent
+            try:
+                info, rows = _load_run(directory)
+            except (ValueError, OSError) as err:
+                skipped.append(f"{directory}: {str(err).splitlines()[0]}")
+                continue
+            key = tuple(info[k] for k in IDENTITY_KEYS)
+            status = record_status(info, directory)
+            ok = [r for r in rows if r.get("status", "ok") == "ok" and isinstance(r.get("metrics"), dict)]
+            if status == "done" and not ok:
+                status = "empty"
+            if key in records and (records[key]["status"] == "done" or status != "done"):
+                continue
+            records[key] = {"info": info, "rows": ok, "status": status, "directory": directory}
+    long_rows, final_rows = [], []
+    for record in records.values():
+        info, rows = record["info"], record["rows"]
+        keys = {k: info[k] for k in IDENTITY_KEYS}
+        source = str(info.get("scene_source", "unknown"))
+        last = max(rows, key=lambda r: r["step"]) if rows else {"metrics": {}}
+        final = {
+            **keys,
+            "scene_source": source,
+            "status": record["status"],
+            "failure_reason": info.get("failure_reason"),
+            "lpips_missing_reason": info.get("lpips_missing_reason") or last.get("lpips_missing_reason"),
+            "directory": str(record["directory"]),
+            "step": last.get("step"),
+            "n_views": last.get("n_views"),
+        }
+        for metric in METRIC_KEYS:
+            value = _metric_value(last["metrics"].get(metric))
+            final[metric] = math.nan if value is None else value
+        final_rows.append(final)
+        if record["status"] != "done":
+            continue
+        for row in rows:
+            for metric, raw in row["metrics"].items():
+                value = _metric_value(raw)
+                if value is not None:
+                    step = {"step": row["step"], "n_views": row.get("n_views")}
+                    long_rows.append({**keys, "scene_source": source, **step, "metric": str(metric), "value": value})
+    long = pd.DataFrame(long_rows, columns=list(LONG_COLUMNS))
+    long = long.astype({"seed": "int64", "step": "int64", "n_views": "Int64", "value": "float64"})
+    long = long.sort_values(list(LONG_COLUMNS[:8])).reset_index(drop=True)
+    final_frame = pd.DataFrame(final_rows, columns=[*FINAL_COLUMNS, *METRIC_KEYS])
+    return Runs(long=long, final=final_frame, skipped=tuple(skipped))
+
+
+def _stats(values: Float[np.ndarray, " n"]) -> tuple[float, float, int]:
+    valid = values[np.isfinite(values)]
+    if not valid.size:
+        return math.nan, math.nan, 0
+    return float(valid.mean()), float(valid.std()), int(valid.size)  # population std (ddof 0)
+
+
+def aggregate(final: pd.DataFrame) -> pd.DataFrame:
+    """Mean, population std and count of valid values per metric over the seeds of each GROUP."""
+    rows = []
+    for key, group in final.groupby(list(GROUP), sort=False):
+        row = {**dict(zip(GROUP, key)), "scene_source": ", ".join(sorted(set(group["scene_source"]))), "n": len(group)}
+        for metric in METRIC_KEYS:
+            row[f"{metric}_mean"], row[f"{metric}_std"], row[f"{metric}_valid"] = _stats(group[metric].to_numpy(float))
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def object_mean(final: pd.DataFrame) -> tuple[pd.DataFrame, tuple[str, ...]]:
+    """Per seed, the mean over the object scenes of each method (a NaN stays NaN); then over seeds.
+
+    Seeds lacking one of the method's scenes are left out. Returns the aggregated rows (scene =
+    OBJECT_MEAN) and notes naming the scenes averaged and the seeds left out.
+    """
+    objects = final[final["scene"].map(base_scene).isin(OBJECT_SCENES)]
+    per_seed, coverage = [], {}
+    for key, group in objects.groupby(["budget", "method", "planner", "ablation"], sort=False):
+        scenes = sorted(set(group["scene"]), key=_scene_rank)
+        complete = group.groupby("seed").filter(lambda s: set(s["scene"]) == set(scenes))
+        text = f"mean over {len(scenes)} scenes ({', '.join(scenes)})"
+        dropped = sorted(set(group["seed"]) - set(complete["seed"]))
+        if dropped:
+            text += f", seeds {', '.join(map(str, dropped))} left out (missing scenes)"
+        coverage.setdefault(text, []).append(f"{method_label(*key[1:])} ({key[0]})")
+        for seed, seed_rows in complete.groupby("seed"):
+            sources = ", ".join(sorted(set(seed_rows["scene_source"])))
+            means = {m: float(seed_rows[m].to_numpy(float).mean()) for m in METRIC_KEYS}
+            keys = dict(zip(("budget", "method", "planner", "ablation"), key))
+            per_seed.append({**keys, "scene": OBJECT_MEAN, "seed": seed, "scene_source": sources, **means})
+    if not per_seed:
+        return pd.DataFrame(), ()
+    if len(coverage) == 1:
+        return aggregate(pd.DataFrame(per_seed)), (f"{next(iter(coverage))} for every row",)
+    return aggregate(pd.DataFrame(per_seed)), tuple(f"{text}: {', '.join(labels)}" for text, labels in coverage.items())
+
+
+def _mark_best(rows: pd.DataFrame) -> pd.DataFrame:
+    """Add ``<metric>_best``: the direction-aware best mean of each (budget, scene) block (not when all tie)."""
+    rows = rows.copy()
+    for metric, _, higher, _ in METRICS:
+        means = rows[f"{metric}_mean"]
+        block = means.groupby([rows["budget"], rows["scene"]])
+        best = block.transform("max" if higher else "min")
+        spread = block.transform("max") > block.transform("min")  # no bold when every row ties
+        rows[f"{metric}_best"] = (means == best) & spread
+    return rows
+
+
+def _label_rank(method: str, planner: str, ablation: str) -> tuple:
+    """Paper row order: plain before -OPT, ablations as in Table S2, methods as in Tables S3-S4."""
+    return (planner == "opt", _rank(ABLATION_NAMES, ablation), _rank(METHOD_NAMES, method), method, planner)
+
+
+def _order(rows: pd.DataFrame) -> pd.DataFrame:
+    keys = [
+        (budget, _scene_rank(scene), _label_rank(method, planner, ablation))
+        for budget, scene, method, planner, ablation in rows[list(GROUP)].itertuples(index=False)
+    ]
+    return rows.iloc[sorted(range(len(keys)), key=keys.__getitem__)].reset_index(drop=True)
+
+
+@dataclass(frozen=True)
+class Spec:
+    """Which runs a table takes, and how it is laid out."""
+
+    name: str
+    title: str
+    methods: tuple[str, ...] | None  # None: any
+    planners: tuple[str, ...] | None
+    ablations: tuple[str, ...] | None
+    scenes: str  # all | objects | main
+    object_mean: bool
+    experiment: str | None  # the Hydra experiment that fills it
+
+
+SPECS = (
+    Spec("main", "Main table: Hubble, Room, NeRF-asset mean", None, ("argmax",), ("none",), "main", True, "main"),
+    Spec(
+        "table1_opt",
+        "Table S1: gradient-based view refinement (-OPT)",
+        ("air", "neurar", "nvf"),
+        PLANNERS,
+        ("none",),
+        "all",
+        True,
+        "table1_opt",
+    ),
+    Spec("table2_ablation", "Table S2: ablations", ("nvf",), ("argmax",), None, "all", True, "table2_ablation"),
+    Spec(
+        "table34_nerf_assets",
+        "Tables S3-S4: NeRF assets",
+        None,
+        ("argmax",),
+        ("none",),
+        "objects",
+        True,
+        "table34_nerf_assets",
+    ),
+    Spec("all_runs", "All runs: every scene and method, per scene", None, None, None, "all", False, None),
+)
+
+
+def _select(final: pd.DataFrame, spec: Spec) -> pd.DataFrame:
+    keep = pd.Series(True, index=final.index)
+    for column, allowed in (("method", spec.methods), ("planner", spec.planners), ("ablation", spec.ablations)):
+        if allowed is not None:
+            keep &= final[column].isin(allowed)
+    bases = final["scene"].map(base_scene)
+    if spec.scenes == "objects":
+        keep &= bases.isin(OBJECT_SCENES)
+    elif spec.scenes == "main":
+        keep &= bases.isin((*ROOM_SCENES, *OBJECT_SCENES))
+    return final[keep]
+
+
+def _notes(selected: pd.DataFrame, done: pd.DataFrame, rows: pd.DataFrame, skipped: int) -> list[str]:
+    notes = []
+    valid = rows[[f"{m}_valid" for m in METRIC_KEYS]].to_numpy() if not rows.empty else np.zeros((0, 1))
+    if ((valid > 0) & (valid < rows[["n"]].to_numpy())).any():
+        notes.append("† some seeds lack this value: the cell averages the others.")
+    if (valid == 0).any():
+        notes.append("'-': no run has this value.")
+    for metric, label, _, _ in METRICS:
+        missing = done[done[metric].isna()]
+        if missing.empty:
+            continue
+        if metric == "lpips":
+            reasons = {r for r in missing["lpips_missing_reason"] if isinstance(r, str) and r}
+            reasons = sorted(reasons or {"reason not recorded"})
+            notes.append(f"{label} missing in {len(missing)} of {len(done)} runs: {'; '.join(reasons)}.")
+        else:
+            hint = " (an empty reconstruction gives Acc = Comp = NaN)" if metric in ("acc", "comp") else ""
+            notes.append(f"{label} is NaN/null in {len(missing)} of {len(done)} runs{hint}.")
+    unfinished = selected[selected["status"] != "done"]
+    if not unfinished.empty:
+        counts = unfinished["status"].value_counts()
+        parts = [f"{count} {status}" for status, count in counts.items()]
+        notes.append(f"Excluded: {', '.join(parts)} run(s) (only runs marked done count).")
+        for _, run in unfinished[unfinished["status"] == "failed"].iterrows():
+            label = method_label(run["method"], run["planner"], run["ablation"])
+            reason = run["failure_reason"] or "no reason recorded"
+            notes.append(f"Failed: {run['scene']} {label} seed {run['seed']} ({run['budget']}): {reason}.")
+    if skipped:
+        notes.append(f"{skipped} unreadable run record(s) skipped (listed by `python -m pipeline.tables`).")
+    return notes
+
+
+def _header(done: pd.DataFrame) -> tuple[str, ...]:
+    budgets = ", ".join(sorted(set(done["budget"])))
+    steps = ", ".join(str(s) for s in sorted(set(done["step"].astype(int))))
+    sources = done.groupby("scene")["scene_source"].agg(lambda s: "/".join(sorted(set(s))))
+    scenes = "; ".join(f"{scene} ({sources[scene]})" for scene in sorted(sources.index, key=_scene_rank))
+    return (
+        f"Budget: {budgets}. Cells: mean ± population std over seeds at the last step (step {steps}); n = seeds.",
+        f"Scenes: {scenes}. Proxies and procedural scenes are stand-ins, not the paper's assets.",
+    )
+
+
+def build_table(runs: Runs, spec: Spec) -> Table:
+    """Aggregate the finished runs a spec selects into one Table (rows empty when there are none)."""
+    selected = _select(runs.final, spec)
+    done = selected[selected["status"] == "done"]
+    if spec.scenes == "main":
+        per_scene = done[done["scene"].map(base_scene).isin(ROOM_SCENES)]
+    else:
+        per_scene = done
+    parts = [aggregate(per_scene)] if not per_scene.empty else []
+    mean_notes: tuple[str, ...] = ()
+    object_scenes = done.loc[done["scene"].map(base_scene).isin(OBJECT_SCENES), "scene"].nunique()
+    if spec.object_mean and (object_scenes > 1 or (spec.scenes == "main" and object_scenes)):
+        mean_rows, mean_notes = object_mean(done)
+        parts.append(mean_rows)
+    if not parts:
+        notes = _notes(selected, done, pd.DataFrame(columns=["n"]), len(runs.skipped))
+        return Table(spec.name, spec.title, pd.DataFrame(), (), tuple(notes))
+    rows = _order(_mark_best(pd.concat(parts, ignore_index=True)))
+    rows["label"] = [method_label(m, p, a) for m, p, a in zip(rows["method"], rows["planner"], rows["ablation"])]
+    notes = _notes(selected, done, rows, len(runs.skipped)) + [f"{OBJECT_MEAN}: {n}." for n in mean_notes]
+    return Table(spec.name, spec.title, rows, _header(done), tuple(notes))
+
+
+def _cell(row: pd.Series, metric: str, decimals: int) -> str:
+    """'mean ± std' (bold if best, † if some seeds lack it, '-' if none has it), then ' / paper' if any."""
+    mean, std, valid = row[f"{metric}_mean"], row[f"{metric}_std"], row[f"{metric}_valid"]
+    text = "-"
+    if valid > 0:
+        text = f"{mean:.{decimals}f} ± {std:.{decimals}f}"
+        if row.get(f"{metric}_best", False):
+            text = f"**{text}**"
+        text += "†" if valid < row["n"] else ""
+    if f"{metric}_paper" in row:
+        text += f" / {row[f'{metric}_paper']:.{decimals}f}"
+    return text
+
+
+def _grid(table: Table, label_header: str) -> tuple[list[str], list[list[str]]]:
+    """Column names and Markdown cell texts (csv drops the bold marks, tex converts them)."""
+    keys = (["section"] if "section" in table.rows else []) + (["budget"] if table.rows["budget"].nunique() > 1 else [])
+    columns = [key.capitalize() for key in keys] + ["Scene", label_header]
+    columns += [f"{label}{'↑' if higher else '↓'}" for _, label, higher, _ in METRICS] + ["n"]
+    cells = []
+    for _, row in table.rows.iterrows():
+        line = [str(row[key]) for key in keys] + [row["scene"], row["label"]]
+        line += [_cell(row, metric, decimals) for metric, _, _, decimals in METRICS]
+        cells.append(line + [str(int(row["n"]))])
+    return columns, cells
+
+
+TEX_SPECIALS = (
+    ("\\", r"\textbackslash{}"), ("&", r"\&"), ("%", r"\%"), ("$", r"\$"), ("#", r"\#"), ("_", r"\_"),
+    ("{", r"\{"), ("}", r"\}"), ("~", r"\textasciitilde{}"), ("^", r"\textasciicircum{}"),
+    ("±", r"$\pm$"), ("↑", r"$\uparrow$"), ("↓", r"$\downarrow$"), ("†", r"$^\dagger$"),
+)
+
+
+def tex_escape(text: str) -> str:
+    """LaTeX for plain text (specials escaped, ± ↑ ↓ † as math); '**x**' (a best cell) becomes bold."""
+    specials = dict(TEX_SPECIALS)
+    bold = text.startswith("**") and "**" in text[2:]
+    if bold:
+        inner, rest = text[2:].split("**", 1)
+        return r"\textbf{" + tex_escape(inner) + "}" + tex_escape(rest)
+    return "".join(specials.get(ch, ch) for ch in text)
+
+
+def render(table: Table, label_header: str, experiment: str | None) -> dict[str, str]:
+    """The table as {'md', 'csv', 'tex'} texts ('no runs yet' texts when it has no rows)."""
+    if table.rows.empty:
+        command = f"python -m pipeline.run -m experiment={experiment}" if experiment else "python -m pipeline.run"
+        message = f"No runs yet for {table.name}: run `{command}`, then `python -m pipeline.tables`."
+        return {
+            "md": "\n".join([f"# {table.title}", "", message, "", *(f"- {n}" for n in table.notes)]).rstrip() + "\n",
+            "csv": pd.DataFrame({"note": [message, *table.notes]}).to_csv(index=False),
+            "tex": "\n".join([f"% {table.title}", tex_escape(message), *(tex_escape(n) for n in table.notes)]) + "\n",
+        }
+    columns, cells = _grid(table, label_header)
+    markdown = pd.DataFrame(cells, columns=columns).to_markdown(index=False, disable_numparse=True)
+    md = [f"# {table.title}", "", *table.header, "", markdown, "", *(f"- {n}" for n in table.notes)]
+    plain = [[c.replace("**", "") for c in line] for line in cells]
+    csv = "".join(f"# {line}\n" for line in (table.title, *table.header))
+    csv += pd.DataFrame(plain, columns=columns).to_csv(index=False) + "".join(f"# {n}\n" for n in table.notes)
+    tex = [
+        f"% {table.title}",
+        *(f"% {line}" for line in table.header),
+        r"\begin{tabular}{" + "l" * (len(columns) - 9) + "c" * 8 + "r}",
+        r"\toprule",
+        " & ".join(map(tex_escape, columns)) + r" \\",
+        r"\midrule",
+        *(" & ".join(map(tex_escape, line)) + r" \\" for line in cells),
+        r"\bottomrule",
+        r"\end{tabular}",
+        *(r"\par{\footnotesize " + tex_escape(n) + "}" for n in table.notes),
+    ]
+    return {"md": "\n".join(md) + "\n", "csv": csv, "tex": "\n".join(tex) + "\n"}
+
+
+COMPARISONS = (  # (our table, section, paper tables, our object-scene-mean rows only)
+    ("table34_nerf_assets", "S3/S4", ("S3", "S4"), False),
+    ("table34_nerf_assets", "8-scene mean", ("mean8",), True),
+    ("table1_opt", "S1 (scene not stated)", ("S1",), True),
+    ("table2_ablation", "S2 (scene not stated)", ("S2",), True),
+)
+
+
+def paper_comparison(tables: dict[str, Table]) -> Table:
+    """Our rows next to the paper's (S3/S4 per scene, 8-scene mean, S1, S2): cells 'ours / paper'."""
+    paper = paper_numbers()
+    rows, coverage = [], []
+    for name, section, sources, mean_only in COMPARISONS:
+        ours = tables[name].rows
+        coverage += [n for n in tables[name].notes if n.startswith(OBJECT_MEAN)] if mean_only else []
+        reference = paper[paper["table"].isin(sources)]
+        for _, row in ours.iterrows():
+            if (row["scene"] == OBJECT_MEAN) != mean_only:
+                continue
+            same_scene = reference["scene"] == base_scene(row["scene"])
+            match = reference[(reference["method"] == row["label"]) & (mean_only | same_scene)]
+            if not match.empty:
+                values = {f"{m}_paper": float(match.iloc[0][m]) for m in METRIC_KEYS}
+                rows.append({**row.drop([f"{m}_best" for m in METRIC_KEYS]).to_dict(), "section": section, **values})
+    notes = (
+        "Cells: ours (mean ± population std over seeds) / the paper's (supplement, mean of 3 runs).",
+        "The paper ran the `paper` budget on the original assets: proxies and smaller budgets need not match.",
+        *dict.fromkeys(coverage),
+    )
+    header = (f"Budget: {', '.join(sorted({r['budget'] for r in rows}))}.",) if rows else ()
+    return Table("paper_comparison", "Ours vs the paper", pd.DataFrame(rows), header, notes)
+
+
+def _save_figure(fig: Figure, path: Path) -> None:
+    """Save a figure atomically (temp file + os.replace)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".png", dir=path.parent)
+    os.close(fd)
+    try:
+        fig.savefig(tmp, format="png")
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def curves(long: pd.DataFrame, figures: Path) -> list[Path]:
+    """Metric-vs-step curves per (scene, budget): mean ± population-std band over seeds, one line per method."""
+    written = []
+    for (scene, budget), frame in long.groupby(["scene", "budget"]):
+        fig = Figure(figsize=(16, 7), dpi=80)
+        fig.subplots_adjust(left=0.04, right=0.85, bottom=0.08, top=0.9, wspace=0.3, hspace=0.35)
+        axes = fig.subplots(2, 4).ravel()
+        groups = sorted(frame.groupby(["method", "planner", "ablation"]), key=lambda kv: _label_rank(*kv[0]))
+        for ax, (metric, label, higher, _) in zip(axes, METRICS):
+            for (method, planner, ablation), group in groups:
+                series = group[group["metric"] == metric].groupby("step")["value"]
+                mean, std = series.mean(), series.std(ddof=0).fillna(0.0)
+                if mean.notna().any():
+                    line = ax.plot(mean.index, mean.to_numpy(), label=method_label(method, planner, ablation))[0]
+                    low, high = (mean - std).to_numpy(), (mean + std).to_numpy()
+                    ax.fill_between(mean.index, low, high, alpha=0.2, color=line.get_color())
+            ax.set_title(f"{label} {'↑' if higher else '↓'}")
+            ax.set_xlabel("step")
+        handles, labels = axes[0].get_legend_handles_labels()
+        if handles:
+            fig.legend(handles, labels, loc="upper right")
+        fig.suptitle(f"{scene} ({budget} budget)")
+        path = figures / f"curves_{scene}_{budget}.png"
+        _save_figure(fig, path)
+        written.append(path)
+    return written
+
+
+def image_grid(run_dir: Path, out_path: Path) -> Path | None:
+    """Assemble ``images/step_XX_<kind>.png`` of a run into one grid (rows = steps, columns = kinds
+    in the order GT, prediction, entropy, depth, others); None when the run saved no images."""
+    found: dict[int, dict[str, Path]] = {}
+    for path in sorted((Path(run_dir) / "images").glob("step_*.png")):
+        match = IMAGE_NAME.fullmatch(path.name)
+        if match:
+            found.setdefault(int(match.group(1)), {})[match.group(2)] = path
+    if not found:
+        return None
+    kinds = sorted(
+        {kind for images in found.values() for kind in images},
+        key=lambda kind: (IMAGE_KINDS.index(kind) if kind in IMAGE_KINDS else len(IMAGE_KINDS), kind),
+    )
+    steps = sorted(found)
+    fig = Figure(figsize=(2.5 * len(kinds), 2.5 * len(steps)), layout="constrained")
+    axes = np.asarray(fig.subplots(len(steps), len(kinds), squeeze=False))
+    for i, step in enumerate(steps):
+        for j, kind in enumerate(kinds):
+            ax = axes[i, j]
+            ax.set_axis_off()
+            if kind in found[step]:
+                image = iio.imread(found[step][kind])
+                ax.imshow(image[..., :3] if image.ndim == 3 else image, cmap=None if image.ndim == 3 else "viridis")
+            if i == 0:
+                ax.set_title(kind)
+            if j == 0:
+                ax.text(-0.05, 0.5, f"step {step}", transform=ax.transAxes, rotation=90, ha="right", va="center")
+    _save_figure(fig, Path(out_path))
+    return Path(out_path)
+
+
+LABEL_HEADERS = {"table2_ablation": "Variant"}
+
+
+def build_tables(
+    outputs: Path, runs_dirs: list[Path], results: Path, figures: bool = True
+) -> tuple[list[Path], tuple[str, ...]]:
+    """Collect runs, write runs.csv, the tables (md/csv/tex), the paper comparison and (unless
+    ``figures`` is False) the curves and image grids.
+
+    Returns the files written and the unreadable run records skipped (one line each).
+    """
+    runs = collect_runs([Path(outputs), *map(Path, runs_dirs)])
+    results = Path(results)
+    written = [results / "runs.csv"]
+    atomic_write_text(written[0], runs.long.to_csv(index=False))
+    tables = {spec.name: build_table(runs, spec) for spec in SPECS}
+    texts = {s.name: render(tables[s.name], LABEL_HEADERS.get(s.name, "Method"), s.experiment) for s in SPECS}
+    texts["paper_comparison"] = render(paper_comparison(tables), "Method", "table34_nerf_assets")
+    for name, flavors in texts.items():
+        for flavor, text in flavors.items():
+            path = results / "tables" / f"{name}.{flavor}"
+            atomic_write_text(path, text)
+            written.append(path)
+    if not figures:
+        return written, runs.skipped
+    written += curves(runs.long, results / "figures")
+    for _, run in runs.final[runs.final["status"] == "done"].iterrows():
+        group = f"{run['method']}-{run['planner']}-{run['ablation']}"
+        name = f"grid_{run['scene']}_{group}_{run['budget']}_seed{run['seed']}.png"
+        grid = image_grid(Path(run["directory"]), results / "figures" / "grids" / name)
+        written += [grid] if grid is not None else []
+    return written, runs.skipped
+
+
+def parse_overrides(argv: list[str]) -> tuple[Path, Path]:
+    """(outputs, results) from ``paths.outputs=...`` / ``paths.results=...`` (defaults as conf/paths)."""
+    paths = {"paths.outputs": Path("outputs"), "paths.results": Path("results")}
+    for arg in argv:
+        key, sep, value = arg.partition("=")
+        if not sep or key not in paths or not value:
+            raise ValueError(f"unknown argument {arg!r}: use paths.outputs=DIR and/or paths.results=DIR")
+        paths[key] = Path(value)
+    return paths["paths.outputs"], paths["paths.results"]
+
+
+def main(argv: list[str]) -> int:
+    """Command-line entry point; returns the exit code."""
+    try:
+        outputs, results = parse_overrides(argv)
+        written, skipped = build_tables(outputs, [results / "runs"], results)
+    except (ValueError, OSError) as err:
+        print(f"pipeline.tables: error: {str(err).splitlines()[0]}", file=sys.stderr)
+        return 1
+    for line in skipped:
+        print(f"pipeline.tables: skipped unreadable run record {line}", file=sys.stderr)
+    print(f"pipeline.tables: wrote {len(written)} files under {results} (runs.csv, tables/, figures/)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

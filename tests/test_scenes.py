@@ -1,0 +1,227 @@
+"""Scene registry: PROTOCOL.md 2.1-2.5 boxes and views, mesh loading and placement, errors, the show CLI."""
+
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from pipeline.scenes import NERF_OBJECTS, SCENE_NAMES, SceneError, load_scene, rule_views
+
+REPO = Path(__file__).resolve().parents[1]
+
+# PROTOCOL 2.3: rounded initial views, position -> look-at target
+INIT = {
+    "hubble": [((1.3463, 2.0533, 0.3500), (0, 0, -0.1500)), ((1.8766, 1.5231, 0.7829), (0, 0, 0.3500)),
+               ((1.8766, 1.5231, -0.0830), (0, 0, 0.8499))],
+    "lego": [((-0.3000, 2.2000, 0.3500), (0, 0, -0.30)), ((0.1500, 2.2000, 0.6098), (0, 0, 0.15)),
+             ((0.1500, 2.2000, 0.0902), (0, 0, 0.60))],
+    "hotdog": [((0, -1.5, 1.2), (0, 0, -0.150)), ((1.4266, -0.4635, 1.2), (0, 0, -0.075)),
+               ((0.8817, 1.2135, 1.2), (0, 0, 0)), ((-0.8817, 1.2135, 1.2), (0, 0, 0.075)),
+               ((-1.4266, -0.4635, 1.2), (0, 0, 0.150))],
+    "room": [((0.6999, 1.9998, 2.3498), (-2, 2, 0.3500)), ((0.7001, 3.9996, 2.3498), (0, 0, -0.1500)),
+             ((-0.0651, 3.5318, 3.3827), (0, 0, -0.0250)), ((-0.4722, 2.3471, 3.9323), (0, 0, 0.1000)),
+             ((-0.3310, 1.0000, 3.7415), (0, 0, 0.2250)), ((0.2927, 0.1206, 2.8994), (0, 0, 0.3500)),
+             ((1.1069, 0.1206, 1.8001), (0, 0, 0.4750)), ((1.7307, 0.9998, 0.9581), (0, 0, 0.5999)),
+             ((1.8722, 2.3470, 0.7672), (0, 0, 0.7249)), ((1.4651, 3.5317, 1.3168), (0, 0, 0.8499))],
+}
+
+# PROTOCOL 2.5 table: target t, semi-axes a, top view, P0, z_i
+RULE = {
+    "lego": ((0, 0, 0.35), (1.5, 2.0, 1.7), (0, 0, 1.7), (0, 2.2, 0.35), (-0.3, 0.15, 0.6)),
+    "chair": ((-0.05, 0, 0.05), (1.55, 1.6, 2.05), (-0.05, 0, 1.75), (-0.05, 1.75, 0.05), (-0.9, -0.25, 0.45)),
+    "drums": ((0, 0.1, 0.2), (2.0, 1.75, 1.75), (0, 0.1, 1.65), (0, 2.0, 0.2), (-0.45, 0.05, 0.5)),
+    "ficus": ((0.1, -0.15, 0.05), (1.35, 1.6, 2.1), (0.1, -0.15, 1.85), (0.1, 1.65, 0.05), (-0.95, -0.2, 0.5)),
+    "materials": ((-0.05, 0.1, 0), (1.95, 1.75, 1.25), (-0.05, 0.1, 0.9), (-0.05, 2.05, 0), (-0.2, -0.05, 0.05)),
+    "mic": ((-0.25, 0.1, 0.2), (1.9, 1.85, 1.95), (-0.25, 0.1, 1.85), (-0.25, 2.15, 0.2), (-0.65, -0.05, 0.6)),
+    "ship": ((0.05, 0, 0.1), (2.2, 2.2, 1.65), (0.05, 0, 1.45), (0.05, 2.4, 0.1), (-0.5, -0.05, 0.35)),
+}
+LEGO_ANGLES = [(30, 90 * j) for j in range(4)] + [(60, 60 * j) for j in range(6)] + [(90, 40 * j) for j in range(9)]
+
+
+def _dir(theta: float, phi: float) -> np.ndarray:
+    t, p = math.radians(theta), math.radians(phi)
+    return np.array([math.sin(p) * math.cos(t), math.sin(p) * math.sin(t), math.cos(p)])
+
+
+def assert_view(c2w: torch.Tensor, position, target, tol: float = 1e-3) -> None:
+    """Camera at ``position`` whose -z axis points at ``target`` (to ``tol`` at the target's distance)."""
+    c2w = c2w.double().numpy()
+    np.testing.assert_allclose(c2w[:3, 3], position, atol=tol)
+    np.testing.assert_allclose(c2w[:3, :3].T @ c2w[:3, :3], np.eye(3), atol=1e-5)
+    assert np.linalg.det(c2w[:3, :3]) == pytest.approx(1.0, abs=1e-5)
+    offset = np.asarray(target, float) - c2w[:3, 3]
+    dist = np.linalg.norm(offset)
+    np.testing.assert_allclose(-c2w[:3, 2] * dist, offset, atol=tol)
+    assert abs(c2w[:3, 0] @ [0, 0, 1]) < 1e-5  # look_at with up +z: no roll
+
+
+def lego_layout_expected(centre, a, target, top, top_target):
+    views = [(np.add(centre, np.multiply(a, _dir(th, ph))), target) for ph, th in LEGO_ANGLES]
+    return views + [(top, top_target)]
+
+
+@pytest.fixture(scope="module")
+def mesh_scenes(assets_dir):
+    return {name: load_scene(name, assets_dir) for name in ("hubble", "hotdog", "room")}
+
+
+def test_registry_names():
+    assert len(SCENE_NAMES) == len(set(SCENE_NAMES)) == 18
+    assert {"default", "lego_proxy", "room", "hubble"} <= set(SCENE_NAMES)
+
+
+@pytest.mark.parametrize("name", ["hubble", "hotdog", "room"])
+def test_initial_views_mesh_scenes(mesh_scenes, name):
+    scene = mesh_scenes[name]
+    assert scene.init_poses.shape == (scene.n_init, 4, 4) and scene.init_poses.dtype == torch.float32
+    for pose, (position, target) in zip(scene.init_poses, INIT[name], strict=True):
+        assert_view(pose, position, target)
+
+
+def test_lego_proxy_views_and_boxes():
+    scene = load_scene("lego_proxy", None)
+    assert scene.source == "proxy" and scene.n_init == 3
+    for pose, (position, target) in zip(scene.init_poses, INIT["lego"], strict=True):
+        assert_view(pose, position, target)
+    t = (0, 0, 0.35)
+    for pose, (position, target) in zip(scene.eval_poses, lego_layout_expected(t, (1.5, 2.0, 1.7), t, (0, 0, 1.7), t),
+                                        strict=True):
+        assert_view(pose, position, target)
+    torch.testing.assert_close(scene.camera_box, torch.tensor([[-1.75, -3.0, -0.345], [1.75, 3.0, 3.2675]]))
+    torch.testing.assert_close(scene.object_aabb, torch.tensor([[-0.7, -1.2, -0.345], [0.7, 1.2, 1.1]]))
+
+
+def test_hubble_eval_views(mesh_scenes):
+    s = 0.16665
+    t, a = (0, 0, 0.3333), (1.7332, 1.7332, 2.4998)
+    expected = [(np.add(t, np.multiply(a, _dir(th, ph))), t) for th in range(0, 360, 60) for ph in (45, 90, 135)]
+    expected += [((0, 0, 2.2498), t), ((0, 0, -1.4999), t)]
+    for pose, (position, target) in zip(mesh_scenes["hubble"].eval_poses, expected, strict=True):
+        assert_view(pose, position, target)
+    assert mesh_scenes["hubble"].density_threshold == 1e-3 and 6 * s == pytest.approx(0.9999)
+
+
+def test_hotdog_eval_views(mesh_scenes):
+    views = lego_layout_expected((0, -0.088056, 0.4), (1.6, 1.6, 1.3), (0, 0, 0), (0, 0, 1.7), (0, 0, 0.35))
+    for pose, (position, target) in zip(mesh_scenes["hotdog"].eval_poses, views, strict=True):
+        assert_view(pose, position, target)
+    assert mesh_scenes["hotdog"].n_init == 5
+
+
+def test_room_eval_views_straight_down(mesh_scenes):
+    scene = mesh_scenes["room"]
+    centres = [(0, 0, 4, 72)] * 5 + [(-8, -1, 3, 36)] * 10 + [(-3, 2, 3, 72)] * 5
+    index = [*range(5), *range(10), *range(5)]
+    for pose, (cx, cy, r, step), i in zip(scene.eval_poses.double(), centres, index, strict=True):
+        theta = math.radians(step * i)
+        np.testing.assert_allclose(pose[:3, 3], (cx + r * math.cos(theta), cy + r * math.sin(theta), 4),
+                                   atol=1e-5)
+        np.testing.assert_allclose(pose[:3, 0], (math.cos(theta), math.sin(theta), 0), atol=1e-6)
+        np.testing.assert_allclose(pose[:3, 2], (0, 0, 1), atol=1e-6)
+    assert scene.collision_free and scene.d0 == 6.0 and scene.cr_threshold == 0.1 and scene.n_init == 10
+    torch.testing.assert_close(scene.camera_box, scene.object_aabb)
+
+
+@pytest.mark.parametrize("name", list(RULE))
+def test_rule_views_table(name):
+    """PROTOCOL 2.5: the rule applied to each tight box gives the table's values (lego: its own views)."""
+    t, a, top, p0, z = RULE[name]
+    box = load_scene(f"{name}_proxy", None).tight_box.double().numpy()
+    init, evals = rule_views(box)
+    offsets = [(-0.3, 0, 0), (0.15, 0, 0.2598), (0.15, 0, -0.2598)]
+    for pose, offset, zi in zip(init, offsets, z, strict=True):
+        assert_view(pose, np.add(p0, offset), (t[0], t[1], zi))
+    for pose, (position, target) in zip(evals, lego_layout_expected(t, a, t, top, t), strict=True):
+        assert_view(pose, position, target)
+
+
+@pytest.mark.parametrize("name", NERF_OBJECTS)
+def test_proxies_fit_tight_box(name):
+    scene = load_scene(f"{name}_proxy", None)
+    box = scene.tight_box.double().numpy()
+    lo, hi = scene.mesh.bounds
+    assert np.all(lo >= box[0] - 1e-6) and np.all(hi <= box[1] + 1e-6)
+    assert lo[2] == pytest.approx(box[0, 2], abs=1e-6)
+    np.testing.assert_allclose((lo + hi)[:2] / 2, (box[0] + box[1])[:2] / 2, atol=1e-6)
+    assert np.isclose(hi - lo, box[1] - box[0], atol=1e-6).any()  # touches the box along one axis
+    assert scene.eval_poses.shape == (20, 4, 4) and scene.init_poses.shape == (3, 4, 4)
+
+
+def test_mesh_placement(mesh_scenes):
+    room, hotdog, hubble = mesh_scenes["room"], mesh_scenes["hotdog"], mesh_scenes["hubble"]
+    np.testing.assert_allclose(room.mesh.bounds, room.tight_box.double().numpy(), atol=2e-3)
+    np.testing.assert_allclose(hotdog.mesh.bounds, hotdog.tight_box.double().numpy(), atol=2e-3)
+    assert len(room.mesh.faces) == 20100 and len(hotdog.mesh.faces) == 66000 and len(hubble.mesh.faces) == 5128
+    box = hubble.tight_box.double().numpy()
+    np.testing.assert_allclose(hubble.mesh.bounds.mean(0), (box[0] + box[1]) / 2, atol=1e-5)
+    np.testing.assert_allclose((box[0] + box[1]) / 2, (0, 0.0271, 0.3581), atol=1e-4)
+    assert np.isclose(hubble.mesh.extents, box[1] - box[0], atol=1e-5).any()
+    assert hubble.mesh.visual.kind == "texture"
+    assert room.mesh.visual.kind == "face" and len(np.unique(room.mesh.visual.face_colors, axis=0)) == 5
+    assert all(s.source == "mesh" for s in mesh_scenes.values())
+
+
+def test_default_scene():
+    scene = load_scene("default", None)
+    assert scene.source == "procedural" and scene.mesh.visual.kind == "face"
+    tight = scene.tight_box.double().numpy()
+    np.testing.assert_allclose(tight, scene.mesh.bounds, atol=1e-6)
+    aabb = scene.object_aabb.double().numpy()
+    assert np.all(aabb[0] < tight[0]) and np.all(aabb[1] > tight[1])
+    np.testing.assert_allclose(scene.camera_box[1, 2] - aabb[0, 2], 2.5 * (aabb[1, 2] - aabb[0, 2]), rtol=1e-5)
+    positions = torch.cat([scene.init_poses, scene.eval_poses])[:, :3, 3].numpy()
+    cam = scene.camera_box.numpy()
+    assert np.all(positions >= cam[0] - 1e-4) and np.all(positions <= cam[1] + 1e-4)
+
+
+def test_missing_mesh_errors(tmp_path):
+    with pytest.raises(SceneError) as info:
+        load_scene("lego", tmp_path)
+    message = str(info.value)
+    assert "\n" not in message and "lego.glb" in message and "lego_proxy" in message and "NVF_ASSETS" in message
+    assert "glTF" in message and "paths.assets" in message
+    with pytest.raises(SceneError, match="room_nvf_gt_yup.obj"):
+        load_scene("room", tmp_path)
+    with pytest.raises(SceneError, match="unknown scene"):
+        load_scene("teapot", tmp_path)
+
+
+def test_user_mesh_lookup_and_bad_meshes(tmp_path):
+    box = load_scene("chair_proxy", None)
+    (tmp_path / "chair").mkdir()
+    box.mesh.export(tmp_path / "chair" / "chair.ply")
+    scene = load_scene("chair", tmp_path)
+    assert scene.source == "mesh" and len(scene.mesh.faces) == len(box.mesh.faces)
+    yup = box.mesh.copy()
+    yup.apply_transform(trimesh.transformations.rotation_matrix(-math.pi / 2, (1, 0, 0)))
+    (tmp_path / "mic").mkdir()
+    yup.export(tmp_path / "mic" / "mic.glb")
+    with pytest.raises(SceneError, match="tight box"):
+        load_scene("mic", tmp_path)
+    (tmp_path / "ship").mkdir()
+    (tmp_path / "ship" / "ship.obj").write_text("garbage\n")
+    with pytest.raises(SceneError):
+        load_scene("ship", tmp_path)
+    flat = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [2, 0, 0]], [[0, 1, 2]], process=False)
+    (tmp_path / "drums").mkdir()
+    flat.export(tmp_path / "drums" / "drums.ply")
+    with pytest.raises(SceneError, match="degenerate"):
+        load_scene("drums", tmp_path)
+    nan = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, np.nan, 1]], [[0, 1, 2]], process=False)
+    (tmp_path / "ficus").mkdir()
+    nan.export(tmp_path / "ficus" / "ficus.ply")
+    with pytest.raises(SceneError, match="non-finite"):
+        load_scene("ficus", tmp_path)
+
+
+@pytest.mark.parametrize("args", [["show", "teapot"], ["show", "lego", "--assets", "/nonexistent"]])
+def test_show_cli_bad_input(args):
+    result = subprocess.run([sys.executable, "-m", "pipeline.scenes", *args], cwd=REPO, capture_output=True, text=True,
+                            timeout=120)
+    assert result.returncode != 0
+    assert len(result.stderr.strip().splitlines()) == 1 and "Traceback" not in result.stderr

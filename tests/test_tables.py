@@ -1,0 +1,183 @@
+"""pipeline/tables.py: long CSV, aggregation over seeds at the last step, paper-style tables, figures."""
+
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+import pandas as pd
+
+from pipeline.paper_numbers import paper_numbers
+from pipeline.records import RunRecord, run_dir
+from pipeline.tables import LONG_COLUMNS, build_tables, image_grid, main, method_label
+
+METRICS = ("psnr", "ssim", "lpips", "rgb", "acc", "comp", "cr", "vis")
+
+
+def make_run(
+    root: Path, scene="hubble", method="nvf", planner="argmax", ablation="none", seed=100, final=None,
+    status="done", lpips_reason=None, steps=2,
+) -> RunRecord:
+    """A synthetic run: `steps` step rows, the last one carrying `final` metric values (others 0)."""
+    record = RunRecord(run_dir(root, scene, method, planner, ablation, "smoke", seed))
+    source = "proxy" if scene.endswith("_proxy") else "mesh"
+    keys = {"scene": scene, "method": method, "planner": planner, "ablation": ablation, "budget": "smoke", "seed": seed}
+    info = {**keys, "scene_source": source, "field": "densegrid", "device": "cpu", "config": {}}
+    info["lpips_missing_reason"] = lpips_reason
+    record.start(info, repo=root)
+    base = {m: 0.5 for m in METRICS}
+    for step in range(steps):
+        metrics = {**base, **(final or {})} if step == steps - 1 else {m: 0.0 for m in METRICS}
+        if lpips_reason:
+            metrics["lpips"] = None
+        record.append_step({"step": step, "n_views": 3 + step, "status": "ok", "metrics": {**metrics, "vis_area": 0.1}})
+    if status == "done":
+        record.mark_done()
+    elif status == "failed":
+        record.mark_failed("step 1: training diverged")
+    return record
+
+
+def read(path: Path) -> str:
+    return path.read_text(encoding="utf-8")
+
+
+def test_method_labels():
+    assert method_label("activermap", "argmax", "none") == "ActiveRMAP"
+    assert method_label("neurar", "opt", "none") == "NeurAR-OPT"
+    assert method_label("nvf", "argmax", "ind_rays") == "Ind. Rays"
+    assert method_label("nvf", "argmax", "none") == "NVF"
+
+
+def test_long_csv_has_exactly_the_columns(tmp_path):
+    make_run(tmp_path / "out", seed=100)
+    make_run(tmp_path / "out", seed=101, status="running")  # unfinished: not in runs.csv
+    build_tables(tmp_path / "out", [], tmp_path / "res", figures=False)
+    frame = pd.read_csv(tmp_path / "res" / "runs.csv")
+    assert tuple(frame.columns) == LONG_COLUMNS
+    assert set(frame["seed"]) == {100}
+    assert set(frame["metric"]) == {*METRICS, "vis_area"}
+    assert sorted(set(frame["step"])) == [0, 1] and sorted(set(frame["n_views"])) == [3, 4]
+    assert set(frame["scene_source"]) == {"mesh"}
+
+
+def test_aggregation_mean_population_std_best_and_n(tmp_path):
+    out = tmp_path / "out"
+    for seed, psnr in zip((100, 101, 102), (20.0, 21.0, 23.0)):
+        make_run(out, method="nvf", seed=seed, final={"psnr": psnr, "lpips": 0.1, "rgb": 0.02})
+        make_run(out, method="random", seed=seed, final={"psnr": 15.0, "lpips": 0.3, "rgb": 0.01})
+    written, skipped = build_tables(out, [], tmp_path / "res")
+    assert not skipped
+    md = read(tmp_path / "res" / "tables" / "main.md")
+    std = np.std([20.0, 21.0, 23.0])  # population std, 1.247
+    assert f"**21.33 ± {std:.2f}**" in md  # higher PSNR wins
+    assert "**0.100 ± 0.000**" in md  # lower LPIPS wins
+    assert "**0.0100 ± 0.0000**" in md  # lower RGB wins: Random
+    assert "15.00 ± 0.00" in md and "**15.00" not in md
+    assert "Budget: smoke" in md and "hubble (mesh)" in md and "step 1" in md
+    csv = pd.read_csv(tmp_path / "res" / "tables" / "main.csv", comment="#")
+    assert list(csv["Method"]) == ["Random", "NVF"] and list(csv["n"]) == [3, 3]
+    assert list(csv.columns[2:10]) == ["PSNR↑", "SSIM↑", "LPIPS↓", "RGB↓", "Acc↓", "Comp↓", "C.R.↑", "Vis.↑"]
+    tex = read(tmp_path / "res" / "tables" / "main.tex")
+    assert r"\textbf{21.33 $\pm$ 1.25}" in tex and r"PSNR$\uparrow$" in tex and r"\end{tabular}" in tex
+    assert tmp_path / "res" / "figures" / "curves_hubble_smoke.png" in written
+
+
+def test_every_table_written_and_no_runs_yet(tmp_path):
+    written, _ = build_tables(tmp_path / "missing", [tmp_path / "also_missing"], tmp_path / "res")
+    for name in ("main", "table1_opt", "table2_ablation", "table34_nerf_assets", "all_runs", "paper_comparison"):
+        for flavor in ("md", "csv", "tex"):
+            text = read(tmp_path / "res" / "tables" / f"{name}.{flavor}")
+            assert "No runs yet" in text, (name, flavor)
+    assert "experiment=table1_opt" in read(tmp_path / "res" / "tables" / "table1_opt.md")
+    assert tuple(pd.read_csv(tmp_path / "res" / "runs.csv").columns) == LONG_COLUMNS
+
+
+def test_nan_metrics_are_footnoted(tmp_path):
+    out = tmp_path / "out"
+    make_run(out, seed=100, final={"acc": None, "comp": None}, lpips_reason="AlexNet weights unavailable offline")
+    make_run(out, seed=101, lpips_reason="AlexNet weights unavailable offline")
+    build_tables(out, [], tmp_path / "res", figures=False)
+    md = read(tmp_path / "res" / "tables" / "main.md")
+    assert "LPIPS missing in 2 of 2 runs: AlexNet weights unavailable offline." in md
+    assert "Acc is NaN/null in 1 of 2 runs" in md
+    assert "0.5000 ± 0.0000†" in md  # Acc averages the seed that has it
+    row = [line for line in md.splitlines() if line.startswith("| hubble")][0]
+    assert row.split("|")[5].strip() == "-"  # LPIPS column: no value at all
+
+
+def test_unfinished_and_failed_runs_are_excluded_and_counted(tmp_path):
+    out = tmp_path / "out"
+    make_run(out, seed=100)
+    make_run(out, seed=101, status="running")
+    make_run(out, seed=102, status="failed")
+    build_tables(out, [], tmp_path / "res", figures=False)
+    md = read(tmp_path / "res" / "tables" / "main.md")
+    assert "Excluded: 1 unfinished, 1 failed run(s)" in md
+    assert "Failed: hubble NVF seed 102 (smoke): step 1: training diverged." in md
+    assert "| 1 |" in md.replace("  ", " ").replace("  ", " ")  # n = 1
+
+
+def test_truncated_steps_and_bad_records_do_not_crash(tmp_path):
+    out = tmp_path / "out"
+    record = make_run(out, seed=100)
+    before = read(record.steps_path) + '{"step": 2, "met'
+    record.steps_path.write_text(before)
+    (out / "junk").mkdir()
+    (out / "junk" / "run.json").write_text("{not json")
+    written, skipped = build_tables(out, [], tmp_path / "res", figures=False)
+    assert read(record.steps_path) == before  # tables never modify run records
+    assert len(skipped) == 1 and "junk" in skipped[0]
+    assert "1 unreadable run record(s) skipped" in read(tmp_path / "res" / "tables" / "main.md")
+
+
+def test_committed_runs_and_object_mean_and_paper_comparison(tmp_path):
+    committed = tmp_path / "res" / "runs"
+    for scene, psnr in (("lego_proxy", 20.0), ("hotdog", 24.0)):
+        for seed in (100, 101):
+            record = make_run(committed, scene=scene, seed=seed, final={"psnr": psnr + seed - 100})
+            (record.directory / "DONE").unlink()  # committed copies: run.json + steps.jsonl only
+    make_run(committed, scene="hotdog", method="nvf", planner="opt", seed=100)
+    build_tables(tmp_path / "none", [committed], tmp_path / "res", figures=False)
+    t34 = read(tmp_path / "res" / "tables" / "table34_nerf_assets.md")
+    assert "| hotdog " in t34 and "| lego_proxy " in t34
+    assert "| object-scene mean | NVF " in t34 and "22.50 ± 0.50" in t34  # per-seed means 22 and 23
+    comparison = read(tmp_path / "res" / "tables" / "paper_comparison.md")
+    assert "24.50 ± 0.50 / 26.10" in comparison  # hotdog NVF vs Table S3
+    assert "22.50 ± 0.50 / 24.17" in comparison  # object-scene mean vs the 8-scene mean
+    t1 = read(tmp_path / "res" / "tables" / "table1_opt.md")
+    assert "NVF-OPT" in t1
+
+
+def test_cli_reads_outputs_and_committed_runs(tmp_path, capsys):
+    make_run(tmp_path / "out", seed=100)
+    make_run(tmp_path / "res" / "runs", seed=101)
+    assert main([f"paths.outputs={tmp_path / 'out'}", f"paths.results={tmp_path / 'res'}"]) == 0
+    assert "pipeline.tables: wrote" in capsys.readouterr().out
+    assert set(pd.read_csv(tmp_path / "res" / "runs.csv")["seed"]) == {100, 101}
+    assert (tmp_path / "res" / "figures" / "curves_hubble_smoke.png").is_file()
+
+
+def test_cli_rejects_unknown_arguments(capsys):
+    assert main(["paths.foo=1"]) == 1
+    assert "unknown argument 'paths.foo=1'" in capsys.readouterr().err
+
+
+def test_image_grid(tmp_path):
+    run = tmp_path / "run"
+    assert image_grid(run, tmp_path / "grid.png") is None
+    (run / "images").mkdir(parents=True)
+    for step in (0, 1):
+        iio.imwrite(run / "images" / f"step_{step:02d}_gt.png", np.zeros((8, 8, 3), np.uint8))
+        iio.imwrite(run / "images" / f"step_{step:02d}_depth.png", np.full((8, 8), 128, np.uint8))
+    iio.imwrite(run / "images" / "step_00_entropy.png", np.zeros((8, 8, 4), np.uint8))
+    out = image_grid(run, tmp_path / "figs" / "grid.png")
+    assert out == tmp_path / "figs" / "grid.png" and iio.imread(out).ndim == 3
+
+
+def test_paper_numbers_means_match_tables_s3_s4():
+    paper = paper_numbers()
+    per_scene = paper[paper["table"].isin(["S3", "S4"])].groupby("method")[list(METRICS)].mean()
+    means = paper[paper["table"] == "mean8"].set_index("method")[list(METRICS)]
+    assert len(per_scene) == 7
+    assert set(paper.loc[paper["table"] == "S3", "scene"]) == {"chair", "drums", "ficus", "hotdog"}
+    np.testing.assert_allclose(per_scene.loc[means.index].to_numpy(), means.to_numpy(), rtol=2e-3)

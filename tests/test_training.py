@@ -1,0 +1,282 @@
+"""nvf/training.py: losses (M4, M19-M21, M25, M27), lr schedule, ray sampling and the three stages
+on a tiny analytic scene (a coloured ball rendered by ray-sphere intersection, 16x16 images)."""
+
+import dataclasses
+import math
+
+import pytest
+import torch
+
+training = pytest.importorskip("nvf.training", reason="nvf/training.py needs nvf/model.py (not importable yet)")
+from nvf.cameras import Intrinsics, look_at, pixel_rays  # noqa: E402
+from nvf.config import EntropyConfig, FieldConfig, SamplerConfig, StageBudget, TrainConfig  # noqa: E402
+from nvf.model import SceneModel  # noqa: E402
+from nvf.training import (  # noqa: E402
+    Observations,
+    TrainingDiverged,
+    activenerf_loss,
+    backbone_lr,
+    balanced_bce_weights,
+    composite,
+    neurar_loss,
+    stage_order,
+    train_backbone,
+    train_model,
+    train_variance_head,
+    train_visibility_head,
+    variance_nll,
+    visibility_bce,
+)
+
+RADIUS = 0.5
+AABB = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+INTR = Intrinsics.from_fov(16, 16, 90.0)
+
+
+def render_ball(c2w: torch.Tensor, intr: Intrinsics) -> torch.Tensor:
+    """RGBA ``[H,W,4]`` of a ball of radius 0.5 at the origin coloured by its normal; RGB 0 off the ball."""
+    origins, dirs = pixel_rays(c2w, intr)
+    b = (origins * dirs).sum(-1)
+    disc = b * b - ((origins * origins).sum(-1) - RADIUS**2)
+    hit = disc > 0
+    t = -b - disc.clamp_min(0).sqrt()
+    normal = (origins + t[:, None] * dirs) / RADIUS
+    rgb = torch.where(hit[:, None], 0.5 + 0.4 * normal, 0.0)
+    return torch.cat([rgb, hit[:, None].float()], -1).reshape(intr.height, intr.width, 4)
+
+
+def ball_observations(n: int = 5) -> Observations:
+    angles = torch.arange(n) * 2 * math.pi / n
+    positions = torch.stack([2.2 * torch.cos(angles), 2.2 * torch.sin(angles), 0.6 * torch.ones(n)], -1)
+    c2w = torch.stack([look_at(p, torch.zeros(3)) for p in positions])
+    return Observations(torch.stack([render_ball(c, INTR) for c in c2w]), c2w, INTR)
+
+
+def tiny_model(seed: int = 0) -> SceneModel:
+    torch.manual_seed(seed)
+    field_cfg = FieldConfig(num_levels=4, log2_hashmap_size=12, base_resolution=4, max_resolution=32, hidden_dim=32)
+    sampler_cfg = SamplerConfig(grid_resolution=16, step_size=0.03, warmup_iters=16, update_every=4)
+    return SceneModel(AABB, field_cfg, sampler_cfg, num_images=0)
+
+
+def tiny_config(**overrides) -> TrainConfig:
+    base = TrainConfig(
+        backbone=StageBudget(60, 256, 1e-2),
+        variance=StageBudget(15, 256, 1e-2),
+        visibility=StageBudget(15, 1024, 1e-2),
+        label_samples=32,
+    )
+    return dataclasses.replace(base, **overrides)
+
+
+@pytest.fixture(scope="module")
+def trained() -> tuple[SceneModel, Observations]:
+    """A backbone fitted to the ball (stage 1, M20), shared by the stage-2/3 tests (they copy it)."""
+    obs, model = ball_observations(), tiny_model()
+    stats = train_backbone(model, obs, tiny_config(), torch.Generator().manual_seed(0))
+    assert stats["last_loss"] < stats["first_loss"]
+    return model, obs
+
+
+def copy_model(model: SceneModel) -> SceneModel:
+    clone = tiny_model()
+    clone.load_state_dict(model.state_dict())
+    return clone
+
+
+def params(model: SceneModel, group: str) -> list[torch.Tensor]:
+    return [p.detach().clone() for p in model.field.parameter_groups()[group]]
+
+
+def same(a: list[torch.Tensor], b: list[torch.Tensor]) -> bool:
+    return all(torch.equal(x, y) for x, y in zip(a, b))
+
+
+# ----------------------------------------------------------------------------- pure functions
+
+
+def test_balanced_bce_weights_m19():
+    labels = torch.tensor([0.9, 0.2, 0.1, 0.0])  # p = 1/4 positives (V* > 0.5)
+    w = balanced_bce_weights(labels)
+    assert w[0].item() == pytest.approx(0.7 / 0.5 + 0.3)
+    assert torch.allclose(w[1:], torch.full((3,), 0.7 / 1.5 + 0.3))
+    assert torch.equal(balanced_bce_weights(torch.zeros(5)), torch.ones(5))
+    assert torch.equal(balanced_bce_weights(torch.ones(5)), torch.ones(5))
+    assert torch.equal(balanced_bce_weights(torch.full((5,), 0.5)), torch.ones(5))  # 0.5 is not positive
+
+
+def test_visibility_bce_is_weighted_plain_mean_m19():
+    logits, labels = torch.tensor([2.0, -1.0, 0.5, 0.0]), torch.tensor([0.99, 0.3, 0.0, 0.0])
+    bce = torch.nn.functional.binary_cross_entropy_with_logits(logits, labels, reduction="none")
+    expected = (balanced_bce_weights(labels) * bce).sum() / 4
+    assert visibility_bce(logits, labels).item() == pytest.approx(expected.item())
+
+
+def test_composite_random_background_m4():
+    bg = torch.tensor([[0.2, 0.4, 0.6], [0.2, 0.4, 0.6], [1.0, 0.0, 0.5]])
+    rgb, acc = torch.tensor([[0.5, 0.5, 0.5], [0.0, 0.0, 0.0], [0.25, 0.25, 0.25]]), torch.tensor([1.0, 0.0, 0.5])
+    out = composite(rgb, acc, bg)
+    assert torch.allclose(out[0], rgb[0])  # opaque: no background
+    assert torch.allclose(out[1], bg[1])  # empty: background only
+    assert torch.allclose(out[2], torch.tensor([0.75, 0.25, 0.5]))  # C + (1 - A) b
+
+
+def test_backbone_lr_schedule():
+    cfg = TrainConfig()
+    assert backbone_lr(cfg, 0) == pytest.approx(1e-2)
+    assert backbone_lr(cfg, 5000) == pytest.approx(1e-3)
+    assert backbone_lr(cfg, 10000) == pytest.approx(1e-4)
+    assert backbone_lr(cfg, 2500) == pytest.approx(1e-2 * 0.01**0.25)
+
+
+def test_variance_nll_excludes_zero_density_and_clamps_m21():
+    log_p = torch.tensor([-math.inf, 0.0, -100.0, math.log(0.5)])
+    expected = 0.01 * (0.0 - math.log(1e-7) - math.log(0.5)) / 3
+    assert variance_nll(log_p).item() == pytest.approx(expected, rel=1e-6)
+
+
+def test_aux_losses_m25_m27():
+    var = torch.tensor([[0.5, 1.0, 2.0]], requires_grad=True)
+    res = torch.tensor([[0.25, 0.0, 1.0]], requires_grad=True)
+    an = activenerf_loss(var, res)
+    expected = ((res / (2 * (var + 1e-9))) + 0.5 * torch.log(var + 1e-9)).mean()
+    assert an.item() == pytest.approx(expected.item())
+    na = neurar_loss(var, res)
+    assert na.item() == pytest.approx(0.01 * ((var - res) ** 2).mean().item())
+    (an + na).backward()
+    assert res.grad is None or torch.equal(res.grad, torch.zeros_like(res))  # sg on the residual
+    assert var.grad is not None
+
+
+def test_sample_rays_match_pixel_rays_and_are_seeded():
+    obs = ball_observations(3)
+    o1, d1, c1 = obs.sample_rays(64, torch.Generator().manual_seed(7))
+    o2, d2, c2 = obs.sample_rays(64, torch.Generator().manual_seed(7))
+    assert torch.equal(d1, d2) and torch.equal(c1, c2)
+    all_o, all_d = pixel_rays(obs.c2w, INTR)  # [N,P,3]
+    flat = obs.images.reshape(-1, 4)
+    # each sampled ray is one of the image pixels, with its own RGBA
+    match = (d1[:, None, :] - all_d.reshape(-1, 3)[None]).norm(dim=-1) < 1e-5
+    match &= (o1[:, None, :] - all_o.reshape(-1, 3)[None]).norm(dim=-1) < 1e-5
+    assert match.any(1).all()
+    idx = match.float().argmax(1)
+    assert torch.equal(flat[idx], c1)
+
+
+def test_empty_training_set_raises():
+    empty = Observations(torch.zeros(0, 16, 16, 4), torch.zeros(0, 4, 4), INTR)
+    model, cfg, gen = tiny_model(), tiny_config(), torch.Generator()
+    with pytest.raises(ValueError, match="empty"):
+        train_backbone(model, empty, cfg, gen)
+    with pytest.raises(ValueError, match="empty"):
+        train_visibility_head(model, empty, cfg, gen)
+    with pytest.raises(ValueError, match="empty"):
+        train_model(model, empty, cfg, ["backbone"], EntropyConfig(), gen)
+    with pytest.raises(ValueError):
+        Observations(torch.zeros(1, 8, 16, 4), torch.eye(4)[None], INTR)  # H, W do not match
+    with pytest.raises((ValueError, TypeError)):  # TypeError: jaxtyping's check, when active
+        Observations(torch.zeros(2, 16, 16, 4), torch.eye(4)[None], INTR)  # 2 images, 1 pose
+
+
+def test_stage_order():
+    assert stage_order(TrainConfig()) == ("backbone", "variance", "visibility")
+    assert stage_order(TrainConfig(stage_order="vis_first")) == ("backbone", "visibility", "variance")
+    with pytest.raises(ValueError):
+        stage_order(TrainConfig(stage_order="bogus"))
+
+
+# ------------------------------------------------------------------------------------- stages
+
+
+def test_backbone_nan_raises_training_diverged():
+    obs = ball_observations(2)
+    obs.images[0, ..., 0] = math.nan  # half of all pixels: the first batch draws one
+    cfg = tiny_config(backbone=StageBudget(50, 64, 1e-2))
+    with pytest.raises(TrainingDiverged, match=r"backbone stage diverged at iteration 0"):
+        train_backbone(tiny_model(), obs, cfg, torch.Generator().manual_seed(0))
+
+
+def test_aux_loss_trains_variance_head_only():
+    """M25/M27 share stage 1's steps but never change the backbone (stop-gradients)."""
+    obs = ball_observations()
+    cfg = tiny_config(backbone=StageBudget(6, 128, 1e-2))
+    runs = {}
+    for aux in ("none", "activenerf", "neurar"):
+        model = tiny_model(seed=1)
+        before = params(model, "variance")
+        stats = train_backbone(model, obs, cfg, torch.Generator().manual_seed(3), aux_loss=aux)
+        runs[aux] = (params(model, "backbone"), same(before, params(model, "variance")), stats)
+    assert runs["none"][1] and not runs["activenerf"][1] and not runs["neurar"][1]
+    for aux in ("activenerf", "neurar"):
+        assert all(torch.allclose(a, b, atol=1e-6) for a, b in zip(runs["none"][0], runs[aux][0]))
+        assert math.isfinite(runs[aux][2]["last_aux_loss"])
+    with pytest.raises(ValueError):
+        train_backbone(tiny_model(), obs, cfg, torch.Generator(), aux_loss="bogus")
+
+
+def test_variance_stage_nll_decreases(trained):
+    """Stage 2 (M21): the mixture NLL falls and only the variance head moves."""
+    model, obs = trained
+    model = copy_model(model)
+    frozen = params(model, "backbone") + params(model, "visibility")
+    calls = []
+    gen = torch.Generator().manual_seed(1)
+    stats = train_variance_head(model, obs, tiny_config(), EntropyConfig(), gen, progress=lambda *a: calls.append(a))
+    assert stats["last_loss"] < stats["first_loss"]
+    assert stats["iters"] == 15 and stats["steps"] == 15
+    assert same(frozen, params(model, "backbone") + params(model, "visibility"))
+    assert [c[:3] for c in calls] == [("variance", k, 15) for k in range(15)]
+
+
+def test_visibility_stage_bce_decreases(trained):
+    """Stage 3 (M17-M19): the balanced BCE falls and only the visibility head moves."""
+    model, obs = trained
+    model = copy_model(model)
+    frozen = params(model, "backbone") + params(model, "variance")
+    stats = train_visibility_head(model, obs, tiny_config(), torch.Generator().manual_seed(2))
+    assert stats["last_loss"] < stats["first_loss"]
+    assert same(frozen, params(model, "backbone") + params(model, "variance"))
+
+
+def test_reference_schedule_step_counts(trained):
+    model, obs = trained
+    model = copy_model(model)
+    cfg = tiny_config(
+        schedule="reference", variance=StageBudget(2, 64, 1e-3), visibility=StageBudget(2, 256, 1e-3)
+    )
+    stats = train_model(model, obs, cfg, ["variance", "visibility"], EntropyConfig(), torch.Generator().manual_seed(0))
+    assert list(stats.stages) == ["variance", "visibility"]
+    assert stats.stages["variance"]["steps"] == 6  # D6: 3 fresh batches per iteration
+    assert stats.stages["visibility"]["steps"] == 10  # D7: 5 steps on the same batch
+    assert stats.seconds > 0
+
+
+def test_ablation_affects_training_wo_var_skips_variance_stage(trained):
+    model, obs = trained
+    model = copy_model(model)
+    before = params(model, "variance")
+    cfg = tiny_config(ablation_affects_training=True, variance=StageBudget(2, 64, 1e-2))
+    stats = train_variance_head(model, obs, cfg, EntropyConfig(use_variance=False), torch.Generator())
+    assert stats["steps"] == 0 and same(before, params(model, "variance"))
+    # w/o Vis. still trains the head (raw-density weights, v-split kept)
+    stats = train_variance_head(model, obs, cfg, EntropyConfig(use_visibility=False), torch.Generator())
+    assert stats["steps"] == 2 and not same(before, params(model, "variance"))
+
+
+def test_train_model_runs_stages_in_order():
+    obs, model = ball_observations(3), tiny_model()
+    cfg = tiny_config(
+        stage_order="vis_first",
+        backbone=StageBudget(4, 64, 1e-2),
+        variance=StageBudget(2, 64, 1e-3),
+        visibility=StageBudget(2, 128, 1e-3),
+    )
+    seen = []
+    stats = train_model(
+        model, obs, cfg, ["backbone", "variance", "visibility"], EntropyConfig(), torch.Generator().manual_seed(0),
+        progress=lambda stage, k, total, loss: seen.append(stage),
+    )  # fmt: skip
+    assert list(stats.stages) == ["backbone", "visibility", "variance"]
+    assert seen == ["backbone"] * 4 + ["visibility"] * 2 + ["variance"] * 2
+    with pytest.raises(ValueError, match="unknown training stages"):
+        train_model(model, obs, cfg, ["colour"], EntropyConfig(), torch.Generator())
