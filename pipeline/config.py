@@ -154,6 +154,8 @@ def validate(cfg: DictConfig) -> None:
         raise ConfigError(
             f"field.max_resolution={cfg.field.max_resolution} is below field.base_resolution={cfg.field.base_resolution}"
         )
+    if cfg.budget.eval_size < 32:
+        raise ConfigError(f"budget.eval_size={cfg.budget.eval_size} must be >= 32 (LPIPS' AlexNet needs 32x32 inputs)")
     d0 = cfg.nvf.entropy.d0
     if d0 is not None and d0 < 0 and d0 != -1:
         raise ConfigError(f"nvf.entropy.d0={d0} must be >= 0, -1 (auto) or null (the scene's value)")

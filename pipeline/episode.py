@@ -88,7 +88,7 @@ class Episode:
         size = cfg.budget.image_size
         self.intrinsics = Intrinsics.from_fov(size, size)
         self.plan_intrinsics = Intrinsics.from_fov(cfg.planner.resolution, cfg.planner.resolution)
-        self.scorer = make_scorer(cfg.method.name, self.settings.entropy, self.settings.baseline)
+        self.scorer = make_scorer(cfg.method.name, self.settings.entropy, self.settings.baseline, float(self.settings.entropy.d0))
         self.evaluator = Evaluator(scene, self.renderer, cfg, device, lpips)
         self.poses: list[torch.Tensor] = []
         self.views: list[GTView] = []

@@ -189,6 +189,22 @@ def _parse_row(line: str) -> dict | None:
     return row
 
 
+def _settings(config: Any) -> Any:
+    """A resolved config without its ``paths`` group (locations, not experiment settings)."""
+    return {k: v for k, v in config.items() if k != "paths"} if isinstance(config, Mapping) else config
+
+
+def first_difference(old: Any, new: Any, prefix: str = "") -> str | None:
+    """Dotted key of the first difference between two JSON values (None when equal)."""
+    if isinstance(old, dict) and isinstance(new, dict):
+        for key in sorted(old.keys() | new.keys()):
+            found = first_difference(old.get(key), new.get(key), f"{prefix}{key}.")
+            if found is not None:
+                return found
+        return None
+    return None if old == new else prefix.rstrip(".") or "value"
+
+
 def record_status(info: dict, directory: Path) -> str:
     """``done``, ``failed`` or ``unfinished`` from the markers or from run.json (committed records)."""
     if (directory / DONE).is_file() or info.get("status") == "done":
@@ -219,7 +235,8 @@ class RunRecord:
         """Create the directory and write run.json: ``info`` plus git state, versions, definitions, timings.
 
         ``info`` holds at least the identity keys (scene, method, planner, ablation, budget, seed) and
-        ``config``. Resuming keeps the first start time; a different identity or config is refused.
+        ``config``. Resuming keeps the first start time; a different identity or config (apart from its
+        ``paths``, which only say where files live) is refused, naming the first differing key.
         """
         missing = [key for key in (*IDENTITY_KEYS, "config") if key not in info]
         if missing:
@@ -230,11 +247,11 @@ class RunRecord:
         now = utc_now()
         timings = {"started": now, "resumed": [], "ended": None}
         if previous:
-            for key in (*IDENTITY_KEYS, "config"):
-                if to_jsonable(previous.get(key)) != to_jsonable(info[key]):
-                    raise ValueError(
-                        f"run {self.directory} was started with a different {key}; delete it or restore the config"
-                    )
+            old = {k: previous.get(k) for k in IDENTITY_KEYS} | {"config": _settings(previous.get("config"))}
+            new = {k: info[k] for k in IDENTITY_KEYS} | {"config": _settings(info["config"])}
+            key = first_difference(to_jsonable(old), to_jsonable(new))
+            if key is not None:
+                raise ValueError(f"run {self.directory} was started with a different {key}; delete it or restore it")
             timings = {**previous.get("timings", timings), "ended": None}
             timings["resumed"] = [*timings.get("resumed", []), now]
         for stale in self.directory.glob(".*.tmp"):  # temp files of a killed write

@@ -6,6 +6,7 @@ unfinished ones at their first missing step, and records every step atomically. 
 failing job is recorded and the sweep goes on.
 """
 
+import logging
 import os
 import sys
 import time
@@ -130,6 +131,7 @@ def run_episode(cfg: DictConfig) -> Path:
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
 def main(cfg: DictConfig) -> None:
     multirun = HydraConfig.get().mode == RunMode.MULTIRUN
+    logging.getLogger("OpenGL").setLevel(logging.WARNING)  # PyOpenGL announces a missing optional module
     try:
         directory = run_episode(cfg)
     except (ConfigError, SceneError, StepFailed, ValueError) as err:

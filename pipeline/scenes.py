@@ -28,6 +28,7 @@ import numpy as np
 import torch
 import trimesh
 from jaxtyping import Float
+from PIL import Image
 from torch import Tensor
 
 from nvf.cameras import Intrinsics, look_at
@@ -260,8 +261,6 @@ def _texture_tile(part: trimesh.Trimesh, width: int) -> tuple[np.ndarray, np.nda
     start = np.floor(uv.min(axis=0))
     tiles = np.maximum(np.ceil(uv.max(axis=0) - start), 1).astype(int)
     tiled = np.tile(image, (tiles[1], tiles[0], 1))
-    from PIL import Image
-
     height = max(1, min(width, round(tiled.shape[0] * width / tiled.shape[1])))
     resized = Image.fromarray(np.clip(tiled, 0, 255).astype(np.uint8)).resize((width, height), Image.BILINEAR)
     return np.asarray(resized), (uv - start) / tiles
@@ -272,8 +271,6 @@ def _atlas(parts: list[trimesh.Trimesh], width: int = 1024) -> trimesh.Trimesh:
 
     (trimesh's own packing garbles these textures and cannot handle repeating UVs.)
     """
-    from PIL import Image
-
     tiles = [_texture_tile(p, width) for p in parts]
     total = sum(image.shape[0] for image, _ in tiles)
     atlas, uvs, top = np.zeros((total, width, 3), dtype=np.uint8), [], 0

@@ -2,9 +2,11 @@
 
 ``python -m pipeline.tables [paths.outputs=DIR] [paths.results=DIR]`` reads every run under
 ``paths.outputs`` and ``${paths.results}/runs`` (committed records: run.json + steps.jsonl) and writes
-``${paths.results}/runs.csv``, ``tables/`` and ``figures/``. Only finished runs count; a cell is the
-mean +- population std over seeds of each run's last step (PROTOCOL.md 3). Step rows store NaN as
-``null`` (pipeline.records); it is read back as NaN and footnoted.
+``${paths.results}/runs.csv`` (long format; NaN as an empty field), ``tables/{main, table1_opt,
+table2_ablation, table34_nerf_assets, all_runs, paper_comparison}.{md,csv,tex}`` and ``figures/``
+(metric-vs-step curves, image grids). Only finished runs count; a cell is the mean ± population std
+over seeds at each run's last step (PROTOCOL.md 3). Step rows store NaN as ``null``
+(pipeline.records); it is read back as NaN and footnoted.
 """
 
 import json
@@ -25,14 +27,15 @@ from matplotlib.figure import Figure
 from pipeline.paper_numbers import paper_numbers
 from pipeline.records import IDENTITY_KEYS, RUN_JSON, STEPS, atomic_write_text, check_key, read_steps, record_status
 
-# (key, label, higher is better, decimals) in the paper's column order.
+# (key, label, higher is better, decimals) in the paper's column order; labels and directions agree
+# with pipeline.metrics.METRICS (checked in tests; importing it here would load torch and open3d).
 METRICS = (
     ("psnr", "PSNR", True, 2),
     ("ssim", "SSIM", True, 3),
     ("lpips", "LPIPS", False, 3),
     ("rgb", "RGB", False, 4),
-    ("acc", "Acc", False, 4),
-    ("comp", "Comp", False, 4),
+    ("acc", "Acc.", False, 4),
+    ("comp", "Comp.", False, 4),
     ("cr", "C.R.", True, 3),
     ("vis", "Vis.", True, 3),
 )
@@ -65,7 +68,7 @@ FINAL_COLUMNS = (
 )
 GROUP = ("budget", "scene", "method", "planner", "ablation")
 IMAGE_NAME = re.compile(r"step_(\d+)_(.+)\.png")
-IMAGE_KINDS = ("gt", "pred", "prediction", "rgb", "entropy", "uncertainty", "depth")
+IMAGE_KINDS = (("gt", "GT"), ("pred", "prediction"), ("score", "score map"), ("entropy", "entropy"), ("depth", "depth"))
 
 
 @dataclass(frozen=True)
@@ -535,9 +538,10 @@ def curves(long: pd.DataFrame, figures: Path) -> list[Path]:
     return written
 
 
-def image_grid(run_dir: Path, out_path: Path) -> Path | None:
-    """Assemble ``images/step_XX_<kind>.png`` of a run into one grid (rows = steps, columns = kinds
-    in the order GT, prediction, entropy, depth, others); None when the run saved no images."""
+def image_grid(run_dir: Path, out_path: Path, max_rows: int = 5) -> Path | None:
+    """Assemble ``images/step_XX_<kind>.png`` of a run into one grid: rows = up to ``max_rows`` evenly
+    spaced steps (first and last included), columns = GT, prediction, score/entropy map, depth, others.
+    None when the run saved no images."""
     found: dict[int, dict[str, Path]] = {}
     for path in sorted((Path(run_dir) / "images").glob("step_*.png")):
         match = IMAGE_NAME.fullmatch(path.name)
@@ -547,9 +551,10 @@ def image_grid(run_dir: Path, out_path: Path) -> Path | None:
         return None
     kinds = sorted(
         {kind for images in found.values() for kind in images},
-        key=lambda kind: (IMAGE_KINDS.index(kind) if kind in IMAGE_KINDS else len(IMAGE_KINDS), kind),
+        key=lambda kind: (_rank(IMAGE_KINDS, kind), kind),
     )
     steps = sorted(found)
+    steps = [steps[round(i)] for i in np.linspace(0, len(steps) - 1, min(max_rows, len(steps)))]
     fig = Figure(figsize=(2.5 * len(kinds), 2.5 * len(steps)), layout="constrained")
     axes = np.asarray(fig.subplots(len(steps), len(kinds), squeeze=False))
     for i, step in enumerate(steps):
@@ -560,7 +565,7 @@ def image_grid(run_dir: Path, out_path: Path) -> Path | None:
                 image = iio.imread(found[step][kind])
                 ax.imshow(image[..., :3] if image.ndim == 3 else image, cmap=None if image.ndim == 3 else "viridis")
             if i == 0:
-                ax.set_title(kind)
+                ax.set_title(dict(IMAGE_KINDS).get(kind, kind))
             if j == 0:
                 ax.text(-0.05, 0.5, f"step {step}", transform=ax.transAxes, rotation=90, ha="right", va="center")
     _save_figure(fig, Path(out_path))
@@ -568,6 +573,37 @@ def image_grid(run_dir: Path, out_path: Path) -> Path | None:
 
 
 LABEL_HEADERS = {"table2_ablation": "Variant"}
+
+
+def summarize_run(run_dir: Path) -> Path:
+    """Per-step metrics of one run (and the paper's row for its scene and method, if any) as Markdown
+    in ``<run_dir>/summary.md``; returns its path."""
+    info, rows = _load_run(Path(run_dir))
+    label = method_label(info["method"], info["planner"], info["ablation"])
+    columns = ["Step", "Views"] + [f"{name}{'↑' if higher else '↓'}" for _, name, higher, _ in METRICS] + ["Seconds"]
+    cells = []
+    for row in rows:
+        if row.get("status", "ok") != "ok" or not isinstance(row.get("metrics"), dict):
+            continue
+        values = [_metric_value(row["metrics"].get(metric)) for metric in METRIC_KEYS]
+        seconds = row.get("seconds") if isinstance(row.get("seconds"), dict) else {}
+        total = sum(v for v in seconds.values() if isinstance(v, (int, float)))
+        line = [str(row["step"]), str(row.get("n_views", ""))]
+        line += ["-" if v is None or math.isnan(v) else f"{v:.{m[3]}f}" for v, m in zip(values, METRICS)]
+        cells.append(line + [f"{total:.1f}"])
+    paper = paper_numbers()
+    match = paper[paper["table"].isin(["S3", "S4"]) & (paper["scene"] == base_scene(info["scene"]))]
+    for _, ref in match[match["method"] == label].iterrows():
+        cells.append([f"paper ({ref['table']})", ""] + [f"{ref[m]:.{d}f}" for m, _, _, d in METRICS] + [""])
+    table = pd.DataFrame(cells, columns=columns).to_markdown(index=False, disable_numparse=True)
+    source = info.get("scene_source", "unknown")
+    notes = [f"Status: {record_status(info, Path(run_dir))}. Scene source: {source}."]
+    if info.get("lpips_missing_reason"):
+        notes.append(f"LPIPS missing: {info['lpips_missing_reason']}.")
+    title = f"# {info['scene']} / {label} / {info['budget']} budget / seed {info['seed']}"
+    path = Path(run_dir) / "summary.md"
+    atomic_write_text(path, "\n".join([title, "", table, "", *(f"- {n}" for n in notes)]) + "\n")
+    return path
 
 
 def build_tables(
@@ -593,7 +629,8 @@ def build_tables(
     if not figures:
         return written, runs.skipped
     written += curves(runs.long, results / "figures")
-    for _, run in runs.final[runs.final["status"] == "done"].iterrows():
+    done = runs.final[runs.final["status"] == "done"].sort_values("seed")
+    for _, run in done.drop_duplicates(list(GROUP)).iterrows():  # one grid per method and scene: lowest seed
         group = f"{run['method']}-{run['planner']}-{run['ablation']}"
         name = f"grid_{run['scene']}_{group}_{run['budget']}_seed{run['seed']}.png"
         grid = image_grid(Path(run["directory"]), results / "figures" / "grids" / name)
@@ -614,6 +651,9 @@ def parse_overrides(argv: list[str]) -> tuple[Path, Path]:
 
 def main(argv: list[str]) -> int:
     """Command-line entry point; returns the exit code."""
+    if any(arg in ("-h", "--help") for arg in argv):
+        print(__doc__.strip())
+        return 0
     try:
         outputs, results = parse_overrides(argv)
         written, skipped = build_tables(outputs, [results / "runs"], results)

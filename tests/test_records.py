@@ -106,8 +106,12 @@ def test_resume_keeps_start_time_and_refuses_other_config(tmp_path):
     assert not list(record.directory.glob(".*.tmp"))
     timings = record.info()["timings"]
     assert timings["started"] == first and len(timings["resumed"]) == 1
-    with pytest.raises(ValueError, match="different config"):
+    with pytest.raises(ValueError, match="different config.train.iters"):
         record.start(_info(config={"train": {"iters": 11}, "seed": 100}), repo=tmp_path)
+    with pytest.raises(ValueError, match="different budget"):
+        record.start(_info(budget="cpu"), repo=tmp_path)
+    moved = {"train": {"iters": 10}, "seed": 100, "paths": {"assets": "/elsewhere"}}
+    record.start(_info(config=moved), repo=tmp_path)  # paths only say where files live
     with pytest.raises(ValueError, match="lacks config"):
         record.start({k: v for k, v in _info().items() if k != "config"}, repo=tmp_path)
 

@@ -97,3 +97,26 @@ def test_textured_mesh_renders_its_texture(assets_dir):
     assert view.mask.mean() > 0.05
     saturation = colours.max(axis=1) - colours.min(axis=1)
     assert np.median(saturation) < 0.25 and colours.mean() > 0.1
+
+
+def test_image_size_can_change(cube_renderer):
+    c2w = look_at(torch.tensor([1.5, 1.2, 1.0]), torch.tensor([0.0, 0.0, 0.0]))
+    small = cube_renderer.render(c2w, Intrinsics.from_fov(32, 32))
+    other = cube_renderer.render(c2w, Intrinsics.from_fov(48, 40))
+    again = cube_renderer.render(c2w, Intrinsics.from_fov(32, 32))
+    assert other.rgb.shape == (40, 48, 3)
+    np.testing.assert_array_equal(small.rgb, again.rgb)
+
+
+def test_render_bench_and_dispatch(tmp_path, capsys):
+    import json
+
+    from pipeline.bench.__main__ import main as bench_main
+
+    out = tmp_path / "render.json"
+    bench_main(["render", "--res", "16", "--views", "1", "--scenes", "default", "--out", str(out)])
+    rows = json.loads(out.read_text())["rows"]
+    assert [r["resolution"] for r in rows] == [16, 512] and all(r["face_id_ms"] > 0 for r in rows)
+    with pytest.raises(SystemExit) as info:
+        bench_main(["no_such_bench"])
+    assert info.value.code == 2 and "unknown benchmark" in capsys.readouterr().err

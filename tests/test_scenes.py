@@ -219,9 +219,15 @@ def test_user_mesh_lookup_and_bad_meshes(tmp_path):
         load_scene("ficus", tmp_path)
 
 
-@pytest.mark.parametrize("args", [["show", "teapot"], ["show", "lego", "--assets", "/nonexistent"]])
-def test_show_cli_bad_input(args):
-    result = subprocess.run([sys.executable, "-m", "pipeline.scenes", *args], cwd=REPO, capture_output=True, text=True,
-                            timeout=120)
+def test_show_cli_bad_input(capsys):
+    """Bad input: one line on stderr, non-zero exit, no traceback (in a subprocess and in-process)."""
+    result = subprocess.run([sys.executable, "-m", "pipeline.scenes", "show", "teapot"], cwd=REPO, capture_output=True,
+                            text=True, timeout=120)
     assert result.returncode != 0
     assert len(result.stderr.strip().splitlines()) == 1 and "Traceback" not in result.stderr
+    from pipeline.scenes import main
+
+    with pytest.raises(SystemExit) as info:
+        main(["show", "lego", "--assets", "/nonexistent"])
+    err = capsys.readouterr().err
+    assert info.value.code == 2 and len(err.strip().splitlines()) == 1 and "lego_proxy" in err

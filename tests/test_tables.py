@@ -5,10 +5,11 @@ from pathlib import Path
 import imageio.v3 as iio
 import numpy as np
 import pandas as pd
+import pytest
 
 from pipeline.paper_numbers import paper_numbers
 from pipeline.records import RunRecord, run_dir
-from pipeline.tables import LONG_COLUMNS, build_tables, image_grid, main, method_label
+from pipeline.tables import LONG_COLUMNS, METRICS as TABLE_METRICS, build_tables, image_grid, main, method_label, summarize_run
 
 METRICS = ("psnr", "ssim", "lpips", "rgb", "acc", "comp", "cr", "vis")
 
@@ -76,7 +77,7 @@ def test_aggregation_mean_population_std_best_and_n(tmp_path):
     assert "Budget: smoke" in md and "hubble (mesh)" in md and "step 1" in md
     csv = pd.read_csv(tmp_path / "res" / "tables" / "main.csv", comment="#")
     assert list(csv["Method"]) == ["Random", "NVF"] and list(csv["n"]) == [3, 3]
-    assert list(csv.columns[2:10]) == ["PSNR↑", "SSIM↑", "LPIPS↓", "RGB↓", "Acc↓", "Comp↓", "C.R.↑", "Vis.↑"]
+    assert list(csv.columns[2:10]) == ["PSNR↑", "SSIM↑", "LPIPS↓", "RGB↓", "Acc.↓", "Comp.↓", "C.R.↑", "Vis.↑"]
     tex = read(tmp_path / "res" / "tables" / "main.tex")
     assert r"\textbf{21.33 $\pm$ 1.25}" in tex and r"PSNR$\uparrow$" in tex and r"\end{tabular}" in tex
     assert tmp_path / "res" / "figures" / "curves_hubble_smoke.png" in written
@@ -99,7 +100,7 @@ def test_nan_metrics_are_footnoted(tmp_path):
     build_tables(out, [], tmp_path / "res", figures=False)
     md = read(tmp_path / "res" / "tables" / "main.md")
     assert "LPIPS missing in 2 of 2 runs: AlexNet weights unavailable offline." in md
-    assert "Acc is NaN/null in 1 of 2 runs" in md
+    assert "Acc. is NaN/null in 1 of 2 runs" in md
     assert "0.5000 ± 0.0000†" in md  # Acc averages the seed that has it
     row = [line for line in md.splitlines() if line.startswith("| hubble")][0]
     assert row.split("|")[5].strip() == "-"  # LPIPS column: no value at all
@@ -149,12 +150,16 @@ def test_committed_runs_and_object_mean_and_paper_comparison(tmp_path):
 
 
 def test_cli_reads_outputs_and_committed_runs(tmp_path, capsys):
-    make_run(tmp_path / "out", seed=100)
+    record = make_run(tmp_path / "out", seed=100)
+    (record.directory / "images").mkdir()
+    iio.imwrite(record.directory / "images" / "step_00_gt.png", np.zeros((8, 8, 3), np.uint8))
     make_run(tmp_path / "res" / "runs", seed=101)
     assert main([f"paths.outputs={tmp_path / 'out'}", f"paths.results={tmp_path / 'res'}"]) == 0
     assert "pipeline.tables: wrote" in capsys.readouterr().out
     assert set(pd.read_csv(tmp_path / "res" / "runs.csv")["seed"]) == {100, 101}
     assert (tmp_path / "res" / "figures" / "curves_hubble_smoke.png").is_file()
+    grids = list((tmp_path / "res" / "figures" / "grids").iterdir())
+    assert [p.name for p in grids] == ["grid_hubble_nvf-argmax-none_smoke_seed100.png"]
 
 
 def test_cli_rejects_unknown_arguments(capsys):
@@ -169,9 +174,29 @@ def test_image_grid(tmp_path):
     for step in (0, 1):
         iio.imwrite(run / "images" / f"step_{step:02d}_gt.png", np.zeros((8, 8, 3), np.uint8))
         iio.imwrite(run / "images" / f"step_{step:02d}_depth.png", np.full((8, 8), 128, np.uint8))
-    iio.imwrite(run / "images" / "step_00_entropy.png", np.zeros((8, 8, 4), np.uint8))
+    iio.imwrite(run / "images" / "step_00_score.png", np.zeros((8, 8, 4), np.uint8))
     out = image_grid(run, tmp_path / "figs" / "grid.png")
     assert out == tmp_path / "figs" / "grid.png" and iio.imread(out).ndim == 3
+    one_row = image_grid(run, tmp_path / "figs" / "one.png", max_rows=1)
+    assert iio.imread(one_row).shape[0] < iio.imread(out).shape[0]
+
+
+def test_summarize_run_lists_steps_and_the_paper_row(tmp_path):
+    record = make_run(tmp_path, scene="lego_proxy", final={"psnr": 22.5}, lpips_reason="no weights", steps=3)
+    path = summarize_run(record.directory)
+    text = path.read_text()
+    assert path == record.directory / "summary.md"
+    assert "# lego_proxy / NVF / smoke budget / seed 100" in text
+    cells = [[c.strip() for c in line.strip("|").split("|")] for line in text.splitlines() if line.startswith("|")]
+    assert cells[4][:3] == ["2", "5", "22.50"] and cells[4][4] == "-"  # header, rule, steps 0-2, paper
+    assert cells[5][:3] == ["paper (S4)", "", "23.97"]  # Table S4, lego, NVF
+    assert "LPIPS missing: no weights." in text and "Status: done" in text
+
+
+def test_metric_labels_and_directions_match_pipeline_metrics():
+    metrics = pytest.importorskip("pipeline.metrics")
+    for key, label, higher, _ in TABLE_METRICS:
+        assert (metrics.METRICS[key].label, metrics.METRICS[key].higher_is_better) == (label, higher)
 
 
 def test_paper_numbers_means_match_tables_s3_s4():

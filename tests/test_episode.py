@@ -1,0 +1,100 @@
+"""The episode harness end to end (PROTOCOL 3): records, resume after SIGKILL, bad input."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+
+from pipeline.records import RunRecord
+from pipeline.run import REPO, run_episode
+
+SMOKE = ["budget=smoke", "scene=default"]
+
+
+def _cfg(tmp_path: Path, *overrides: str):
+    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
+        return compose("config", overrides=[*SMOKE, f"paths.outputs={tmp_path}", *overrides])
+
+
+def _cli(tmp_path: Path, *overrides: str, **kw) -> subprocess.Popen:
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    return subprocess.Popen(
+        [sys.executable, "-m", "pipeline.run", *SMOKE, f"paths.outputs={tmp_path}", *overrides],
+        cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kw,
+    )  # fmt: skip
+
+
+def test_smoke_episode_writes_complete_records(tmp_path):
+    directory = run_episode(_cfg(tmp_path, "method=random", "budget.horizon=2"))
+    record = RunRecord(directory)
+    assert record.is_done()
+    rows = record.completed_steps()
+    assert [r["step"] for r in rows] == [0, 1]
+    assert [r["n_views"] for r in rows] == [3, 4]  # n_init + step (PROTOCOL 3)
+    for row in rows:
+        assert len(row["selected_pose"]) == 7
+        assert set(row["seconds"]) == {"train", "eval", "plan"}
+        for metric in ("psnr", "ssim", "rgb", "vis", "cr"):
+            assert isinstance(row["metrics"][metric], float)
+    info = json.loads((directory / "run.json").read_text())
+    assert info["budget"] == "smoke" and info["field"] in ("hashgrid", "densegrid")
+    assert info["git"]["commit"] is None or len(info["git"]["commit"]) == 40
+    assert (directory / "images" / "step_01_pred.png").is_file()
+    # a finished run is skipped, not re-run
+    assert run_episode(_cfg(tmp_path, "method=random", "budget.horizon=2")) == directory
+    assert len(RunRecord(directory).completed_steps()) == 2
+
+
+@pytest.mark.slow
+def test_sigkill_mid_step_resumes_with_the_same_poses(tmp_path):
+    """A run killed mid-step resumes at its last complete step and selects the same poses."""
+    reference = _cli(tmp_path / "a", "method=nvf")
+    assert reference.wait(timeout=900) == 0, reference.stderr.read()
+    killed = _cli(tmp_path / "b", "method=nvf")
+    steps = next((tmp_path / "b").glob("*/*/*/seed_*"), None)
+    deadline = time.time() + 900
+    while time.time() < deadline:
+        steps = next((tmp_path / "b").glob("*/*/*/seed_*/steps.jsonl"), None)
+        if steps is not None and steps.read_text().count("\n") >= 1:
+            break
+        time.sleep(0.2)
+    killed.send_signal(signal.SIGKILL)
+    killed.wait()
+    partial = RunRecord(steps.parent).completed_steps()
+    assert 1 <= len(partial) < 3 and not RunRecord(steps.parent).is_done()
+    resumed = _cli(tmp_path / "b", "method=nvf")
+    out, err = resumed.communicate(timeout=900)
+    assert resumed.returncode == 0, err
+    assert f"resuming" in out
+    a = RunRecord(next((tmp_path / "a").glob("*/*/*/seed_*"))).completed_steps()
+    b = RunRecord(steps.parent).completed_steps()
+    assert [r["selected_pose"] for r in a] == pytest.approx([r["selected_pose"] for r in b])
+
+
+def test_missing_mesh_is_one_line_and_nonzero(tmp_path):
+    proc = _cli(tmp_path, "scene=lego", f"paths.assets={tmp_path / 'nowhere'}")
+    out, err = proc.communicate(timeout=300)
+    assert proc.returncode != 0
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and "lego" in lines[0] and "Traceback" not in err
+    assert not any(tmp_path.glob("lego/*/*/seed_*/steps.jsonl"))
+
+
+def test_unknown_scene_lists_the_choices(tmp_path):
+    proc = _cli(tmp_path, "scene=atlantis")
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode != 0
+    assert "atlantis" in err and "lego_proxy" in err  # Hydra's list of available options
+
+
+def test_impossible_value_names_the_key(tmp_path):
+    proc = _cli(tmp_path, "planner.num_candidates=-3")
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode != 0
+    assert "planner.num_candidates" in err and "Traceback" not in err
