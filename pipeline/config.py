@@ -19,10 +19,9 @@ from nvf.config import (
     SamplerConfig,
     TrainConfig,
 )
+from nvf.training import AUX_LOSSES, STAGES
+from nvf.uncertainty.scorers import METHODS
 
-METHODS = ("random", "wd", "activermap", "air", "activenerf", "neurar", "nvf")
-STAGES = ("backbone", "variance", "visibility")
-AUX_LOSSES = ("none", "activenerf", "neurar")
 ABLATIONS = ("none", "wo_vis", "wo_var", "ind_rays", "loose")
 
 
@@ -68,6 +67,11 @@ class BudgetConfig:
 
 
 @dataclass
+class MetricsConfig:
+    ssim_data_range: float | None = None  # None: inferred from the image stacks (PROTOCOL 4.1); or 1.0
+
+
+@dataclass
 class NvfConfig:
     entropy: EntropyConfig = dataclasses.field(default_factory=EntropyConfig)
 
@@ -87,6 +91,7 @@ class RunConfig:
     train: TrainConfig = dataclasses.field(default_factory=TrainConfig)
     nvf: NvfConfig = dataclasses.field(default_factory=NvfConfig)
     baseline: BaselineConfig = dataclasses.field(default_factory=BaselineConfig)
+    metrics: MetricsConfig = dataclasses.field(default_factory=MetricsConfig)
     seed: int = 100
     device: str = "auto"  # auto | cpu | cuda | cuda:N
     save_images: bool = True

@@ -97,7 +97,7 @@ class Evaluator:
         cfg, scene = self.cfg, self.scene
         renders = [render_view(model, scorer, c2w.to(self.device), self.intrinsics) for c2w in scene.eval_poses]
         pred = np.stack([r["rgb"] for r in renders]).clip(0.0, 1.0)
-        images = image_metrics(pred, self.gt, self.lpips)
+        images = image_metrics(pred, self.gt, self.lpips, cfg.metrics.ssim_data_range)
         seed = int(cfg.seed)
         points = reconstruct_points(
             model, obs, int(cfg.budget.recon_points), int(cfg.budget.recon_batch),
@@ -113,16 +113,15 @@ class Evaluator:
         for view in views:
             seen |= seen_faces(view.face_id, num_faces)
         coverage = visual_coverage(seen, scene.mesh)
-        nan = math.nan
-        corr = (nan, nan)
+        corr = (math.nan, math.nan, math.nan)
         if scorer is not None:
             c = uncertainty_correlation(pred, self.gt, np.stack([r["score"] for r in renders]), self.patch)
-            corr = (c.patch_pearson, c.view_pearson)
+            corr = (c.patch_pearson, c.view_pearson, c.ause)
         metrics = {
             "psnr": images.psnr, "ssim": images.ssim, "lpips": images.lpips, "rgb": images.rgb,
             "acc": geometry.acc, "comp": geometry.comp, "cr": geometry.cr, "vis": coverage.vis,
             "vis_area": coverage.vis_area, "num_points": geometry.num_points,
-            "patch_pearson": corr[0], "view_pearson": corr[1],
+            "patch_pearson": corr[0], "view_pearson": corr[1], "ause": corr[2],
         }  # fmt: skip
         first = renders[0]
         return metrics, {"gt": self.gt[0], "pred": pred[0], "score": first["score"], "depth": first["depth"]}

@@ -21,6 +21,7 @@ from jaxtyping import Bool, Float, Int
 from scipy.spatial import cKDTree
 from torch import Tensor
 
+from nvf.uncertainty import correlation
 from pipeline.lpips_weights import LpipsUnavailable, load_lpips_alex
 
 Array = np.ndarray | Tensor
@@ -55,6 +56,7 @@ METRICS: Mapping[str, MetricInfo] = MappingProxyType(
             MetricInfo("vis_area", "Vis. (area)", True, False),
             MetricInfo("patch_pearson", "Patch r", True, False),
             MetricInfo("view_pearson", "View r", True, False),
+            MetricInfo("ause", "AUSE (addition)", False, False),
         )
     }
 )
@@ -291,35 +293,25 @@ def visual_coverage(seen: Bool[np.ndarray, "F"], mesh: trimesh.Trimesh) -> Cover
 # --- 4.4 uncertainty quality -------------------------------------------------------------------
 
 
-def _pearson(a: np.ndarray, b: np.ndarray) -> float:
-    a, b = a - a.mean(), b - b.mean()
-    denom = math.sqrt(float((a * a).sum() * (b * b).sum()))
-    return float((a * b).sum() / denom) if denom > 0 else math.nan
-
-
 @dataclass(frozen=True)
 class UncertaintyCorrelation:
     """Pearson r between error and uncertainty over 32 x 32 patches and over views (4.4)."""
 
     patch_pearson: float
     view_pearson: float
+    ause: float
 
 
 def uncertainty_correlation(
     pred: Float[Array, "V H W 3"], gt: Float[Array, "V H W 3"], scores: Float[Array, "V H W"], patch: int = 32
 ) -> UncertaintyCorrelation:
-    """Correlation of the per-pixel error ``sum_ch |pred - gt|`` with the per-pixel score (4.4).
-
-    Patch level: both are average-pooled over ``patch`` x ``patch`` tiles (H and W must be multiples);
-    view level: per-view sums. NaN where either side is constant.
-    """
-    err = (_clipped(pred) - _clipped(gt)).abs().sum(1).cpu().numpy()
-    u = _numpy(scores).astype(np.float64)
-    v, h, w = err.shape
-    if h % patch or w % patch:
-        raise ValueError(f"image size {h} x {w} is not a multiple of the {patch}-pixel patch")
-    tiles = (v, h // patch, patch, w // patch, patch)
+    """Correlation of the per-pixel error ``sum_ch |pred - gt|`` with the per-pixel score (4.4),
+    computed by ``nvf.uncertainty.correlation``: patch level over ``patch`` x ``patch`` tiles, view
+    level over per-view sums, and AUSE (an addition, labelled so). NaN where undefined."""
+    err = (_clipped(pred) - _clipped(gt)).abs().sum(1)
+    u = _tensor(scores).to(err.device)
     return UncertaintyCorrelation(
-        patch_pearson=_pearson(err.reshape(tiles).mean((2, 4)).ravel(), u.reshape(tiles).mean((2, 4)).ravel()),
-        view_pearson=_pearson(err.sum((1, 2)), u.sum((1, 2))),
+        patch_pearson=correlation.patch_pearson(err, u, patch),
+        view_pearson=correlation.view_pearson(err, u),
+        ause=correlation.ause(err, u),
     )

@@ -109,7 +109,7 @@ def run_episode(cfg: DictConfig) -> Path:
         start = time.perf_counter()
         try:
             row, images = episode.step(step, on_train)
-        except (TrainingDiverged, NoCandidatesError) as err:
+        except (TrainingDiverged, NoCandidatesError, FloatingPointError) as err:
             reason = f"step {step}: {err}"
             record.mark_failed(reason)
             raise StepFailed(reason) from None

@@ -134,23 +134,27 @@ torch::Tensor backward(torch::Tensor grad_out, torch::Tensor u, int64_t rows, to
   float* tp = grad_table.data_ptr<float>();
   const uint32_t mask = static_cast<uint32_t>(hash_mask);
   // One task per (level, feature slice); tasks are dealt round-robin so that coarse (cache-friendly)
-  // and fine levels spread evenly over the threads.
+  // and fine levels spread evenly over the threads. Samples are visited in blocks so that a block's
+  // rows of grad_out stay in cache while every task of the thread reads them.
   const int64_t n_tasks = L * n_chunks;
   const int64_t n_threads = std::min<int64_t>(at::get_num_threads(), n_tasks);
   at::parallel_for(0, n_threads, 1, [&](int64_t begin, int64_t end) {
     Cell cell;
     for (int64_t worker = begin; worker < end; ++worker) {
-      for (int64_t task = worker; task < n_tasks; task += n_threads) {
-        const int64_t l = task / n_chunks;
-        const int64_t f0 = (task % n_chunks) * chunk, f1 = std::min(F, f0 + chunk);
-        float* base = tp + lv.offset[l] * F;
-        for (int64_t s = 0; s < n; ++s) {
-          locate(up + 3 * s, lv.res[l], l < n_dense, mask, cell);
-          const float* g = gp + s * L * F + l * F;
-          for (int c = 0; c < 8; ++c) {
-            float* t = base + static_cast<int64_t>(cell.idx[c]) * F;
-            const float w = cell.w[c];
-            for (int64_t f = f0; f < f1; ++f) t[f] += w * g[f];
+      for (int64_t b0 = 0; b0 < n; b0 += kBlock) {
+        const int64_t b1 = std::min(n, b0 + kBlock);
+        for (int64_t task = worker; task < n_tasks; task += n_threads) {
+          const int64_t l = task / n_chunks;
+          const int64_t f0 = (task % n_chunks) * chunk, f1 = std::min(F, f0 + chunk);
+          float* base = tp + lv.offset[l] * F;
+          for (int64_t s = b0; s < b1; ++s) {
+            locate(up + 3 * s, lv.res[l], l < n_dense, mask, cell);
+            const float* g = gp + s * L * F + l * F;
+            for (int c = 0; c < 8; ++c) {
+              float* t = base + static_cast<int64_t>(cell.idx[c]) * F;
+              const float w = cell.w[c];
+              for (int64_t f = f0; f < f1; ++f) t[f] += w * g[f];
+            }
           }
         }
       }
