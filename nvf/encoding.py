@@ -11,11 +11,12 @@ Two interchangeable backends compute the same function:
 - ``torch``: index arithmetic in int32 (the hash primes wrap to int32; only the low bits survive the
   power-of-two modulus), one ``index_select`` gather and one ``index_add_`` scatter. It supports
   gradients with respect to the input points (needed by -OPT, METHOD section 14) and any device.
-- ``cpp``: a fused gather + trilinear forward and a conflict-free scatter backward (nvf/csrc/hashgrid.cpp),
-  compiled on first use with ``torch.utils.cpp_extension``. CPU tensors only; points that require
-  gradients fall back to the torch backend.
+- ``cpp``: a fused gather + trilinear forward, a conflict-free scatter backward and the gradient with
+  respect to the points (nvf/csrc/hashgrid.cpp), compiled on first use with
+  ``torch.utils.cpp_extension`` into the user's cache. float32 CPU tensors only.
 
-``backend="auto"`` uses ``cpp`` where it applies and the extension builds, ``torch`` otherwise.
+``backend="auto"`` uses ``cpp`` where it applies and the extension builds (a compiler and the
+``ninja`` package are needed), ``torch`` otherwise.
 """
 
 import functools
@@ -51,9 +52,10 @@ def level_resolutions(num_levels: int, base_resolution: int, max_resolution: int
 
 
 def _cflags() -> list[str]:
-    """``-O3``, plus AVX2/FMA where the CPU has them (1.3x on the gather; results differ by rounding only)."""
+    """``-O3 -fopenmp`` (without it ``at::parallel_for`` runs serially), plus AVX2/FMA where the CPU has
+    them (1.3x on the gather; results differ by rounding only)."""
     simd = torch.backends.cpu.get_cpu_capability() in ("AVX2", "AVX512")
-    return ["-O3", "-mavx2", "-mfma"] if simd else ["-O3"]
+    return ["-O3", "-fopenmp", "-mavx2", "-mfma"] if simd else ["-O3", "-fopenmp"]
 
 
 def _build_dir(cflags: list[str]) -> Path:
@@ -76,6 +78,7 @@ def cpp_extension() -> ModuleType | None:
             name="nvf_hashgrid",
             sources=[str(_CSRC)],
             extra_cflags=cflags,
+            extra_ldflags=["-fopenmp"],
             build_directory=str(_build_dir(cflags)),
             verbose=False,
         )
@@ -114,20 +117,26 @@ class _GatherInterp(torch.autograd.Function):
 
 
 class _CppHashGrid(torch.autograd.Function):
-    """Fused C++ forward and table-gradient backward (no gradient with respect to the points)."""
+    """Fused C++ forward; backward gives the table gradient (scatter) and, if needed, the points' gradient."""
 
     @staticmethod
     def forward(ctx, table: Tensor, u: Tensor, levels: Tensor, offsets: Tensor, n_dense: int, hash_mask: int):
-        ctx.save_for_backward(u, levels, offsets)
-        ctx.meta = (table.shape[0], n_dense, hash_mask)
+        ctx.save_for_backward(table, u, levels, offsets)
+        ctx.meta = (n_dense, hash_mask)
         return cpp_extension().forward(u, table, levels, offsets, n_dense, hash_mask)
 
     @staticmethod
     def backward(ctx, grad_out: Tensor):
-        u, levels, offsets = ctx.saved_tensors
-        rows, n_dense, hash_mask = ctx.meta
-        grad_table = cpp_extension().backward(grad_out.contiguous(), u, rows, levels, offsets, n_dense, hash_mask)
-        return grad_table, None, None, None, None, None
+        table, u, levels, offsets = ctx.saved_tensors
+        n_dense, hash_mask = ctx.meta
+        grad_out = grad_out.contiguous()
+        ext = cpp_extension()
+        grad_table = grad_u = None
+        if ctx.needs_input_grad[0]:
+            grad_table = ext.backward(grad_out, u, table.shape[0], levels, offsets, n_dense, hash_mask)
+        if ctx.needs_input_grad[1]:
+            grad_u = ext.backward_input(grad_out, u, table, levels, offsets, n_dense, hash_mask)
+        return grad_table, grad_u, None, None, None, None
 
 
 class HashEncoding(nn.Module):
@@ -173,8 +182,9 @@ class HashEncoding(nn.Module):
         self.register_buffer("_offsets32", torch.tensor(offsets, dtype=torch.int32).view(1, -1, 1), persistent=False)
 
     def uses_cpp(self, u: Tensor) -> bool:
-        """Whether ``forward(u)`` runs the C++ kernel."""
-        if self.backend == "torch" or u.device.type != "cpu" or u.requires_grad:
+        """Whether ``forward(u)`` runs the C++ kernel (float32 CPU tensors, backend auto or cpp)."""
+        float32 = u.dtype == self.table.dtype == torch.float32
+        if self.backend == "torch" or u.device.type != "cpu" or not float32:
             return False
         if self.backend == "cpp":
             if cpp_extension() is None:

@@ -249,7 +249,7 @@ def train_backbone(
     if aux_loss != "none":
         param_groups.append({"params": groups["variance"]})
         heads = heads | {"variance"}
-    optimizer = torch.optim.Adam(param_groups, lr=cfg.backbone.lr, eps=BACKBONE_ADAM_EPS)
+    optimizer = torch.optim.Adam(param_groups, lr=cfg.backbone.lr, eps=BACKBONE_ADAM_EPS, fused=True)
     rec = _Recorder("backbone", cfg.backbone.iters, progress)
     aux_losses: list[float] = []
     for k in range(cfg.backbone.iters):
@@ -319,7 +319,7 @@ def train_variance_head(
     rec = _Recorder("variance", cfg.variance.iters, progress)
     if mix_cfg is None:
         return rec.summary()
-    optimizer = torch.optim.Adam(model.field.parameter_groups()["variance"], lr=cfg.variance.lr)
+    optimizer = torch.optim.Adam(model.field.parameter_groups()["variance"], lr=cfg.variance.lr, fused=True)
     for k in range(cfg.variance.iters):
         values = []
         for _ in range(steps):
@@ -361,7 +361,7 @@ def train_visibility_head(
     steps = _steps_per_iteration(cfg, "visibility")
     aabb = model.aabb
     c2w = obs.c2w.to(aabb.device)
-    optimizer = torch.optim.Adam(model.field.parameter_groups()["visibility"], lr=cfg.visibility.lr)
+    optimizer = torch.optim.Adam(model.field.parameter_groups()["visibility"], lr=cfg.visibility.lr, fused=True)
     rec = _Recorder("visibility", cfg.visibility.iters, progress)
 
     def density(x: Tensor) -> Tensor:

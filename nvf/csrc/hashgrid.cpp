@@ -2,6 +2,7 @@
 //
 // forward:  out[n, l*F + f] = sum_c w_c(u_n) * table[offset_l + idx_c(u_n), f]   (gather + trilinear)
 // backward: grad_table[offset_l + idx_c(u_n), f] += w_c(u_n) * grad_out[n, l*F + f]
+// backward_input: the gradient with respect to u (for -OPT pose refinement)
 //
 // Index arithmetic matches the torch reference bit for bit: u clamped to [0,1], scaled by N_l,
 // cell = min(floor, N_l - 1); dense levels (the first n_dense) use x + y (N_l+1) + z (N_l+1)^2,
@@ -21,6 +22,7 @@ namespace {
 struct Cell {
   uint32_t idx[8];
   float w[8];
+  float frac[3];  // position inside the cell, per axis
 };
 
 inline void locate(const float* p, int32_t res, bool dense, uint32_t mask, Cell& cell) {
@@ -31,6 +33,7 @@ inline void locate(const float* p, int32_t res, bool dense, uint32_t mask, Cell&
     const float fl = std::min(std::floor(x), static_cast<float>(res - 1));
     i[k] = static_cast<uint32_t>(fl);
     f[k] = x - fl;
+    cell.frac[k] = f[k];
   }
   const float wx[2] = {1.0f - f[0], f[0]}, wy[2] = {1.0f - f[1], f[1]}, wz[2] = {1.0f - f[2], f[2]};
   uint32_t tx[2], ty[2], tz[2];
@@ -163,9 +166,57 @@ torch::Tensor backward(torch::Tensor grad_out, torch::Tensor u, int64_t rows, to
   return grad_table;
 }
 
+// grad_u[n, k] = sum_l sum_c <grad_out[n, l], table[idx_c]> * dw_c/du_k, with dw_c/du_k = N_l * (+-1) *
+// (the other two axes' weights); zero where u_k was clamped (u_k outside (0,1)), as torch's clamp.
+torch::Tensor backward_input(torch::Tensor grad_out, torch::Tensor u, torch::Tensor table, torch::Tensor levels,
+                             torch::Tensor offsets, int64_t n_dense, int64_t hash_mask) {
+  grad_out = grad_out.contiguous();
+  u = u.contiguous();
+  table = table.contiguous();
+  const Levels lv = read_levels(levels, offsets);
+  const int64_t n = u.size(0), L = static_cast<int64_t>(lv.res.size()), F = table.size(1);
+  auto grad_u = torch::empty({n, 3}, u.options());
+  const float* up = u.data_ptr<float>();
+  const float* gp = grad_out.data_ptr<float>();
+  const float* tp = table.data_ptr<float>();
+  float* gu = grad_u.data_ptr<float>();
+  const uint32_t mask = static_cast<uint32_t>(hash_mask);
+  at::parallel_for(0, n, kBlock, [&](int64_t begin, int64_t end) {
+    Cell cell;
+    for (int64_t s = begin; s < end; ++s) {
+      const float* p = up + 3 * s;
+      float acc[3] = {0.0f, 0.0f, 0.0f};
+      for (int64_t l = 0; l < L; ++l) {
+        locate(p, lv.res[l], l < n_dense, mask, cell);
+        const float* base = tp + lv.offset[l] * F;
+        const float* g = gp + s * L * F + l * F;
+        const float res = static_cast<float>(lv.res[l]);
+        const float w[3][2] = {{1.0f - cell.frac[0], cell.frac[0]},
+                               {1.0f - cell.frac[1], cell.frac[1]},
+                               {1.0f - cell.frac[2], cell.frac[2]}};
+        int c = 0;
+        for (int a = 0; a < 2; ++a)
+          for (int b = 0; b < 2; ++b)
+            for (int e = 0; e < 2; ++e, ++c) {
+              const float* t = base + static_cast<int64_t>(cell.idx[c]) * F;
+              float dot = 0.0f;
+              for (int64_t f = 0; f < F; ++f) dot += g[f] * t[f];
+              dot *= res;
+              acc[0] += dot * (a ? 1.0f : -1.0f) * w[1][b] * w[2][e];
+              acc[1] += dot * w[0][a] * (b ? 1.0f : -1.0f) * w[2][e];
+              acc[2] += dot * w[0][a] * w[1][b] * (e ? 1.0f : -1.0f);
+            }
+      }
+      for (int k = 0; k < 3; ++k) gu[3 * s + k] = (p[k] > 0.0f && p[k] < 1.0f) ? acc[k] : 0.0f;
+    }
+  });
+  return grad_u;
+}
+
 }  // namespace
 
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("forward", &forward, "hash-grid gather + trilinear interpolation");
   m.def("backward", &backward, "hash-grid table gradient (scatter-add)");
+  m.def("backward_input", &backward_input, "hash-grid gradient with respect to the points");
 }
