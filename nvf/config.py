@@ -45,6 +45,7 @@ class SamplerConfig:
     occ_decay: float = 0.95
     inference_jitter: bool = False  # D15: the reference jitters every render
     max_samples_per_ray: int = 1024
+    mask_density_with_grid: bool = True  # labels and filters read sigma = 0 in empty grid cells
     uniform_samples: int = 50  # entropy sampler=uniform: stratified on [0, uniform_far]
     uniform_far: float = 10.0
 

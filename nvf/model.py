@@ -44,6 +44,17 @@ class SceneModel(nn.Module):
         self.field = RadianceField(self.aabb, field_cfg, num_images)
         self.grid = OccupancyGrid(self.aabb, sampler_cfg)
 
+    def density(self, x: Float[Tensor, "N 3"]) -> Float[Tensor, " N"]:
+        """Density as the renderer sees it, for visibility labels (M17) and the planning filters
+        (M28, M29): ``sigma(x)``, read as 0 in cells the occupancy grid marks empty when
+        ``sampler.mask_density_with_grid`` (default). Such cells are never sampled, so their density
+        is never trained: a fresh hash grid starts at ``sigma = exp(0) = 1`` there, a fog that would
+        hide every point behind a few scene units of free space (deviation, see docs/DEVIATIONS.md)."""
+        sigma = self.field.density(x)[0]
+        if self.sampler_cfg.mask_density_with_grid:
+            sigma = torch.where(self.grid.is_occupied(x), sigma, torch.zeros_like(sigma))
+        return sigma
+
     def update_grid(self, iteration: int, generator: torch.Generator | None = None) -> None:
         """(M5) ``grid.update`` with the field's density; a no-op unless ``iteration % update_every == 0``."""
         self.grid.update(iteration, lambda x: self.field.density(x)[0], generator)

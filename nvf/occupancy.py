@@ -67,6 +67,15 @@ class OccupancyGrid(nn.Module):
         """World positions of all cell centres, in cell-index order."""
         return self._cell_points(torch.arange(self.resolution**3, device=self.occ.device), 0.5)
 
+    def is_occupied(self, x: Float[Tensor, "N 3"]) -> Bool[Tensor, " N"]:
+        """Whether each point lies in an occupied cell (False outside the AABB)."""
+        res = self.resolution
+        cell = torch.floor((x - self.aabb[0]) / self.cell_size).long()
+        inside = ((cell >= 0) & (cell < res)).all(dim=-1)
+        cell = cell.clamp(0, res - 1)
+        flat = (cell[:, 0] * res + cell[:, 1]) * res + cell[:, 2]
+        return inside & self.occupied[flat]
+
     def _cell_points(self, idx: Int[Tensor, " N"], offset: Float[Tensor, "N 3"] | float) -> Float[Tensor, "N 3"]:
         res = self.resolution
         coords = torch.stack([idx // (res * res), (idx // res) % res, idx % res], dim=-1).to(torch.float32)

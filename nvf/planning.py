@@ -1,7 +1,7 @@
 """Candidate poses, filters, view scoring, argmax selection and -OPT refinement (METHOD.md 12-14).
 
 Pose vectors are ``[qx, qy, qz, qw, x, y, z]`` (nvf.cameras). The model is anything following the
-``SceneModel`` contract (``.aabb``, ``.field.density(x) -> (sigma, geo)``, ``.render(origins, dirs,
+``SceneModel`` contract (``.aabb``, ``.density(x) -> sigma``, ``.render(origins, dirs,
 heads, train, generator, sampler)``); the scorer is a ``nvf.uncertainty.ViewScorer``.
 ``scorer=None`` is the Random method (METHOD 12).
 
@@ -83,7 +83,7 @@ def valid_pose_mask(poses: Float[Tensor, "n 7"]) -> Bool[Tensor, "n"]:
 @torch.no_grad()
 def density_mask(model: nn.Module, positions: Float[Tensor, "n 3"], tau: float) -> Bool[Tensor, "n"]:
     """(M28) Keep a camera centre if ``sigma(x) < tau``; the field returns 0 outside the AABB."""
-    sigma, _ = model.field.density(positions)
+    sigma = model.density(positions)
     return sigma < tau
 
 
@@ -119,7 +119,7 @@ def candidate_poses(
 
             def los(p: Tensor) -> Tensor:
                 trans = segment_transmittance(
-                    lambda x: model.field.density(x)[0], origin, p[:, 4:], cfg.los_samples, generator, model.aabb
+                    model.density, origin, p[:, 4:], cfg.los_samples, generator, model.aabb
                 )
                 return trans > cfg.los_threshold
 

@@ -364,13 +364,10 @@ def train_visibility_head(
     optimizer = torch.optim.Adam(model.field.parameter_groups()["visibility"], lr=cfg.visibility.lr, fused=True)
     rec = _Recorder("visibility", cfg.visibility.iters, progress)
 
-    def density(x: Tensor) -> Tensor:
-        return model.field.density(x)[0]
-
     for k in range(cfg.visibility.iters):
         u = torch.rand(cfg.visibility.batch, 3, generator=generator, device=generator.device).to(aabb)
         points = aabb[0] + u * (aabb[1] - aabb[0])
-        labels = visibility_labels(density, points, c2w, obs.intrinsics, cfg, generator=generator, aabb=aabb)
+        labels = visibility_labels(model.density, points, c2w, obs.intrinsics, cfg, generator=generator, aabb=aabb)
         no_dirs = torch.zeros_like(points)
         values = []
         for _ in range(steps):

@@ -91,7 +91,7 @@ def test_visibility_labels_agree_with_depth_test(setup, one_sided):
     normals = scene.mesh.face_normals[faces]
     points = torch.tensor(points + 0.01 * normals, dtype=torch.float32)  # just outside the surface
     with torch.no_grad():
-        labels = visibility_labels(lambda x: model.field.density(x)[0], points, obs.c2w, intr, settings.train) > 0.5
+        labels = visibility_labels(model.density, points, obs.c2w, intr, settings.train) > 0.5
     truth = torch.zeros(len(points), dtype=torch.bool)
     for c2w in obs.c2w:
         depth = torch.from_numpy(renderer.render(c2w, intr).depth)

@@ -168,3 +168,22 @@ def test_real_radiance_field() -> None:
     assert torch.isfinite(result.rgb).all() and torch.isfinite(result.depth).all()
     result.rgb.sum().backward()
     assert torch.isfinite(origins.grad).all()
+
+
+def test_density_reads_zero_in_empty_grid_cells():
+    """Labels and filters see the density the renderer sees: 0 in cells the grid marks empty."""
+    from nvf.config import FieldConfig, SamplerConfig
+    from nvf.model import SceneModel
+
+    aabb = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+    field_cfg = FieldConfig(num_levels=2, log2_hashmap_size=10, max_resolution=32, hidden_dim=16, backend="torch")
+    model = SceneModel(aabb, field_cfg, SamplerConfig(grid_resolution=8))
+    x = torch.tensor([[0.1, 0.1, 0.1], [-0.9, 0.5, 0.3], [2.0, 0.0, 0.0]])
+    raw = model.field.density(x)[0]
+    assert (raw[:2] > 0).all()
+    assert torch.equal(model.density(x), torch.zeros(3))  # empty grid: nothing rendered, nothing occludes
+    model.grid.occupied[:] = True
+    assert torch.equal(model.density(x)[:2], raw[:2]) and model.density(x)[2] == 0  # outside the AABB: 0
+    model.sampler_cfg.mask_density_with_grid = False
+    model.grid.occupied[:] = False
+    assert torch.equal(model.density(x)[:2], raw[:2])

@@ -63,6 +63,9 @@ class ToyModel(nn.Module):
         self.register_buffer("aabb", AABB.clone())
         self.calls = []
 
+    def density(self, x):
+        return self.field.density(x)[0]
+
     def render(self, origins, dirs, heads=frozenset({"rgb"}), train=False, generator=None, sampler="occupancy"):
         self.calls.append((heads, train, sampler))
         n_rays, n = origins.shape[0], 32
@@ -377,7 +380,7 @@ def test_integration_with_the_scene_model():
     sel = select_next_view(model, scorer, c, BOX, current, INTR, tau, True, gens())
     candidates = candidate_poses(model, c, BOX, current, tau, True, gens()("candidates"))
     assert sel.num_candidates == candidates.shape[0] >= 2
-    assert (model.field.density(candidates[:, 4:])[0] < tau).all()
+    assert (model.density(candidates[:, 4:]) < tau).all()
     assert (sel.opt.refined_poses - candidates[sel.opt.refined_from]).abs().max() > 1e-3
     assert math.isfinite(sel.score) and sel.score >= sel.opt.original_scores.max().item()
     assert all(p.grad is None for p in model.parameters())

@@ -1,0 +1,144 @@
+"""``python -m pipeline.bench plan [--out PATH] [--repeats N] [overrides]``: view-scoring throughput of
+every scorer against a plain render (default ``budget=cpu scene=default``).
+
+Trains one full NVF model (all three stages, at the budget) on the scene's initial views, draws
+512 candidate poses (the paper's N unless ``planner.num_candidates`` is overridden; ``nvf.planning.candidate_poses`` with the scene's camera box
+and the M28/M29 filters) and times, on the same model and candidates at ``planner.resolution``:
+``nvf.planning.score_poses`` with each method's scorer (and the heads it needs), and a plain
+colour + depth render (``model.render`` with ``heads={"rgb"}``, no scorer) of the same rays in the
+same chunks (``planner.score_chunk_rays``). Each repeat runs the plain render then every scorer
+(interleaved, after one warm-up on a few candidates); times are medians over repeats and
+``<method>_over_plain_render`` is the median of the per-repeat ratios. The baselines' variance
+heads are NVF's (stage 2), which does not change their cost. The model runs on the CPU. Writes
+``results/bench/plan.json`` (or ``--out``) and prints a table.
+"""
+
+import argparse
+import statistics
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import torch
+from jaxtyping import Float
+from torch import Tensor
+from tqdm import tqdm
+
+from nvf.cameras import Intrinsics, camera_directions, matrix_to_pose, pose_to_matrix, rays_from_camera_dirs
+from nvf.planning import candidate_poses, score_poses, seeded_generator
+from nvf.training import STAGES, train_model
+from nvf.uncertainty import make_scorer
+from nvf.uncertainty.scorers import METHODS
+from pipeline.bench.train import CountingModel, compose_config, load, observations, write_report
+from pipeline.episode import EpisodeSettings
+from pipeline.render import GroundTruthRenderer
+from pipeline.scenes import REPO
+
+CANDIDATES = 512  # the paper's N; a later planner.num_candidates=... override wins
+WARMUP_CANDIDATES = 8
+GOAL_NVF_OVER_PLAIN = 1.3
+SCORED = tuple(m for m in METHODS if m != "random")
+
+
+@torch.no_grad()
+def plain_render(model: CountingModel, poses: Float[Tensor, "m 7"], intr: Intrinsics, chunk_rays: int) -> None:
+    """Colour + depth render of every pose's image: ``score_poses``' rays and chunks, without a scorer."""
+    cam_dirs = camera_directions(intr, poses.device)
+    for c2w in pose_to_matrix(poses):
+        origins, dirs = rays_from_camera_dirs(c2w, cam_dirs)
+        for start in range(0, cam_dirs.shape[0], chunk_rays):
+            model.render(origins[start : start + chunk_rays], dirs[start : start + chunk_rays], heads=frozenset({"rgb"}))
+
+
+def timed(fn: Callable[[], object]) -> tuple[float, float]:
+    """Wall and process-CPU-per-thread seconds of one call."""
+    start, start_cpu = time.perf_counter(), time.process_time()
+    fn()
+    return time.perf_counter() - start, (time.process_time() - start_cpu) / torch.get_num_threads()
+
+
+def main(argv: list[str]) -> None:
+    parser = argparse.ArgumentParser(prog="python -m pipeline.bench plan", description=__doc__.splitlines()[0])
+    parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. budget=smoke")
+    parser.add_argument("--out", type=Path, default=REPO / "results" / "bench" / "plan.json", help="JSON report path")
+    parser.add_argument("--repeats", type=int, default=3, help="timed passes over the candidates (median)")
+    args = parser.parse_intermixed_args(argv)
+    start = time.perf_counter()
+    cfg = compose_config([f"planner.num_candidates={CANDIDATES}", *args.overrides])
+    scene = load(cfg)
+    s = EpisodeSettings.of(cfg, scene)
+    size = int(cfg.budget.image_size)
+    renderer = GroundTruthRenderer(scene.mesh)
+    obs = observations(renderer, scene.init_poses, Intrinsics.from_fov(size, size))
+
+    torch.manual_seed(int(cfg.seed))
+    model = CountingModel(scene.object_aabb, s.field, s.sampler)
+    stats = train_model(model, obs, s.train, STAGES, s.entropy, torch.Generator().manual_seed(int(cfg.seed)))
+    planner = s.planner
+    poses = candidate_poses(
+        model, planner, scene.camera_box, matrix_to_pose(scene.init_poses[-1].to(torch.float32)), s.tau,
+        s.collision_free, seeded_generator(int(cfg.seed), 0, "candidates"),
+    )  # fmt: skip
+    res = int(planner.resolution)
+    intr = Intrinsics.from_fov(res, res)
+    chunk = int(planner.score_chunk_rays)
+    scorers = {m: make_scorer(m, s.entropy, s.baseline, float(s.entropy.d0)) for m in SCORED}
+    jobs: dict[str, Callable[[Tensor], object]] = {"plain_render": lambda p: plain_render(model, p, intr, chunk)}
+    for method, scorer in scorers.items():
+        jobs[method] = lambda p, scorer=scorer: score_poses(model, scorer, p, intr, chunk)
+
+    for job in jobs.values():
+        job(poses[:WARMUP_CANDIDATES])
+    wall: dict[str, list[float]] = {name: [] for name in jobs}
+    cpu: dict[str, list[float]] = {name: [] for name in jobs}
+    kept: dict[str, int] = {}
+    for _ in tqdm(range(args.repeats), desc="repeats", leave=False, disable=not sys.stderr.isatty()):
+        for name, job in jobs.items():
+            before = model.samples
+            w, c = timed(lambda job=job: job(poses))
+            kept[name] = model.samples - before
+            wall[name].append(w)
+            cpu[name].append(c)
+
+    m = poses.shape[0]
+    report: dict = {}
+    for name in jobs:
+        report[f"candidates_per_s_{name}"] = m / statistics.median(wall[name])
+        report[f"candidates_per_s_{name}_cpu"] = m / statistics.median(cpu[name])
+    for method in SCORED:
+        report[f"{method}_over_plain_render"] = statistics.median(
+            w / p for w, p in zip(wall[method], wall["plain_render"], strict=True)
+        )
+        report[f"{method}_over_plain_render_cpu"] = statistics.median(
+            c / p for c, p in zip(cpu[method], cpu["plain_render"], strict=True)
+        )
+    ratio = report["nvf_over_plain_render"]
+    report.update({
+        "goal_nvf_over_plain_render": GOAL_NVF_OVER_PLAIN,
+        "goal_met": ratio <= GOAL_NVF_OVER_PLAIN,
+        "seconds_per_repeat": {name: wall[name] for name in jobs},
+        "settings": {
+            "budget": cfg.budget.name, "scene": cfg.scene.name, "field_kind": s.field.kind,
+            "field_backend": s.field.backend, "log2_hashmap_size": s.field.log2_hashmap_size,
+            "training_views": obs.num_images, "image_size": size,
+            "train_iters": {stage: getattr(s.train, stage).iters for stage in STAGES},
+            "train_seconds": stats.seconds, "candidates": m, "candidates_requested": planner.num_candidates,
+            "resolution": res, "chunk_rays": chunk, "tau": s.tau, "collision_free": s.collision_free,
+            "heads": {method: sorted(scorer.heads) for method, scorer in scorers.items()},
+            "samplers": {method: scorer.sampler for method, scorer in scorers.items()},
+            "plain_render_samples_per_ray": kept["plain_render"] / (m * intr.num_pixels),
+            "repeats": args.repeats, "torch_threads": torch.get_num_threads(), "overrides": args.overrides,
+        },
+        "seconds": time.perf_counter() - start,
+    })  # fmt: skip
+    write_report(report, args.out)
+    print(f"{'':14}{'cand/s':>10}{'(cpu)':>10}{'x plain':>9}")
+    for name in jobs:
+        x = 1.0 if name == "plain_render" else report[f"{name}_over_plain_render"]
+        print(f"{name:14}{report[f'candidates_per_s_{name}']:>10.1f}{report[f'candidates_per_s_{name}_cpu']:>10.1f}{x:>9.2f}")
+    print(
+        f"NVF / plain render = {ratio:.2f} (goal <= {GOAL_NVF_OVER_PLAIN}: {'met' if report['goal_met'] else 'not met'}); "
+        f"{m} candidates at {res}x{res}; training {stats.seconds:.0f} s; {report['seconds']:.0f} s"
+    )
+    print(f"wrote {args.out}")

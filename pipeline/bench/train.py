@@ -1,0 +1,242 @@
+"""``python -m pipeline.bench train [--out PATH] [--repeats N] [overrides]``: end-to-end training and
+inference throughput of the scene model at a budget (default ``budget=cpu scene=default``).
+
+In one run, on the scene's 20 evaluation views rendered at ``budget.image_size`` as training views:
+
+- stage 1 (``nvf.training.train_backbone`` at the budget: render with ``train=True``, loss,
+  backward, Adam, occupancy-grid updates) timed per iteration, as kept samples/s over the
+  iterations after a warm-up;
+- inference: ``no_grad`` ``render_image`` of the 20 views with all heads and with rgb only;
+- the ``[n, hidden_dim]`` matmul rate (``pipeline.bench.field``) with ``n`` the mean kept samples
+  of a training batch, and the fractions of that limit (field.py's MLP FLOPs per sample);
+- the PSNR of the trained backbone on 5 held-out views (the ring of tests/test_integration.py).
+
+Rates are given from wall time and (``*_cpu``) from process CPU time / threads, which is robust
+to other jobs on the cores. The model runs on the CPU. Writes ``results/bench/train.json``
+(or ``--out``) and prints a table.
+"""
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from hydra import compose, initialize_config_dir
+from jaxtyping import Float
+from omegaconf import DictConfig
+from torch import Tensor
+from tqdm import tqdm
+
+from nvf.cameras import Intrinsics, look_at
+from nvf.encoding import cpp_extension
+from nvf.field import HEADS
+from nvf.model import RenderResult, SceneModel
+from nvf.training import Observations, train_backbone
+from pipeline.bench.field import _median_seconds, matmul_gflops, mlp_flops
+from pipeline.config import ConfigError, register_configs, validate
+from pipeline.episode import EpisodeSettings
+from pipeline.evaluation import RENDER_CHUNK
+from pipeline.metrics import psnr
+from pipeline.render import GroundTruthRenderer
+from pipeline.scenes import REPO, Scene, SceneError, load_scene
+
+GOALS = {"train_samples_per_s": 1e6, "infer_samples_per_s": 3e6}
+RGB = frozenset({"rgb"})
+
+
+class CountingModel(SceneModel):
+    """A ``SceneModel`` counting the rays and kept samples of every ``render`` call."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.rays = 0
+        self.samples = 0
+
+    def render(self, *args, **kwargs) -> RenderResult:
+        result = super().render(*args, **kwargs)
+        self.rays += result.samples.n_rays
+        self.samples += result.samples.num_samples
+        return result
+
+
+def compose_config(overrides: list[str]) -> DictConfig:
+    """conf/config.yaml with ``overrides``, validated; a bad value exits with one line (status 2)."""
+    register_configs()
+    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
+        cfg = compose("config", overrides=overrides)
+    try:
+        validate(cfg)
+    except ConfigError as err:
+        print(f"error: {err}", file=sys.stderr)
+        raise SystemExit(2) from None
+    return cfg
+
+
+def load(cfg: DictConfig) -> Scene:
+    """The configured scene; a missing mesh exits with one line (status 2)."""
+    try:
+        return load_scene(cfg.scene.name, Path(cfg.paths.assets))
+    except SceneError as err:
+        print(f"error: {err}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+
+def observations(renderer: GroundTruthRenderer, poses: Float[Tensor, "n 4 4"], intr: Intrinsics) -> Observations:
+    """Ground-truth RGBA views at ``poses`` (RGB black where the mask is empty)."""
+    views = [renderer.render(c2w, intr) for c2w in poses]
+    images = torch.stack(
+        [torch.cat([torch.from_numpy(v.rgb), torch.from_numpy(v.mask)[..., None].float()], -1) for v in views]
+    )
+    return Observations(images, poses.to(torch.float32), intr)
+
+
+def held_out_poses(
+    scene: Scene, n: int = 5, elevation_deg: float = 40.0, azimuth0_deg: float = 17.0
+) -> Float[Tensor, "n 4 4"]:
+    """Look-at ring around the tight box's centre at the evaluation views' distance (test_integration)."""
+    centre = scene.tight_box.mean(0)
+    radius = float(torch.linalg.norm(scene.eval_poses[0, :3, 3] - centre))
+    phi = math.radians(elevation_deg)
+    poses = []
+    for i in range(n):
+        theta = math.radians(azimuth0_deg + 360.0 * i / n)
+        offset = radius * torch.tensor([math.cos(theta) * math.cos(phi), math.sin(theta) * math.cos(phi), math.sin(phi)])
+        poses.append(look_at(centre + offset, centre))
+    return torch.stack(poses)
+
+
+class IterationClock:
+    """Training progress callback: wall time, CPU time and cumulative kept samples after each iteration."""
+
+    def __init__(self, model: CountingModel, total: int):
+        self.model = model
+        self.wall: list[float] = []
+        self.cpu: list[float] = []
+        self.samples: list[int] = []
+        self.bar = tqdm(total=total, desc="backbone", unit="it", leave=False, disable=not sys.stderr.isatty())
+
+    def __call__(self, stage: str, iteration: int, total: int, loss: float) -> None:
+        self.wall.append(time.perf_counter())
+        self.cpu.append(time.process_time())
+        self.samples.append(self.model.samples)
+        self.bar.update(1)
+
+    def rates(self, warmup: int) -> dict[str, float]:
+        """Kept samples/s over iterations ``warmup..end`` (wall and CPU per thread) and ms per iteration."""
+        iters = len(self.wall) - warmup
+        samples = self.samples[-1] - self.samples[warmup - 1]
+        wall = self.wall[-1] - self.wall[warmup - 1]
+        cpu = (self.cpu[-1] - self.cpu[warmup - 1]) / torch.get_num_threads()
+        return {
+            "train_samples_per_s": samples / wall,
+            "train_samples_per_s_cpu": samples / cpu,
+            "train_ms_per_iter": 1e3 * wall / iters,
+            "train_samples_per_iter": samples / iters,
+        }
+
+
+def inference_rate(
+    model: CountingModel, poses: Float[Tensor, "n 4 4"], intr: Intrinsics, heads: frozenset[str], repeats: int
+) -> tuple[float, float, float]:
+    """Kept samples/s (wall, CPU) of ``render_image`` over ``poses``: median of ``repeats`` after a warm-up."""
+
+    def render_all() -> None:
+        for c2w in poses:
+            model.render_image(c2w, intr, heads=heads, chunk=RENDER_CHUNK)
+
+    before = model.samples
+    wall, cpu = _median_seconds(render_all, repeats)
+    per_pass = (model.samples - before) / (repeats + 1)
+    return per_pass / wall, per_pass / cpu, per_pass
+
+
+def write_report(report: dict, path: Path) -> None:
+    """Write ``report`` as JSON to ``path`` atomically (parent directories created)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(report, indent=2) + "\n")
+    tmp.replace(path)
+
+
+def main(argv: list[str]) -> None:
+    parser = argparse.ArgumentParser(prog="python -m pipeline.bench train", description=__doc__.splitlines()[0])
+    parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. budget=smoke")
+    parser.add_argument("--out", type=Path, default=REPO / "results" / "bench" / "train.json", help="JSON report path")
+    parser.add_argument("--repeats", type=int, default=3, help="timed inference passes (median)")
+    args = parser.parse_intermixed_args(argv)
+    start = time.perf_counter()
+    cfg = compose_config(args.overrides)
+    scene = load(cfg)
+    s = EpisodeSettings.of(cfg, scene)
+    size = int(cfg.budget.image_size)
+    intr = Intrinsics.from_fov(size, size)
+    renderer = GroundTruthRenderer(scene.mesh)
+    obs = observations(renderer, scene.eval_poses, intr)
+
+    torch.manual_seed(int(cfg.seed))
+    model = CountingModel(scene.object_aabb, s.field, s.sampler)
+    clock = IterationClock(model, s.train.backbone.iters)
+    train_backbone(model, obs, s.train, torch.Generator().manual_seed(int(cfg.seed)), progress=clock)
+    clock.bar.close()
+    warmup = max(1, min(10, s.train.backbone.iters // 10))
+    r: dict[str, float] = clock.rates(warmup)
+
+    r["infer_samples_per_s"], r["infer_samples_per_s_cpu"], infer_samples = inference_rate(
+        model, obs.c2w, intr, HEADS, args.repeats
+    )
+    r["infer_rgb_samples_per_s"], r["infer_rgb_samples_per_s_cpu"], _ = inference_rate(
+        model, obs.c2w, intr, RGB, args.repeats
+    )
+    width = s.field.hidden_dim
+    r["matmul_gflops"], r["matmul_gflops_cpu"] = matmul_gflops(max(1, round(r["train_samples_per_iter"])), width, args.repeats)
+    flops = {
+        "train": mlp_flops(model.field, RGB, train=True),
+        "infer": mlp_flops(model.field, HEADS, train=False),
+        "infer_rgb": mlp_flops(model.field, RGB, train=False),
+    }
+    for key, value in flops.items():
+        r[f"mlp_flops_{key}"] = value
+        r[f"{key}_fraction_of_limit"] = value * r[f"{key}_samples_per_s"] / (r["matmul_gflops"] * 1e9)
+        r[f"{key}_fraction_of_limit_cpu"] = value * r[f"{key}_samples_per_s_cpu"] / (r["matmul_gflops_cpu"] * 1e9)
+
+    held_out = held_out_poses(scene)
+    pred = np.stack([model.render_image(c2w, intr, chunk=RENDER_CHUNK)["rgb"].numpy() for c2w in held_out])
+    gt = np.stack([renderer.render(c2w, intr).rgb for c2w in held_out])
+    r["heldout_psnr"] = psnr(pred, gt)
+
+    report = {
+        **r,
+        "goals": GOALS,
+        "goals_met": {key: r[key] >= goal for key, goal in GOALS.items()},
+        "settings": {
+            "budget": cfg.budget.name, "scene": cfg.scene.name, "field_kind": s.field.kind,
+            "field_backend": s.field.backend,
+            "field_backend_resolved": "cpp" if s.field.backend != "torch" and cpp_extension() is not None else "torch",
+            "log2_hashmap_size": s.field.log2_hashmap_size, "hidden_dim": width, "image_size": size,
+            "training_views": obs.num_images, "iterations": s.train.backbone.iters, "warmup_iterations": warmup,
+            "rays_per_batch": s.train.backbone.batch, "torch_threads": torch.get_num_threads(),
+            "train_samples_per_ray": r["train_samples_per_iter"] / s.train.backbone.batch,
+            "infer_samples_per_ray": infer_samples / (obs.num_images * intr.num_pixels),
+            "infer_chunk": RENDER_CHUNK, "matmul_rows": max(1, round(r["train_samples_per_iter"])),
+            "inference_repeats": args.repeats, "heldout_views": held_out.shape[0], "overrides": args.overrides,
+        },
+        "seconds": time.perf_counter() - start,
+    }  # fmt: skip
+    write_report(report, args.out)
+    print(f"{'':14}{'samples/s':>12}{'(cpu)':>12}{'frac. limit':>13}{'goal':>9}")
+    for key, label in (("train", "train step"), ("infer", "infer all"), ("infer_rgb", "infer rgb")):
+        goal = GOALS.get(f"{key}_samples_per_s")
+        mark = "" if goal is None else ("met" if r[f"{key}_samples_per_s"] >= goal else f"<{goal:.0e}")
+        print(f"{label:14}{r[f'{key}_samples_per_s']:>12.3e}{r[f'{key}_samples_per_s_cpu']:>12.3e}"
+              f"{r[f'{key}_fraction_of_limit']:>13.3f}{mark:>9}")  # fmt: skip
+    print(
+        f"matmul [{report['settings']['matmul_rows']}x{width}]x[{width}x{width}]: {r['matmul_gflops']:.1f} GFLOP/s; "
+        f"held-out PSNR {r['heldout_psnr']:.2f} dB; {report['settings']['train_samples_per_ray']:.1f} samples/ray "
+        f"(train); {report['seconds']:.0f} s"
+    )
+    print(f"wrote {args.out}")
+

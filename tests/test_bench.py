@@ -1,0 +1,39 @@
+"""The ``train`` and ``plan`` benchmarks at ``budget=smoke``: each writes its JSON report (``--out``)
+with the required rates as finite positive numbers."""
+
+import json
+import math
+from pathlib import Path
+
+from pipeline.bench import __main__ as bench
+from pipeline.bench import plan, train
+
+
+def _assert_positive(path: Path, keys: list[str]) -> dict:
+    report = json.loads(path.read_text())
+    for key in keys:
+        value = report[key]
+        assert isinstance(value, float) and math.isfinite(value) and value > 0, (key, value)
+    return report
+
+
+def test_benchmarks_are_dispatched():
+    assert {"train", "plan"} <= set(bench.available())
+
+
+def test_train_bench_writes_rates_fractions_and_psnr(tmp_path):
+    out = tmp_path / "train.json"
+    train.main(["budget=smoke", "--repeats", "1", "--out", str(out)])
+    keys = ["train_samples_per_s", "infer_samples_per_s", "infer_rgb_samples_per_s", "train_fraction_of_limit",
+            "infer_fraction_of_limit", "matmul_gflops", "heldout_psnr"]  # fmt: skip
+    report = _assert_positive(out, keys)
+    assert report["settings"]["budget"] == "smoke" and report["settings"]["training_views"] == 20
+
+
+def test_plan_bench_writes_every_scorer_against_a_plain_render(tmp_path):
+    out = tmp_path / "plan.json"
+    plan.main(["budget=smoke", "planner.num_candidates=16", "--repeats", "1", "--out", str(out)])
+    keys = ["nvf_over_plain_render", "candidates_per_s_plain_render", *(f"candidates_per_s_{m}" for m in plan.SCORED)]
+    report = _assert_positive(out, keys)
+    assert set(plan.SCORED) == {"wd", "activermap", "air", "activenerf", "neurar", "nvf"}
+    assert report["settings"]["candidates"] <= 16
