@@ -1,15 +1,18 @@
-"""``python -m pipeline.bench plan [--out PATH] [--repeats N] [overrides]``: view-scoring throughput of
-every scorer against a plain render (default ``budget=cpu scene=default``).
+"""``python -m pipeline.bench plan [--out PATH] [--repeats N] [--blocks K] [overrides]``: view-scoring
+throughput of every scorer against a plain render (default ``budget=cpu scene=default``).
 
 Trains one full NVF model (all three stages, at the budget) on the scene's initial views, draws
-512 candidate poses (the paper's N unless ``planner.num_candidates`` is overridden; ``nvf.planning.candidate_poses`` with the scene's camera box
-and the M28/M29 filters) and times, on the same model and candidates at ``planner.resolution``:
-``nvf.planning.score_poses`` with each method's scorer (and the heads it needs), and a plain
-colour + depth render (``model.render`` with ``heads={"rgb"}``, no scorer) of the same rays in the
-same chunks (``planner.score_chunk_rays``). Each repeat runs the plain render then every scorer
-(interleaved, after one warm-up on a few candidates); times are medians over repeats and
-``<method>_over_plain_render`` is the median of the per-repeat ratios. The baselines' variance
-heads are NVF's (stage 2), which does not change their cost. The model runs on the CPU. Writes
+512 candidate poses (the paper's N unless ``planner.num_candidates`` is overridden;
+``nvf.planning.candidate_poses`` with the scene's camera box and the M28/M29 filters) and times, on
+the same model and candidates at ``planner.resolution``: ``nvf.planning.score_poses`` with each
+method's scorer (and the heads it needs), and a plain colour + depth render (``model.render`` with
+``heads={"rgb"}``, no scorer) of the same rays in the same chunks (``planner.score_chunk_rays``).
+
+Timing, after one warm-up on a few candidates: the candidates are split into ``K`` blocks and every
+job runs on a block before the next block starts (job order rotated per block), for ``N`` passes.
+Candidates/s is over all blocks; ``<method>_over_plain_render`` is the median over blocks of the
+per-block time ratio, so slow drifts of the machine's load cancel. The baselines' variance heads are
+NVF's (stage 2), which does not change their cost. The model runs on the CPU. Writes
 ``results/bench/plan.json`` (or ``--out``) and prints a table.
 """
 
@@ -45,10 +48,11 @@ SCORED = tuple(m for m in METHODS if m != "random")
 def plain_render(model: CountingModel, poses: Float[Tensor, "m 7"], intr: Intrinsics, chunk_rays: int) -> None:
     """Colour + depth render of every pose's image: ``score_poses``' rays and chunks, without a scorer."""
     cam_dirs = camera_directions(intr, poses.device)
+    rgb = frozenset({"rgb"})
     for c2w in pose_to_matrix(poses):
         origins, dirs = rays_from_camera_dirs(c2w, cam_dirs)
         for start in range(0, cam_dirs.shape[0], chunk_rays):
-            model.render(origins[start : start + chunk_rays], dirs[start : start + chunk_rays], heads=frozenset({"rgb"}))
+            model.render(origins[start : start + chunk_rays], dirs[start : start + chunk_rays], heads=rgb)
 
 
 def timed(fn: Callable[[], object]) -> tuple[float, float]:
@@ -62,8 +66,11 @@ def main(argv: list[str]) -> None:
     parser = argparse.ArgumentParser(prog="python -m pipeline.bench plan", description=__doc__.splitlines()[0])
     parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. budget=smoke")
     parser.add_argument("--out", type=Path, default=REPO / "results" / "bench" / "plan.json", help="JSON report path")
-    parser.add_argument("--repeats", type=int, default=3, help="timed passes over the candidates (median)")
+    parser.add_argument("--repeats", type=int, default=1, help="timed passes over all candidates")
+    parser.add_argument("--blocks", type=int, default=8, help="candidate blocks per pass (ratio = median over blocks)")
     args = parser.parse_intermixed_args(argv)
+    if args.repeats < 1 or args.blocks < 1:
+        parser.error("--repeats and --blocks must be >= 1")
     start = time.perf_counter()
     cfg = compose_config([f"planner.num_candidates={CANDIDATES}", *args.overrides])
     scene = load(cfg)
@@ -83,7 +90,7 @@ def main(argv: list[str]) -> None:
     res = int(planner.resolution)
     intr = Intrinsics.from_fov(res, res)
     chunk = int(planner.score_chunk_rays)
-    scorers = {m: make_scorer(m, s.entropy, s.baseline, float(s.entropy.d0)) for m in SCORED}
+    scorers = {method: make_scorer(method, s.entropy, s.baseline, float(s.entropy.d0)) for method in SCORED}
     jobs: dict[str, Callable[[Tensor], object]] = {"plain_render": lambda p: plain_render(model, p, intr, chunk)}
     for method, scorer in scorers.items():
         jobs[method] = lambda p, scorer=scorer: score_poses(model, scorer, p, intr, chunk)
@@ -92,20 +99,22 @@ def main(argv: list[str]) -> None:
         job(poses[:WARMUP_CANDIDATES])
     wall: dict[str, list[float]] = {name: [] for name in jobs}
     cpu: dict[str, list[float]] = {name: [] for name in jobs}
-    kept: dict[str, int] = {}
-    for _ in tqdm(range(args.repeats), desc="repeats", leave=False, disable=not sys.stderr.isatty()):
-        for name, job in jobs.items():
+    kept = dict.fromkeys(jobs, 0)
+    names = list(jobs)
+    blocks = [b for b in torch.arange(poses.shape[0]).tensor_split(args.blocks) if b.numel() > 0] * args.repeats
+    for i, block in enumerate(tqdm(blocks, desc="blocks", leave=False, disable=not sys.stderr.isatty())):
+        for name in names[i % len(names) :] + names[: i % len(names)]:
             before = model.samples
-            w, c = timed(lambda job=job: job(poses))
-            kept[name] = model.samples - before
+            w, c = timed(lambda name=name: jobs[name](poses[block]))
+            kept[name] += model.samples - before
             wall[name].append(w)
             cpu[name].append(c)
 
     m = poses.shape[0]
     report: dict = {}
     for name in jobs:
-        report[f"candidates_per_s_{name}"] = m / statistics.median(wall[name])
-        report[f"candidates_per_s_{name}_cpu"] = m / statistics.median(cpu[name])
+        report[f"candidates_per_s_{name}"] = m * args.repeats / sum(wall[name])
+        report[f"candidates_per_s_{name}_cpu"] = m * args.repeats / sum(cpu[name])
     for method in SCORED:
         report[f"{method}_over_plain_render"] = statistics.median(
             w / p for w, p in zip(wall[method], wall["plain_render"], strict=True)
@@ -117,7 +126,7 @@ def main(argv: list[str]) -> None:
     report.update({
         "goal_nvf_over_plain_render": GOAL_NVF_OVER_PLAIN,
         "goal_met": ratio <= GOAL_NVF_OVER_PLAIN,
-        "seconds_per_repeat": {name: wall[name] for name in jobs},
+        "seconds_per_block": {name: wall[name] for name in jobs},
         "settings": {
             "budget": cfg.budget.name, "scene": cfg.scene.name, "field_kind": s.field.kind,
             "field_backend": s.field.backend, "log2_hashmap_size": s.field.log2_hashmap_size,
@@ -127,8 +136,9 @@ def main(argv: list[str]) -> None:
             "resolution": res, "chunk_rays": chunk, "tau": s.tau, "collision_free": s.collision_free,
             "heads": {method: sorted(scorer.heads) for method, scorer in scorers.items()},
             "samplers": {method: scorer.sampler for method, scorer in scorers.items()},
-            "plain_render_samples_per_ray": kept["plain_render"] / (m * intr.num_pixels),
-            "repeats": args.repeats, "torch_threads": torch.get_num_threads(), "overrides": args.overrides,
+            "plain_render_samples_per_ray": kept["plain_render"] / (args.repeats * m * intr.num_pixels),
+            "repeats": args.repeats, "blocks": args.blocks, "torch_threads": torch.get_num_threads(),
+            "overrides": args.overrides,
         },
         "seconds": time.perf_counter() - start,
     })  # fmt: skip
@@ -136,9 +146,11 @@ def main(argv: list[str]) -> None:
     print(f"{'':14}{'cand/s':>10}{'(cpu)':>10}{'x plain':>9}")
     for name in jobs:
         x = 1.0 if name == "plain_render" else report[f"{name}_over_plain_render"]
-        print(f"{name:14}{report[f'candidates_per_s_{name}']:>10.1f}{report[f'candidates_per_s_{name}_cpu']:>10.1f}{x:>9.2f}")
+        rate, rate_cpu = report[f"candidates_per_s_{name}"], report[f"candidates_per_s_{name}_cpu"]
+        print(f"{name:14}{rate:>10.1f}{rate_cpu:>10.1f}{x:>9.2f}")
     print(
-        f"NVF / plain render = {ratio:.2f} (goal <= {GOAL_NVF_OVER_PLAIN}: {'met' if report['goal_met'] else 'not met'}); "
+        f"NVF / plain render = {ratio:.2f} (goal <= {GOAL_NVF_OVER_PLAIN}: "
+        f"{'met' if report['goal_met'] else 'not met'}); "
         f"{m} candidates at {res}x{res}; training {stats.seconds:.0f} s; {report['seconds']:.0f} s"
     )
     print(f"wrote {args.out}")

@@ -49,16 +49,14 @@ RGB = frozenset({"rgb"})
 
 
 class CountingModel(SceneModel):
-    """A ``SceneModel`` counting the rays and kept samples of every ``render`` call."""
+    """A ``SceneModel`` counting the kept samples of every ``render`` call."""
 
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
-        self.rays = 0
         self.samples = 0
 
     def render(self, *args, **kwargs) -> RenderResult:
         result = super().render(*args, **kwargs)
-        self.rays += result.samples.n_rays
         self.samples += result.samples.num_samples
         return result
 
@@ -104,7 +102,8 @@ def held_out_poses(
     poses = []
     for i in range(n):
         theta = math.radians(azimuth0_deg + 360.0 * i / n)
-        offset = radius * torch.tensor([math.cos(theta) * math.cos(phi), math.sin(theta) * math.cos(phi), math.sin(phi)])
+        direction = [math.cos(theta) * math.cos(phi), math.sin(theta) * math.cos(phi), math.sin(phi)]
+        offset = radius * torch.tensor(direction)
         poses.append(look_at(centre + offset, centre))
     return torch.stack(poses)
 
@@ -168,6 +167,8 @@ def main(argv: list[str]) -> None:
     parser.add_argument("--out", type=Path, default=REPO / "results" / "bench" / "train.json", help="JSON report path")
     parser.add_argument("--repeats", type=int, default=3, help="timed inference passes (median)")
     args = parser.parse_intermixed_args(argv)
+    if args.repeats < 1:
+        parser.error("--repeats must be >= 1")
     start = time.perf_counter()
     cfg = compose_config(args.overrides)
     scene = load(cfg)
@@ -192,7 +193,8 @@ def main(argv: list[str]) -> None:
         model, obs.c2w, intr, RGB, args.repeats
     )
     width = s.field.hidden_dim
-    r["matmul_gflops"], r["matmul_gflops_cpu"] = matmul_gflops(max(1, round(r["train_samples_per_iter"])), width, args.repeats)
+    rows = max(1, round(r["train_samples_per_iter"]))
+    r["matmul_gflops"], r["matmul_gflops_cpu"] = matmul_gflops(rows, width, args.repeats)
     flops = {
         "train": mlp_flops(model.field, RGB, train=True),
         "infer": mlp_flops(model.field, HEADS, train=False),
@@ -221,7 +223,7 @@ def main(argv: list[str]) -> None:
             "rays_per_batch": s.train.backbone.batch, "torch_threads": torch.get_num_threads(),
             "train_samples_per_ray": r["train_samples_per_iter"] / s.train.backbone.batch,
             "infer_samples_per_ray": infer_samples / (obs.num_images * intr.num_pixels),
-            "infer_chunk": RENDER_CHUNK, "matmul_rows": max(1, round(r["train_samples_per_iter"])),
+            "infer_chunk": RENDER_CHUNK, "matmul_rows": rows,
             "inference_repeats": args.repeats, "heldout_views": held_out.shape[0], "overrides": args.overrides,
         },
         "seconds": time.perf_counter() - start,
@@ -234,7 +236,7 @@ def main(argv: list[str]) -> None:
         print(f"{label:14}{r[f'{key}_samples_per_s']:>12.3e}{r[f'{key}_samples_per_s_cpu']:>12.3e}"
               f"{r[f'{key}_fraction_of_limit']:>13.3f}{mark:>9}")  # fmt: skip
     print(
-        f"matmul [{report['settings']['matmul_rows']}x{width}]x[{width}x{width}]: {r['matmul_gflops']:.1f} GFLOP/s; "
+        f"matmul [{rows}x{width}]x[{width}x{width}]: {r['matmul_gflops']:.1f} GFLOP/s; "
         f"held-out PSNR {r['heldout_psnr']:.2f} dB; {report['settings']['train_samples_per_ray']:.1f} samples/ray "
         f"(train); {report['seconds']:.0f} s"
     )
