@@ -8,6 +8,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 from hydra import compose, initialize_config_dir
 
@@ -57,7 +58,7 @@ def test_sigkill_mid_step_resumes_with_the_same_poses(tmp_path):
     reference = _cli(tmp_path / "a", "method=nvf")
     assert reference.wait(timeout=900) == 0, reference.stderr.read()
     killed = _cli(tmp_path / "b", "method=nvf")
-    steps = next((tmp_path / "b").glob("*/*/*/seed_*"), None)
+    steps = None
     deadline = time.time() + 900
     while time.time() < deadline:
         steps = next((tmp_path / "b").glob("*/*/*/seed_*/steps.jsonl"), None)
@@ -71,10 +72,10 @@ def test_sigkill_mid_step_resumes_with_the_same_poses(tmp_path):
     resumed = _cli(tmp_path / "b", "method=nvf")
     out, err = resumed.communicate(timeout=900)
     assert resumed.returncode == 0, err
-    assert f"resuming" in out
+    assert "resuming" in out
     a = RunRecord(next((tmp_path / "a").glob("*/*/*/seed_*"))).completed_steps()
     b = RunRecord(steps.parent).completed_steps()
-    assert [r["selected_pose"] for r in a] == pytest.approx([r["selected_pose"] for r in b])
+    np.testing.assert_allclose([r["selected_pose"] for r in a], [r["selected_pose"] for r in b], atol=1e-6)
 
 
 def test_missing_mesh_is_one_line_and_nonzero(tmp_path):
