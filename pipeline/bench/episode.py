@@ -8,7 +8,6 @@ seconds of its steps. The run goes to a temporary outputs directory, so nothing 
 import json
 import tempfile
 import time
-from pathlib import Path
 
 import torch
 from hydra import compose, initialize_config_dir
