@@ -21,7 +21,7 @@ from nvf.rendering import Samples
 
 # Marching and grid updates handle at most this many steps / probe points at once (memory bound).
 _STEP_BUDGET = 1 << 21
-_PROBE_CHUNK = 1 << 18
+_PROBE_CHUNK = 1 << 15
 # Empty-space skipping: block edge in cells, and the longest run of steps tested against one block.
 _BLOCK = 8
 _MAX_RUN = 32.0
@@ -53,6 +53,7 @@ class OccupancyGrid(nn.Module):
         self.register_buffer("aabb", aabb.detach().clone().to(torch.float32))
         self.register_buffer("occ", torch.zeros(cells, device=aabb.device))
         self.register_buffer("occupied", torch.zeros(cells, dtype=torch.bool, device=aabb.device))
+        self._skip_cache: tuple[tuple[int, int], tuple] | None = None
 
     @property
     def mean_occupancy(self) -> float:
@@ -120,6 +121,15 @@ class OccupancyGrid(nn.Module):
         self.occ.scatter_reduce_(0, idx, values, reduce="amax", include_self=False)
         threshold = torch.clamp(self.occ.mean(), max=cfg.occ_threshold)
         self.occupied.copy_(self.occ > threshold)
+
+    def _skip_structures(self) -> tuple[tuple[Float[Tensor, "3"], Float[Tensor, "3"]] | None, Bool[Tensor, "B B B"]]:
+        """The occupied cells' bounding box and the dilated block grid, recomputed only when
+        ``occupied`` changed (keyed by its storage and in-place version counter: updates,
+        ``load_state_dict`` and device moves all invalidate it)."""
+        key = (self.occupied.data_ptr(), self.occupied._version)
+        if self._skip_cache is None or self._skip_cache[0] != key:
+            self._skip_cache = (key, (self._occupied_box(), self._block_grid()))
+        return self._skip_cache[1]
 
     def _occupied_box(self) -> tuple[Float[Tensor, "3"], Float[Tensor, "3"]] | None:
         """World bounds of the occupied cells (None if no cell is occupied)."""
@@ -249,7 +259,7 @@ class OccupancyGrid(nn.Module):
             torch.zeros(0, device=device),
             n_rays,
         )
-        box = self._occupied_box()
+        box, block_grid = self._skip_structures()
         if box is None or n_rays == 0:
             return empty
         origins, dirs = origins.detach().to(torch.float32), dirs.detach().to(torch.float32)
@@ -287,7 +297,7 @@ class OccupancyGrid(nn.Module):
         )
         runs = torch.ceil((k_hi - k_lo) / stride).long()
         knots = torch.where(hit, runs + 1, 0)
-        run_ray, _, _, run_start, run_end = self._scan(params, knots, self._block_grid(), coarse=True)
+        run_ray, _, _, run_start, run_end = self._scan(params, knots, block_grid, coarse=True)
         fine = params.index_select(0, run_ray)
         fine[:, 10], fine[:, 11], fine[:, 12] = run_start, 1.0, run_end
         unit, t_start, t_end, _, _ = self._scan(fine, (run_end - run_start).long() + 1, self._fine_grid(), coarse=False)

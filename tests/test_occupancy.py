@@ -181,3 +181,18 @@ def test_empty_space_skipping_is_exact_on_scattered_cells(distance: float) -> No
         if ref:
             torch.testing.assert_close(got.t_start, torch.tensor([a for a, _ in ref]), rtol=1e-5, atol=1e-5)
     assert total > 0
+
+
+def test_march_follows_grid_changes_after_caching() -> None:
+    """The cached skipping structures are rebuilt when ``occupied`` changes (update, load_state_dict)."""
+    o, d = random_rays(256)
+    grid = sphere_grid()
+    grid.march(o, d, jitter=False)  # fills the cache
+    grid.update(16, lambda x: torch.where(x[:, 0] > 0.0, 200.0, 0.0), torch.Generator().manual_seed(1))
+    fresh = OccupancyGrid(AABB, grid.cfg)
+    fresh.load_state_dict(grid.state_dict())
+    updated, expected = grid.march(o, d, jitter=False), fresh.march(o, d, jitter=False)
+    assert torch.equal(updated.t_start, expected.t_start) and torch.equal(updated.ray_idx, expected.ray_idx)
+    grid.load_state_dict(sphere_grid().state_dict())
+    reloaded, original = grid.march(o, d, jitter=False), sphere_grid().march(o, d, jitter=False)
+    assert torch.equal(reloaded.t_start, original.t_start) and torch.equal(reloaded.ray_idx, original.ray_idx)
