@@ -50,10 +50,13 @@ class SceneModel(nn.Module):
         ``sampler.mask_density_with_grid`` (default). Such cells are never sampled, so their density
         is never trained: a fresh hash grid starts at ``sigma = exp(0) = 1`` there, a fog that would
         hide every point behind a few scene units of free space (deviation, see docs/DEVIATIONS.md)."""
-        sigma = self.field.density(x)[0]
-        if self.sampler_cfg.mask_density_with_grid:
-            sigma = torch.where(self.grid.is_occupied(x), sigma, torch.zeros_like(sigma))
-        return sigma
+        if not self.sampler_cfg.mask_density_with_grid:
+            return self.field.density(x)[0]
+        occupied = self.grid.is_occupied(x).nonzero().squeeze(1)  # only these cells are evaluated
+        sigma = torch.zeros(x.shape[0], dtype=x.dtype, device=x.device)
+        if occupied.numel() == 0:
+            return sigma
+        return sigma.index_put((occupied,), self.field.density(x[occupied])[0].to(x.dtype))
 
     def update_grid(self, iteration: int, generator: torch.Generator | None = None) -> None:
         """(M5) ``grid.update`` with the field's density; a no-op unless ``iteration % update_every == 0``."""

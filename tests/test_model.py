@@ -184,6 +184,10 @@ def test_density_reads_zero_in_empty_grid_cells():
     assert torch.equal(model.density(x), torch.zeros(3))  # empty grid: nothing rendered, nothing occludes
     model.grid.occupied[:] = True
     assert torch.equal(model.density(x)[:2], raw[:2]) and model.density(x)[2] == 0  # outside the AABB: 0
+    model.grid.occupied[:] = False
+    cell = torch.floor((x[0] - aabb[0]) / model.grid.cell_size).long()
+    model.grid.occupied[(cell[0] * 8 + cell[1]) * 8 + cell[2]] = True  # only the first point's cell
+    assert torch.allclose(model.density(x), torch.stack([raw[0], torch.tensor(0.0), torch.tensor(0.0)]))
     model.sampler_cfg.mask_density_with_grid = False
     model.grid.occupied[:] = False
     assert torch.equal(model.density(x)[:2], raw[:2])

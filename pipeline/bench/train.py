@@ -9,7 +9,8 @@ In one run, on the scene's 20 evaluation views rendered at ``budget.image_size``
 - inference: ``no_grad`` ``render_image`` of the 20 views with all heads and with rgb only;
 - the ``[n, hidden_dim]`` matmul rate (``pipeline.bench.field``) with ``n`` the mean kept samples
   of a training batch, and the fractions of that limit (field.py's MLP FLOPs per sample);
-- the PSNR of the trained backbone on 5 held-out views (the ring of tests/test_integration.py).
+- the PSNR of the trained backbone on 5 held-out views (the ring of tests/test_integration.py) and
+  on the first 5 training views (fit vs. generalisation).
 
 Rates are given from wall time and (``*_cpu``) from process CPU time / threads, which is robust
 to other jobs on the cores. The model runs on the CPU. Writes ``results/bench/train.json``
@@ -45,6 +46,7 @@ from pipeline.render import GroundTruthRenderer
 from pipeline.scenes import REPO, Scene, SceneError, load_scene
 
 GOALS = {"train_samples_per_s": 1e6, "infer_samples_per_s": 3e6}
+HELD_OUT_VIEWS = 5
 RGB = frozenset({"rgb"})
 
 
@@ -93,7 +95,7 @@ def observations(renderer: GroundTruthRenderer, poses: Float[Tensor, "n 4 4"], i
 
 
 def held_out_poses(
-    scene: Scene, n: int = 5, elevation_deg: float = 40.0, azimuth0_deg: float = 17.0
+    scene: Scene, n: int = HELD_OUT_VIEWS, elevation_deg: float = 40.0, azimuth0_deg: float = 17.0
 ) -> Float[Tensor, "n 4 4"]:
     """Look-at ring around the tight box's centre at the evaluation views' distance (test_integration)."""
     centre = scene.tight_box.mean(0)
@@ -106,6 +108,13 @@ def held_out_poses(
         offset = radius * torch.tensor(direction)
         poses.append(look_at(centre + offset, centre))
     return torch.stack(poses)
+
+
+def view_psnr(model: SceneModel, renderer: GroundTruthRenderer, poses: Float[Tensor, "n 4 4"], intr: Intrinsics) -> float:
+    """PSNR of the model's renders of ``poses`` against the ground truth (pooled over the views)."""
+    pred = np.stack([model.render_image(c2w, intr, chunk=RENDER_CHUNK)["rgb"].numpy() for c2w in poses])
+    gt = np.stack([renderer.render(c2w, intr).rgb for c2w in poses])
+    return psnr(pred, gt)
 
 
 class IterationClock:
@@ -205,10 +214,8 @@ def main(argv: list[str]) -> None:
         r[f"{key}_fraction_of_limit"] = value * r[f"{key}_samples_per_s"] / (r["matmul_gflops"] * 1e9)
         r[f"{key}_fraction_of_limit_cpu"] = value * r[f"{key}_samples_per_s_cpu"] / (r["matmul_gflops_cpu"] * 1e9)
 
-    held_out = held_out_poses(scene)
-    pred = np.stack([model.render_image(c2w, intr, chunk=RENDER_CHUNK)["rgb"].numpy() for c2w in held_out])
-    gt = np.stack([renderer.render(c2w, intr).rgb for c2w in held_out])
-    r["heldout_psnr"] = psnr(pred, gt)
+    r["heldout_psnr"] = view_psnr(model, renderer, held_out_poses(scene), intr)
+    r["train_view_psnr"] = view_psnr(model, renderer, obs.c2w[: HELD_OUT_VIEWS], intr)
 
     report = {
         **r,
@@ -224,7 +231,7 @@ def main(argv: list[str]) -> None:
             "train_samples_per_ray": r["train_samples_per_iter"] / s.train.backbone.batch,
             "infer_samples_per_ray": infer_samples / (obs.num_images * intr.num_pixels),
             "infer_chunk": RENDER_CHUNK, "matmul_rows": rows,
-            "inference_repeats": args.repeats, "heldout_views": held_out.shape[0], "overrides": args.overrides,
+            "inference_repeats": args.repeats, "heldout_views": HELD_OUT_VIEWS, "overrides": args.overrides,
         },
         "seconds": time.perf_counter() - start,
     }  # fmt: skip
