@@ -124,6 +124,14 @@ _CHOICES: dict[str, tuple[Any, ...]] = {
     "baseline.neurar_loss": ("residual_mse", "nll"),
 }
 
+# METHOD 12 alternatives named in the config but not implemented: key -> (alternative, recommended default).
+_NOT_IMPLEMENTED: dict[str, tuple[Any, Any]] = {
+    "baseline.air_view_score": ("topk", "pixel_mean"),
+    "baseline.activenerf_variant": ("B", "A"),
+    "baseline.neurar_loss": ("nll", "residual_mse"),
+    "baseline.neurar_detach": (False, True),
+}
+
 _POSITIVE = (
     "budget.image_size", "budget.eval_size", "budget.horizon", "budget.gt_points", "budget.recon_points",
     "budget.recon_batch", "planner.num_candidates", "planner.resolution", "planner.los_samples",
@@ -144,6 +152,12 @@ def validate(cfg: DictConfig) -> None:
         value = OmegaConf.select(cfg, key)
         if value not in choices:
             raise ConfigError(f"{key}={value!r} is not one of {', '.join(map(str, choices))}")
+    for key, (alternative, recommended) in _NOT_IMPLEMENTED.items():
+        if OmegaConf.select(cfg, key) == alternative:
+            raise ConfigError(
+                f"{key}={alternative!r} (a METHOD.md section 12 alternative) is not implemented; "
+                f"drop the override to use the recommended {recommended!r}"
+            )
     for key in _POSITIVE:
         value = OmegaConf.select(cfg, key)
         if value is None or value <= 0:

@@ -94,6 +94,10 @@ def test_budgets_scale_only_sizes(composer):
         ("nvf.entropy.bound", "exact", "nvf.entropy.bound"),
         ("planner.opt.ray_fraction", 1.5, "planner.opt.ray_fraction"),
         ("device", "tpu", "device"),
+        ("baseline.activenerf_variant", "B", "not implemented"),
+        ("baseline.air_view_score", "topk", "not implemented"),
+        ("baseline.neurar_loss", "nll", "not implemented"),
+        ("baseline.neurar_detach", False, "baseline.neurar_detach"),
     ],
 )
 def test_validation_names_the_key(composer, key, value, needle):
