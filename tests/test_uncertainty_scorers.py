@@ -17,6 +17,7 @@ from nvf.uncertainty.entropy import (
     equivalent_depth,
     mixture_entropy_upper_bound,
     mixture_moment_matched_entropy,
+    upper_bound_and_depth,
 )
 from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
 
@@ -173,6 +174,46 @@ def test_chunk_depth_mode():
     assert torch.allclose(NVFEntropyScorer(cfg, d0=1.0).pixel_scores(result, pixel_index), want, atol=1e-6)
     with pytest.raises(ValueError, match="pixel_index"):
         NVFEntropyScorer(cfg, d0=1.0).pixel_scores(result)
+
+
+@pytest.mark.parametrize(
+    "override", [{}, dict(logdet_coeff=1.0), dict(use_visibility=False), dict(use_variance=False)], ids=str
+)
+def test_unpacked_bound_and_depth_equal_the_packed_mixture(override):
+    """(M9, M10, M15) The scorer's fast path (no packed mixture) = M10 on ``ray_mixture`` and M15."""
+    cfg = replace(CFG, **override)
+    result = random_result(counts=(4, 0, 1, 9, 3, 0, 30), seed=3)
+    s = result.samples
+    v = result.visibility if cfg.use_visibility else None
+    q = result.variance if cfg.use_variance else None
+    mix, eq_w = ray_mixture(result.alpha, result.rgb_s, q, v, s.ray_idx, s.n_rays, cfg)
+    h, depth = upper_bound_and_depth(eq_w, v, q, s.t_mid, s.ray_idx, s.n_rays, cfg)
+    torch.testing.assert_close(h, mixture_entropy_upper_bound(mix, cfg.logdet_coeff), rtol=1e-6, atol=1e-6)
+    torch.testing.assert_close(depth, equivalent_depth(eq_w, s.t_mid, s.ray_idx, s.n_rays), rtol=1e-6, atol=1e-7)
+
+
+def test_nvf_gradients_match_building_blocks():
+    """The -OPT planner backpropagates through H': the fast path has the reference's gradients."""
+    result = random_result()
+    leaves = {name: getattr(result, name).clone().requires_grad_() for name in ("alpha", "variance", "visibility")}
+    result = replace(result, **leaves)
+    got = torch.autograd.grad(NVFEntropyScorer(CFG, d0=1.0).pixel_scores(result).sum(), list(leaves.values()))
+    want = torch.autograd.grad(nvf_reference(result)[2][[0, 2, 3, 4]].sum(), list(leaves.values()))
+    for name, g, w in zip(leaves, got, want, strict=True):
+        torch.testing.assert_close(g, w, rtol=1e-5, atol=1e-6, msg=name)
+
+
+def test_batch_without_samples_is_the_floor():
+    """(M11) A batch without samples scores H_min everywhere; with a graph it stays differentiable."""
+    none = torch.zeros(0)
+    result = render_result(none, torch.zeros(0, dtype=torch.long), 3, none, torch.zeros(0, 3), torch.zeros(0, 3), none)
+    scorer = NVFEntropyScorer(CFG, d0=1.0)
+    assert scorer.pixel_scores(result).tolist() == [H_MIN32] * 3
+    scores = scorer.pixel_scores(replace(result, alpha=none.clone().requires_grad_()))
+    assert scores.tolist() == [H_MIN32] * 3
+    scores.sum().backward()
+    with pytest.raises(ValueError, match="visibility"):
+        scorer.pixel_scores(replace(result, visibility=None))
 
 
 def test_invalid_nvf_settings():

@@ -51,18 +51,19 @@ class RayMixture:
 
 
 def _exclusive_transmittance(
-    alpha_bar: Float[Tensor, "S"], ray_idx: Int[Tensor, "S"], n_rays: int
+    alpha_bar: Float[Tensor, "S"], ray_idx: Int[Tensor, "S"], counts: Int[Tensor, "R"]
 ) -> Float[Tensor, "S"]:
     """(M8) ``T_bar_i = prod_{j<i} (1 - alpha_bar_j)`` per ray: ``exp`` of a segmented float64
-    cumulative sum of ``ln(1 - min(alpha_bar, 1 - 1e-7))`` (samples sorted by ray, then ``t``)."""
+    cumulative sum of ``ln(1 - min(alpha_bar, 1 - 1e-7))`` (samples sorted by ray, then ``t``;
+    ``counts`` = samples per ray)."""
     log_keep = torch.log1p(-alpha_bar.to(torch.float64).clamp(max=ALPHA_BAR_MAX))
     exclusive = torch.cumsum(log_keep, 0) - log_keep
-    counts = torch.bincount(ray_idx, minlength=n_rays)
     first = torch.cumsum(counts, 0) - counts  # index of each ray's first sample
-    return torch.exp(exclusive - exclusive[first[ray_idx]]).to(alpha_bar.dtype)
+    start = exclusive.index_select(0, first.index_select(0, ray_idx))  # faster than [] indexing on CPU
+    return torch.exp(exclusive - start).to(alpha_bar.dtype)
 
 
-def _checked_visibility(visibility: Float[Tensor, "S"] | None, cfg: EntropyConfig) -> Float[Tensor, "S"] | None:
+def checked_visibility(visibility: Float[Tensor, "S"] | None, cfg: EntropyConfig) -> Float[Tensor, "S"] | None:
     """``v``, or None when the w/o Vis. ablation sets ``v = 1`` (METHOD.md 11)."""
     if not cfg.use_visibility:
         return None
@@ -78,10 +79,35 @@ def equivalent_alpha(
 
     ``cfg.use_visibility=False`` (w/o Vis.) sets ``v = 1``, i.e. ``alpha_bar = alpha``.
     """
-    v = _checked_visibility(visibility, cfg)
+    v = checked_visibility(visibility, cfg)
     if v is None:
         return alpha
     return (v + cfg.beta * (1.0 - v)) * alpha + (1.0 - cfg.beta) * (1.0 - v) * cfg.alpha_un
+
+
+def equivalent_weights(
+    alpha: Float[Tensor, "S"],
+    visibility: Float[Tensor, "S"] | None,
+    ray_idx: Int[Tensor, "S"],
+    counts: Int[Tensor, "R"],
+    cfg: EntropyConfig,
+) -> Float[Tensor, "S"]:
+    """(M7, M8) ``w_bar_i = T_bar_i alpha_bar_i`` straight from ``alpha_bar`` (no
+    ``-ln(1 - alpha_bar)/delta`` round trip; ``alpha_bar <= 1 - 1e-7`` inside the logs).
+
+    ``counts [R]``: samples per ray, ``torch.bincount(ray_idx, minlength=R)``.
+    """
+    alpha_bar = equivalent_alpha(alpha, visibility, cfg)
+    return _exclusive_transmittance(alpha_bar, ray_idx, counts) * alpha_bar
+
+
+def checked_variance(variance: Float[Tensor, "S 3"] | None, cfg: EntropyConfig) -> Float[Tensor, "S 3"] | None:
+    """``q`` of the seen components, or None when the w/o Var. ablation sets ``q = var_bg`` (METHOD.md 11)."""
+    if not cfg.use_variance:
+        return None
+    if variance is None:
+        raise ValueError("use_variance=True needs the variance head's output")
+    return variance
 
 
 def ray_mixture(
@@ -93,18 +119,17 @@ def ray_mixture(
     n_rays: int,
     cfg: EntropyConfig,
 ) -> tuple[RayMixture, Float[Tensor, "S"]]:
-    """(M8, M9) Mixture of each ray and the equivalent weights ``w_bar [S]``.
+    """(M8, M9) Mixture of each ray and the equivalent weights ``w_bar [S]`` (``equivalent_weights``).
 
-    ``w_bar_i = T_bar_i alpha_bar_i`` straight from ``alpha_bar`` (no ``-ln(1 - alpha_bar)/delta``
-    round trip; ``alpha_bar <= 1 - 1e-7`` inside the logs). Reference split (D22):
+    Reference split (D22):
     ``pi_i = w_bar_i v_i``, ``pi_un = sum_i w_bar_i (1 - v_i)`` (one merged component, mean ``mu_un``,
     variance ``var_un``), ``pi_bg = clip(1 - sum_i w_bar_i, 0, 1)`` (mean 0, variance ``var_bg``).
     Switches (METHOD.md 11): ``use_visibility=False`` gives ``v = 1`` (so ``pi_un = 0``);
     ``use_variance=False`` gives ``q = var_bg`` for the seen components only.
     """
-    v = _checked_visibility(visibility, cfg)
-    alpha_bar = equivalent_alpha(alpha, visibility, cfg)
-    eq_weights = _exclusive_transmittance(alpha_bar, ray_idx, n_rays) * alpha_bar
+    v = checked_visibility(visibility, cfg)
+    counts = torch.bincount(ray_idx, minlength=n_rays)
+    eq_weights = equivalent_weights(alpha, visibility, ray_idx, counts, cfg)
     if v is None:
         seen = eq_weights
         unknown = eq_weights.new_zeros(n_rays)
@@ -113,11 +138,8 @@ def ray_mixture(
         unknown = ray_sum(eq_weights * (1.0 - v), ray_idx, n_rays)
     background = (1.0 - ray_sum(eq_weights, ray_idx, n_rays)).clamp(0.0, 1.0)
 
-    if cfg.use_variance:
-        if variance is None:
-            raise ValueError("use_variance=True needs the variance head's output")
-        seen_var = variance
-    else:
+    seen_var = checked_variance(variance, cfg)
+    if seen_var is None:
         seen_var = torch.full_like(rgb_s, cfg.var_bg)
     per_ray = rgb_s.new_ones((n_rays, 3))
     rays = torch.arange(n_rays, device=ray_idx.device)

@@ -13,10 +13,10 @@ from nvf.uncertainty.entropy import (
     corrected_entropy,
     entropy_floor,
     equivalent_depth,
-    mixture_entropy_upper_bound,
     mixture_moment_matched_entropy,
+    upper_bound_and_depth,
 )
-from nvf.uncertainty.mixture import ray_mixture
+from nvf.uncertainty.mixture import checked_variance, checked_visibility, equivalent_weights, ray_mixture
 
 BOUNDS = ("huber", "moment_matched")
 CORRELATIONS = ("quadratic", "exp")
@@ -56,19 +56,31 @@ class NVFEntropyScorer:
         return self.cfg.sampler
 
     def pixel_scores(self, result: RenderResult, pixel_index: Int[Tensor, "R"] | None = None) -> Float[Tensor, "R"]:
-        """``H' [R]`` of each rendered ray (nats)."""
+        """``H' [R]`` of each rendered ray (nats).
+
+        The default bound (M10) goes through ``upper_bound_and_depth`` (no packed mixture); the Loose
+        bound (M12) through ``ray_mixture``. ``depth_mode=chunk`` recomputes ``d`` per chunk (D3).
+        A batch without samples (and no gradient to keep) is the floor ``H_min`` everywhere (M11).
+        """
         cfg, samples = self.cfg, result.samples
-        mixture, eq_weights = ray_mixture(
-            result.alpha, result.rgb_s, result.variance, result.visibility, samples.ray_idx, samples.n_rays, cfg
-        )
-        if cfg.bound == "huber":
-            entropy = mixture_entropy_upper_bound(mixture, cfg.logdet_coeff)
-        else:
-            entropy = mixture_moment_matched_entropy(mixture)
-        depth = equivalent_depth(
-            eq_weights, samples.t_mid, samples.ray_idx, samples.n_rays, cfg.depth_mode, pixel_index, cfg.chunk_rays
-        )
+        visibility = checked_visibility(result.visibility, cfg)
+        variance = checked_variance(result.variance, cfg)
+        if cfg.depth_mode == "chunk" and pixel_index is None:
+            raise ValueError("depth_mode='chunk' needs the rays' row-major pixel_index")
         floor = entropy_floor(cfg.var_bg)
+        if samples.num_samples == 0 and not result.alpha.requires_grad:
+            return result.alpha.new_full((samples.n_rays,), floor)
+        ray_idx, n_rays, t_mid = samples.ray_idx, samples.n_rays, samples.t_mid
+        counts = torch.bincount(ray_idx, minlength=n_rays)
+        if cfg.bound == "huber":
+            eq_weights = equivalent_weights(result.alpha, visibility, ray_idx, counts, cfg)
+            entropy, depth = upper_bound_and_depth(eq_weights, visibility, variance, t_mid, ray_idx, n_rays, cfg)
+        else:
+            mixture, eq_weights = ray_mixture(
+                result.alpha, result.rgb_s, result.variance, result.visibility, ray_idx, n_rays, cfg
+            )
+            entropy = mixture_moment_matched_entropy(mixture)
+        if cfg.bound != "huber" or cfg.depth_mode == "chunk":
+            depth = equivalent_depth(eq_weights, t_mid, ray_idx, n_rays, cfg.depth_mode, pixel_index, cfg.chunk_rays)
         scores = corrected_entropy(entropy, depth, self.d0, cfg.corr, floor)
-        empty = torch.bincount(samples.ray_idx, minlength=samples.n_rays) == 0
-        return torch.where(empty, floor, scores)
+        return torch.where(counts == 0, floor, scores)
