@@ -83,29 +83,30 @@ def one_sided(setup):
     return obs, trained(settings, scene, obs, ["backbone", "variance", "visibility"])
 
 
-@pytest.mark.xfail(strict=False, reason="measured 0.80 at the cpu budget (3 views; 0.77 with 8, 0.74 with 20): floaters of the 64-px density hide visible points, 32 label samples miss thin occluders")
-def test_visibility_labels_agree_with_depth_test(setup, one_sided):
-    """(M17-M18) Labels from the trained density vs the renderer: a point near the surface is visible
-    if some training camera sees it unoccluded (depth test). Agreement >= 90%."""
+@pytest.mark.xfail(strict=False, reason="measured 0.83 at the cpu budget with the 3 initial views (0.77 with 8, 0.74 with 20; 0.85/0.74/0.88 with METHOD's 200 label samples): floaters of the 64-px density hide visible points, 32 label samples miss thin occluders")
+def test_visibility_labels_agree_with_line_of_sight(setup, one_sided):
+    """(M17-M18) Labels from the trained density vs the renderer's exact visibility: a point near the
+    surface is visible if some training camera has it in its image and an unoccluded line of sight
+    to it (open3d ray cast from the camera centre; the limit of a depth test at infinite resolution;
+    a 64-px depth test with a 0.03 tolerance calls 46% of these points visible instead of 36%).
+    Agreement >= 90%."""
     cfg, scene, settings, renderer, intr = setup
     obs, model = one_sided
     points, faces = scene.mesh.sample(4000, return_index=True, seed=0)
-    normals = scene.mesh.face_normals[faces]
-    points = torch.tensor(points + 0.01 * normals, dtype=torch.float32)  # just outside the surface
+    points = torch.tensor(points + 0.01 * scene.mesh.face_normals[faces], dtype=torch.float32)  # just outside
     with torch.no_grad():
         labels = visibility_labels(model.density, points, obs.c2w, intr, settings.train) > 0.5
     truth = torch.zeros(len(points), dtype=torch.bool)
     for c2w in obs.c2w:
-        depth = torch.from_numpy(renderer.render(c2w, intr).depth)
         uv, z = project(points, c2w, intr)
-        inside = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < intr.width) & (uv[:, 1] >= 0) & (uv[:, 1] < intr.height)
-        u = uv[:, 0].clamp(0, intr.width - 1).long()
-        v = uv[:, 1].clamp(0, intr.height - 1).long()
-        surface = depth[v, u]
-        seen = inside & ((surface == 0) | (z <= surface + 0.03))
-        truth |= seen
+        in_image = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < intr.width) & (uv[:, 1] >= 0) & (uv[:, 1] < intr.height)
+        to_point = points - c2w[:3, 3]
+        distance = torch.linalg.norm(to_point, dim=-1)
+        origins = c2w[:3, 3].expand_as(points).numpy()
+        t_hit, _ = renderer.cast_rays(origins, (to_point / distance[:, None]).numpy())
+        truth |= in_image & torch.from_numpy(t_hit >= distance.numpy() - 1e-4)
     accuracy = (labels == truth).float().mean().item()
-    print(f"visibility label accuracy vs depth test: {accuracy:.3f} ({truth.float().mean():.2f} visible)")
+    print(f"visibility label accuracy vs line of sight: {accuracy:.3f} ({truth.float().mean():.2f} visible)")
     assert accuracy >= 0.90
 
 
