@@ -66,12 +66,13 @@ def reconstruct_points(
 ) -> np.ndarray:
     """Points ``o + D d`` of training-view rays with accumulation > 0.5 (PROTOCOL 4.2), drawn in
     batches of pixels uniformly over all training images until ``num_points`` (at most 4x the
-    nominal number of batches, so a model that predicts little surface cannot loop forever)."""
+    nominal number of batches, so a model that predicts little surface cannot loop forever).
+    ``D`` and ``A`` need only the density, so no field head is evaluated."""
     points: list[np.ndarray] = []
     count = 0
     for _ in range(4 * math.ceil(num_points / batch)):
         origins, dirs, _ = obs.sample_rays(batch, generator)
-        result = model.render(origins, dirs)
+        result = model.render(origins, dirs, heads=frozenset())
         new = points_from_rays(origins, dirs, result.depth, result.acc).cpu().numpy()
         points.append(new)
         count += len(new)
@@ -81,7 +82,8 @@ def reconstruct_points(
 
 
 class Evaluator:
-    """Holds the evaluation views' ground truth and computes a step's metrics (PROTOCOL 4)."""
+    """Holds the evaluation views' ground truth (RGB and its LPIPS features, computed once) and
+    computes a step's metrics (PROTOCOL 4)."""
 
     def __init__(
         self, scene: Scene, renderer: GroundTruthRenderer, cfg: DictConfig, device: torch.device, lpips: LpipsMetric
@@ -90,6 +92,7 @@ class Evaluator:
         size = int(cfg.budget.eval_size)
         self.intrinsics = Intrinsics.from_fov(size, size)
         self.gt = np.stack([renderer.render(c2w, self.intrinsics).rgb for c2w in scene.eval_poses])
+        self.gt_lpips = lpips.reference(self.gt)  # step-independent half of LPIPS (None without weights)
         self.patch = max(1, size // PATCHES_PER_SIDE)
 
     def evaluate(self, model: SceneModel, scorer, views: list[GTView], obs: Observations, step: int) -> tuple[dict, dict]:
@@ -97,7 +100,7 @@ class Evaluator:
         cfg, scene = self.cfg, self.scene
         renders = [render_view(model, scorer, c2w.to(self.device), self.intrinsics) for c2w in scene.eval_poses]
         pred = np.stack([r["rgb"] for r in renders]).clip(0.0, 1.0)
-        images = image_metrics(pred, self.gt, self.lpips, cfg.metrics.ssim_data_range)
+        images = image_metrics(pred, self.gt, self.lpips, cfg.metrics.ssim_data_range, self.gt_lpips)
         seed = int(cfg.seed)
         points = reconstruct_points(
             model, obs, int(cfg.budget.recon_points), int(cfg.budget.recon_batch),

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import MappingProxyType
 
+import lpips
 import numpy as np
 import open3d as o3d
 import torch
@@ -133,12 +134,18 @@ def ssim(
     return total / count
 
 
+LPIPS_CHUNK_PIXELS = 1 << 20  # pixels per AlexNet batch: all 20 views at 64 x 64, 4 at 512 x 512
+
+LpipsFeatures = list[Tensor]  # per AlexNet layer, unit-normalised activations [V, C_l, H_l, W_l]
+
+
 class LpipsMetric:
     """LPIPS (AlexNet, v0.1), mean over images (4.1); holds the model or the reason it is missing.
 
     ``sources`` as in ``pipeline.lpips_weights.load_lpips_alex`` (None: ``default_sources()``).
     When no verified weights exist, ``missing`` holds the reason, a warning is issued once, and
-    every call returns NaN: LPIPS is never computed with random weights.
+    every call returns NaN: LPIPS is never computed with random weights. Images are batched
+    (``LPIPS_CHUNK_PIXELS``); ``reference`` computes the GT side once for repeated comparisons.
     """
 
     def __init__(self, sources: Sequence[str | Path] | None = None):
@@ -149,14 +156,56 @@ class LpipsMetric:
             self.missing = str(err)
             warnings.warn(f"LPIPS will be reported as missing: {err}", stacklevel=2)
 
+    @staticmethod
+    def _batch(images: Tensor) -> int:
+        """Images ``[V, 3, H, W]`` per AlexNet batch."""
+        return max(1, LPIPS_CHUNK_PIXELS // (images.shape[-2] * images.shape[-1]))
+
+    def _features(self, x: Float[Tensor, "B 3 H W"]) -> LpipsFeatures:
+        """``lpips.LPIPS.forward`` up to the feature difference: [0,1] -> [-1,1], scaling layer,
+        AlexNet, unit-normalised activations of the five layers."""
+        model = self.model.to(x.device)
+        return [lpips.normalize_tensor(f) for f in model.net(model.scaling_layer(2 * x.float() - 1))]
+
+    def _distances(self, a: LpipsFeatures, b: LpipsFeatures) -> Float[Tensor, "B"]:
+        """Per-image LPIPS: sum over layers of the spatial mean of the linear head on ``(a - b)^2``."""
+        total = 0
+        for lin, fa, fb in zip(self.model.lins, a, b):
+            total = total + lpips.spatial_average(lin((fa - fb) ** 2), keepdim=True)
+        return total.reshape(-1)
+
+    @torch.inference_mode()
+    def reference(self, gt: Float[Array, "V H W 3"]) -> LpipsFeatures | None:
+        """The GT side of ``against`` (None without weights); ~10 MB per 512 x 512 image."""
+        if self.model is None:
+            return None
+        y = _clipped(gt)
+        parts = [self._features(b) for b in y.split(self._batch(y))]
+        return [torch.cat(layer) for layer in zip(*parts)]
+
+    @torch.inference_mode()
+    def against(self, pred: Float[Array, "V H W 3"], reference: LpipsFeatures | None) -> float:
+        """Mean LPIPS of ``pred`` against the images ``reference`` was computed from."""
+        if self.model is None:
+            return math.nan
+        x = _clipped(pred)
+        if len(reference[0]) != len(x):
+            raise ValueError(f"LPIPS reference holds {len(reference[0])} images, got {len(x)} predictions")
+        n = self._batch(x)
+        values = [
+            self._distances(self._features(a), [f[i : i + n].to(x.device) for f in reference])
+            for i, a in zip(range(0, len(x), n), x.split(n))
+        ]
+        return torch.cat(values).double().mean().item()
+
     @torch.inference_mode()
     def __call__(self, pred: Float[Array, "V H W 3"], gt: Float[Array, "V H W 3"]) -> float:
         if self.model is None:
             return math.nan
         x, y = _clipped(pred), _clipped(gt)
-        model = self.model.to(x.device)
-        values = [model(a[None].float(), b[None].float(), normalize=True).item() for a, b in zip(x, y)]
-        return float(np.mean(values))
+        n = self._batch(x)
+        values = [self._distances(self._features(a), self._features(b)) for a, b in zip(x.split(n), y.split(n))]
+        return torch.cat(values).double().mean().item()
 
 
 @dataclass(frozen=True)
@@ -175,13 +224,16 @@ def image_metrics(
     gt: Float[Array, "V H W 3"],
     lpips_metric: LpipsMetric,
     ssim_data_range: float | None = None,
+    lpips_reference: LpipsFeatures | None = None,
 ) -> ImageMetrics:
-    """PSNR, SSIM, LPIPS and RGB of rendered evaluation views against the GT views (4.1)."""
+    """PSNR, SSIM, LPIPS and RGB of rendered evaluation views against the GT views (4.1);
+    ``lpips_reference``: ``lpips_metric.reference(gt)`` if already computed."""
     mse = rgb_mse(pred, gt)
+    lpips_value = lpips_metric(pred, gt) if lpips_reference is None else lpips_metric.against(pred, lpips_reference)
     return ImageMetrics(
         psnr=psnr_from_mse(mse),
         ssim=ssim(pred, gt, data_range=ssim_data_range),
-        lpips=lpips_metric(pred, gt),
+        lpips=lpips_value,
         rgb=mse,
         lpips_missing=lpips_metric.missing,
     )

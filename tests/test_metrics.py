@@ -9,6 +9,7 @@ import trimesh
 from PIL import Image
 from skimage.metrics import structural_similarity
 
+from pipeline import metrics
 from pipeline.lpips_weights import LpipsUnavailable, default_sources, load_lpips_alex
 from pipeline.metrics import (
     METRICS,
@@ -110,6 +111,23 @@ def test_lpips_mean_over_images(lpips_metric):
     assert lpips_metric(gt, gt) == pytest.approx(0.0, abs=1e-6)
 
 
+@pytest.mark.parametrize("chunk_pixels", [1 << 20, 3 * 48 * 40])  # one batch; batches of 3 (the last of 2)
+def test_lpips_batched_and_cached_equal_the_per_image_forward(lpips_metric, monkeypatch, chunk_pixels):
+    monkeypatch.setattr(metrics, "LPIPS_CHUNK_PIXELS", chunk_pixels)
+    pred, gt = _random_pair(5, shape=(5, 40, 48, 3))
+    pred[0] += 0.5  # values above 1 are clipped first (4.1)
+    x = torch.from_numpy(pred).clamp(0, 1).permute(0, 3, 1, 2).float()
+    y = torch.from_numpy(gt).permute(0, 3, 1, 2).float()
+    with torch.no_grad():  # the lpips package's own forward, one image at a time
+        straightforward = np.mean([lpips_metric.model(a[None], b[None], normalize=True).item() for a, b in zip(x, y)])
+    reference = lpips_metric.reference(gt)
+    assert [f.shape[0] for f in reference] == [5] * 5
+    assert lpips_metric(pred, gt) == pytest.approx(straightforward, rel=1e-6)
+    assert lpips_metric.against(pred, reference) == pytest.approx(straightforward, rel=1e-6)
+    cached = image_metrics(pred, gt, lpips_metric, lpips_reference=reference)
+    assert cached == image_metrics(pred, gt, lpips_metric)
+
+
 def test_lpips_loads_torchvision_checkpoint_and_rejects_random_trunk(lpips_metric, tmp_path):
     state = lpips_metric.model.state_dict()
     slices = {0: "net.slice1.0", 3: "net.slice2.3", 6: "net.slice3.6", 8: "net.slice4.8", 10: "net.slice5.10"}
@@ -129,6 +147,7 @@ def test_lpips_unavailable_is_missing_never_a_number(tmp_path):
     assert metric.model is None and "not found" in metric.missing
     pred, gt = _random_pair(3, shape=(1, 16, 16, 3))
     assert math.isnan(metric(pred, gt))
+    assert metric.reference(gt) is None and math.isnan(metric.against(pred, None))
     result = image_metrics(pred, gt, metric)
     assert math.isnan(result.lpips) and result.lpips_missing == metric.missing
     assert result.psnr == pytest.approx(psnr(pred, gt)) and result.rgb == pytest.approx(rgb_mse(pred, gt))
