@@ -160,18 +160,23 @@ class RadianceField(nn.Module):
         d: Float[Tensor, "S 3"],
         heads: frozenset[str] = frozenset({"rgb"}),
         image_idx: Int[Tensor, "S"] | None = None,
+        density: FieldOutput | None = None,
     ) -> FieldOutput:
         """Density plus the requested ``heads`` (subset of ``HEADS``) at points ``x``, directions ``d``.
 
         ``image_idx`` selects the appearance embedding (only with ``appearance_embedding``); ``None``
-        uses training image 0's, as the reference does at inference (D8).
+        uses training image 0's, as the reference does at inference (D8). ``density``: the points'
+        already computed ``sigma`` and ``geo`` (an inference render reuses its skipping pass's); the
+        heads are added to it and it is returned.
         """
         if not heads <= HEADS:
             raise ValueError(f"unknown field heads {sorted(heads - HEADS)}; expected a subset of {sorted(HEADS)}")
         u = self.normalize(x)
         inside = self.inside(u)
-        sigma, geo = self._density(u, inside)
-        out = FieldOutput(sigma=sigma, geo=geo)
+        if density is None:
+            sigma, geo = self._density(u, inside)
+            density = FieldOutput(sigma=sigma, geo=geo)
+        out, geo = density, density.geo
         if "rgb" in heads or "variance" in heads:
             parts = [spherical_harmonics(F.normalize(d, dim=-1)), geo]
             if self.appearance is not None:

@@ -8,7 +8,7 @@ from torch import Tensor, nn
 
 from nvf.cameras import Intrinsics, pixel_rays
 from nvf.config import FieldConfig, SamplerConfig
-from nvf.field import RadianceField
+from nvf.field import FieldOutput, RadianceField
 from nvf.occupancy import OccupancyGrid
 from nvf.rendering import Samples, alpha_from_density, expected_depth, ray_sum, weights_from_alpha
 
@@ -83,15 +83,18 @@ class SceneModel(nn.Module):
         return Samples(ray_idx, edges[:, :-1].reshape(-1), edges[:, 1:].reshape(-1), n_rays)
 
     @torch.no_grad()
-    def _skip(self, samples: Samples, origins: Float[Tensor, "R 3"], dirs: Float[Tensor, "R 3"]) -> Samples:
+    def _skip(
+        self, samples: Samples, origins: Float[Tensor, "R 3"], dirs: Float[Tensor, "R 3"], keep_density: bool
+    ) -> tuple[Samples, FieldOutput | None]:
         """Section 4: drop samples with ``alpha < min(alpha_threshold, mean(occ))`` and those after the
-        ray's transmittance (over all marched samples) falls below ``early_stop_eps``."""
+        ray's transmittance (over all marched samples) falls below ``early_stop_eps``. Returns the
+        kept samples and, if ``keep_density``, their density and geometry features (no gradient)."""
         cfg = self.sampler_cfg
-        sigma, _ = self.field.density(samples.positions(origins, dirs))
+        sigma, geo = self.field.density(samples.positions(origins, dirs))
         alpha = alpha_from_density(sigma, samples.deltas)
         _, trans = weights_from_alpha(alpha, samples.ray_idx, samples.n_rays)
         keep = (alpha >= min(cfg.alpha_threshold, self.grid.mean_occupancy)) & (trans >= cfg.early_stop_eps)
-        return samples.select(keep)
+        return samples.select(keep), FieldOutput(sigma=sigma[keep], geo=geo[keep]) if keep_density else None
 
     def render(
         self,
@@ -108,18 +111,20 @@ class SceneModel(nn.Module):
         alpha skipping and early stop (section 4). ``sampler="uniform"``: stratified samples on
         ``[0, uniform_far]`` (jittered only if ``train``), no skipping. Positions ``o + t_m d`` carry
         gradients into ``origins`` and ``dirs`` (-OPT); ``t`` never does. ``rgb`` is zero if the
-        ``rgb`` head is not requested.
+        ``rgb`` head is not requested. Without autograd (``torch.no_grad``) the kept samples' density
+        and geometry features come from the skipping pass instead of a second field evaluation.
         """
+        density = None  # without autograd, the skipping pass's density of the kept samples is reused
         if sampler == "occupancy":
             jitter = train or self.sampler_cfg.inference_jitter
             samples = self.grid.march(origins, dirs, jitter=jitter, generator=generator)
-            samples = self._skip(samples, origins.detach(), dirs.detach())
+            samples, density = self._skip(samples, origins.detach(), dirs.detach(), not torch.is_grad_enabled())
         elif sampler == "uniform":
             samples = self._uniform_samples(origins, train, generator)
         else:
             raise ValueError(f"unknown sampler {sampler!r}; expected one of {SAMPLERS}")
         n_rays = samples.n_rays
-        out = self.field(samples.positions(origins, dirs), dirs[samples.ray_idx], heads)
+        out = self.field(samples.positions(origins, dirs), dirs[samples.ray_idx], heads, density=density)
         alpha = alpha_from_density(out.sigma, samples.deltas)
         weights, trans = weights_from_alpha(alpha, samples.ray_idx, n_rays)
         if out.rgb is None:

@@ -33,8 +33,8 @@ class SphereField(nn.Module):
         inside = (x.abs() < 1.0).all(-1)
         return torch.where(inside, sigma, 0.0), torch.zeros(x.shape[0], 15, device=x.device)
 
-    def forward(self, x: Tensor, d: Tensor, heads: frozenset[str]) -> _Output:
-        sigma, geo = self.density(x)
+    def forward(self, x: Tensor, d: Tensor, heads: frozenset[str], density: _Output | None = None) -> _Output:
+        sigma, geo = self.density(x) if density is None else (density.sigma, density.geo)
         n = x.shape[0]
         return _Output(
             sigma,
@@ -168,6 +168,22 @@ def test_real_radiance_field() -> None:
     assert torch.isfinite(result.rgb).all() and torch.isfinite(result.depth).all()
     result.rgb.sum().backward()
     assert torch.isfinite(origins.grad).all()
+
+
+def test_inference_reuses_the_skipping_density() -> None:
+    """Under no_grad the kept samples' density comes from the skipping pass (section 4): every
+    output equals a render with autograd on (a second field evaluation)."""
+    field_cfg, _ = small_configs()
+    model = SceneModel(AABB, field_cfg, SamplerConfig(grid_resolution=16))
+    model.update_grid(0, torch.Generator().manual_seed(0))
+    origins, dirs = front_rays()
+    heads = frozenset({"rgb", "variance", "visibility"})
+    with torch.no_grad():
+        reused = model.render(origins, dirs, heads=heads)
+    evaluated = model.render(origins, dirs, heads=heads)
+    assert reused.samples.num_samples > 0 and evaluated.sigma.requires_grad and not reused.sigma.requires_grad
+    for key in ("sigma", "rgb_s", "variance", "visibility", "rgb", "depth", "acc"):
+        torch.testing.assert_close(getattr(reused, key), getattr(evaluated, key).detach(), rtol=1e-5, atol=1e-6)
 
 
 def test_density_reads_zero_in_empty_grid_cells():
