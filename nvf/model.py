@@ -3,7 +3,7 @@
 from dataclasses import dataclass
 
 import torch
-from jaxtyping import Float
+from jaxtyping import Float, Int
 from torch import Tensor, nn
 
 from nvf.cameras import Intrinsics, pixel_rays
@@ -104,6 +104,7 @@ class SceneModel(nn.Module):
         train: bool = False,
         generator: torch.Generator | None = None,
         sampler: str = "occupancy",
+        image_idx: Int[Tensor, "R"] | None = None,
     ) -> RenderResult:
         """Render rays ``o + t d`` (unit ``d``): sample, then M1-M3 on the kept samples.
 
@@ -111,7 +112,8 @@ class SceneModel(nn.Module):
         alpha skipping and early stop (section 4). ``sampler="uniform"``: stratified samples on
         ``[0, uniform_far]`` (jittered only if ``train``), no skipping. Positions ``o + t_m d`` carry
         gradients into ``origins`` and ``dirs`` (-OPT); ``t`` never does. ``rgb`` is zero if the
-        ``rgb`` head is not requested. Without autograd (``torch.no_grad``) the kept samples' density
+        ``rgb`` head is not requested. ``image_idx``: each ray's training image, for the appearance
+        embedding (D8; ``None`` = image 0's). Without autograd (``torch.no_grad``) the kept samples' density
         and geometry features come from the skipping pass instead of a second field evaluation.
         """
         density = None  # without autograd, the skipping pass's density of the kept samples is reused
@@ -124,7 +126,8 @@ class SceneModel(nn.Module):
         else:
             raise ValueError(f"unknown sampler {sampler!r}; expected one of {SAMPLERS}")
         n_rays = samples.n_rays
-        out = self.field(samples.positions(origins, dirs), dirs[samples.ray_idx], heads, density=density)
+        sample_image = None if image_idx is None else image_idx[samples.ray_idx]
+        out = self.field(samples.positions(origins, dirs), dirs[samples.ray_idx], heads, sample_image, density=density)
         alpha = alpha_from_density(out.sigma, samples.deltas)
         weights, trans = weights_from_alpha(alpha, samples.ray_idx, n_rays)
         if out.rgb is None:

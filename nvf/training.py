@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
-from jaxtyping import Float
+from jaxtyping import Float, Int
 from torch import Tensor
 
 from nvf.cameras import Intrinsics, camera_directions
@@ -68,9 +68,9 @@ class Observations:
 
     def sample_rays(
         self, batch: int, generator: torch.Generator
-    ) -> tuple[Float[Tensor, "B 3"], Float[Tensor, "B 3"], Float[Tensor, "B 4"]]:
+    ) -> tuple[Float[Tensor, "B 3"], Float[Tensor, "B 3"], Float[Tensor, "B 4"], Int[Tensor, "B"]]:
         """``batch`` pixels drawn uniformly (with replacement) over all pixels of all images:
-        world-frame origins, unit directions and the RGBA ground truth."""
+        world-frame origins, unit directions, the RGBA ground truth and each ray's image index."""
         _require_images(self)
         n, h, w = self.images.shape[:3]
         flat = torch.randint(n * h * w, (batch,), generator=generator, device=generator.device)
@@ -80,7 +80,7 @@ class Observations:
         c2w = self.c2w[image]
         dirs = torch.einsum("bij,bj->bi", c2w[:, :3, :3], cam_dirs)
         dirs = dirs / torch.linalg.norm(dirs, dim=-1, keepdim=True)
-        return c2w[:, :3, 3], dirs, self.images.reshape(-1, 4)[flat]
+        return c2w[:, :3, 3], dirs, self.images.reshape(-1, 4)[flat], image
 
 
 @dataclass
@@ -256,9 +256,9 @@ def train_backbone(
         model.update_grid(k, generator)  # M5: a no-op unless k % sampler.update_every == 0
         for group in optimizer.param_groups:
             group["lr"] = backbone_lr(cfg, k)
-        origins, dirs, rgba = obs.sample_rays(cfg.backbone.batch, generator)
+        origins, dirs, rgba, image = obs.sample_rays(cfg.backbone.batch, generator)
         background = _background(origins.shape[0], "random", generator, origins)
-        result = model.render(origins, dirs, heads=heads, train=True, generator=generator)
+        result = model.render(origins, dirs, heads=heads, train=True, generator=generator, image_idx=image)
         pred = composite(result.rgb, result.acc, background)
         gt = _ground_truth(rgba, background)
         loss = ((pred - gt) ** 2).mean()  # M20
@@ -323,9 +323,11 @@ def train_variance_head(
     for k in range(cfg.variance.iters):
         values = []
         for _ in range(steps):
-            origins, dirs, rgba = obs.sample_rays(cfg.variance.batch, generator)
+            origins, dirs, rgba, image = obs.sample_rays(cfg.variance.batch, generator)
             background = _background(origins.shape[0], cfg.var_loss_background, generator, origins)
-            result = model.render(origins, dirs, heads=_HEADS_VARIANCE_STAGE, train=True, generator=generator)
+            result = model.render(
+                origins, dirs, heads=_HEADS_VARIANCE_STAGE, train=True, generator=generator, image_idx=image
+            )
             samples = result.samples
             mixture, _ = ray_mixture(
                 result.alpha.detach(),

@@ -71,7 +71,7 @@ def reconstruct_points(
     points: list[np.ndarray] = []
     count = 0
     for _ in range(4 * math.ceil(num_points / batch)):
-        origins, dirs, _ = obs.sample_rays(batch, generator)
+        origins, dirs, _, _ = obs.sample_rays(batch, generator)
         result = model.render(origins, dirs, heads=frozenset())
         new = points_from_rays(origins, dirs, result.depth, result.acc).cpu().numpy()
         points.append(new)

@@ -33,7 +33,7 @@ def _straightforward(model, obs, num_points, batch, generator) -> np.ndarray:
     """PROTOCOL 4.2 as written: render every drawn batch with the default (rgb) head, keep A > 0.5."""
     points = []
     for _ in range(4 * math.ceil(num_points / batch)):
-        origins, dirs, _ = obs.sample_rays(batch, generator)
+        origins, dirs, _, _ = obs.sample_rays(batch, generator)
         result = model.render(origins, dirs)
         points.append(points_from_rays(origins, dirs, result.depth, result.acc).numpy())
         if sum(map(len, points)) >= num_points:

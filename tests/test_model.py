@@ -33,7 +33,9 @@ class SphereField(nn.Module):
         inside = (x.abs() < 1.0).all(-1)
         return torch.where(inside, sigma, 0.0), torch.zeros(x.shape[0], 15, device=x.device)
 
-    def forward(self, x: Tensor, d: Tensor, heads: frozenset[str], density: _Output | None = None) -> _Output:
+    def forward(
+        self, x: Tensor, d: Tensor, heads: frozenset[str], image_idx: Tensor | None = None, density: _Output | None = None
+    ) -> _Output:
         sigma, geo = self.density(x) if density is None else (density.sigma, density.geo)
         n = x.shape[0]
         return _Output(

@@ -150,9 +150,9 @@ def test_aux_losses_m25_m27():
 
 def test_sample_rays_match_pixel_rays_and_are_seeded():
     obs = ball_observations(3)
-    o1, d1, c1 = obs.sample_rays(64, torch.Generator().manual_seed(7))
-    o2, d2, c2 = obs.sample_rays(64, torch.Generator().manual_seed(7))
-    assert torch.equal(d1, d2) and torch.equal(c1, c2)
+    o1, d1, c1, i1 = obs.sample_rays(64, torch.Generator().manual_seed(7))
+    o2, d2, c2, i2 = obs.sample_rays(64, torch.Generator().manual_seed(7))
+    assert torch.equal(d1, d2) and torch.equal(c1, c2) and torch.equal(i1, i2)
     all_o, all_d = pixel_rays(obs.c2w, INTR)  # [N,P,3]
     flat = obs.images.reshape(-1, 4)
     # each sampled ray is one of the image pixels, with its own RGBA
@@ -161,6 +161,7 @@ def test_sample_rays_match_pixel_rays_and_are_seeded():
     assert match.any(1).all()
     idx = match.float().argmax(1)
     assert torch.equal(flat[idx], c1)
+    assert torch.equal(i1, idx // (INTR.height * INTR.width))  # the ray's image index
 
 
 def test_empty_training_set_raises():
@@ -280,3 +281,18 @@ def test_train_model_runs_stages_in_order():
     assert seen == ["backbone"] * 4 + ["visibility"] * 2 + ["variance"] * 2
     with pytest.raises(ValueError, match="unknown training stages"):
         train_model(model, obs, cfg, ["colour"], EntropyConfig(), torch.Generator())
+
+
+def test_appearance_embedding_is_trained_per_image():
+    """(D8) With ``field.appearance_embedding`` every training image's embedding gets gradient, not only image 0's."""
+    obs = ball_observations(3)
+    torch.manual_seed(0)
+    field_cfg = FieldConfig(
+        num_levels=4, log2_hashmap_size=12, base_resolution=4, max_resolution=32, hidden_dim=32, appearance_embedding=True
+    )
+    sampler_cfg = SamplerConfig(grid_resolution=16, step_size=0.03, warmup_iters=16, update_every=4)
+    model = SceneModel(AABB, field_cfg, sampler_cfg, num_images=obs.num_images)
+    before = model.field.appearance.weight.detach().clone()
+    train_backbone(model, obs, tiny_config(backbone=StageBudget(10, 256, 1e-2)), torch.Generator().manual_seed(0))
+    changed = (model.field.appearance.weight.detach() != before).any(dim=1)
+    assert changed.all(), changed
