@@ -244,7 +244,8 @@ def main(argv: list[str]) -> None:
               f"{r[f'{key}_fraction_of_limit']:>13.3f}{mark:>9}")  # fmt: skip
     print(
         f"matmul [{rows}x{width}]x[{width}x{width}]: {r['matmul_gflops']:.1f} GFLOP/s; "
-        f"held-out PSNR {r['heldout_psnr']:.2f} dB; {report['settings']['train_samples_per_ray']:.1f} samples/ray "
+        f"PSNR held-out {r['heldout_psnr']:.2f} dB, training views {r['train_view_psnr']:.2f} dB; "
+        f"{report['settings']['train_samples_per_ray']:.1f} samples/ray "
         f"(train); {report['seconds']:.0f} s"
     )
     print(f"wrote {args.out}")
