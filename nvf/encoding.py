@@ -20,6 +20,7 @@ Two interchangeable backends compute the same function:
 """
 
 import functools
+import hashlib
 import math
 import os
 import sys
@@ -59,9 +60,12 @@ def _cflags() -> list[str]:
 
 
 def _build_dir(cflags: list[str]) -> Path:
+    """Per torch, Python, flags and source (path and content): two checkouts never rebuild each other's
+    kernel (ninja rebuilds whenever the recorded source path changes)."""
     cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
     flags = "".join(flag.lstrip("-") for flag in cflags)
-    tag = f"torch{torch.__version__}-py{sys.version_info.major}{sys.version_info.minor}-{flags}".replace("+", "_")
+    source = hashlib.sha256(str(_CSRC).encode() + _CSRC.read_bytes()).hexdigest()[:12]
+    tag = f"torch{torch.__version__}-py{sys.version_info.major}{sys.version_info.minor}-{flags}-{source}".replace("+", "_")
     path = cache / "nvf-bench" / "torch_extensions" / f"hashgrid-{tag}"
     path.mkdir(parents=True, exist_ok=True)
     return path
