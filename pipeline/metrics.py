@@ -198,14 +198,9 @@ class LpipsMetric:
         ]
         return torch.cat(values).double().mean().item()
 
-    @torch.inference_mode()
     def __call__(self, pred: Float[Array, "V H W 3"], gt: Float[Array, "V H W 3"]) -> float:
-        if self.model is None:
-            return math.nan
-        x, y = _clipped(pred), _clipped(gt)
-        n = self._batch(x)
-        values = [self._distances(self._features(a), self._features(b)) for a, b in zip(x.split(n), y.split(n))]
-        return torch.cat(values).double().mean().item()
+        """Mean LPIPS of ``pred`` against ``gt`` (``against`` with a fresh ``reference``)."""
+        return self.against(pred, self.reference(gt))
 
 
 @dataclass(frozen=True)
