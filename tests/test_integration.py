@@ -135,9 +135,10 @@ def test_unseen_side_has_higher_entropy(setup, one_sided):
     assert full > 0.0
 
 
-@pytest.mark.xfail(strict=False, reason="measured at the cpu budget with the 3 initial views: gap NVF 0.69 vs w/o Vis. 0.79; 150 visibility iterations 0.56 vs 0.79; train.schedule=reference 0.94 vs 1.01")
 def test_wo_vis_loses_the_gap(setup, one_sided):
-    """(METHOD 11) With use_visibility=False the seen/unseen gap shrinks."""
+    """(METHOD 11) With use_visibility=False the seen/unseen gap shrinks (measured at the cpu budget,
+    3 initial views: NVF 0.86, w/o Vis. 0.26; with the heads at lr 1e-3 they stayed untrained and the
+    direction was reversed, 0.69 vs 0.79)."""
     entropy = setup[2].entropy
     full = seen_unseen_gap(setup, one_sided, entropy)
     without = seen_unseen_gap(setup, one_sided, dataclasses.replace(entropy, use_visibility=False))
