@@ -20,7 +20,7 @@ from torch import Tensor
 from nvf.cameras import Intrinsics, camera_directions
 from nvf.config import EntropyConfig, TrainConfig
 from nvf.model import SceneModel
-from nvf.rendering import ray_sum
+from nvf.rendering import Samples, ray_sum
 from nvf.uncertainty.mixture import mixture_log_density, ray_mixture
 from nvf.visibility import visibility_labels
 
@@ -189,7 +189,13 @@ class _Recorder:
         self.stage, self.total, self.progress = stage, total, progress
         self.losses: list[float] = []
         self.steps = 0
+        self.samples = self.rays = 0
         self.start = time.perf_counter()
+
+    def count(self, samples: Samples) -> None:
+        """Add one rendered batch to the stage's kept samples per ray."""
+        self.samples += samples.num_samples
+        self.rays += samples.n_rays
 
     def check(self, loss: Float[Tensor, ""], iteration: int) -> float:
         value = float(loss.detach())
@@ -211,14 +217,19 @@ class _Recorder:
             self.progress(self.stage, iteration, self.total, loss)
 
     def summary(self) -> dict[str, float]:
+        """Iterations, optimiser steps, first/last loss, seconds, and ``samples_per_ray`` for stages
+        that render rays (the kept samples after alpha skipping, the stage's main cost)."""
         nan = float("nan")
-        return {
+        summary = {
             "iters": float(len(self.losses)),
             "steps": float(self.steps),
             "first_loss": self.losses[0] if self.losses else nan,
             "last_loss": self.losses[-1] if self.losses else nan,
             "seconds": time.perf_counter() - self.start,
         }
+        if self.rays:
+            summary["samples_per_ray"] = self.samples / self.rays
+        return summary
 
 
 # ----------------------------------------------------------------------------------------- stages
@@ -259,6 +270,7 @@ def train_backbone(
         origins, dirs, rgba, image = obs.sample_rays(cfg.backbone.batch, generator)
         background = _background(origins.shape[0], "random", generator, origins)
         result = model.render(origins, dirs, heads=heads, train=True, generator=generator, image_idx=image)
+        rec.count(result.samples)
         pred = composite(result.rgb, result.acc, background)
         gt = _ground_truth(rgba, background)
         loss = ((pred - gt) ** 2).mean()  # M20
@@ -329,6 +341,7 @@ def train_variance_head(
                 origins, dirs, heads=_HEADS_VARIANCE_STAGE, train=True, generator=generator, image_idx=image
             )
             samples = result.samples
+            rec.count(samples)
             mixture, _ = ray_mixture(
                 result.alpha.detach(),
                 result.rgb_s.detach(),

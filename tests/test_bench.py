@@ -1,12 +1,12 @@
-"""The ``train`` and ``plan`` benchmarks at ``budget=smoke``: each writes its JSON report (``--out``)
-with the required rates as finite positive numbers."""
+"""The ``train``, ``plan`` and ``episode`` benchmarks at ``budget=smoke``: each writes its JSON report
+(``--out``) with the required rates as finite positive numbers."""
 
 import json
 import math
 from pathlib import Path
 
 from pipeline.bench import __main__ as bench
-from pipeline.bench import plan, train
+from pipeline.bench import episode, plan, train
 
 
 def _assert_positive(path: Path, keys: list[str]) -> dict:
@@ -18,7 +18,7 @@ def _assert_positive(path: Path, keys: list[str]) -> dict:
 
 
 def test_benchmarks_are_dispatched():
-    assert {"train", "plan"} <= set(bench.available())
+    assert {"train", "plan", "episode"} <= set(bench.available())
 
 
 def test_train_bench_writes_rates_fractions_and_psnr(tmp_path):
@@ -37,3 +37,15 @@ def test_plan_bench_writes_every_scorer_against_a_plain_render(tmp_path):
     report = _assert_positive(out, keys)
     assert set(plan.SCORED) == {"wd", "activermap", "air", "activenerf", "neurar", "nvf"}
     assert report["settings"]["candidates"] <= 16
+
+
+def test_episode_bench_writes_phases_and_samples_per_ray(tmp_path):
+    out, outputs = tmp_path / "episode.json", tmp_path / "outputs"
+    episode.main(["budget=smoke", "scene=default", "budget.horizon=2", "--out", str(out), "--outputs", str(outputs)])
+    report = _assert_positive(out, ["episode_seconds", "train_seconds", "eval_seconds", "plan_seconds"])
+    assert report["steps"] == 2 and report["method"] == "nvf"
+    assert [s["n_views"] for s in report["per_step"]] == [3, 4]
+    for step in report["per_step"]:
+        assert step["backbone_samples_per_ray"] > 0 and step["variance_samples_per_ray"] > 0
+        assert "visibility_samples_per_ray" not in step  # stage 3 samples points, not rays
+    assert list(outputs.glob("*/*/*/seed_*/steps.jsonl"))  # --outputs keeps the run records

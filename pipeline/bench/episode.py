@@ -1,24 +1,48 @@
-"""``python -m pipeline.bench episode [overrides]``: wall time of one default episode
-(``python -m pipeline.run``'s configuration unless overridden) and its per-phase seconds.
+"""``python -m pipeline.bench episode [--out PATH] [--outputs DIR] [overrides]``: wall time of one
+default episode (``python -m pipeline.run``'s configuration unless overridden) and its per-phase
+seconds.
 
-Writes ``results/bench/episode.json`` with ``episode_seconds`` and the summed train / eval / plan
-seconds of its steps. The run goes to a temporary outputs directory, so nothing is resumed.
+Writes ``results/bench/episode.json`` (or ``--out``) with ``episode_seconds``, the summed train /
+eval / plan seconds of its steps, and per step the seconds of each training stage and its kept
+samples per ray. The run goes to a fresh temporary outputs directory unless ``--outputs`` names
+one to keep (an existing finished run there is resumed, not re-timed, so use an empty one).
 """
 
+import argparse
 import json
 import tempfile
 import time
+from pathlib import Path
 
 import torch
 from hydra import compose, initialize_config_dir
 
+from pipeline.bench._report import write_report
 from pipeline.records import RunRecord
 from pipeline.run import REPO, run_episode
 
+STAGES = ("backbone", "variance", "visibility")
+
+
+def step_summary(row: dict) -> dict:
+    """One step's views, phase seconds, and each training stage's seconds and samples per ray."""
+    summary = {"step": row["step"], "n_views": row["n_views"], **{k: round(v, 2) for k, v in row["seconds"].items()}}
+    for stage, stats in row.get("train", {}).items():
+        summary[f"{stage}_seconds"] = round(stats["seconds"], 2)
+        if "samples_per_ray" in stats:
+            summary[f"{stage}_samples_per_ray"] = round(stats["samples_per_ray"], 2)
+    return summary
+
 
 def main(argv: list[str]) -> None:
+    parser = argparse.ArgumentParser(prog="python -m pipeline.bench episode", description=__doc__.splitlines()[0])
+    parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. method=random")
+    parser.add_argument("--out", type=Path, default=REPO / "results" / "bench" / "episode.json", help="JSON report path")
+    parser.add_argument("--outputs", type=Path, default=None, help="keep the run records here (default: a temporary directory)")
+    args = parser.parse_intermixed_args(argv)
     with tempfile.TemporaryDirectory() as tmp, initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
-        cfg = compose("config", overrides=[*argv, f"paths.outputs={tmp}"])
+        outputs = args.outputs.resolve() if args.outputs else Path(tmp)
+        cfg = compose("config", overrides=[*args.overrides, f"paths.outputs={outputs}"])
         start = time.perf_counter()
         directory = run_episode(cfg)
         seconds = time.perf_counter() - start
@@ -31,9 +55,8 @@ def main(argv: list[str]) -> None:
         **{f"{phase}_seconds": value for phase, value in phases.items()},
         "final_psnr": rows[-1]["metrics"]["psnr"] if rows else None,
         "scene": cfg.scene.name, "method": cfg.method.name, "budget": cfg.budget.name, "field": cfg.field.kind,
-        "torch_threads": torch.get_num_threads(), "overrides": argv,
+        "torch_threads": torch.get_num_threads(), "overrides": args.overrides,
+        "per_step": [step_summary(r) for r in rows],
     }  # fmt: skip
-    out = REPO / "results" / "bench" / "episode.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(report, indent=2) + "\n")
-    print(json.dumps(report, indent=2))
+    write_report(report, args.out)
+    print(json.dumps({k: v for k, v in report.items() if k != "per_step"}, indent=2))

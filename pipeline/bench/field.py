@@ -16,7 +16,6 @@ time divided by the thread count, which is robust to other jobs sharing the core
 """
 
 import argparse
-import json
 import statistics
 import time
 from collections.abc import Callable
@@ -29,6 +28,7 @@ from torch import Tensor
 from nvf.config import FieldConfig
 from nvf.encoding import cpp_extension
 from nvf.field import HEADS, RadianceField, spherical_harmonics
+from pipeline.bench._report import write_report
 
 REPO = Path(__file__).resolve().parents[2]
 AABB = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
@@ -59,7 +59,7 @@ def ray_samples(
     return points.reshape(-1, 3), dirs[:, None].expand(-1, per_ray, -1).reshape(-1, 3)
 
 
-def _median_seconds(fn: Callable[[], object], iters: int, reduce: Callable = statistics.median) -> tuple[float, float]:
+def median_seconds(fn: Callable[[], object], iters: int, reduce: Callable = statistics.median) -> tuple[float, float]:
     """Median (or ``reduce``) wall seconds and process CPU seconds per thread of ``fn`` after a warm-up call.
 
     The CPU figure is robust to other jobs sharing the cores (it is what the call would take alone
@@ -79,7 +79,7 @@ def matmul_gflops(n: int, width: int, iters: int) -> tuple[float, float]:
     """Best dense ``[n, width] x [width, width]`` float32 matmul GFLOP/s (wall, CPU): the MLPs' roofline."""
     a, b = torch.randn(n, width), torch.randn(width, width)
     out = torch.empty(n, width)
-    wall, cpu = _median_seconds(lambda: torch.mm(a, b, out=out), iters * 10, reduce=min)
+    wall, cpu = median_seconds(lambda: torch.mm(a, b, out=out), iters * 10, reduce=min)
     return 2.0 * n * width * width / wall / 1e9, 2.0 * n * width * width / cpu / 1e9
 
 
@@ -132,8 +132,8 @@ def bench_variant(cfg: FieldConfig, rays: int, per_ray: int, chunk: int, iters: 
         loss.backward()
         optimizer.step()
 
-    train_s, train_cpu = _median_seconds(full_train_step, iters)
-    _median_seconds(train_step, iters)
+    train_s, train_cpu = median_seconds(full_train_step, iters)
+    median_seconds(train_step, iters)
     split = {key: statistics.median(values[1:]) for key, values in phases.items()}
 
     xi, di = ray_samples(2 * rays, per_ray, generator)
@@ -151,9 +151,9 @@ def bench_variant(cfg: FieldConfig, rays: int, per_ray: int, chunk: int, iters: 
         for start in range(0, xi.shape[0], chunk):
             field.encoding(field.normalize(xi[start : start + chunk]))
 
-    infer_s, infer_cpu = _median_seconds(infer(HEADS), iters)
-    infer_rgb_s, infer_rgb_cpu = _median_seconds(infer(frozenset({"rgb"})), iters)
-    infer_enc_s, _ = _median_seconds(infer_encoding, iters)
+    infer_s, infer_cpu = median_seconds(infer(HEADS), iters)
+    infer_rgb_s, infer_rgb_cpu = median_seconds(infer(frozenset({"rgb"})), iters)
+    infer_enc_s, _ = median_seconds(infer_encoding, iters)
     m = xi.shape[0]
     return {
         "params": sum(p.numel() for p in field.parameters()),
@@ -220,6 +220,5 @@ def main(argv: list[str]) -> None:
         "variants": results,
     }
     out = REPO / "results" / "bench" / "field.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(report, indent=2) + "\n")
+    write_report(report, out)
     print(f"wrote {out}")

@@ -33,7 +33,8 @@ from nvf.planning import candidate_poses, score_poses, seeded_generator
 from nvf.training import STAGES, train_model
 from nvf.uncertainty import make_scorer
 from nvf.uncertainty.scorers import METHODS
-from pipeline.bench.train import CountingModel, compose_config, load, observations, write_report
+from pipeline.bench._report import write_report
+from pipeline.bench.train import CountingModel, compose_config, load, observations
 from pipeline.episode import EpisodeSettings
 from pipeline.render import GroundTruthRenderer
 from pipeline.scenes import REPO

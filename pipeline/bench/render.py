@@ -7,7 +7,6 @@ RGB + depth with pyrender and face ids with open3d ray casting, separately. Writ
 """
 
 import argparse
-import json
 import platform
 import statistics
 import sys
@@ -15,6 +14,7 @@ import time
 from pathlib import Path
 
 from nvf.cameras import Intrinsics
+from pipeline.bench._report import write_report
 from pipeline.render import GroundTruthRenderer
 from pipeline.scenes import REPO, SceneError, load_scene
 
@@ -62,9 +62,7 @@ def main(argv: list[str]) -> None:
     report = {"benchmark": "render", "statistic": "median ms per view", "machine": platform.platform(),
               "processor": platform.processor(), "rows": rows}
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_suffix(".tmp")
-    tmp.write_text(json.dumps(report, indent=2) + "\n")
-    tmp.replace(args.out)
+    write_report(report, args.out)
     print(f"{'scene':<10}{'faces':>8}{'res':>6}{'rgb+depth ms':>15}{'face ids ms':>14}  backend")
     for r in rows:
         print(f"{r['scene']:<10}{r['faces']:>8}{r['resolution']:>6}{r['rgb_depth_ms']:>15.1f}{r['face_id_ms']:>14.1f}"

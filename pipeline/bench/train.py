@@ -18,7 +18,6 @@ to other jobs on the cores. The model runs on the CPU. Writes ``results/bench/tr
 """
 
 import argparse
-import json
 import math
 import sys
 import time
@@ -37,7 +36,8 @@ from nvf.encoding import cpp_extension
 from nvf.field import HEADS
 from nvf.model import RenderResult, SceneModel
 from nvf.training import Observations, train_backbone
-from pipeline.bench.field import _median_seconds, matmul_gflops, mlp_flops
+from pipeline.bench._report import write_report
+from pipeline.bench.field import matmul_gflops, median_seconds, mlp_flops
 from pipeline.config import ConfigError, register_configs, validate
 from pipeline.episode import EpisodeSettings
 from pipeline.evaluation import RENDER_CHUNK
@@ -157,17 +157,9 @@ def inference_rate(
             model.render_image(c2w, intr, heads=heads, chunk=RENDER_CHUNK)
 
     before = model.samples
-    wall, cpu = _median_seconds(render_all, repeats)
+    wall, cpu = median_seconds(render_all, repeats)
     per_pass = (model.samples - before) / (repeats + 1)
     return per_pass / wall, per_pass / cpu, per_pass
-
-
-def write_report(report: dict, path: Path) -> None:
-    """Write ``report`` as JSON to ``path`` atomically (parent directories created)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(report, indent=2) + "\n")
-    tmp.replace(path)
 
 
 def main(argv: list[str]) -> None:
