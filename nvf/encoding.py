@@ -121,12 +121,17 @@ class _GatherInterp(torch.autograd.Function):
 
 
 class _CppHashGrid(torch.autograd.Function):
-    """Fused C++ forward; backward gives the table gradient (scatter) and, if needed, the points' gradient."""
+    """Fused C++ forward (skipped when the output is ``known``); backward gives the table gradient
+    (scatter) and, if needed, the points' gradient."""
 
     @staticmethod
-    def forward(ctx, table: Tensor, u: Tensor, levels: Tensor, offsets: Tensor, n_dense: int, hash_mask: int):
+    def forward(
+        ctx, table: Tensor, u: Tensor, levels: Tensor, offsets: Tensor, n_dense: int, hash_mask: int, known: Tensor | None
+    ):
         ctx.save_for_backward(table, u, levels, offsets)
         ctx.meta = (n_dense, hash_mask)
+        if known is not None:
+            return known.clone()
         return cpp_extension().forward(u, table, levels, offsets, n_dense, hash_mask)
 
     @staticmethod
@@ -140,7 +145,7 @@ class _CppHashGrid(torch.autograd.Function):
             grad_table = ext.backward(grad_out, u, table.shape[0], levels, offsets, n_dense, hash_mask)
         if ctx.needs_input_grad[1]:
             grad_u = ext.backward_input(grad_out, u, table, levels, offsets, n_dense, hash_mask)
-        return grad_table, grad_u, None, None, None, None
+        return grad_table, grad_u, None, None, None, None, None
 
 
 class HashEncoding(nn.Module):
@@ -219,11 +224,16 @@ class HashEncoding(nn.Module):
         weights = (w[:, :, 0, :, None, None] * w[:, :, 1, None, :, None] * w[:, :, 2, None, None, :]).flatten(2)
         return idx, weights
 
-    def forward(self, u: Float[Tensor, "N 3"]) -> Float[Tensor, "N D"]:
-        """Encode points ``u`` in ``[0,1]^3`` (clamped) into ``[N, num_levels * features_per_level]``."""
+    def forward(self, u: Float[Tensor, "N 3"], known: Float[Tensor, "N D"] | None = None) -> Float[Tensor, "N D"]:
+        """Encode points ``u`` in ``[0,1]^3`` (clamped) into ``[N, num_levels * features_per_level]``.
+
+        ``known``: this encoding of ``u`` with the current table, computed without autograd (the
+        renderer's skipping pass). The C++ path then returns it and only runs the backward; the torch
+        path recomputes (its backward needs the corner indices anyway).
+        """
         if self.uses_cpp(u):
             return _CppHashGrid.apply(
-                self.table, u.contiguous(), self._levels, self._offsets, self.n_dense, self.table_size - 1
+                self.table, u.contiguous(), self._levels, self._offsets, self.n_dense, self.table_size - 1, known
             )
         idx, weights = self.corner_indices(u)
         return _GatherInterp.apply(self.table, idx, weights).reshape(u.shape[0], self.out_dim)

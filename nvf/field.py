@@ -144,13 +144,22 @@ class RadianceField(nn.Module):
         """Whether every coordinate of ``u`` lies in the open interval ``(0,1)``."""
         return ((u > 0.0) & (u < 1.0)).all(dim=-1)
 
-    def _density(self, u: Float[Tensor, "S 3"], inside: Bool[Tensor, "S"]) -> tuple[Tensor, Tensor]:
-        h = self.density_mlp(self.encoding(u))
-        sigma = torch.where(inside, trunc_exp(h[:, 0]), 0.0)
-        return sigma, h[:, 1:]
+    def _density(
+        self, u: Float[Tensor, "S 3"], inside: Bool[Tensor, "S"], encoded: Tensor | None = None
+    ) -> tuple[Tensor, Tensor, Tensor]:
+        """``sigma``, ``g`` and the encoding of ``u`` (``encoded``: its known value, see ``forward``)."""
+        encoded = self.encoding(u, known=encoded)
+        h = self.density_mlp(encoded)
+        return torch.where(inside, trunc_exp(h[:, 0]), 0.0), h[:, 1:], encoded
 
     def density(self, x: Float[Tensor, "S 3"]) -> tuple[Float[Tensor, "S"], Float[Tensor, "S G"]]:
         """Density ``sigma >= 0`` (0 outside the AABB) and geometry feature ``g``."""
+        return self.density_and_encoding(x)[:2]
+
+    def density_and_encoding(
+        self, x: Float[Tensor, "S 3"]
+    ) -> tuple[Float[Tensor, "S"], Float[Tensor, "S G"], Float[Tensor, "S E"]]:
+        """``density(x)`` plus the encoding of ``x``, which ``forward(..., encoded=)`` can reuse."""
         u = self.normalize(x)
         return self._density(u, self.inside(u))
 
@@ -161,20 +170,23 @@ class RadianceField(nn.Module):
         heads: frozenset[str] = frozenset({"rgb"}),
         image_idx: Int[Tensor, "S"] | None = None,
         density: FieldOutput | None = None,
+        encoded: Float[Tensor, "S E"] | None = None,
     ) -> FieldOutput:
         """Density plus the requested ``heads`` (subset of ``HEADS``) at points ``x``, directions ``d``.
 
         ``image_idx`` selects the appearance embedding (only with ``appearance_embedding``); ``None``
         uses training image 0's, as the reference does at inference (D8). ``density``: the points'
         already computed ``sigma`` and ``geo`` (an inference render reuses its skipping pass's); the
-        heads are added to it and it is returned.
+        heads are added to it and it is returned. ``encoded``: the points' encoding computed without
+        autograd with the current parameters (a training render's skipping pass); the density is then
+        recomputed from it with autograd, and the encoding only runs its backward.
         """
         if not heads <= HEADS:
             raise ValueError(f"unknown field heads {sorted(heads - HEADS)}; expected a subset of {sorted(HEADS)}")
         u = self.normalize(x)
         inside = self.inside(u)
         if density is None:
-            sigma, geo = self._density(u, inside)
+            sigma, geo, _ = self._density(u, inside, encoded)
             density = FieldOutput(sigma=sigma, geo=geo)
         out, geo = density, density.geo
         if "rgb" in heads or "variance" in heads:

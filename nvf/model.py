@@ -84,17 +84,17 @@ class SceneModel(nn.Module):
 
     @torch.no_grad()
     def _skip(
-        self, samples: Samples, origins: Float[Tensor, "R 3"], dirs: Float[Tensor, "R 3"], keep_density: bool
-    ) -> tuple[Samples, FieldOutput | None]:
+        self, samples: Samples, origins: Float[Tensor, "R 3"], dirs: Float[Tensor, "R 3"]
+    ) -> tuple[Samples, FieldOutput, Float[Tensor, "K E"]]:
         """Section 4: drop samples with ``alpha < min(alpha_threshold, mean(occ))`` and those after the
         ray's transmittance (over all marched samples) falls below ``early_stop_eps``. Returns the
-        kept samples and, if ``keep_density``, their density and geometry features (no gradient)."""
+        kept samples, their density and geometry features, and their encoding (no gradient)."""
         cfg = self.sampler_cfg
-        sigma, geo = self.field.density(samples.positions(origins, dirs))
+        sigma, geo, encoded = self.field.density_and_encoding(samples.positions(origins, dirs))
         alpha = alpha_from_density(sigma, samples.deltas)
         _, trans = weights_from_alpha(alpha, samples.ray_idx, samples.n_rays)
         keep = (alpha >= min(cfg.alpha_threshold, self.grid.mean_occupancy)) & (trans >= cfg.early_stop_eps)
-        return samples.select(keep), FieldOutput(sigma=sigma[keep], geo=geo[keep]) if keep_density else None
+        return samples.select(keep), FieldOutput(sigma=sigma[keep], geo=geo[keep]), encoded[keep]
 
     def render(
         self,
@@ -113,21 +113,28 @@ class SceneModel(nn.Module):
         ``[0, uniform_far]`` (jittered only if ``train``), no skipping. Positions ``o + t_m d`` carry
         gradients into ``origins`` and ``dirs`` (-OPT); ``t`` never does. ``rgb`` is zero if the
         ``rgb`` head is not requested. ``image_idx``: each ray's training image, for the appearance
-        embedding (D8; ``None`` = image 0's). Without autograd (``torch.no_grad``) the kept samples' density
-        and geometry features come from the skipping pass instead of a second field evaluation.
+        embedding (D8; ``None`` = image 0's). The skipping pass's results are reused for the kept samples:
+        without autograd (``torch.no_grad``) their density and geometry features, with autograd their
+        encoding (whose forward is then skipped; the density MLP reruns for its gradients).
         """
-        density = None  # without autograd, the skipping pass's density of the kept samples is reused
+        density = encoded = None  # reused from the skipping pass: density without autograd, else encoding
         if sampler == "occupancy":
             jitter = train or self.sampler_cfg.inference_jitter
             samples = self.grid.march(origins, dirs, jitter=jitter, generator=generator)
-            samples, density = self._skip(samples, origins.detach(), dirs.detach(), not torch.is_grad_enabled())
+            samples, density, encoded = self._skip(samples, origins.detach(), dirs.detach())
+            if torch.is_grad_enabled():
+                density = None
+            else:
+                encoded = None
         elif sampler == "uniform":
             samples = self._uniform_samples(origins, train, generator)
         else:
             raise ValueError(f"unknown sampler {sampler!r}; expected one of {SAMPLERS}")
         n_rays = samples.n_rays
         sample_image = None if image_idx is None else image_idx[samples.ray_idx]
-        out = self.field(samples.positions(origins, dirs), dirs[samples.ray_idx], heads, sample_image, density=density)
+        out = self.field(
+            samples.positions(origins, dirs), dirs[samples.ray_idx], heads, sample_image, density=density, encoded=encoded
+        )
         alpha = alpha_from_density(out.sigma, samples.deltas)
         weights, trans = weights_from_alpha(alpha, samples.ray_idx, n_rays)
         if out.rgb is None:

@@ -107,6 +107,29 @@ def test_cpp_matches_torch(log2):
     torch.testing.assert_close(u_fast.grad, u_ref.grad, rtol=1e-3, atol=1e-3)
 
 
+@pytest.mark.parametrize("backend", ["torch", "cpp"])
+def test_known_output_gives_the_same_values_and_gradients(backend):
+    """``forward(u, known=...)`` (the renderer's skipping pass reused) equals a fresh forward, in
+    values, table gradients and point gradients."""
+    if backend == "cpp" and cpp_extension() is None:
+        pytest.skip("C++ hash-grid kernel unavailable (no compiler or ninja)")
+    enc = HashEncoding(8, 2, 12, 4, 64, backend=backend)
+    points = _points(500)
+    with torch.no_grad():
+        enc.table.normal_()
+        known = enc(points)
+    grad = torch.randn_like(known)
+    results = []
+    for reuse in (False, True):
+        enc.table.grad = None
+        u = points.clone().requires_grad_()
+        out = enc(u, known=known if reuse else None)
+        (out * grad).sum().backward()
+        results.append((out.detach(), enc.table.grad.clone(), u.grad))
+    for fresh, reused in zip(*results):
+        torch.testing.assert_close(reused, fresh)
+
+
 def test_backend_selection():
     """torch forced; auto uses C++ for float32 CPU points when it builds; unknown names rejected."""
     assert not HashEncoding(4, 2, 10, 4, 16, backend="torch").uses_cpp(torch.rand(3, 3))

@@ -33,8 +33,17 @@ class SphereField(nn.Module):
         inside = (x.abs() < 1.0).all(-1)
         return torch.where(inside, sigma, 0.0), torch.zeros(x.shape[0], 15, device=x.device)
 
+    def density_and_encoding(self, x: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        return *self.density(x), torch.zeros(x.shape[0], 0, device=x.device)
+
     def forward(
-        self, x: Tensor, d: Tensor, heads: frozenset[str], image_idx: Tensor | None = None, density: _Output | None = None
+        self,
+        x: Tensor,
+        d: Tensor,
+        heads: frozenset[str],
+        image_idx: Tensor | None = None,
+        density: _Output | None = None,
+        encoded: Tensor | None = None,
     ) -> _Output:
         sigma, geo = self.density(x) if density is None else (density.sigma, density.geo)
         n = x.shape[0]
@@ -186,6 +195,21 @@ def test_inference_reuses_the_skipping_density() -> None:
     assert reused.samples.num_samples > 0 and evaluated.sigma.requires_grad and not reused.sigma.requires_grad
     for key in ("sigma", "rgb_s", "variance", "visibility", "rgb", "depth", "acc"):
         torch.testing.assert_close(getattr(reused, key), getattr(evaluated, key).detach(), rtol=1e-5, atol=1e-6)
+
+
+def test_training_render_reuses_the_skipping_encoding(monkeypatch) -> None:
+    """With autograd the kept samples' encoding comes from the skipping pass: the encoding runs once
+    without a known output (the skipping pass) and once with it (the training forward)."""
+    field_cfg, _ = small_configs()
+    model = SceneModel(AABB, field_cfg, SamplerConfig(grid_resolution=16))
+    model.update_grid(0, torch.Generator().manual_seed(0))
+    calls = []
+    encode = model.field.encoding.forward
+    monkeypatch.setattr(model.field.encoding, "forward", lambda u, known=None: calls.append(known is not None) or encode(u, known))
+    result = model.render(*front_rays(), train=True, generator=torch.Generator().manual_seed(0))
+    assert result.samples.num_samples > 0 and calls == [False, True]
+    result.rgb.sum().backward()
+    assert model.field.encoding.table.grad.abs().sum() > 0
 
 
 def test_density_reads_zero_in_empty_grid_cells():
