@@ -33,7 +33,8 @@ def test_train_bench_writes_rates_fractions_and_psnr(tmp_path):
 def test_plan_bench_writes_every_scorer_against_a_plain_render(tmp_path):
     out = tmp_path / "plan.json"
     plan.main(["budget=smoke", "planner.num_candidates=16", "--repeats", "1", "--out", str(out)])
-    keys = ["nvf_over_plain_render", "candidates_per_s_plain_render", *(f"candidates_per_s_{m}" for m in plan.SCORED)]
+    keys = ["nvf_over_plain_render", "nvf_over_plain_mlp_flops", "candidates_per_s_plain_render",
+            *(f"candidates_per_s_{m}" for m in plan.SCORED)]  # fmt: skip
     report = _assert_positive(out, keys)
     assert set(plan.SCORED) == {"wd", "activermap", "air", "activenerf", "neurar", "nvf"}
     assert report["settings"]["candidates"] <= 16

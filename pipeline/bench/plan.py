@@ -12,7 +12,9 @@ Timing, after one warm-up on a few candidates: the candidates are split into ``K
 job runs on a block before the next block starts (job order rotated per block), for ``N`` passes.
 Candidates/s is over all blocks; ``<method>_over_plain_render`` is the median over blocks of the
 per-block time ratio, so slow drifts of the machine's load cancel. The baselines' variance heads are
-NVF's (stage 2), which does not change their cost. The model runs on the CPU. Writes
+NVF's (stage 2), which does not change their cost. ``nvf_over_plain_mlp_flops`` is the ratio of the
+MLP FLOPs per sample (METHOD 3's variance and visibility heads against density + colour). The model
+runs on the CPU. Writes
 ``results/bench/plan.json`` (or ``--out``) and prints a table.
 """
 
@@ -34,6 +36,7 @@ from nvf.training import STAGES, train_model
 from nvf.uncertainty import make_scorer
 from nvf.uncertainty.scorers import METHODS
 from pipeline.bench._report import write_report
+from pipeline.bench.field import mlp_flops
 from pipeline.bench.train import CountingModel, compose_config, load, observations
 from pipeline.episode import EpisodeSettings
 from pipeline.render import GroundTruthRenderer
@@ -127,6 +130,8 @@ def main(argv: list[str]) -> None:
     report.update({
         "goal_nvf_over_plain_render": GOAL_NVF_OVER_PLAIN,
         "goal_met": ratio <= GOAL_NVF_OVER_PLAIN,
+        "nvf_over_plain_mlp_flops": mlp_flops(model.field, scorers["nvf"].heads, False)
+        / mlp_flops(model.field, frozenset({"rgb"}), False),
         "seconds_per_block": {name: wall[name] for name in jobs},
         "settings": {
             "budget": cfg.budget.name, "scene": cfg.scene.name, "field_kind": s.field.kind,
@@ -151,7 +156,7 @@ def main(argv: list[str]) -> None:
         print(f"{name:14}{rate:>10.1f}{rate_cpu:>10.1f}{x:>9.2f}")
     print(
         f"NVF / plain render = {ratio:.2f} (goal <= {GOAL_NVF_OVER_PLAIN}: "
-        f"{'met' if report['goal_met'] else 'not met'}); "
+        f"{'met' if report['goal_met'] else 'not met'}; MLP FLOPs {report['nvf_over_plain_mlp_flops']:.1f}x); "
         f"{m} candidates at {res}x{res}; training {stats.seconds:.0f} s; {report['seconds']:.0f} s"
     )
     print(f"wrote {args.out}")
