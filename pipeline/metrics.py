@@ -2,15 +2,14 @@
 
 Images are ``[V, H, W, 3]`` floats (numpy or torch) and are clipped to ``[0, 1]`` first (4.1);
 points are ``[P, 3]`` in scene units; meshes are ``trimesh.Trimesh``. Every metric returns plain
-Python floats. ``METRICS`` lists names, display labels and the better direction for tables.
+Python floats. Names, labels and directions for tables are in ``pipeline.metric_info``.
 """
 
 import math
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from types import MappingProxyType
 
 import lpips
 import numpy as np
@@ -26,41 +25,6 @@ from nvf.uncertainty import correlation
 from pipeline.lpips_weights import LpipsUnavailable, load_lpips_alex
 
 Array = np.ndarray | Tensor
-
-
-@dataclass(frozen=True)
-class MetricInfo:
-    """How a metric is shown in tables: ``label`` and whether higher values are better."""
-
-    name: str
-    label: str
-    higher_is_better: bool
-    paper: bool  # one of the paper's eight reported metrics
-
-    @property
-    def arrow(self) -> str:
-        return "↑" if self.higher_is_better else "↓"
-
-
-METRICS: Mapping[str, MetricInfo] = MappingProxyType(
-    {
-        m.name: m
-        for m in (
-            MetricInfo("psnr", "PSNR", True, True),
-            MetricInfo("ssim", "SSIM", True, True),
-            MetricInfo("lpips", "LPIPS", False, True),
-            MetricInfo("rgb", "RGB", False, True),
-            MetricInfo("acc", "Acc.", False, True),
-            MetricInfo("comp", "Comp.", False, True),
-            MetricInfo("cr", "C.R.", True, True),
-            MetricInfo("vis", "Vis.", True, True),
-            MetricInfo("vis_area", "Vis. (area)", True, False),
-            MetricInfo("patch_pearson", "Patch r", True, False),
-            MetricInfo("view_pearson", "View r", True, False),
-            MetricInfo("ause", "AUSE (addition)", False, False),
-        )
-    }
-)
 
 
 def _tensor(x: Array) -> Tensor:

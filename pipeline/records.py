@@ -22,6 +22,8 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
+from pipeline.metric_info import METRICS
+
 KEY_PATTERN = re.compile(r"[A-Za-z0-9_.-]+")
 IDENTITY_KEYS = ("scene", "method", "planner", "ablation", "budget", "seed")
 RUN_JSON = "run.json"
@@ -41,21 +43,7 @@ PACKAGES = (
     ("pyrender", ("pyrender", "pyrender-maintained")),
 )
 
-METRIC_DEFINITIONS = MappingProxyType(
-    {
-        "psnr": "10 log10(1 / RGB), RGB the MSE pooled over the 20 evaluation views (PROTOCOL 4.1)",
-        "ssim": "Gaussian 11x11 window, sigma 1.5, 5-pixel border dropped, mean over views (PROTOCOL 4.1)",
-        "lpips": "AlexNet v0.1 linear heads, inputs in [-1, 1], mean over views; null without weights (PROTOCOL 4.1)",
-        "rgb": "MSE pooled over all evaluation pixels and channels, black background (PROTOCOL 4.1)",
-        "acc": "mean distance reconstructed point -> nearest GT point; null for an empty reconstruction (PROTOCOL 4.2)",
-        "comp": "mean distance GT point -> nearest reconstructed point; null for an empty reconstruction",
-        "cr": "fraction of GT points within the scene's C.R. threshold of a reconstructed point (PROTOCOL 4.2)",
-        "vis": "seen GT faces / all GT faces over the observed poses, a face count (PROTOCOL 4.3)",
-        "vis_area": "area-weighted fraction of seen GT faces (logged, not reported)",
-        "patch_pearson": "Pearson r of 32x32-patch means of error and uncertainty (PROTOCOL 4.4)",
-        "view_pearson": "Pearson r of per-view sums of error and uncertainty (PROTOCOL 4.4)",
-    }
-)
+METRIC_DEFINITIONS = MappingProxyType({m.name: m.definition for m in METRICS.values()})
 
 
 def check_key(name: str, value: object) -> str:

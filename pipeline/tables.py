@@ -24,22 +24,11 @@ import pandas as pd
 from jaxtyping import Float
 from matplotlib.figure import Figure
 
+from pipeline.metric_info import PAPER_METRICS
 from pipeline.paper_numbers import paper_numbers
 from pipeline.records import IDENTITY_KEYS, RUN_JSON, STEPS, atomic_write_text, check_key, read_steps, record_status
 
-# (key, label, higher is better, decimals) in the paper's column order; labels and directions agree
-# with pipeline.metrics.METRICS (checked in tests; importing it here would load torch and open3d).
-METRICS = (
-    ("psnr", "PSNR", True, 2),
-    ("ssim", "SSIM", True, 3),
-    ("lpips", "LPIPS", False, 3),
-    ("rgb", "RGB", False, 4),
-    ("acc", "Acc.", False, 4),
-    ("comp", "Comp.", False, 4),
-    ("cr", "C.R.", True, 3),
-    ("vis", "Vis.", True, 3),
-)
-METRIC_KEYS = tuple(m[0] for m in METRICS)
+METRIC_KEYS = tuple(m.name for m in PAPER_METRICS)
 METHOD_NAMES = (
     ("random", "Random"),
     ("wd", "WD"),
@@ -247,12 +236,12 @@ def object_mean(final: pd.DataFrame) -> tuple[pd.DataFrame, tuple[str, ...]]:
 def _mark_best(rows: pd.DataFrame) -> pd.DataFrame:
     """Add ``<metric>_best``: the direction-aware best mean of each (budget, scene) block (not when all tie)."""
     rows = rows.copy()
-    for metric, _, higher, _ in METRICS:
-        means = rows[f"{metric}_mean"]
+    for m in PAPER_METRICS:
+        means = rows[f"{m.name}_mean"]
         block = means.groupby([rows["budget"], rows["scene"]])
-        best = block.transform("max" if higher else "min")
+        best = block.transform("max" if m.higher_is_better else "min")
         spread = block.transform("max") > block.transform("min")  # no bold when every row ties
-        rows[f"{metric}_best"] = (means == best) & spread
+        rows[f"{m.name}_best"] = (means == best) & spread
     return rows
 
 
@@ -330,17 +319,17 @@ def _notes(selected: pd.DataFrame, done: pd.DataFrame, rows: pd.DataFrame, skipp
         notes.append("† some seeds lack this value: the cell averages the others.")
     if (valid == 0).any():
         notes.append("'-': no run has this value.")
-    for metric, label, _, _ in METRICS:
-        missing = done[done[metric].isna()]
+    for m in PAPER_METRICS:
+        missing = done[done[m.name].isna()]
         if missing.empty:
             continue
-        if metric == "lpips":
+        if m.name == "lpips":
             reasons = {r for r in missing["lpips_missing_reason"] if isinstance(r, str) and r}
             reasons = sorted(reasons or {"reason not recorded"})
-            notes.append(f"{label} missing in {len(missing)} of {len(done)} runs: {'; '.join(reasons)}.")
+            notes.append(f"{m.label} missing in {len(missing)} of {len(done)} runs: {'; '.join(reasons)}.")
         else:
-            hint = " (an empty reconstruction gives Acc = Comp = NaN)" if metric in ("acc", "comp") else ""
-            notes.append(f"{label} is NaN/null in {len(missing)} of {len(done)} runs{hint}.")
+            hint = " (an empty reconstruction gives Acc = Comp = NaN)" if m.name in ("acc", "comp") else ""
+            notes.append(f"{m.label} is NaN/null in {len(missing)} of {len(done)} runs{hint}.")
     unfinished = selected[selected["status"] != "done"]
     if not unfinished.empty:
         counts = unfinished["status"].value_counts()
@@ -407,11 +396,11 @@ def _grid(table: Table, label_header: str) -> tuple[list[str], list[list[str]]]:
     """Column names and Markdown cell texts (csv drops the bold marks, tex converts them)."""
     keys = (["section"] if "section" in table.rows else []) + (["budget"] if table.rows["budget"].nunique() > 1 else [])
     columns = [key.capitalize() for key in keys] + ["Scene", label_header]
-    columns += [f"{label}{'↑' if higher else '↓'}" for _, label, higher, _ in METRICS] + ["n"]
+    columns += [f"{m.label}{m.arrow}" for m in PAPER_METRICS] + ["n"]
     cells = []
     for _, row in table.rows.iterrows():
         line = [str(row[key]) for key in keys] + [row["scene"], row["label"]]
-        line += [_cell(row, metric, decimals) for metric, _, _, decimals in METRICS]
+        line += [_cell(row, m.name, m.decimals) for m in PAPER_METRICS]
         cells.append(line + [str(int(row["n"]))])
     return columns, cells
 
@@ -518,15 +507,15 @@ def curves(long: pd.DataFrame, figures: Path) -> list[Path]:
         fig.subplots_adjust(left=0.04, right=0.85, bottom=0.08, top=0.9, wspace=0.3, hspace=0.35)
         axes = fig.subplots(2, 4).ravel()
         groups = sorted(frame.groupby(["method", "planner", "ablation"]), key=lambda kv: _label_rank(*kv[0]))
-        for ax, (metric, label, higher, _) in zip(axes, METRICS):
+        for ax, m in zip(axes, PAPER_METRICS):
             for (method, planner, ablation), group in groups:
-                series = group[group["metric"] == metric].groupby("step")["value"]
+                series = group[group["metric"] == m.name].groupby("step")["value"]
                 mean, std = series.mean(), series.std(ddof=0).fillna(0.0)
                 if mean.notna().any():
                     line = ax.plot(mean.index, mean.to_numpy(), label=method_label(method, planner, ablation))[0]
                     low, high = (mean - std).to_numpy(), (mean + std).to_numpy()
                     ax.fill_between(mean.index, low, high, alpha=0.2, color=line.get_color())
-            ax.set_title(f"{label} {'↑' if higher else '↓'}")
+            ax.set_title(f"{m.label} {m.arrow}")
             ax.set_xlabel("step")
         handles, labels = axes[0].get_legend_handles_labels()
         if handles:
@@ -580,7 +569,7 @@ def summarize_run(run_dir: Path) -> Path:
     in ``<run_dir>/summary.md``; returns its path."""
     info, rows = _load_run(Path(run_dir))
     label = method_label(info["method"], info["planner"], info["ablation"])
-    columns = ["Step", "Views"] + [f"{name}{'↑' if higher else '↓'}" for _, name, higher, _ in METRICS] + ["Seconds"]
+    columns = ["Step", "Views"] + [f"{m.label}{m.arrow}" for m in PAPER_METRICS] + ["Seconds"]
     cells = []
     for row in rows:
         if row.get("status", "ok") != "ok" or not isinstance(row.get("metrics"), dict):
@@ -589,12 +578,12 @@ def summarize_run(run_dir: Path) -> Path:
         seconds = row.get("seconds") if isinstance(row.get("seconds"), dict) else {}
         total = sum(v for v in seconds.values() if isinstance(v, (int, float)))
         line = [str(row["step"]), str(row.get("n_views", ""))]
-        line += ["-" if v is None or math.isnan(v) else f"{v:.{m[3]}f}" for v, m in zip(values, METRICS)]
+        line += ["-" if v is None or math.isnan(v) else f"{v:.{m.decimals}f}" for v, m in zip(values, PAPER_METRICS)]
         cells.append(line + [f"{total:.1f}"])
     paper = paper_numbers()
     match = paper[paper["table"].isin(["S3", "S4"]) & (paper["scene"] == base_scene(info["scene"]))]
     for _, ref in match[match["method"] == label].iterrows():
-        cells.append([f"paper ({ref['table']})", ""] + [f"{ref[m]:.{d}f}" for m, _, _, d in METRICS] + [""])
+        cells.append([f"paper ({ref['table']})", ""] + [f"{ref[m.name]:.{m.decimals}f}" for m in PAPER_METRICS] + [""])
     table = pd.DataFrame(cells, columns=columns).to_markdown(index=False, disable_numparse=True)
     source = info.get("scene_source", "unknown")
     notes = [f"Status: {record_status(info, Path(run_dir))}. Scene source: {source}."]

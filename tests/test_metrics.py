@@ -11,8 +11,8 @@ from skimage.metrics import structural_similarity
 
 from pipeline import metrics
 from pipeline.lpips_weights import LpipsUnavailable, default_sources, load_lpips_alex
+from pipeline.metric_info import METRICS, PAPER_METRICS
 from pipeline.metrics import (
-    METRICS,
     LpipsMetric,
     geometry_metrics,
     image_metrics,
@@ -247,8 +247,9 @@ def test_uncertainty_correlation_perfect_scores():
 
 
 def test_metric_table():
-    paper = [m.name for m in METRICS.values() if m.paper]
-    assert paper == ["psnr", "ssim", "lpips", "rgb", "acc", "comp", "cr", "vis"]
+    paper = [m.name for m in PAPER_METRICS]
+    assert paper == ["psnr", "ssim", "lpips", "rgb", "acc", "comp", "cr", "vis"]  # the paper's column order
+    assert [m.decimals for m in PAPER_METRICS] == [2, 3, 3, 4, 4, 4, 3, 3]
     higher = {m.name for m in METRICS.values() if m.higher_is_better}
     assert higher == {"psnr", "ssim", "cr", "vis", "vis_area", "patch_pearson", "view_pearson"}
     assert METRICS["lpips"].arrow == "↓" and METRICS["vis"].label == "Vis."
