@@ -35,7 +35,7 @@ _ALL = (
     MetricInfo("rgb", "RGB", False, True, 4,
                "MSE pooled over all evaluation pixels and channels, black background (PROTOCOL 4.1)"),
     MetricInfo("acc", "Acc.", False, True, 4,
-               "mean distance reconstructed point -> nearest GT point; null if nothing is reconstructed (PROTOCOL 4.2)"),
+               "mean distance reconstructed -> nearest GT point; null if nothing is reconstructed (PROTOCOL 4.2)"),
     MetricInfo("comp", "Comp.", False, True, 4,
                "mean distance GT point -> nearest reconstructed point; null for an empty reconstruction"),
     MetricInfo("cr", "C.R.", True, True, 3,
