@@ -14,8 +14,7 @@ Candidates/s is over all blocks; ``<method>_over_plain_render`` is the median ov
 per-block time ratio, so slow drifts of the machine's load cancel. The baselines' variance heads are
 NVF's (stage 2), which does not change their cost. ``nvf_over_plain_mlp_flops`` is the ratio of the
 MLP FLOPs per sample (METHOD 3's variance and visibility heads against density + colour). The model
-runs on the CPU. Writes
-``results/bench/plan.json`` (or ``--out``) and prints a table.
+runs on the CPU. Writes ``results/bench/plan.json`` (or ``--out``) and prints a table.
 """
 
 import argparse

@@ -61,7 +61,6 @@ def main(argv: list[str]) -> None:
                 })
     report = {"benchmark": "render", "statistic": "median ms per view", "machine": platform.platform(),
               "processor": platform.processor(), "rows": rows}
-    args.out.parent.mkdir(parents=True, exist_ok=True)
     write_report(report, args.out)
     print(f"{'scene':<10}{'faces':>8}{'res':>6}{'rgb+depth ms':>15}{'face ids ms':>14}  backend")
     for r in rows:
