@@ -84,17 +84,20 @@ class SceneModel(nn.Module):
 
     @torch.no_grad()
     def _skip(
-        self, samples: Samples, origins: Float[Tensor, "R 3"], dirs: Float[Tensor, "R 3"]
-    ) -> tuple[Samples, FieldOutput, Float[Tensor, "K E"]]:
+        self, samples: Samples, origins: Float[Tensor, "R 3"], dirs: Float[Tensor, "R 3"], for_autograd: bool
+    ) -> tuple[Samples, FieldOutput | None, Float[Tensor, "K E"] | None]:
         """Section 4: drop samples with ``alpha < min(alpha_threshold, mean(occ))`` and those after the
         ray's transmittance (over all marched samples) falls below ``early_stop_eps``. Returns the
-        kept samples, their density and geometry features, and their encoding (no gradient)."""
+        kept samples and what the field's forward reuses for them (no gradient): their encoding if
+        ``for_autograd`` (the density MLP must rerun), else their density and geometry features."""
         cfg = self.sampler_cfg
         sigma, geo, encoded = self.field.density_and_encoding(samples.positions(origins, dirs))
         alpha = alpha_from_density(sigma, samples.deltas)
         _, trans = weights_from_alpha(alpha, samples.ray_idx, samples.n_rays)
         keep = (alpha >= min(cfg.alpha_threshold, self.grid.mean_occupancy)) & (trans >= cfg.early_stop_eps)
-        return samples.select(keep), FieldOutput(sigma=sigma[keep], geo=geo[keep]), encoded[keep]
+        if for_autograd:
+            return samples.select(keep), None, encoded[keep]
+        return samples.select(keep), FieldOutput(sigma=sigma[keep], geo=geo[keep]), None
 
     def render(
         self,
@@ -121,20 +124,17 @@ class SceneModel(nn.Module):
         if sampler == "occupancy":
             jitter = train or self.sampler_cfg.inference_jitter
             samples = self.grid.march(origins, dirs, jitter=jitter, generator=generator)
-            samples, density, encoded = self._skip(samples, origins.detach(), dirs.detach())
-            if torch.is_grad_enabled():
-                density = None
-            else:
-                encoded = None
+            samples, density, encoded = self._skip(
+                samples, origins.detach(), dirs.detach(), for_autograd=torch.is_grad_enabled()
+            )
         elif sampler == "uniform":
             samples = self._uniform_samples(origins, train, generator)
         else:
             raise ValueError(f"unknown sampler {sampler!r}; expected one of {SAMPLERS}")
         n_rays = samples.n_rays
         sample_image = None if image_idx is None else image_idx[samples.ray_idx]
-        out = self.field(
-            samples.positions(origins, dirs), dirs[samples.ray_idx], heads, sample_image, density=density, encoded=encoded
-        )
+        positions = samples.positions(origins, dirs)
+        out = self.field(positions, dirs[samples.ray_idx], heads, sample_image, density=density, encoded=encoded)
         alpha = alpha_from_density(out.sigma, samples.deltas)
         weights, trans = weights_from_alpha(alpha, samples.ray_idx, n_rays)
         if out.rgb is None:

@@ -22,6 +22,7 @@ from pipeline.run import REPO
 from pipeline.scenes import load_scene
 
 pytestmark = pytest.mark.slow
+HEAD_STAGES = ("variance", "visibility")
 
 
 @pytest.fixture(scope="module")
@@ -83,7 +84,7 @@ def one_sided(setup):
     docs/BUDGETS.md)."""
     cfg, scene, settings, renderer, intr = setup
     obs = observations(renderer, scene.init_poses, intr)
-    heads = {stage: dataclasses.replace(getattr(settings.train, stage), iters=500, lr=1e-3) for stage in ("variance", "visibility")}
+    heads = {stage: dataclasses.replace(getattr(settings.train, stage), iters=500, lr=1e-3) for stage in HEAD_STAGES}
     settings = dataclasses.replace(settings, train=dataclasses.replace(settings.train, **heads))
     return obs, trained(settings, scene, obs, ["backbone", "variance", "visibility"])
 
