@@ -223,8 +223,9 @@ class RunRecord:
         """Create the directory and write run.json: ``info`` plus git state, versions, definitions, timings.
 
         ``info`` holds at least the identity keys (scene, method, planner, ablation, budget, seed) and
-        ``config``. Resuming keeps the first start time; a different identity or config (apart from its
-        ``paths``, which only say where files live) is refused, naming the first differing key.
+        ``config``. The config is stored without its ``paths`` group (where files live on this machine,
+        not a setting), so records are the same on every machine. Resuming keeps the first start time;
+        a different identity or config (apart from ``paths``) is refused, naming the first differing key.
         """
         missing = [key for key in (*IDENTITY_KEYS, "config") if key not in info]
         if missing:
@@ -247,6 +248,7 @@ class RunRecord:
         repo = Path(__file__).resolve().parents[1] if repo is None else repo
         record = {
             **info,
+            "config": _settings(info["config"]),
             "status": "running",
             "git": git_state(repo),
             "versions": package_versions(),

@@ -112,6 +112,7 @@ def test_resume_keeps_start_time_and_refuses_other_config(tmp_path):
         record.start(_info(budget="cpu"), repo=tmp_path)
     moved = {"train": {"iters": 10}, "seed": 100, "paths": {"assets": "/elsewhere"}}
     record.start(_info(config=moved), repo=tmp_path)  # paths only say where files live
+    assert "paths" not in record.info()["config"]  # and are not recorded: records are machine-independent
     with pytest.raises(ValueError, match="lacks config"):
         record.start({k: v for k, v in _info().items() if k != "config"}, repo=tmp_path)
 
