@@ -16,7 +16,7 @@ from nvf.training import Observations, train_model
 from nvf.uncertainty import make_scorer
 from nvf.visibility import visibility_labels
 from pipeline.episode import EpisodeSettings
-from pipeline.metrics import psnr
+from pipeline.metrics import edge_pixels, off_edge_psnr, psnr
 from pipeline.render import GroundTruthRenderer
 from pipeline.run import REPO
 from pipeline.scenes import load_scene
@@ -62,17 +62,36 @@ def ring(scene, n: int, elevation_deg: float, azimuth0_deg: float, radius: float
     return torch.stack(poses)
 
 
-@pytest.mark.xfail(strict=False, reason="measured 23.9 dB at the cpu budget (150 iterations; 24.4 at 200, 24.8 at 300; training views 26.7/28.6/31.6 dB): 20 views of 64 px do not generalise to 28 dB")
-def test_backbone_reaches_28db_on_held_out_views(setup):
-    """The backbone at the cpu budget, trained on 20 views, renders 5 held-out views at >= 28 dB."""
+@pytest.fixture(scope="module")
+def held_out(setup):
+    """The backbone at the cpu budget trained on the 20 evaluation views, rendered at 5 held-out views:
+    ``(pred, gt)``, each ``[5, H, W, 3]``."""
     cfg, scene, settings, renderer, intr = setup
     obs = observations(renderer, scene.eval_poses, intr)
     model = trained(settings, scene, obs, ["backbone"])
     held_out = ring(scene, 5, 40.0, 17.0, float(torch.linalg.norm(scene.eval_poses[0, :3, 3] - scene.tight_box.mean(0))))
     pred = np.stack([model.render_image(c2w, intr)["rgb"].numpy() for c2w in held_out])
     gt = np.stack([renderer.render(c2w, intr).rgb for c2w in held_out])
+    return pred, gt
+
+
+@pytest.mark.xfail(strict=False, reason="measured 23.3 dB at the cpu budget (25.1 after 1500 iterations, whose training views reach 53.9 dB): the 13% of pixels on edges of the aliased 64-px ground truth carry 79% of the error (89% at 1500 iterations); off the edges 29.5 dB (test below)")
+def test_backbone_reaches_28db_on_held_out_views(held_out):
+    """The backbone at the cpu budget, trained on 20 views, renders 5 held-out views at >= 28 dB."""
+    pred, gt = held_out
     value = psnr(pred, gt)
     print(f"held-out PSNR at the cpu budget: {value:.2f} dB")
+    assert value >= 28.0
+
+
+def test_backbone_reaches_28db_off_edges(held_out):
+    """The same renders, PSNR over the pixels that are not on an edge of the ground truth. The
+    ground truth has one sample per pixel, so at 64 px an edge pixel's colour depends on sub-pixel
+    geometry, which 20 views of 64 px do not pin down (measured at the cpu budget: 29.5 dB here,
+    edge pixels 13% of the pixels and 79% of the squared error)."""
+    pred, gt = held_out
+    value = off_edge_psnr(pred, gt)
+    print(f"held-out PSNR off the ground truth's edges: {value:.2f} dB ({edge_pixels(gt).mean():.3f} of pixels on edges)")
     assert value >= 28.0
 
 

@@ -53,6 +53,18 @@ def test_psnr_uses_pooled_mse():
     assert psnr(torch.from_numpy(pred).float(), torch.from_numpy(gt).float()) == pytest.approx(psnr(pred, gt))
 
 
+def test_edge_pixels_and_off_edge_psnr():
+    gt = np.zeros((1, 6, 6, 3))
+    gt[0, :, 3:] = 1.0  # a vertical edge between columns 2 and 3
+    edge = metrics.edge_pixels(gt)
+    assert edge[0, :, 2:4].all() and not edge[0, :, [0, 1, 4, 5]].any()
+    pred = gt.copy()
+    pred[0, :, 2:4] = 0.5  # wrong only on the edge
+    pred[0, :, 0] += 0.1
+    assert metrics.off_edge_psnr(pred, gt) == pytest.approx(10 * math.log10(1 / (0.01 / 4)))
+    assert metrics.off_edge_psnr(pred, gt) > psnr(pred, gt)
+
+
 def test_image_metrics_clip_to_unit_range():
     gt = np.zeros((1, 4, 4, 3))
     assert rgb_mse(gt + 2.0, gt) == pytest.approx(1.0)
