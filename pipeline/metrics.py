@@ -58,7 +58,7 @@ def psnr(pred: Float[Array, "V H W 3"], gt: Float[Array, "V H W 3"]) -> float:
     return psnr_from_mse(rgb_mse(pred, gt))
 
 
-def edge_pixels(gt: Float[Array, "V H W 3"], tol: float = 0.02) -> Bool[Array, "V H W"]:
+def edge_pixels(gt: Float[np.ndarray, "V H W 3"], tol: float = 0.02) -> Bool[np.ndarray, "V H W"]:
     """Pixels whose colour differs from a 4-neighbour's by more than ``tol`` in some channel. With one
     sample per pixel (the ground truth renderer), their colour depends on sub-pixel geometry."""
     edge = np.zeros(gt.shape[:3], dtype=bool)
@@ -71,7 +71,7 @@ def edge_pixels(gt: Float[Array, "V H W 3"], tol: float = 0.02) -> Bool[Array, "
     return edge
 
 
-def off_edge_psnr(pred: Float[Array, "V H W 3"], gt: Float[Array, "V H W 3"]) -> float:
+def off_edge_psnr(pred: Float[np.ndarray, "V H W 3"], gt: Float[np.ndarray, "V H W 3"]) -> float:
     """PSNR pooled over the pixels that are not ``edge_pixels`` of ``gt`` (a diagnostic, not a paper metric)."""
     off_edge = ~edge_pixels(gt)
     return psnr_from_mse(float(((pred - gt) ** 2).mean(-1)[off_edge].mean()))

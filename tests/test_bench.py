@@ -25,7 +25,8 @@ def test_train_bench_writes_rates_fractions_and_psnr(tmp_path):
     out = tmp_path / "train.json"
     train.main(["budget=smoke", "--repeats", "1", "--out", str(out)])
     keys = ["train_samples_per_s", "infer_samples_per_s", "infer_rgb_samples_per_s", "train_fraction_of_limit",
-            "infer_fraction_of_limit", "matmul_gflops", "heldout_psnr", "train_view_psnr", "heldout_psnr_off_edges"]  # fmt: skip
+            "infer_fraction_of_limit", "matmul_gflops", "heldout_psnr", "train_view_psnr",
+            "heldout_psnr_off_edges"]  # fmt: skip
     report = _assert_positive(out, keys)
     assert report["settings"]["budget"] == "smoke" and report["settings"]["training_views"] == 20
 
