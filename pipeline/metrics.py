@@ -71,10 +71,12 @@ def edge_pixels(gt: Float[np.ndarray, "V H W 3"], tol: float = 0.02) -> Bool[np.
     return edge
 
 
-def off_edge_psnr(pred: Float[np.ndarray, "V H W 3"], gt: Float[np.ndarray, "V H W 3"]) -> float:
-    """PSNR pooled over the pixels that are not ``edge_pixels`` of ``gt`` (a diagnostic, not a paper metric)."""
-    off_edge = ~edge_pixels(gt)
-    return psnr_from_mse(float(((pred - gt) ** 2).mean(-1)[off_edge].mean()))
+def off_edge_psnr(pred: Float[Array, "V H W 3"], gt: Float[Array, "V H W 3"]) -> float:
+    """``psnr`` (clipped, pooled MSE) over the pixels that are not ``edge_pixels`` of ``gt`` (a
+    diagnostic, not a paper metric)."""
+    squared = (_clipped(pred) - _clipped(gt)).square().mean(1)  # [V, H, W]
+    off_edge = torch.from_numpy(~edge_pixels(_numpy(gt))).to(squared.device)
+    return psnr_from_mse(squared[off_edge].mean().item())
 
 
 def _gaussian_1d(size: int, sigma: float, like: Tensor) -> Tensor:
