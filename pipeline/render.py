@@ -12,6 +12,7 @@ import triton, so ``_import_pyrender`` imports triton first whenever it is insta
 
 import importlib
 import importlib.util
+import math
 import os
 import sys
 from dataclasses import dataclass
@@ -23,6 +24,7 @@ from jaxtyping import Bool, Float, Int
 from torch import Tensor
 
 from nvf.cameras import Intrinsics, pixel_rays
+from nvf.visibility import frustum_mask
 
 BACKENDS = ("auto", "osmesa", "egl")
 
@@ -169,6 +171,22 @@ class GroundTruthRenderer:
         ids = hits["primitive_ids"].numpy().astype(np.int64)
         ids[~np.isfinite(t_hit)] = -1
         return t_hit, ids
+
+    def line_of_sight(
+        self, points: Float[Tensor, "N 3"], c2w: Float[Tensor, "M 4 4"], intr: Intrinsics
+    ) -> Bool[Tensor, "N"]:
+        """Exact visibility of ``points`` from the cameras ``c2w``: some camera has the point in its
+        image (M17's frustum, no depth limit) and an unoccluded line of sight to it (open3d ray cast
+        from the camera centre, 1e-4 tolerance). The limit of a depth test at infinite resolution."""
+        visible = torch.zeros(points.shape[0], dtype=torch.bool)
+        points = points.detach().cpu().to(torch.float32)
+        for pose in c2w.detach().cpu().to(torch.float32):
+            to_point = points - pose[:3, 3]
+            distance = torch.linalg.norm(to_point, dim=-1)
+            t_hit, _ = self.cast_rays(pose[:3, 3].expand_as(points).numpy(), (to_point / distance[:, None]).numpy())
+            unoccluded = torch.from_numpy(t_hit >= distance.numpy() - 1e-4)
+            visible |= frustum_mask(points, pose, intr, math.inf) & unoccluded
+        return visible
 
     def face_ids(self, c2w: Float[np.ndarray, "4 4"], intr: Intrinsics) -> Int[np.ndarray, "H W"]:
         """Face hit by each pixel-centre ray (``nvf.cameras.pixel_rays``), -1 = miss (PROTOCOL.md 4.3)."""

@@ -1,12 +1,14 @@
-"""The ``train``, ``plan`` and ``episode`` benchmarks at ``budget=smoke``: each writes its JSON report
-(``--out``) with the required rates as finite positive numbers."""
+"""The ``train``, ``plan``, ``episode`` and ``visibility`` benchmarks at ``budget=smoke``: each writes its
+JSON report (``--out``) with the required rates as finite positive numbers, or bounded statistics."""
 
 import json
 import math
 from pathlib import Path
 
+import numpy as np
+
 from pipeline.bench import __main__ as bench
-from pipeline.bench import episode, plan, train
+from pipeline.bench import episode, plan, train, visibility
 
 
 def _assert_positive(path: Path, keys: list[str]) -> dict:
@@ -18,7 +20,7 @@ def _assert_positive(path: Path, keys: list[str]) -> dict:
 
 
 def test_benchmarks_are_dispatched():
-    assert {"train", "plan", "episode"} <= set(bench.available())
+    assert {"train", "plan", "episode", "visibility"} <= set(bench.available())
 
 
 def test_train_bench_writes_rates_fractions_and_psnr(tmp_path):
@@ -51,3 +53,25 @@ def test_episode_bench_writes_phases_and_samples_per_ray(tmp_path):
         assert step["backbone_samples_per_ray"] > 0 and step["variance_samples_per_ray"] > 0
         assert "visibility_samples_per_ray" not in step  # stage 3 samples points, not rays
     assert list(outputs.glob("*/*/*/seed_*/steps.jsonl"))  # --outputs keeps the run records
+
+
+def test_visibility_bench_writes_separation_and_ranking(tmp_path):
+    """The seen/unseen AUCs lie in [0, 1] (or are missing for an empty class), per candidate set."""
+    out = tmp_path / "visibility.json"
+    visibility.main(["budget=smoke", "planner.num_candidates=4", "--sets", "1", "--out", str(out)])
+    report = json.loads(out.read_text())
+    assert len(report["sets"]) == 1 and report["settings"]["budget"] == "smoke"
+    one = report["sets"][0]
+    assert one["candidates"] <= 4 and one["object_pixels"] >= 0
+    for key in ("head_auc", "label_auc"):
+        assert one[key] is None or 0.0 <= one[key] <= 1.0
+    assert one["spearman_nvf_wo_vis"] is None or -1.0 <= one["spearman_nvf_wo_vis"] <= 1.0
+    assert report["same_argmax_sets"] in (0, 1)
+
+
+def test_auc_and_spearman_helpers():
+    assert visibility.auc(np.array([2.0, 3.0]), np.array([0.0, 1.0])) == 1.0
+    assert visibility.auc(np.array([1.0]), np.array([1.0])) == 0.5
+    assert visibility.auc(np.array([]), np.array([1.0])) is None
+    assert visibility.spearman(np.array([1.0, 2.0, 3.0]), np.array([3.0, 2.0, 1.0])) == -1.0
+    assert visibility.spearman(np.array([1.0, 1.0]), np.array([3.0, 2.0])) is None

@@ -9,7 +9,7 @@ import pytest
 import torch
 from hydra import compose, initialize_config_dir
 
-from nvf.cameras import Intrinsics, look_at, matrix_to_pose, project
+from nvf.cameras import Intrinsics, look_at, matrix_to_pose
 from nvf.model import SceneModel
 from nvf.planning import score_poses
 from nvf.training import Observations, train_model
@@ -121,15 +121,7 @@ def test_visibility_labels_agree_with_line_of_sight(setup, one_sided):
     points = torch.tensor(points + 0.01 * scene.mesh.face_normals[faces], dtype=torch.float32)  # just outside
     with torch.no_grad():
         labels = visibility_labels(model.density, points, obs.c2w, intr, settings.train) > 0.5
-    truth = torch.zeros(len(points), dtype=torch.bool)
-    for c2w in obs.c2w:
-        uv, z = project(points, c2w, intr)
-        in_image = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < intr.width) & (uv[:, 1] >= 0) & (uv[:, 1] < intr.height)
-        to_point = points - c2w[:3, 3]
-        distance = torch.linalg.norm(to_point, dim=-1)
-        origins = c2w[:3, 3].expand_as(points).numpy()
-        t_hit, _ = renderer.cast_rays(origins, (to_point / distance[:, None]).numpy())
-        truth |= in_image & torch.from_numpy(t_hit >= distance.numpy() - 1e-4)
+    truth = renderer.line_of_sight(points, obs.c2w, intr)
     accuracy = (labels == truth).float().mean().item()
     print(f"visibility label accuracy vs line of sight: {accuracy:.3f} ({truth.float().mean():.2f} visible)")
     assert accuracy >= 0.90

@@ -78,6 +78,19 @@ def test_camera_convention_matches_project():
     assert uv[0, 0] > INTR.width / 2 and uv[1, 1] < INTR.height / 2 and torch.all(depth > 0)
 
 
+def test_line_of_sight_is_exact_occlusion_and_frustum(cube_renderer):
+    """A point just outside the cube's +z face is visible from a camera above it, hidden behind the
+    cube from a camera below it, and outside the image of a camera looking away."""
+    points = torch.tensor([[0.0, 0.0, 0.31], [0.2, -0.1, 0.31]])
+    above = look_at(torch.tensor([0.0, 0.0, 2.0]), torch.zeros(3))
+    below = look_at(torch.tensor([0.0, 0.0, -2.0]), torch.zeros(3))
+    away = look_at(torch.tensor([0.0, 0.0, 2.0]), torch.tensor([0.0, 0.0, 4.0]))
+    assert cube_renderer.line_of_sight(points, above[None], INTR).all()
+    assert not cube_renderer.line_of_sight(points, below[None], INTR).any()
+    assert not cube_renderer.line_of_sight(points, away[None], INTR).any()
+    assert cube_renderer.line_of_sight(points, torch.stack([below, away, above]), INTR).all()
+
+
 def test_resolve_backend(monkeypatch):
     assert resolve_backend("egl") == "egl" and resolve_backend("osmesa") == "osmesa"
     monkeypatch.setenv("PYOPENGL_PLATFORM", "osmesa")
