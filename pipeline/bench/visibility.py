@@ -128,7 +128,8 @@ def _mean_of(sets: list[dict], key: str) -> float | None:
 def main(argv: list[str]) -> None:
     parser = argparse.ArgumentParser(prog="python -m pipeline.bench visibility", description=__doc__.splitlines()[0])
     parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. train.visibility.iters=500")
-    parser.add_argument("--out", type=Path, default=REPO / "results" / "bench" / "visibility.json", help="JSON report path")
+    default_out = REPO / "results" / "bench" / "visibility.json"
+    parser.add_argument("--out", type=Path, default=default_out, help="JSON report path")
     parser.add_argument("--sets", type=int, default=3, help="candidate sets (the planner's draws at steps 0..N-1)")
     args = parser.parse_intermixed_args(argv)
     if args.sets < 1:
@@ -153,7 +154,8 @@ def main(argv: list[str]) -> None:
             model, s.planner, scene.camera_box, current, s.tau, s.collision_free,
             seeded_generator(seed, k, "candidates"),
         )  # fmt: skip
-        sets.append({"set": k, **candidate_set_report(model, obs, renderer, poses, intr, s, int(s.planner.score_chunk_rays))})
+        chunk = int(s.planner.score_chunk_rays)
+        sets.append({"set": k, **candidate_set_report(model, obs, renderer, poses, intr, s, chunk)})
     report = {
         "head_auc_mean": _mean_of(sets, "head_auc"),
         "label_auc_mean": _mean_of(sets, "label_auc"),
@@ -171,9 +173,12 @@ def main(argv: list[str]) -> None:
         "seconds": time.perf_counter() - start,
     }  # fmt: skip
     write_report(report, args.out)
-    print(f"{'set':>4}{'pixels':>8}{'seen':>7}{'head AUC':>10}{'label AUC':>11}{'rho(NVF, w/o Vis.)':>20}{'same argmax':>13}")
+    columns = (("set", 4), ("pixels", 8), ("seen", 7), ("head AUC", 10), ("label AUC", 11),
+               ("rho(NVF, w/o Vis.)", 20), ("same argmax", 13))  # fmt: skip
+    print("".join(f"{name:>{width}}" for name, width in columns))
     for r in sets:
-        print(f"{r['set']:>4}{r['object_pixels']:>8}{_show(r['seen_fraction'], '.2f'):>7}{_show(r['head_auc'], '.3f'):>10}"
-              f"{_show(r['label_auc'], '.3f'):>11}{_show(r['spearman_nvf_wo_vis'], '.3f'):>20}{str(r['same_argmax']):>13}")  # fmt: skip
+        cells = (r["set"], r["object_pixels"], _show(r["seen_fraction"], ".2f"), _show(r["head_auc"], ".3f"),
+                 _show(r["label_auc"], ".3f"), _show(r["spearman_nvf_wo_vis"], ".3f"), r["same_argmax"])  # fmt: skip
+        print("".join(f"{str(cell):>{width}}" for cell, (_, width) in zip(cells, columns, strict=True)))
     print(f"mean head AUC {_show(report['head_auc_mean'], '.3f')}, label AUC {_show(report['label_auc_mean'], '.3f')}; "
           f"{report['seconds']:.0f} s; wrote {args.out}")  # fmt: skip
