@@ -295,6 +295,8 @@ SPECS = (
         True,
         "table34_nerf_assets",
     ),
+    Spec("methods", "Every method per scene (argmax planner, no ablation)", None, ("argmax",), ("none",), "all", False,
+         "methods"),  # fmt: skip
     Spec("all_runs", "All runs: every scene and method, per scene", None, None, None, "all", False, None),
 )
 
