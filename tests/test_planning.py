@@ -15,6 +15,7 @@ from torch import nn
 
 from nvf.cameras import Intrinsics, look_at, matrix_to_pose
 from nvf.config import BaselineConfig, EntropyConfig, OptConfig, PlannerConfig
+from nvf.model import RenderResult
 from nvf.planning import (
     NoCandidatesError,
     argmax_first,
@@ -28,7 +29,6 @@ from nvf.planning import (
     select_next_view,
     top_k_first,
 )
-from nvf.model import RenderResult
 from nvf.rendering import Samples, alpha_from_density, expected_depth, ray_sum, weights_from_alpha
 from nvf.uncertainty import ViewScorer, make_scorer
 

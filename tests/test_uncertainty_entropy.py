@@ -9,8 +9,8 @@ import torch
 from nvf.config import EntropyConfig
 from nvf.uncertainty import H_MIN, gmm_entropy_upper_bound, moment_matched_entropy, ray_mixture
 from nvf.uncertainty.entropy import (
-    correlation_factor,
     corrected_entropy,
+    correlation_factor,
     entropy_floor,
     equivalent_depth,
     mixture_entropy_upper_bound,

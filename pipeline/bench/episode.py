@@ -21,6 +21,7 @@ from pipeline.bench._report import write_report
 from pipeline.records import RunRecord
 from pipeline.run import REPO, run_episode
 
+
 def step_summary(row: dict) -> dict:
     """One step's views, phase seconds, and each training stage's seconds and samples per ray."""
     summary = {"step": row["step"], "n_views": row["n_views"], **{k: round(v, 2) for k, v in row["seconds"].items()}}
