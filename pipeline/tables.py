@@ -502,7 +502,8 @@ def _save_figure(fig: Figure, path: Path) -> None:
 
 
 def curves(long: pd.DataFrame, figures: Path) -> list[Path]:
-    """Metric-vs-step curves per (scene, budget): mean ± population-std band over seeds, one line per method."""
+    """Metric-vs-step curves per (scene, budget): mean ± population-std band over seeds, one line per
+    method (colour by position, dashed for ablations)."""
     written = []
     for (scene, budget), frame in long.groupby(["scene", "budget"]):
         fig = Figure(figsize=(16, 7), dpi=80)
@@ -510,13 +511,16 @@ def curves(long: pd.DataFrame, figures: Path) -> list[Path]:
         axes = fig.subplots(2, 4).ravel()
         groups = sorted(frame.groupby(["method", "planner", "ablation"]), key=lambda kv: _label_rank(*kv[0]))
         for ax, m in zip(axes, PAPER_METRICS):
-            for (method, planner, ablation), group in groups:
+            for i, ((method, planner, ablation), group) in enumerate(groups):
                 series = group[group["metric"] == m.name].groupby("step")["value"]
                 mean, std = series.mean(), series.std(ddof=0).fillna(0.0)
                 if mean.notna().any():
-                    line = ax.plot(mean.index, mean.to_numpy(), label=method_label(method, planner, ablation))[0]
+                    color = f"C{i % 10}"  # the 10-colour cycle; ablations dashed, so no two lines look alike
+                    style = "-" if ablation == "none" else "--"
+                    label = method_label(method, planner, ablation)
+                    ax.plot(mean.index, mean.to_numpy(), color=color, linestyle=style, label=label)
                     low, high = (mean - std).to_numpy(), (mean + std).to_numpy()
-                    ax.fill_between(mean.index, low, high, alpha=0.2, color=line.get_color())
+                    ax.fill_between(mean.index, low, high, alpha=0.2, color=color)
             ax.set_title(f"{m.label} {m.arrow}")
             ax.set_xlabel("step")
         handles, labels = axes[0].get_legend_handles_labels()
