@@ -87,7 +87,8 @@ def test_aggregation_mean_population_std_best_and_n(tmp_path):
 
 def test_every_table_written_and_no_runs_yet(tmp_path):
     written, _ = build_tables(tmp_path / "missing", [tmp_path / "also_missing"], tmp_path / "res")
-    for name in ("main", "table1_opt", "table2_ablation", "table34_nerf_assets", "methods", "all_runs", "paper_comparison"):
+    names = ("main", "table1_opt", "table2_ablation", "table34_nerf_assets", "methods", "all_runs", "paper_comparison")
+    for name in names:
         for flavor in ("md", "csv", "tex"):
             text = read(tmp_path / "res" / "tables" / f"{name}.{flavor}")
             assert "No runs yet" in text, (name, flavor)

@@ -29,16 +29,14 @@ from jaxtyping import Float
 from torch import Tensor
 from tqdm import tqdm
 
-from nvf.cameras import Intrinsics, camera_directions, matrix_to_pose, pose_to_matrix, rays_from_camera_dirs
-from nvf.planning import candidate_poses, score_poses, seeded_generator
-from nvf.training import STAGES, train_model
+from nvf.cameras import Intrinsics, camera_directions, pose_to_matrix, rays_from_camera_dirs
+from nvf.planning import score_poses
+from nvf.training import STAGES
 from nvf.uncertainty import make_scorer
 from nvf.uncertainty.scorers import METHODS
 from pipeline.bench._report import write_report
 from pipeline.bench.field import mlp_flops
-from pipeline.bench.train import CountingModel, compose_config, load, observations
-from pipeline.episode import EpisodeSettings
-from pipeline.render import GroundTruthRenderer
+from pipeline.bench.train import CountingModel, InitialViewModel, compose_config
 from pipeline.scenes import REPO
 
 CANDIDATES = 512  # the paper's N; a later planner.num_candidates=... override wins
@@ -76,20 +74,11 @@ def main(argv: list[str]) -> None:
         parser.error("--repeats and --blocks must be >= 1")
     start = time.perf_counter()
     cfg = compose_config([f"planner.num_candidates={CANDIDATES}", *args.overrides])
-    scene = load(cfg)
-    s = EpisodeSettings.of(cfg, scene)
+    setup = InitialViewModel.train(cfg, CountingModel)
+    s, obs, model = setup.settings, setup.obs, setup.model
     size = int(cfg.budget.image_size)
-    renderer = GroundTruthRenderer(scene.mesh)
-    obs = observations(renderer, scene.init_poses, Intrinsics.from_fov(size, size))
-
-    torch.manual_seed(int(cfg.seed))
-    model = CountingModel(scene.object_aabb, s.field, s.sampler)
-    stats = train_model(model, obs, s.train, STAGES, s.entropy, torch.Generator().manual_seed(int(cfg.seed)))
     planner = s.planner
-    poses = candidate_poses(
-        model, planner, scene.camera_box, matrix_to_pose(scene.init_poses[-1].to(torch.float32)), s.tau,
-        s.collision_free, seeded_generator(int(cfg.seed), 0, "candidates"),
-    )  # fmt: skip
+    poses = setup.candidates(0)
     res = int(planner.resolution)
     intr = Intrinsics.from_fov(res, res)
     chunk = int(planner.score_chunk_rays)
@@ -137,7 +126,7 @@ def main(argv: list[str]) -> None:
             "field_backend": s.field.backend, "log2_hashmap_size": s.field.log2_hashmap_size,
             "training_views": obs.num_images, "image_size": size,
             "train_iters": {stage: getattr(s.train, stage).iters for stage in STAGES},
-            "train_seconds": stats.seconds, "candidates": m, "candidates_requested": planner.num_candidates,
+            "train_seconds": setup.train_seconds, "candidates": m, "candidates_requested": planner.num_candidates,
             "resolution": res, "chunk_rays": chunk, "tau": s.tau, "collision_free": s.collision_free,
             "heads": {method: sorted(scorer.heads) for method, scorer in scorers.items()},
             "samplers": {method: scorer.sampler for method, scorer in scorers.items()},
@@ -156,6 +145,6 @@ def main(argv: list[str]) -> None:
     print(
         f"NVF / plain render = {ratio:.2f} (goal <= {GOAL_NVF_OVER_PLAIN}: "
         f"{'met' if report['goal_met'] else 'not met'}; MLP FLOPs {report['nvf_over_plain_mlp_flops']:.1f}x); "
-        f"{m} candidates at {res}x{res}; training {stats.seconds:.0f} s; {report['seconds']:.0f} s"
+        f"{m} candidates at {res}x{res}; training {setup.train_seconds:.0f} s; {report['seconds']:.0f} s"
     )
     print(f"wrote {args.out}")

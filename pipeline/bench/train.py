@@ -21,6 +21,7 @@ import argparse
 import math
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -31,11 +32,12 @@ from omegaconf import DictConfig
 from torch import Tensor
 from tqdm import tqdm
 
-from nvf.cameras import Intrinsics, look_at
+from nvf.cameras import Intrinsics, look_at, matrix_to_pose
 from nvf.encoding import cpp_extension
 from nvf.field import HEADS
 from nvf.model import RenderResult, SceneModel
-from nvf.training import Observations, train_backbone
+from nvf.planning import candidate_poses, seeded_generator
+from nvf.training import STAGES, Observations, train_backbone, train_model
 from pipeline.bench._report import write_report
 from pipeline.bench.field import matmul_gflops, median_seconds, mlp_flops
 from pipeline.config import ConfigError, register_configs, validate
@@ -92,6 +94,42 @@ def observations(renderer: GroundTruthRenderer, poses: Float[Tensor, "n 4 4"], i
         [torch.cat([torch.from_numpy(v.rgb), torch.from_numpy(v.mask)[..., None].float()], -1) for v in views]
     )
     return Observations(images, poses.to(torch.float32), intr)
+
+
+@dataclass
+class InitialViewModel:
+    """A full NVF model (all three stages, at the budget) trained on the scene's initial views: the
+    model of an episode's first planning step, shared by the ``plan`` and ``visibility`` benchmarks."""
+
+    cfg: DictConfig
+    scene: Scene
+    settings: EpisodeSettings
+    renderer: GroundTruthRenderer
+    obs: Observations
+    model: SceneModel
+    train_seconds: float
+
+    @staticmethod
+    def train(cfg: DictConfig, model_cls: type[SceneModel] = SceneModel) -> "InitialViewModel":
+        scene = load(cfg)
+        s = EpisodeSettings.of(cfg, scene)
+        size = int(cfg.budget.image_size)
+        renderer = GroundTruthRenderer(scene.mesh)
+        obs = observations(renderer, scene.init_poses, Intrinsics.from_fov(size, size))
+        torch.manual_seed(int(cfg.seed))
+        model = model_cls(scene.object_aabb, s.field, s.sampler)
+        stats = train_model(model, obs, s.train, STAGES, s.entropy, torch.Generator().manual_seed(int(cfg.seed)))
+        return InitialViewModel(cfg, scene, s, renderer, obs, model, stats.seconds)
+
+    def candidates(self, step: int) -> Float[Tensor, "m 7"]:
+        """The candidate poses the planner would draw at ``step`` (METHOD 13, M28/M29 filters), from
+        the last initial view."""
+        s = self.settings
+        current = matrix_to_pose(self.scene.init_poses[-1].to(torch.float32))
+        return candidate_poses(
+            self.model, s.planner, self.scene.camera_box, current, s.tau, s.collision_free,
+            seeded_generator(int(self.cfg.seed), step, "candidates"),
+        )  # fmt: skip
 
 
 def held_out_poses(

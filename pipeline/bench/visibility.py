@@ -29,18 +29,16 @@ from jaxtyping import Float
 from scipy import stats
 from torch import Tensor
 
-from nvf.cameras import Intrinsics, matrix_to_pose, pixel_rays, pose_to_matrix
+from nvf.cameras import Intrinsics, pixel_rays, pose_to_matrix
 from nvf.config import TrainConfig
 from nvf.model import SceneModel
-from nvf.planning import candidate_poses, score_poses, seeded_generator
+from nvf.planning import score_poses
 from nvf.rendering import ray_sum
-from nvf.training import STAGES, Observations, train_model
-from nvf.uncertainty import make_scorer
+from nvf.training import Observations
+from nvf.uncertainty import ViewScorer, make_scorer
 from nvf.visibility import visibility_labels
 from pipeline.bench._report import write_report
-from pipeline.bench.train import compose_config, load, observations
-from pipeline.episode import EpisodeSettings
-from pipeline.render import GroundTruthRenderer
+from pipeline.bench.train import InitialViewModel, compose_config
 from pipeline.scenes import REPO
 
 SURFACE_OFFSET = 0.01  # scene units: the surface point moves this far towards the candidate camera
@@ -49,11 +47,10 @@ MIN_ACCUMULATION = 0.5  # PROTOCOL 4.2's surface rule
 
 @torch.no_grad()
 def weighted_visibility(
-    model: SceneModel, obs: Observations, c2w: Float[Tensor, "4 4"], intr: Intrinsics, cfg: TrainConfig
+    model: SceneModel, obs: Observations, origins: Float[Tensor, "R 3"], dirs: Float[Tensor, "R 3"], cfg: TrainConfig
 ) -> tuple[Float[Tensor, " R"], Float[Tensor, " R"], Float[Tensor, " R"]]:
-    """Per pixel of the view ``c2w``: accumulation ``A``, ``sum_i w_i v_i / A`` of the head and
-    ``sum_i w_i V*_i / A`` of the labels (M18, deterministic sample offsets)."""
-    origins, dirs = pixel_rays(c2w, intr)
+    """Per ray: accumulation ``A``, ``sum_i w_i v_i / A`` of the head and ``sum_i w_i V*_i / A`` of
+    the labels (M18, deterministic sample offsets)."""
     result = model.render(origins, dirs, heads=frozenset({"visibility"}))
     samples = result.samples
     labels = visibility_labels(model.density, samples.positions(origins, dirs), obs.c2w, obs.intrinsics, cfg)
@@ -82,14 +79,15 @@ def _mean(values: np.ndarray) -> float | None:
 
 
 def candidate_set_report(
-    model: SceneModel, obs: Observations, renderer: GroundTruthRenderer, poses: Float[Tensor, "m 7"],
-    intr: Intrinsics, settings: EpisodeSettings, chunk: int,
-) -> dict:  # fmt: skip
-    """Seen/unseen separation of the head and the labels over one candidate set, and NVF vs w/o Vis."""
+    setup: InitialViewModel, poses: Float[Tensor, "m 7"], intr: Intrinsics, scorers: tuple[ViewScorer, ViewScorer]
+) -> dict:
+    """Seen/unseen separation of the head and the labels over one candidate set, and the view rewards
+    of ``scorers`` (NVF, w/o Vis.) compared."""
+    model, obs, renderer = setup.model, setup.obs, setup.renderer
     head, label, seen = [], [], []
     for c2w in pose_to_matrix(poses):
-        acc, head_v, label_v = weighted_visibility(model, obs, c2w, intr, settings.train)
         origins, dirs = pixel_rays(c2w, intr)
+        acc, head_v, label_v = weighted_visibility(model, obs, origins, dirs, setup.settings.train)
         t_hit, _ = renderer.cast_rays(origins.numpy(), dirs.numpy())
         pixels = torch.from_numpy(np.isfinite(t_hit)) & (acc > MIN_ACCUMULATION)
         t = torch.from_numpy(t_hit)[pixels] - SURFACE_OFFSET
@@ -98,11 +96,8 @@ def candidate_set_report(
         head.append(head_v[pixels].numpy())
         label.append(label_v[pixels].numpy())
     seen_all, head_all, label_all = (np.concatenate(x) for x in (seen, head, label))
-    nvf = make_scorer("nvf", settings.entropy, settings.baseline, float(settings.entropy.d0))
-    blind = dataclasses.replace(settings.entropy, use_visibility=False)
-    wo_vis = make_scorer("nvf", blind, settings.baseline, float(settings.entropy.d0))
-    nvf_scores = score_poses(model, nvf, poses, intr, chunk).numpy()
-    wo_vis_scores = score_poses(model, wo_vis, poses, intr, chunk).numpy()
+    chunk = int(setup.settings.planner.score_chunk_rays)
+    nvf_scores, wo_vis_scores = (score_poses(model, scorer, poses, intr, chunk).numpy() for scorer in scorers)
     return {
         "candidates": int(poses.shape[0]),
         "object_pixels": int(len(seen_all)),
@@ -136,26 +131,14 @@ def main(argv: list[str]) -> None:
         parser.error("--sets must be >= 1")
     start = time.perf_counter()
     cfg = compose_config(["planner.num_candidates=64", *args.overrides])
-    scene = load(cfg)
-    s = EpisodeSettings.of(cfg, scene)
-    size = int(cfg.budget.image_size)
-    renderer = GroundTruthRenderer(scene.mesh)
-    obs = observations(renderer, scene.init_poses, Intrinsics.from_fov(size, size))
-    seed = int(cfg.seed)
-    torch.manual_seed(seed)
-    model = SceneModel(scene.object_aabb, s.field, s.sampler)
-    train_model(model, obs, s.train, STAGES, s.entropy, torch.Generator().manual_seed(seed))
+    setup = InitialViewModel.train(cfg)
+    s, seed, size = setup.settings, int(cfg.seed), int(cfg.budget.image_size)
     res = int(s.planner.resolution)
     intr = Intrinsics.from_fov(res, res)
-    current = matrix_to_pose(scene.init_poses[-1].to(torch.float32))
-    sets = []
-    for k in range(args.sets):
-        poses = candidate_poses(
-            model, s.planner, scene.camera_box, current, s.tau, s.collision_free,
-            seeded_generator(seed, k, "candidates"),
-        )  # fmt: skip
-        chunk = int(s.planner.score_chunk_rays)
-        sets.append({"set": k, **candidate_set_report(model, obs, renderer, poses, intr, s, chunk)})
+    d0 = float(s.entropy.d0)
+    blind = dataclasses.replace(s.entropy, use_visibility=False)
+    scorers = (make_scorer("nvf", s.entropy, s.baseline, d0), make_scorer("nvf", blind, s.baseline, d0))
+    sets = [{"set": k, **candidate_set_report(setup, setup.candidates(k), intr, scorers)} for k in range(args.sets)]
     report = {
         "head_auc_mean": _mean_of(sets, "head_auc"),
         "label_auc_mean": _mean_of(sets, "label_auc"),
@@ -164,7 +147,7 @@ def main(argv: list[str]) -> None:
         "sets": sets,
         "settings": {
             "budget": cfg.budget.name, "scene": cfg.scene.name, "field_kind": s.field.kind, "seed": seed,
-            "training_views": obs.num_images, "image_size": size, "resolution": res,
+            "training_views": setup.obs.num_images, "image_size": size, "resolution": res,
             "candidates_requested": int(s.planner.num_candidates), "label_samples": s.train.label_samples,
             "head_iters": {stage: getattr(s.train, stage).iters for stage in ("variance", "visibility")},
             "head_lr": {stage: getattr(s.train, stage).lr for stage in ("variance", "visibility")},
