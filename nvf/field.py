@@ -26,6 +26,9 @@ VIS_POSITION_WIDTH = 128
 VIS_POSITION_FEATURES = 32
 APPEARANCE_DIM = 32
 MIN_VARIANCE = 1e-4  # q >= 1e-4 (METHOD section 3, section 15.4)
+# Rows per block of an MLP evaluated without autograd: a 2048 x 128 float activation is 1 MiB, the
+# two cores' L2 (benchmark: python -m pipeline.bench plan).
+INFERENCE_BLOCK = 2048
 
 
 @dataclass
@@ -90,14 +93,27 @@ def spherical_harmonics(d: Float[Tensor, "S 3"]) -> Float[Tensor, "S 16"]:
     )
 
 
-def mlp(sizes: list[int], bias: bool) -> nn.Sequential:
-    """Linear layers ``sizes[0] -> ... -> sizes[-1]`` with ReLU between them, none after the last."""
-    layers: list[nn.Module] = []
-    for i, (fan_in, fan_out) in enumerate(zip(sizes[:-1], sizes[1:])):
-        layers.append(nn.Linear(fan_in, fan_out, bias=bias))
-        if i < len(sizes) - 2:
-            layers.append(nn.ReLU(inplace=True))
-    return nn.Sequential(*layers)
+class MLP(nn.Sequential):
+    """Linear layers ``sizes[0] -> ... -> sizes[-1]`` with ReLU between them, none after the last.
+
+    On the CPU without autograd, ``[N, sizes[0]]`` inputs run in blocks of ``INFERENCE_BLOCK`` rows, so
+    every hidden activation of a block stays in the cores' caches instead of streaming ``N x width``
+    floats through memory at every layer. Each row's values are unchanged (a row's dot products do not
+    depend on the other rows). With autograd, or on CUDA, the whole batch runs at once.
+    """
+
+    def __init__(self, sizes: list[int], bias: bool):
+        layers: list[nn.Module] = []
+        for i, (fan_in, fan_out) in enumerate(zip(sizes[:-1], sizes[1:])):
+            layers.append(nn.Linear(fan_in, fan_out, bias=bias))
+            if i < len(sizes) - 2:
+                layers.append(nn.ReLU(inplace=True))
+        super().__init__(*layers)
+
+    def forward(self, x: Float[Tensor, "N I"]) -> Float[Tensor, "N O"]:
+        if torch.is_grad_enabled() or x.device.type != "cpu" or x.shape[0] <= INFERENCE_BLOCK:
+            return super().forward(x)
+        return torch.cat([super(MLP, self).forward(block) for block in x.split(INFERENCE_BLOCK)])
 
 
 def make_encoding(cfg: FieldConfig) -> HashEncoding:
@@ -127,13 +143,13 @@ class RadianceField(nn.Module):
         self.register_buffer("aabb", aabb.detach().to(torch.float32).clone())
         width, geo = cfg.hidden_dim, cfg.geo_feat_dim
         self.encoding = make_encoding(cfg)
-        self.density_mlp = mlp([self.encoding.out_dim, width, 1 + geo], cfg.mlp_bias)
+        self.density_mlp = MLP([self.encoding.out_dim, width, 1 + geo], cfg.mlp_bias)
         head_in = SH_DIM + geo + (APPEARANCE_DIM if cfg.appearance_embedding else 0)
         self.appearance = nn.Embedding(num_images, APPEARANCE_DIM) if cfg.appearance_embedding else None
-        self.color_head = mlp([head_in, width, width, 3], cfg.mlp_bias)
-        self.variance_head = mlp([head_in, width, width, 3], cfg.mlp_bias)
-        self.vis_position = mlp([3, VIS_POSITION_WIDTH, VIS_POSITION_WIDTH, VIS_POSITION_FEATURES], cfg.mlp_bias)
-        self.vis_head = mlp([geo + VIS_POSITION_FEATURES, width, width, 1], cfg.mlp_bias)
+        self.color_head = MLP([head_in, width, width, 3], cfg.mlp_bias)
+        self.variance_head = MLP([head_in, width, width, 3], cfg.mlp_bias)
+        self.vis_position = MLP([3, VIS_POSITION_WIDTH, VIS_POSITION_WIDTH, VIS_POSITION_FEATURES], cfg.mlp_bias)
+        self.vis_head = MLP([geo + VIS_POSITION_FEATURES, width, width, 1], cfg.mlp_bias)
 
     def normalize(self, x: Float[Tensor, "S 3"]) -> Float[Tensor, "S 3"]:
         """World points into ``[0,1]^3`` by the object AABB (no contraction)."""

@@ -6,6 +6,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from pipeline.bench import __main__ as bench
 from pipeline.bench import episode, plan, train, visibility
@@ -29,8 +30,14 @@ def test_train_bench_writes_rates_fractions_and_psnr(tmp_path):
     keys = ["train_samples_per_s", "infer_samples_per_s", "infer_rgb_samples_per_s", "train_fraction_of_limit",
             "infer_fraction_of_limit", "matmul_gflops", "heldout_psnr", "train_view_psnr",
             "heldout_psnr_off_edges"]  # fmt: skip
-    report = _assert_positive(out, keys)
+    report = _assert_positive(out, [*keys, "train_samples_per_s_at_limit", "infer_samples_per_s_at_limit"])
     assert report["settings"]["budget"] == "smoke" and report["settings"]["training_views"] == 20
+    for key in ("train", "infer"):  # the limit is the matmul rate over the MLP FLOPs per sample
+        limit = report["matmul_gflops"] * 1e9 / report[f"mlp_flops_{key}"]
+        assert report[f"{key}_samples_per_s_at_limit"] == pytest.approx(limit)
+        assert report[f"{key}_fraction_of_limit"] == pytest.approx(report[f"{key}_samples_per_s"] / limit)
+        goal = train.GOALS[f"{key}_samples_per_s"]
+        assert report["goals_within_limit"][f"{key}_samples_per_s"] == (limit >= goal)
 
 
 def test_plan_bench_writes_every_scorer_against_a_plain_render(tmp_path):
@@ -38,8 +45,10 @@ def test_plan_bench_writes_every_scorer_against_a_plain_render(tmp_path):
     plan.main(["budget=smoke", "planner.num_candidates=16", "--repeats", "1", "--out", str(out)])
     keys = ["nvf_over_plain_render", "nvf_over_plain_mlp_flops", "candidates_per_s_plain_render",
             *(f"candidates_per_s_{m}" for m in plan.SCORED)]  # fmt: skip
-    report = _assert_positive(out, keys)
+    report = _assert_positive(out, [*keys, "matmul_gflops", "nvf_extra_fraction_of_limit"])
     assert set(plan.SCORED) == {"wd", "activermap", "air", "activenerf", "neurar", "nvf"}
+    assert report["nvf_over_plain_render_at_limit"] > 1.0  # the extra heads cost FLOPs
+    assert report["goal_within_limit"] == (report["nvf_over_plain_render_at_limit"] <= plan.GOAL_NVF_OVER_PLAIN)
     assert report["settings"]["candidates"] <= 16
 
 

@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from nvf.config import FieldConfig
-from nvf.field import HEADS, RadianceField, spherical_harmonics, trunc_exp
+from nvf.field import HEADS, INFERENCE_BLOCK, MLP, RadianceField, spherical_harmonics, trunc_exp
 
 AABB = torch.tensor([[-1.0, -2.0, 0.0], [1.0, 2.0, 1.0]])
 SMALL = dict(num_levels=4, log2_hashmap_size=12, base_resolution=4, max_resolution=32)
@@ -145,3 +145,19 @@ def test_spherical_harmonics_are_orthonormal():
     y = spherical_harmonics(d)
     gram = 4 * torch.pi * (y.T @ y) / d.shape[0]
     torch.testing.assert_close(gram, torch.eye(16, dtype=torch.float64), atol=0.03, rtol=0)
+
+
+def test_mlp_runs_in_row_blocks_without_autograd_with_the_same_values():
+    """Inference runs ``INFERENCE_BLOCK`` rows at a time (cache-resident activations); the rows' values
+    equal the one-batch forward that autograd uses."""
+    torch.manual_seed(0)
+    net = MLP([3, 128, 128, 32], bias=False)
+    calls = []
+    net[0].register_forward_hook(lambda module, args, out: calls.append(out.shape[0]))
+    x = torch.rand(2 * INFERENCE_BLOCK + 7, 3)
+    whole = net(x)
+    assert calls == [x.shape[0]]
+    with torch.no_grad():
+        blocked = net(x)
+    assert calls[1:] == [INFERENCE_BLOCK, INFERENCE_BLOCK, 7]
+    torch.testing.assert_close(blocked, whole.detach(), rtol=1e-5, atol=1e-6)
