@@ -131,7 +131,7 @@ def main(argv: list[str]) -> None:
         "goal_nvf_over_plain_render": GOAL_NVF_OVER_PLAIN,
         "goal_met": ratio <= GOAL_NVF_OVER_PLAIN,
         "goal_within_limit": report["nvf_over_plain_render_at_limit"] <= GOAL_NVF_OVER_PLAIN,
-        "nvf_over_plain_mlp_flops": mlp_flops(model.field, scorers["nvf"].heads, False) / mlp_flops(model.field, rgb, False),
+        "nvf_over_plain_mlp_flops": extra_flops / mlp_flops(model.field, rgb, False) + 1.0,
         "seconds_per_block": {name: wall[name] for name in jobs},
         "settings": {
             "budget": cfg.budget.name, "scene": cfg.scene.name, "field_kind": s.field.kind,
