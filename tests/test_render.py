@@ -1,4 +1,5 @@
-"""Ground-truth renderer vs nvf.cameras rays: depth, camera convention, flat colours, masks and face ids (PROTOCOL 1)."""
+"""Ground-truth renderer vs nvf.cameras rays: depth, camera convention, flat colours, masks, face ids and
+supersampling (PROTOCOL 1)."""
 
 import numpy as np
 import pytest
@@ -11,9 +12,9 @@ from pipeline.render import GroundTruthRenderer, resolve_backend
 INTR = Intrinsics.from_fov(96, 80)  # non-square on purpose: width and height must not be swapped
 
 
-def _slab_depth(c2w: torch.Tensor, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+def _slab_depth(c2w: torch.Tensor, lo: np.ndarray, hi: np.ndarray, intr: Intrinsics = INTR) -> np.ndarray:
     """Analytic camera z-depth of an axis-aligned box along the pixel-centre rays (0 = miss)."""
-    origins, dirs = (x.double().numpy() for x in pixel_rays(c2w, INTR))
+    origins, dirs = (x.double().numpy() for x in pixel_rays(c2w, intr))
     with np.errstate(divide="ignore", invalid="ignore"):
         t0, t1 = (lo - origins) / dirs, (hi - origins) / dirs
     t_near = np.minimum(t0, t1).max(axis=1)
@@ -21,7 +22,7 @@ def _slab_depth(c2w: torch.Tensor, lo: np.ndarray, hi: np.ndarray) -> np.ndarray
     hit = (t_far >= t_near) & (t_far > 0)
     axis = -c2w[:3, 2].double().numpy()
     depth = np.where(hit, t_near * (dirs @ axis), 0.0)
-    return depth.reshape(INTR.height, INTR.width)
+    return depth.reshape(intr.height, intr.width)
 
 
 @pytest.fixture(scope="module")
@@ -58,6 +59,28 @@ def test_flat_colour_black_background_and_face_ids(cube_renderer):
     ids = view.face_id[hit]
     to_camera = c2w[:3, 3].numpy() - mesh.triangles_center[ids]
     assert np.all(np.einsum("ij,ij->i", mesh.face_normals[ids], to_camera) > 0)
+
+
+def test_supersampled_rgba_is_the_mean_of_sub_pixel_samples(cube_renderer):
+    """``render_rgba(k)``: coverage alpha = the fraction of the pixel's k x k sub-pixel rays that hit
+    (analytic box), colour premultiplied over black; ``k = 1`` is ``render``'s RGB and mask."""
+    c2w = look_at(torch.tensor([1.5, 1.2, 1.0]), torch.tensor([0.0, 0.0, 0.0]))
+    one = cube_renderer.render(c2w, INTR)
+    np.testing.assert_array_equal(
+        cube_renderer.render_rgba(c2w, INTR, 1), np.concatenate([one.rgb, one.mask[..., None]], axis=-1)
+    )
+    rgba = cube_renderer.render_rgba(c2w, INTR, 4)
+    assert rgba.shape == (80, 96, 4) and rgba.dtype == np.float32
+    fine = Intrinsics(INTR.width * 4, INTR.height * 4, INTR.focal * 4)
+    hits = _slab_depth(c2w, np.array([-0.5, -0.4, -0.3]), np.array([0.5, 0.4, 0.3]), fine) > 0
+    coverage = hits.reshape(80, 4, 96, 4).mean(axis=(1, 3))
+    assert np.abs(rgba[..., 3] - coverage).mean() < 5e-4  # a 1% zoom of the sub-pixel grid gives 1.3e-3
+    edge = (rgba[..., 3] > 0.1) & (rgba[..., 3] < 0.9)
+    assert edge.sum() > 30
+    colour = np.array([200, 100, 50]) / 255
+    np.testing.assert_allclose(rgba[edge, :3] / rgba[edge, 3:], np.broadcast_to(colour, (edge.sum(), 3)), atol=2e-2)
+    with pytest.raises(ValueError, match="samples_per_side"):
+        cube_renderer.render_rgba(c2w, INTR, 0)
 
 
 def test_camera_convention_matches_project():
