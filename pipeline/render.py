@@ -193,14 +193,20 @@ class GroundTruthRenderer:
         origins, dirs = pixel_rays(torch.from_numpy(c2w.astype(np.float32)), intr)
         return self.cast_rays(origins.numpy(), dirs.numpy())[1].reshape(intr.height, intr.width)
 
-    def render(self, c2w: Float[Tensor, "4 4"] | Float[np.ndarray, "4 4"], intr: Intrinsics) -> GTView:
-        """Render RGB, depth, mask and face ids of the mesh seen from ``c2w``."""
+    def _masked_view(
+        self, c2w: Float[Tensor, "4 4"] | Float[np.ndarray, "4 4"], intr: Intrinsics
+    ) -> tuple[Float[np.ndarray, "4 4"], Float[np.ndarray, "H W 3"], Float[np.ndarray, "H W"], Bool[np.ndarray, "H W"]]:
+        """The float64 pose, RGB (black where nothing is hit), depth and hit mask of the view ``c2w``."""
         pose = c2w.detach().cpu().numpy() if isinstance(c2w, Tensor) else np.asarray(c2w)
         pose = pose.astype(np.float64)
         rgb, depth = self.render_rgb_depth(pose, intr)
         mask = depth > 0
-        return GTView(rgb=np.where(mask[..., None], rgb, 0.0).astype(np.float32), depth=depth, mask=mask,
-                      face_id=self.face_ids(pose, intr))
+        return pose, np.where(mask[..., None], rgb, 0.0).astype(np.float32), depth, mask
+
+    def render(self, c2w: Float[Tensor, "4 4"] | Float[np.ndarray, "4 4"], intr: Intrinsics) -> GTView:
+        """Render RGB, depth, mask and face ids of the mesh seen from ``c2w``."""
+        pose, rgb, depth, mask = self._masked_view(c2w, intr)
+        return GTView(rgb=rgb, depth=depth, mask=mask, face_id=self.face_ids(pose, intr))
 
     def render_rgba(
         self, c2w: Float[Tensor, "4 4"] | Float[np.ndarray, "4 4"], intr: Intrinsics, samples_per_side: int = 1
@@ -212,8 +218,8 @@ class GroundTruthRenderer:
         if samples_per_side < 1:
             raise ValueError(f"samples_per_side must be >= 1, got {samples_per_side}")
         k = samples_per_side
-        view = self.render(c2w, Intrinsics(intr.width * k, intr.height * k, intr.focal * k))
-        rgba = np.concatenate([view.rgb, view.mask[..., None].astype(np.float32)], axis=-1)
+        _, rgb, _, mask = self._masked_view(c2w, Intrinsics(intr.width * k, intr.height * k, intr.focal * k))
+        rgba = np.concatenate([rgb, mask[..., None].astype(np.float32)], axis=-1)
         return rgba.reshape(intr.height, k, intr.width, k, 4).mean(axis=(1, 3), dtype=np.float64).astype(np.float32)
 
     def close(self) -> None:

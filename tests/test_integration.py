@@ -12,9 +12,10 @@ from hydra import compose, initialize_config_dir
 from nvf.cameras import Intrinsics, look_at, matrix_to_pose
 from nvf.model import SceneModel
 from nvf.planning import score_poses
-from nvf.training import Observations, train_model
+from nvf.training import train_model
 from nvf.uncertainty import make_scorer
 from nvf.visibility import visibility_labels
+from pipeline.bench.train import observations
 from pipeline.episode import EpisodeSettings
 from pipeline.metrics import edge_pixels, off_edge_psnr, psnr
 from pipeline.render import GroundTruthRenderer
@@ -34,14 +35,6 @@ def setup():
     renderer = GroundTruthRenderer(scene.mesh)
     size = int(cfg.budget.image_size)
     return cfg, scene, settings, renderer, Intrinsics.from_fov(size, size)
-
-
-def observations(renderer, poses, intr) -> Observations:
-    views = [renderer.render(c2w, intr) for c2w in poses]
-    images = torch.stack(
-        [torch.cat([torch.from_numpy(v.rgb), torch.from_numpy(v.mask)[..., None].float()], -1) for v in views]
-    )
-    return Observations(images, torch.stack(list(poses)), intr)
 
 
 def trained(settings, scene, obs, stages, seed=0) -> SceneModel:
