@@ -17,8 +17,9 @@ MLP FLOPs per sample (METHOD 3's variance and visibility heads against density +
 ``nvf_over_plain_render_at_limit`` is the ratio (from the summed times) if NVF's extra MLP FLOPs ran
 at the ``[2048, 128] x [128, 128]`` matmul rate measured in the same run (``matmul_gflops``, the
 visibility position MLP's hidden layer in one inference block) and its other extra work were free;
-``nvf_extra_fraction_of_limit`` is that ideal time over NVF's measured extra time. The model runs on
-the CPU. Writes ``results/bench/plan.json`` (or ``--out``) and prints a table.
+``nvf_extra_fraction_of_limit`` is that ideal time over NVF's measured extra time (summed NVF time minus
+summed plain time), or ``null`` when that difference is not positive (timing noise larger than the extra
+work, as with a few tiny candidates). The model runs on the CPU. Writes ``results/bench/plan.json`` (or ``--out``) and prints a table.
 """
 
 import argparse
@@ -125,7 +126,8 @@ def main(argv: list[str]) -> None:
     plain_seconds = sum(wall["plain_render"])
     extra_seconds_at_limit = extra_flops * kept["nvf"] / (report["matmul_gflops"] * 1e9)
     report["nvf_over_plain_render_at_limit"] = 1.0 + extra_seconds_at_limit / plain_seconds
-    report["nvf_extra_fraction_of_limit"] = extra_seconds_at_limit / (sum(wall["nvf"]) - plain_seconds)
+    extra_seconds = sum(wall["nvf"]) - plain_seconds
+    report["nvf_extra_fraction_of_limit"] = extra_seconds_at_limit / extra_seconds if extra_seconds > 0 else None
     report.update({
         "goal_nvf_over_plain_render": GOAL_NVF_OVER_PLAIN,
         "goal_met": ratio <= GOAL_NVF_OVER_PLAIN,
@@ -153,11 +155,13 @@ def main(argv: list[str]) -> None:
         x = 1.0 if name == "plain_render" else report[f"{name}_over_plain_render"]
         rate, rate_cpu = report[f"candidates_per_s_{name}"], report[f"candidates_per_s_{name}_cpu"]
         print(f"{name:14}{rate:>10.1f}{rate_cpu:>10.1f}{x:>9.2f}")
+    fraction = report["nvf_extra_fraction_of_limit"]
     print(
         f"NVF / plain render = {ratio:.2f} (goal <= {GOAL_NVF_OVER_PLAIN}: "
         f"{'met' if report['goal_met'] else 'not met'}; MLP FLOPs {report['nvf_over_plain_mlp_flops']:.1f}x; "
         f"{report['nvf_over_plain_render_at_limit']:.2f} with the extra heads at "
-        f"{report['matmul_gflops']:.0f} GFLOP/s, they run at {report['nvf_extra_fraction_of_limit']:.0%} of it); "
+        f"{report['matmul_gflops']:.0f} GFLOP/s, they run at "
+        f"{'an unmeasurable fraction' if fraction is None else f'{fraction:.0%}'} of it); "
         f"{m} candidates at {res}x{res}; training {setup.train_seconds:.0f} s; {report['seconds']:.0f} s"
     )
     print(f"wrote {args.out}")
