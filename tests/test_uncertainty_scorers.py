@@ -113,7 +113,7 @@ def test_without_visibility_is_the_full_pipeline_with_v_one():
     """(METHOD 11, w/o Vis.) Only v changes, to 1; the visibility head is not requested."""
     result = random_result()
     scorer = NVFEntropyScorer(replace(CFG, use_visibility=False), d0=1.0)
-    assert scorer.heads == frozenset({"rgb", "variance"})
+    assert scorer.heads == frozenset({"variance"})
     got = scorer.pixel_scores(replace(result, visibility=None))
     want = NVFEntropyScorer(CFG, d0=1.0).pixel_scores(replace(result, visibility=torch.ones_like(result.alpha)))
     assert torch.allclose(got, want, atol=1e-6)
@@ -124,7 +124,7 @@ def test_without_variance_is_the_full_pipeline_with_seen_q_bg():
     """(METHOD 11, w/o Var.) Only the seen variances change, to var_bg; the head is not requested."""
     result = random_result()
     scorer = NVFEntropyScorer(replace(CFG, use_variance=False), d0=1.0)
-    assert scorer.heads == frozenset({"rgb", "visibility"})
+    assert scorer.heads == frozenset({"visibility"})
     got = scorer.pixel_scores(replace(result, variance=None))
     want = NVFEntropyScorer(CFG, d0=1.0).pixel_scores(replace(result, variance=torch.full_like(result.rgb_s, 1e-4)))
     assert torch.allclose(got, want, atol=1e-6)
@@ -139,6 +139,19 @@ def test_independent_rays_is_max_of_h_and_floor():
     want[1] = H_MIN
     assert torch.allclose(got, want, atol=1e-6)
     assert got[1].item() == H_MIN32
+
+
+def test_component_wise_bound_reads_no_means():
+    """(M10) The bound depends on weights and variances only, so NVF does not request the colour head;
+    the Loose bound (M12) does, and its score changes with the means."""
+    result = random_result()
+    assert NVFEntropyScorer(CFG, d0=1.0).heads == frozenset({"variance", "visibility"})
+    got = NVFEntropyScorer(CFG, d0=1.0).pixel_scores(replace(result, rgb_s=None))
+    assert torch.equal(got, NVFEntropyScorer(CFG, d0=1.0).pixel_scores(result))
+    loose = NVFEntropyScorer(replace(CFG, bound="moment_matched"), d0=1.0)
+    assert loose.heads == frozenset({"rgb", "variance", "visibility"})
+    shifted = replace(result, rgb_s=torch.rand_like(result.rgb_s))
+    assert not torch.allclose(loose.pixel_scores(shifted), loose.pixel_scores(result), atol=1e-3)
 
 
 def test_loose_bound_only_changes_h():
@@ -330,7 +343,7 @@ def test_make_scorer_registry():
         "air": frozenset(),
         "activenerf": frozenset({"variance"}),
         "neurar": frozenset({"variance"}),
-        "nvf": frozenset({"rgb", "variance", "visibility"}),
+        "nvf": frozenset({"variance", "visibility"}),
     }
     for method, want in heads.items():
         scorer = make_scorer(method, CFG, base, 1.0)

@@ -47,9 +47,11 @@ class NVFEntropyScorer:
 
     @property
     def heads(self) -> frozenset[str]:
-        """rgb (the component means), plus variance and visibility unless ablated."""
-        optional = {"variance": self.cfg.use_variance, "visibility": self.cfg.use_visibility}
-        return frozenset({"rgb"} | {head for head, used in optional.items() if used})
+        """variance and visibility unless ablated, plus rgb (the component means) for the Loose bound
+        (M12) only: the component-wise bound (M10) does not depend on the means."""
+        used = {"rgb": self.cfg.bound == "moment_matched", "variance": self.cfg.use_variance,
+                "visibility": self.cfg.use_visibility}  # fmt: skip
+        return frozenset(head for head, wanted in used.items() if wanted)
 
     @property
     def sampler(self) -> str:
