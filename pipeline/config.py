@@ -64,6 +64,7 @@ class BudgetConfig:
     gt_points: int = 500_000  # area-uniform samples of the GT mesh (PROTOCOL 4.2)
     recon_points: int = 500_000  # reconstructed points from training-view rays
     recon_batch: int = 16_384  # pixels drawn per point-cloud batch
+    gt_samples: int = 1  # every ground-truth pixel (training and evaluation views) the mean of k x k sub-pixel samples
 
 
 @dataclass
@@ -134,7 +135,7 @@ _NOT_IMPLEMENTED: dict[str, tuple[Any, Any]] = {
 
 _POSITIVE = (
     "budget.image_size", "budget.eval_size", "budget.horizon", "budget.gt_points", "budget.recon_points",
-    "budget.recon_batch", "planner.num_candidates", "planner.resolution", "planner.los_samples",
+    "budget.recon_batch", "budget.gt_samples", "planner.num_candidates", "planner.resolution", "planner.los_samples",
     "planner.score_chunk_rays", "planner.opt.top_k", "planner.opt.iters", "planner.opt.chunk_rays",
     "train.backbone.iters", "train.backbone.batch", "train.variance.iters", "train.variance.batch",
     "train.visibility.iters", "train.visibility.batch", "train.lr_decay_horizon", "train.label_samples",

@@ -11,6 +11,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 
@@ -91,7 +92,8 @@ class Episode:
         self.scorer = make_scorer(cfg.method.name, self.settings.entropy, self.settings.baseline, float(self.settings.entropy.d0))
         self.evaluator = Evaluator(scene, self.renderer, cfg, device, lpips)
         self.poses: list[torch.Tensor] = []
-        self.views: list[GTView] = []
+        self.views: list[GTView] = []  # depth and face ids at the pixel centres, for Vis. (PROTOCOL 4.3)
+        self.images: list[np.ndarray] = []  # RGBA [H, W, 4] training images, budget.gt_samples^2 per pixel
         for c2w in scene.init_poses:
             self.observe(c2w)
         self.previous_model: SceneModel | None = None
@@ -101,11 +103,10 @@ class Episode:
         c2w = c2w.to(torch.float32).cpu()
         self.poses.append(c2w)
         self.views.append(self.renderer.render(c2w, self.intrinsics))
+        self.images.append(self.renderer.render_rgba(c2w, self.intrinsics, int(self.cfg.budget.gt_samples)))
 
     def observations(self) -> Observations:
-        images = torch.stack(
-            [torch.cat([torch.from_numpy(v.rgb), torch.from_numpy(v.mask)[..., None].float()], dim=-1) for v in self.views]
-        )
+        images = torch.from_numpy(np.stack(self.images))
         return Observations(images.to(self.device), torch.stack(self.poses).to(self.device), self.intrinsics)
 
     def new_model(self, step: int) -> SceneModel:

@@ -91,7 +91,8 @@ class Evaluator:
         self.scene, self.cfg, self.device, self.lpips = scene, cfg, device, lpips
         size = int(cfg.budget.eval_size)
         self.intrinsics = Intrinsics.from_fov(size, size)
-        self.gt = np.stack([renderer.render(c2w, self.intrinsics).rgb for c2w in scene.eval_poses])
+        k = int(cfg.budget.gt_samples)
+        self.gt = np.stack([renderer.render_rgba(c2w, self.intrinsics, k)[..., :3] for c2w in scene.eval_poses])
         self.gt_lpips = lpips.reference(self.gt)  # step-independent half of LPIPS (None without weights)
         self.patch = max(1, size // PATCHES_PER_SIDE)
 

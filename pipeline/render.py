@@ -214,7 +214,7 @@ class GroundTruthRenderer:
         """RGB (black background) and coverage alpha, each pixel the mean of ``k x k`` sub-pixel samples
         (``k = samples_per_side``; the pixel-centre rays of the same view at ``k`` times the resolution).
         ``k = 1`` is ``render``'s RGB and mask. The paper's ground truth comes from Blender Cycles, which
-        filters each pixel over about 1.5 px; the episode's ground truth is ``k = 1``."""
+        filters each pixel over about 1.5 px; an episode's ground truth uses ``k = budget.gt_samples``."""
         if samples_per_side < 1:
             raise ValueError(f"samples_per_side must be >= 1, got {samples_per_side}")
         k = samples_per_side

@@ -10,10 +10,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 from hydra import compose, initialize_config_dir
 
+from pipeline.episode import Episode
+from pipeline.metrics import LpipsMetric
 from pipeline.records import RunRecord
 from pipeline.run import REPO, run_episode
+from pipeline.scenes import load_scene
 
 SMOKE = ["budget=smoke", "scene=default"]
 
@@ -99,3 +103,23 @@ def test_impossible_value_names_the_key(tmp_path):
     _, err = proc.communicate(timeout=300)
     assert proc.returncode != 0
     assert "planner.num_candidates" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("samples", [1, 2])
+def test_ground_truth_has_budget_gt_samples_per_pixel(tmp_path, samples):
+    """Training images (RGBA) and evaluation views are the mean of ``budget.gt_samples^2`` sub-pixel
+    samples; with 1, the pixel-centre render every committed record was made with."""
+    cfg = _cfg(tmp_path, f"budget.gt_samples={samples}")
+    scene = load_scene("default", Path(cfg.paths.assets))
+    with pytest.warns(UserWarning, match="LPIPS will be reported as missing"):
+        lpips = LpipsMetric(sources=[])
+    episode = Episode(cfg, scene, torch.device("cpu"), lpips)
+    images = episode.observations().images.numpy()
+    renderer, intr = episode.renderer, episode.intrinsics
+    want = np.stack([renderer.render_rgba(c2w, intr, samples) for c2w in scene.init_poses])
+    np.testing.assert_array_equal(images, want)
+    eval_intr = episode.evaluator.intrinsics
+    np.testing.assert_array_equal(episode.evaluator.gt[0], renderer.render_rgba(scene.eval_poses[0], eval_intr, samples)[..., :3])
+    centre = [renderer.render(c2w, intr) for c2w in scene.init_poses]
+    at_centres = np.stack([np.concatenate([v.rgb, v.mask[..., None].astype(np.float32)], -1) for v in centre])
+    assert np.array_equal(images, at_centres) == (samples == 1)  # supersampling changes the edge pixels

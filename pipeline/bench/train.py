@@ -14,8 +14,8 @@ In one run, on the scene's 20 evaluation views rendered at ``budget.image_size``
   be met at METHOD's MLP sizes on this machine);
 - the PSNR of the trained backbone on 5 held-out views (the ring of tests/test_integration.py) and
   on the first 5 training views (fit vs. generalisation), also off the ground truth's edges.
-  ``--gt-samples K`` renders every ground-truth view (training and test) as the mean of ``K x K``
-  sub-pixel samples, an anti-aliased ground truth like the paper's Blender renders (episodes use 1).
+  ``budget.gt_samples=K`` renders every ground-truth view (training and test) as the mean of ``K x K``
+  sub-pixel samples, an anti-aliased ground truth like the paper's Blender renders (as in an episode).
 
 Rates are given from wall time and (``*_cpu``) from process CPU time / threads, which is robust
 to other jobs on the cores. The model runs on the CPU. Writes ``results/bench/train.json``
@@ -214,13 +214,9 @@ def main(argv: list[str]) -> None:
     parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. budget=smoke")
     parser.add_argument("--out", type=Path, default=REPO / "results" / "bench" / "train.json", help="JSON report path")
     parser.add_argument("--repeats", type=int, default=3, help="timed inference passes (median)")
-    parser.add_argument(
-        "--gt-samples", type=int, default=1,
-        help="ground truth (training and test views) as the mean of K x K sub-pixel samples; episodes use 1",
-    )  # fmt: skip
     args = parser.parse_intermixed_args(argv)
-    if args.repeats < 1 or args.gt_samples < 1:
-        parser.error("--repeats and --gt-samples must be >= 1")
+    if args.repeats < 1:
+        parser.error("--repeats must be >= 1")
     start = time.perf_counter()
     cfg = compose_config(args.overrides)
     scene = load(cfg)
@@ -228,7 +224,8 @@ def main(argv: list[str]) -> None:
     size = int(cfg.budget.image_size)
     intr = Intrinsics.from_fov(size, size)
     renderer = GroundTruthRenderer(scene.mesh)
-    obs = observations(renderer, scene.eval_poses, intr, args.gt_samples)
+    gt_samples = int(cfg.budget.gt_samples)
+    obs = observations(renderer, scene.eval_poses, intr, gt_samples)
 
     torch.manual_seed(int(cfg.seed))
     model = CountingModel(scene.object_aabb, s.field, s.sampler)
@@ -258,7 +255,7 @@ def main(argv: list[str]) -> None:
         r[f"{key}_fraction_of_limit"] = r[f"{key}_samples_per_s"] / r[f"{key}_samples_per_s_at_limit"]
         r[f"{key}_fraction_of_limit_cpu"] = value * r[f"{key}_samples_per_s_cpu"] / (r["matmul_gflops_cpu"] * 1e9)
 
-    held_out, gt_samples = held_out_poses(scene), args.gt_samples
+    held_out = held_out_poses(scene)
     r["heldout_psnr"], r["heldout_psnr_off_edges"] = view_psnr(model, renderer, held_out, intr, gt_samples)
     r["train_view_psnr"], r["train_view_psnr_off_edges"] = view_psnr(
         model, renderer, obs.c2w[:HELD_OUT_VIEWS], intr, gt_samples
