@@ -64,7 +64,7 @@ class BudgetConfig:
     gt_points: int = 500_000  # area-uniform samples of the GT mesh (PROTOCOL 4.2)
     recon_points: int = 500_000  # reconstructed points from training-view rays
     recon_batch: int = 16_384  # pixels drawn per point-cloud batch
-    gt_samples: int = 1  # every ground-truth pixel (training and evaluation views) the mean of k x k sub-pixel samples
+    gt_samples: int = 1  # each ground-truth pixel (training, evaluation) the mean of k x k sub-pixel samples
 
 
 @dataclass

@@ -50,7 +50,7 @@ def test_plan_bench_writes_every_scorer_against_a_plain_render(tmp_path):
     extra = seconds["nvf"] - seconds["plain_render"]  # below timing noise at this size: may be <= 0
     extra_at_limit = (report["nvf_over_plain_render_at_limit"] - 1.0) * seconds["plain_render"]
     expected = extra_at_limit / extra if extra > 0 else None
-    assert report["nvf_extra_fraction_of_limit"] == (pytest.approx(expected) if expected else None)
+    assert report["nvf_extra_fraction_of_limit"] == (None if expected is None else pytest.approx(expected))
     assert set(plan.SCORED) == {"wd", "activermap", "air", "activenerf", "neurar", "nvf"}
     assert report["nvf_over_plain_render_at_limit"] > 1.0  # the extra heads cost FLOPs
     assert report["goal_within_limit"] == (report["nvf_over_plain_render_at_limit"] <= plan.GOAL_NVF_OVER_PLAIN)

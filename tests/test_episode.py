@@ -118,8 +118,8 @@ def test_ground_truth_has_budget_gt_samples_per_pixel(tmp_path, samples):
     renderer, intr = episode.renderer, episode.intrinsics
     want = np.stack([renderer.render_rgba(c2w, intr, samples) for c2w in scene.init_poses])
     np.testing.assert_array_equal(images, want)
-    eval_intr = episode.evaluator.intrinsics
-    np.testing.assert_array_equal(episode.evaluator.gt[0], renderer.render_rgba(scene.eval_poses[0], eval_intr, samples)[..., :3])
+    eval_gt = renderer.render_rgba(scene.eval_poses[0], episode.evaluator.intrinsics, samples)[..., :3]
+    np.testing.assert_array_equal(episode.evaluator.gt[0], eval_gt)
     centre = [renderer.render(c2w, intr) for c2w in scene.init_poses]
     at_centres = np.stack([np.concatenate([v.rgb, v.mask[..., None].astype(np.float32)], -1) for v in centre])
     assert np.array_equal(images, at_centres) == (samples == 1)  # supersampling changes the edge pixels

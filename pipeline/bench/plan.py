@@ -19,7 +19,8 @@ at the ``[2048, 128] x [128, 128]`` matmul rate measured in the same run (``matm
 visibility position MLP's hidden layer in one inference block) and its other extra work were free;
 ``nvf_extra_fraction_of_limit`` is that ideal time over NVF's measured extra time (summed NVF time minus
 summed plain time), or ``null`` when that difference is not positive (timing noise larger than the extra
-work, as with a few tiny candidates). The model runs on the CPU. Writes ``results/bench/plan.json`` (or ``--out``) and prints a table.
+work, as with a few tiny candidates). The model runs on the CPU. Writes ``results/bench/plan.json`` (or
+``--out``) and prints a table.
 """
 
 import argparse
