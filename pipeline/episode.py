@@ -23,7 +23,7 @@ from nvf.training import Observations, train_model
 from nvf.uncertainty import make_scorer
 from pipeline.evaluation import Evaluator
 from pipeline.metrics import LpipsMetric
-from pipeline.render import GroundTruthRenderer, GTView
+from pipeline.render import GroundTruthRenderer
 from pipeline.scenes import Scene
 
 # (stage, iteration, total, loss) -> None: drives the inner progress bar
@@ -92,8 +92,8 @@ class Episode:
         self.scorer = make_scorer(cfg.method.name, self.settings.entropy, self.settings.baseline, float(self.settings.entropy.d0))
         self.evaluator = Evaluator(scene, self.renderer, cfg, device, lpips)
         self.poses: list[torch.Tensor] = []
-        self.views: list[GTView] = []  # depth and face ids at the pixel centres, for Vis. (PROTOCOL 4.3)
         self.images: list[np.ndarray] = []  # RGBA [H, W, 4] training images, budget.gt_samples^2 per pixel
+        self.face_ids: list[np.ndarray] = []  # [H, W] face hit by each pixel-centre ray, for Vis. (PROTOCOL 4.3)
         for c2w in scene.init_poses:
             self.observe(c2w)
         self.previous_model: SceneModel | None = None
@@ -102,8 +102,8 @@ class Episode:
         """Render the ground truth at ``c2w`` and add it to the observations."""
         c2w = c2w.to(torch.float32).cpu()
         self.poses.append(c2w)
-        self.views.append(self.renderer.render(c2w, self.intrinsics))
         self.images.append(self.renderer.render_rgba(c2w, self.intrinsics, int(self.cfg.budget.gt_samples)))
+        self.face_ids.append(self.renderer.face_ids(c2w.numpy(), self.intrinsics))
 
     def observations(self) -> Observations:
         images = torch.from_numpy(np.stack(self.images))
@@ -114,7 +114,7 @@ class Episode:
         s = self.settings
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(int(seeded_generator(self.cfg.seed, step, "init").initial_seed()))
-            model = SceneModel(self.scene.object_aabb, s.field, s.sampler, num_images=len(self.views))
+            model = SceneModel(self.scene.object_aabb, s.field, s.sampler, num_images=len(self.poses))
         model = model.to(self.device)
         if s.train.warm_start and self.previous_model is not None:
             # Deviation (documented in conf): reuse the previous step's weights instead of retraining.
@@ -133,7 +133,7 @@ class Episode:
             seeded_generator(cfg.seed, step, "train", self.device), cfg.method.aux_loss, progress,
         )  # fmt: skip
         t1 = time.perf_counter()
-        metrics, images = self.evaluator.evaluate(model, self.scorer, self.views, obs, step)
+        metrics, images = self.evaluator.evaluate(model, self.scorer, self.face_ids, obs, step)
         t2 = time.perf_counter()
         current = matrix_to_pose(self.poses[-1]).to(self.device)
         selection = select_next_view(
@@ -144,7 +144,7 @@ class Episode:
         self.previous_model = model if s.train.warm_start else None
         row = {
             "step": step,
-            "n_views": len(self.views),
+            "n_views": len(self.poses),
             "status": "ok",
             "metrics": metrics,
             "selected_pose": selection.pose.detach().cpu().tolist(),

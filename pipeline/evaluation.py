@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import torch
-from jaxtyping import Float
+from jaxtyping import Float, Int
 from omegaconf import DictConfig
 from torch import Tensor
 
@@ -23,7 +23,7 @@ from pipeline.metrics import (
     uncertainty_correlation,
     visual_coverage,
 )
-from pipeline.render import GroundTruthRenderer, GTView
+from pipeline.render import GroundTruthRenderer
 from pipeline.scenes import Scene
 
 RENDER_CHUNK = 4096  # rays per model call at inference
@@ -96,8 +96,11 @@ class Evaluator:
         self.gt_lpips = lpips.reference(self.gt)  # step-independent half of LPIPS (None without weights)
         self.patch = max(1, size // PATCHES_PER_SIDE)
 
-    def evaluate(self, model: SceneModel, scorer, views: list[GTView], obs: Observations, step: int) -> tuple[dict, dict]:
-        """Metrics of ``model`` after training on ``views`` (step ``step``), and images of view 0."""
+    def evaluate(
+        self, model: SceneModel, scorer, face_ids: list[Int[np.ndarray, "H W"]], obs: Observations, step: int
+    ) -> tuple[dict, dict]:
+        """Metrics of ``model`` after training on ``obs`` (step ``step``), and images of view 0.
+        ``face_ids``: the face hit by each pixel-centre ray of every training view (Vis.)."""
         cfg, scene = self.cfg, self.scene
         renders = [render_view(model, scorer, c2w.to(self.device), self.intrinsics) for c2w in scene.eval_poses]
         pred = np.stack([r["rgb"] for r in renders]).clip(0.0, 1.0)
@@ -114,8 +117,8 @@ class Evaluator:
         )  # fmt: skip
         num_faces = len(scene.mesh.faces)
         seen = np.zeros(num_faces, dtype=bool)
-        for view in views:
-            seen |= seen_faces(view.face_id, num_faces)
+        for ids in face_ids:
+            seen |= seen_faces(ids, num_faces)
         coverage = visual_coverage(seen, scene.mesh)
         corr = (math.nan, math.nan, math.nan)
         if scorer is not None:

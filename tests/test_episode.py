@@ -123,3 +123,4 @@ def test_ground_truth_has_budget_gt_samples_per_pixel(tmp_path, samples):
     centre = [renderer.render(c2w, intr) for c2w in scene.init_poses]
     at_centres = np.stack([np.concatenate([v.rgb, v.mask[..., None].astype(np.float32)], -1) for v in centre])
     assert np.array_equal(images, at_centres) == (samples == 1)  # supersampling changes the edge pixels
+    assert all(np.array_equal(ids, v.face_id) for ids, v in zip(episode.face_ids, centre, strict=True))  # Vis.
