@@ -132,6 +132,7 @@ class PlannerConfig:
     collision_free: bool | None = None  # None: the scene's choice (Room only)
     los_samples: int = 200
     los_threshold: float = 0.95
+    los_unobserved_free: bool = False  # M29 deviation: density 0 in cells no training sample reached
     random_filters: bool = False
     score_chunk_rays: int = 8192
     opt: OptConfig = field(default_factory=OptConfig)

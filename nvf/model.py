@@ -58,6 +58,16 @@ class SceneModel(nn.Module):
             return sigma
         return sigma.index_put((occupied,), self.field.density(x[occupied])[0].to(x.dtype))
 
+    def observed_density(self, x: Float[Tensor, "N 3"]) -> Float[Tensor, " N"]:
+        """:meth:`density`, read as 0 in cells no kept training sample reached (``grid.observed``):
+        the line of sight of the collision-free sampler with ``planner.los_unobserved_free``
+        (M29 deviation, docs/DEVIATIONS.md). Only points in observed cells are evaluated."""
+        observed = self.grid.is_observed(x).nonzero().squeeze(1)
+        sigma = torch.zeros(x.shape[0], dtype=x.dtype, device=x.device)
+        if observed.numel() == 0:
+            return sigma
+        return sigma.index_put((observed,), self.density(x[observed]).to(x.dtype))
+
     def update_grid(self, iteration: int, generator: torch.Generator | None = None) -> None:
         """(M5) ``grid.update`` with the field's density; a no-op unless ``iteration % update_every == 0``."""
         self.grid.update(iteration, lambda x: self.field.density(x)[0], generator)

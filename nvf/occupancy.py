@@ -40,9 +40,10 @@ def ray_aabb(
 class OccupancyGrid(nn.Module):
     """Binary occupancy over the object AABB with the M5 update and the M6 marcher.
 
-    Buffers: ``occ`` (float ``[res^3]``, the running ``sigma * step_size`` maxima) and ``occupied``
-    (bool ``[res^3]``). Both start at zero / empty, as in nerfacc: nothing is marched before the
-    first :meth:`update`.
+    Buffers: ``occ`` (float ``[res^3]``, the running ``sigma * step_size`` maxima), ``occupied``
+    (bool ``[res^3]``) and ``observed`` (bool ``[res^3]``, cells that held a kept training sample,
+    see :meth:`mark_observed`). All start at zero / empty, as in nerfacc: nothing is marched before
+    the first :meth:`update`.
     """
 
     def __init__(self, aabb: Float[Tensor, "2 3"], cfg: SamplerConfig):
@@ -53,6 +54,7 @@ class OccupancyGrid(nn.Module):
         self.register_buffer("aabb", aabb.detach().clone().to(torch.float32))
         self.register_buffer("occ", torch.zeros(cells, device=aabb.device))
         self.register_buffer("occupied", torch.zeros(cells, dtype=torch.bool, device=aabb.device))
+        self.register_buffer("observed", torch.zeros(cells, dtype=torch.bool, device=aabb.device))
         self._skip_cache: tuple[tuple[int, int], tuple] | None = None
 
     @property
@@ -68,14 +70,30 @@ class OccupancyGrid(nn.Module):
         """World positions of all cell centres, in cell-index order."""
         return self._cell_points(torch.arange(self.resolution**3, device=self.occ.device), 0.5)
 
-    def is_occupied(self, x: Float[Tensor, "N 3"]) -> Bool[Tensor, " N"]:
-        """Whether each point lies in an occupied cell (False outside the AABB)."""
+    def _cell_index(self, x: Float[Tensor, "N 3"]) -> tuple[Int[Tensor, " N"], Bool[Tensor, " N"]]:
+        """Flat index of the cell holding each point (clamped to the grid) and whether it is inside."""
         res = self.resolution
         cell = torch.floor((x - self.aabb[0]) / self.cell_size).long()
         inside = ((cell >= 0) & (cell < res)).all(dim=-1)
         cell = cell.clamp(0, res - 1)
-        flat = (cell[:, 0] * res + cell[:, 1]) * res + cell[:, 2]
+        return (cell[:, 0] * res + cell[:, 1]) * res + cell[:, 2], inside
+
+    def is_occupied(self, x: Float[Tensor, "N 3"]) -> Bool[Tensor, " N"]:
+        """Whether each point lies in an occupied cell (False outside the AABB)."""
+        flat, inside = self._cell_index(x)
         return inside & self.occupied[flat]
+
+    def is_observed(self, x: Float[Tensor, "N 3"]) -> Bool[Tensor, " N"]:
+        """Whether each point lies in a cell marked by :meth:`mark_observed` (False outside the AABB)."""
+        flat, inside = self._cell_index(x)
+        return inside & self.observed[flat]
+
+    @torch.no_grad()
+    def mark_observed(self, x: Float[Tensor, "N 3"]) -> None:
+        """Mark the cells holding ``x`` (a training batch's kept samples) as observed: some training
+        ray reached them before its transmittance fell below ``early_stop_eps``."""
+        flat, inside = self._cell_index(x.detach())
+        self.observed[flat[inside]] = True
 
     def _cell_points(self, idx: Int[Tensor, " N"], offset: Float[Tensor, "N 3"] | float) -> Float[Tensor, "N 3"]:
         res = self.resolution

@@ -103,7 +103,8 @@ def candidate_poses(
     Always drop invalid quaternions; with ``apply_filters`` also apply the density filter (M28,
     threshold ``tau``) and, if ``collision_free``, the line-of-sight filter from ``current_pose``'s
     centre (M29: M17's ``segment_transmittance`` with ``cfg.los_samples`` stratified samples jittered
-    by ``generator``, keep ``T > cfg.los_threshold``). Keep the first ``min(N, count)``. Raises
+    by ``generator``, keep ``T > cfg.los_threshold``; with ``cfg.los_unobserved_free`` the density reads
+    0 in cells no training sample reached, ``model.observed_density``). Keep the first ``min(N, count)``. Raises
     ``NoCandidatesError`` when a filter leaves nothing.
     """
     n = cfg.num_candidates
@@ -117,10 +118,10 @@ def candidate_poses(
                 raise ValueError("the collision-free sampler (M29) needs the current pose")
             origin = current_pose[4:].to(poses)
 
+            los_density = model.observed_density if cfg.los_unobserved_free else model.density
+
             def los(p: Tensor) -> Tensor:
-                trans = segment_transmittance(
-                    model.density, origin, p[:, 4:], cfg.los_samples, generator, model.aabb
-                )
+                trans = segment_transmittance(los_density, origin, p[:, 4:], cfg.los_samples, generator, model.aabb)
                 return trans > cfg.los_threshold
 
             stages.append((f"line-of-sight filter M29 (T > {cfg.los_threshold:g})", los))

@@ -246,9 +246,10 @@ def train_backbone(
     """Stage 1: hash grid, density MLP and colour head on (M20) with the random background (M4).
 
     Adam (eps 1e-15), ``lr(k) = lr * 0.01 ** (k / lr_decay_horizon)``; ``model.update_grid`` is
-    called every iteration and refreshes the occupancy grid (M5) every ``update_every``.
-    ``aux_loss`` ``activenerf`` (M25) or ``neurar`` (M27) also trains the variance head, in the
-    same Adam steps and with the same lr, on ``V_r = sum_i sg(w_i) q_i`` and the detached squared
+    called every iteration and refreshes the occupancy grid (M5) every ``update_every``; the cells of
+    each batch's kept samples are marked observed (``grid.mark_observed``, read by M29's
+    ``planner.los_unobserved_free``). ``aux_loss`` ``activenerf`` (M25) or ``neurar`` (M27) also
+    trains the variance head, in the same Adam steps and with the same lr, on ``V_r = sum_i sg(w_i) q_i`` and the detached squared
     residual, so the backbone is unaffected.
     """
     _require_images(obs)
@@ -271,6 +272,7 @@ def train_backbone(
         background = _background(origins.shape[0], "random", generator, origins)
         result = model.render(origins, dirs, heads=heads, train=True, generator=generator, image_idx=image)
         rec.count(result.samples)
+        model.grid.mark_observed(result.samples.positions(origins, dirs))
         pred = composite(result.rgb, result.acc, background)
         gt = _ground_truth(rgba, background)
         loss = ((pred - gt) ** 2).mean()  # M20

@@ -233,3 +233,23 @@ def test_density_reads_zero_in_empty_grid_cells():
     model.sampler_cfg.mask_density_with_grid = False
     model.grid.occupied[:] = False
     assert torch.equal(model.density(x)[:2], raw[:2])
+
+
+def test_observed_density_reads_zero_in_unobserved_cells():
+    """M29 deviation (``planner.los_unobserved_free``): the rendered density, 0 where no training
+    sample was kept."""
+    from nvf.config import FieldConfig, SamplerConfig
+    from nvf.model import SceneModel
+
+    aabb = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+    field_cfg = FieldConfig(num_levels=2, log2_hashmap_size=10, max_resolution=32, hidden_dim=16, backend="torch")
+    model = SceneModel(aabb, field_cfg, SamplerConfig(grid_resolution=8))
+    model.grid.occupied[:] = True
+    x = torch.tensor([[0.1, 0.1, 0.1], [-0.9, 0.5, 0.3], [2.0, 0.0, 0.0]])
+    rendered = model.density(x)
+    assert (rendered[:2] > 0).all()
+    assert torch.equal(model.observed_density(x), torch.zeros(3))
+    model.grid.mark_observed(x[:1])
+    assert torch.equal(model.observed_density(x), torch.stack([rendered[0], torch.tensor(0.0), torch.tensor(0.0)]))
+    model.grid.occupied[:] = False  # observed but empty: still the rendered density, 0
+    assert torch.equal(model.observed_density(x), torch.zeros(3))

@@ -67,6 +67,21 @@ def test_update_marks_sphere_cells() -> None:
     torch.testing.assert_close(grid.occ[inside], torch.full_like(grid.occ[inside], 200.0 * grid.cfg.step_size))
 
 
+def test_mark_observed_marks_exactly_the_cells_of_the_points() -> None:
+    """``observed`` (read by M29 with ``planner.los_unobserved_free``): the cells holding the points, none
+    for points outside the AABB, and it only grows."""
+    grid = OccupancyGrid(AABB, SamplerConfig(grid_resolution=8))
+    x = torch.tensor([[0.1, 0.1, 0.1], [0.12, 0.13, 0.11], [-0.9, 0.5, 0.3], [1.5, 0.0, 0.0]])
+    assert not grid.is_observed(x).any()
+    grid.mark_observed(x)
+    expected = torch.zeros(8**3, dtype=torch.bool)
+    expected[cell_of(grid, x[:3])] = True
+    assert torch.equal(grid.observed, expected) and int(grid.observed.sum()) == 2
+    assert grid.is_observed(x).tolist() == [True, True, True, False]
+    grid.mark_observed(torch.tensor([[0.9, 0.9, 0.9]]))
+    assert int(grid.observed.sum()) == 3 and grid.observed[expected].all()
+
+
 def test_update_schedule_decay_and_threshold() -> None:
     """M5: no-op off the update period; occ <- max(decay occ, sigma step); occupied = occ > min(mean, thr)."""
     grid = sphere_grid()

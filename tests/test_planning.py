@@ -57,14 +57,18 @@ class ToyModel(nn.Module):
     """SceneModel stand-in: ``render`` packs 32 fixed samples per ray on t in [0.05, 4] into a
     RenderResult (M1-M3); rgb, variance and visibility are smooth functions of x."""
 
-    def __init__(self, field):
+    def __init__(self, field, observed_below=math.inf):
         super().__init__()
         self.field = field
+        self.observed_below = observed_below  # training samples reached only x < observed_below
         self.register_buffer("aabb", AABB.clone())
         self.calls = []
 
     def density(self, x):
         return self.field.density(x)[0]
+
+    def observed_density(self, x):
+        return torch.where(x[:, 0] < self.observed_below, self.density(x), torch.zeros(x.shape[0]))
 
     def render(self, origins, dirs, heads=frozenset({"rgb"}), train=False, generator=None, sampler="occupancy"):
         self.calls.append((heads, train, sampler))
@@ -179,6 +183,21 @@ def test_collision_filter_m29_two_rooms():
     assert (out[:, 4] < 0.0).all(), "a candidate behind the wall passed the line-of-sight filter"
     free = candidate_poses(model, c, BOX, current, 1e-4, False, seeded_generator(5, 2, "candidates"))
     assert (free[:, 4] > 0.05).any()  # without M29 the other room is sampled
+
+
+def test_collision_filter_m29_unobserved_wall_is_free_only_with_the_switch():
+    """``planner.los_unobserved_free`` (M29 deviation): a wall in cells no training sample reached does not
+    block the line of sight; a wall in observed cells still does."""
+    current = pose_looking([-1.0, 0.2, 0.1], [0.0, 0.0, 0.0])
+    unseen_wall = ToyModel(ToyField(peak=0.0, walls=(0.0,)), observed_below=-0.2)
+    seen_wall = ToyModel(ToyField(peak=0.0, walls=(0.0,)), observed_below=0.5)
+    gen = lambda: seeded_generator(5, 2, "candidates")  # noqa: E731
+    out = candidate_poses(unseen_wall, cfg(n=64), BOX, current, 1e-4, True, gen())
+    assert (out[:, 4] < 0.0).all()  # the switch is off by default: METHOD's M29
+    out = candidate_poses(unseen_wall, cfg(n=64, los_unobserved_free=True), BOX, current, 1e-4, True, gen())
+    assert (out[:, 4] > 0.05).any()
+    out = candidate_poses(seen_wall, cfg(n=64, los_unobserved_free=True), BOX, current, 1e-4, True, gen())
+    assert (out[:, 4] < 0.0).all(), "a candidate behind an observed wall passed the line-of-sight filter"
 
 
 def test_no_candidates_error_names_the_filter():

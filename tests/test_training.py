@@ -296,3 +296,15 @@ def test_appearance_embedding_is_trained_per_image():
     train_backbone(model, obs, tiny_config(backbone=StageBudget(10, 256, 1e-2)), torch.Generator().manual_seed(0))
     changed = (model.field.appearance.weight.detach() != before).any(dim=1)
     assert changed.all(), changed
+
+
+def test_backbone_marks_the_cells_its_samples_reached(trained):
+    """Stage 1 marks ``grid.observed`` (read by M29 with ``planner.los_unobserved_free``): the ball's
+    surface facing the cameras is reached, its centre (behind an opaque surface from every camera) is not."""
+    model, obs = trained
+    toward_camera = torch.nn.functional.normalize(obs.c2w[:, :3, 3], dim=-1)
+    radii = torch.linspace(0.35, 0.75, 9)  # the surface is at 0.5; cells are 0.125 wide
+    near_surface = radii[:, None, None] * toward_camera  # [9, cameras, 3]
+    assert model.grid.is_observed(near_surface.reshape(-1, 3)).reshape(9, -1).any(0).all()
+    assert not model.grid.is_observed(torch.zeros(1, 3)).any()
+    assert 0.0 < model.grid.observed.float().mean() < 1.0
