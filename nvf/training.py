@@ -249,8 +249,8 @@ def train_backbone(
     called every iteration and refreshes the occupancy grid (M5) every ``update_every``; the cells of
     each batch's kept samples are marked observed (``grid.mark_observed``, read by M29's
     ``planner.los_unobserved_free``). ``aux_loss`` ``activenerf`` (M25) or ``neurar`` (M27) also
-    trains the variance head, in the same Adam steps and with the same lr, on ``V_r = sum_i sg(w_i) q_i`` and the detached squared
-    residual, so the backbone is unaffected.
+    trains the variance head, in the same Adam steps and with the same lr, on
+    ``V_r = sum_i sg(w_i) q_i`` and the detached squared residual, so the backbone is unaffected.
     """
     _require_images(obs)
     if aux_loss not in AUX_LOSSES:
