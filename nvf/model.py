@@ -3,7 +3,7 @@
 from dataclasses import dataclass
 
 import torch
-from jaxtyping import Float, Int
+from jaxtyping import Bool, Float, Int
 from torch import Tensor, nn
 
 from nvf.cameras import Intrinsics, pixel_rays
@@ -52,21 +52,24 @@ class SceneModel(nn.Module):
         hide every point behind a few scene units of free space (deviation, see docs/DEVIATIONS.md)."""
         if not self.sampler_cfg.mask_density_with_grid:
             return self.field.density(x)[0]
-        occupied = self.grid.is_occupied(x).nonzero().squeeze(1)  # only these cells are evaluated
-        sigma = torch.zeros(x.shape[0], dtype=x.dtype, device=x.device)
-        if occupied.numel() == 0:
-            return sigma
-        return sigma.index_put((occupied,), self.field.density(x[occupied])[0].to(x.dtype))
+        return self._density_where(x, self.grid.is_occupied(x))
 
     def observed_density(self, x: Float[Tensor, "N 3"]) -> Float[Tensor, " N"]:
         """:meth:`density`, read as 0 in cells no kept training sample reached (``grid.observed``):
         the line of sight of the collision-free sampler with ``planner.los_unobserved_free``
-        (M29 deviation, docs/DEVIATIONS.md). Only points in observed cells are evaluated."""
-        observed = self.grid.is_observed(x).nonzero().squeeze(1)
+        (M29 deviation, docs/DEVIATIONS.md)."""
+        keep = self.grid.is_observed(x)
+        if self.sampler_cfg.mask_density_with_grid:
+            keep &= self.grid.is_occupied(x)
+        return self._density_where(x, keep)
+
+    def _density_where(self, x: Float[Tensor, "N 3"], keep: Bool[Tensor, " N"]) -> Float[Tensor, " N"]:
+        """``sigma(x)`` where ``keep``, 0 elsewhere; only the kept points are evaluated."""
+        idx = keep.nonzero().squeeze(1)
         sigma = torch.zeros(x.shape[0], dtype=x.dtype, device=x.device)
-        if observed.numel() == 0:
+        if idx.numel() == 0:
             return sigma
-        return sigma.index_put((observed,), self.density(x[observed]).to(x.dtype))
+        return sigma.index_put((idx,), self.field.density(x[idx])[0].to(x.dtype))
 
     def update_grid(self, iteration: int, generator: torch.Generator | None = None) -> None:
         """(M5) ``grid.update`` with the field's density; a no-op unless ``iteration % update_every == 0``."""
