@@ -182,15 +182,28 @@ def _settings(config: Any) -> Any:
     return {k: v for k, v in config.items() if k != "paths"} if isinstance(config, Mapping) else config
 
 
-def first_difference(old: Any, new: Any, prefix: str = "") -> str | None:
-    """Dotted key of the first difference between two JSON values (None when equal)."""
+def first_difference(old: Any, new: Any, prefix: str = "") -> tuple[str, Any, Any] | None:
+    """Dotted key and both values of the first difference between two JSON values (None when equal)."""
     if isinstance(old, dict) and isinstance(new, dict):
         for key in sorted(old.keys() | new.keys()):
             found = first_difference(old.get(key), new.get(key), f"{prefix}{key}.")
             if found is not None:
                 return found
         return None
-    return None if old == new else prefix.rstrip(".") or "value"
+    return None if old == new else (prefix.rstrip(".") or "value", old, new)
+
+
+def run_difference(old_info: Mapping, new_info: Mapping) -> str | None:
+    """How two run infos differ as runs: ``<key> (<old> in the record, <new> now)`` for the first
+    differing identity key or setting (``config.<dotted key>``; ``paths`` are locations, not
+    settings), or None when both describe the same run."""
+    old = {k: old_info.get(k) for k in IDENTITY_KEYS} | {"config": _settings(old_info.get("config"))}
+    new = {k: new_info.get(k) for k in IDENTITY_KEYS} | {"config": _settings(new_info.get("config"))}
+    found = first_difference(to_jsonable(old), to_jsonable(new))
+    if found is None:
+        return None
+    key, was, now = found
+    return f"{key} ({json.dumps(was)} in the record, {json.dumps(now)} now)"
 
 
 def record_status(info: dict, directory: Path) -> str:
@@ -236,11 +249,10 @@ class RunRecord:
         now = utc_now()
         timings = {"started": now, "resumed": [], "ended": None}
         if previous:
-            old = {k: previous.get(k) for k in IDENTITY_KEYS} | {"config": _settings(previous.get("config"))}
-            new = {k: info[k] for k in IDENTITY_KEYS} | {"config": _settings(info["config"])}
-            key = first_difference(to_jsonable(old), to_jsonable(new))
-            if key is not None:
-                raise ValueError(f"run {self.directory} was started with a different {key}; delete it or restore it")
+            changed = self.difference(info)
+            if changed is not None:
+                message = f"run {self.directory} was started with a different {changed}"
+                raise ValueError(f"{message}; delete it or restore that setting")
             timings = {**previous.get("timings", timings), "ended": None}
             timings["resumed"] = [*timings.get("resumed", []), now]
         for stale in self.directory.glob(".*.tmp"):  # temp files of a killed write
@@ -256,6 +268,11 @@ class RunRecord:
             "timings": timings,
         }
         atomic_write_text(self.run_json, json.dumps(to_jsonable(record), indent=2, allow_nan=False) + "\n")
+
+    def difference(self, info: Mapping) -> str | None:
+        """``run_difference`` between this record's run.json and ``info`` (None when there is no record)."""
+        previous = self.info()
+        return run_difference(previous, info) if previous else None
 
     def completed_steps(self) -> list[dict]:
         """Valid step rows; a truncated/corrupt last line is dropped, the file rewritten and a warning issued."""

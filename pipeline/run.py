@@ -1,9 +1,9 @@
 """Entry point: ``python -m pipeline.run [overrides]`` runs one episode; ``-m`` sweeps (Hydra).
 
-Validates the config, derives the run directory from the run's keys, skips finished runs, resumes
-unfinished ones at their first missing step, and records every step atomically. Expected failures
-(bad config, missing mesh, no candidate left, diverged training) print one line; in a sweep the
-failing job is recorded and the sweep goes on.
+Validates the config, derives the run directory from the run's keys, skips finished runs (and
+refuses one that finished with other settings), resumes unfinished ones at their first missing
+step, and records every step atomically. Expected failures (bad config, missing mesh, no candidate
+left, diverged training) print one line; in a sweep the failing job is recorded and the sweep goes on.
 """
 
 import logging
@@ -55,20 +55,27 @@ def record_dir(cfg: DictConfig) -> Path:
     )  # fmt: skip
 
 
-def run_info(cfg: DictConfig, scene_source: str, device: torch.device, lpips_reason: str | None) -> dict:
+def run_settings(cfg: DictConfig) -> dict:
+    """The run's identity keys and resolved config: what makes two records the same run."""
     return {
         "scene": cfg.scene.name,
-        "scene_source": scene_source,
         "method": cfg.method.name,
         "planner": cfg.planner.name,
         "ablation": cfg.ablation.name,
         "budget": cfg.budget.name,
         "seed": int(cfg.seed),
+        "config": OmegaConf.to_container(cfg, resolve=True),
+    }
+
+
+def run_info(cfg: DictConfig, scene_source: str, device: torch.device, lpips_reason: str | None) -> dict:
+    return {
+        **run_settings(cfg),
+        "scene_source": scene_source,
         "field": cfg.field.kind,
         "device": str(device),
         "torch_threads": torch.get_num_threads(),
         "lpips_missing_reason": lpips_reason,
-        "config": OmegaConf.to_container(cfg, resolve=True),
     }
 
 
@@ -78,6 +85,12 @@ def run_episode(cfg: DictConfig) -> Path:
     directory = record_dir(cfg)
     record = RunRecord(directory)
     if record.is_done():
+        changed = record.difference(run_settings(cfg))
+        if changed is not None:
+            raise ValueError(
+                f"run {directory} finished with a different {changed}; "
+                "pass paths.outputs=DIR to record this run elsewhere, or delete that run to replace it"
+            )
         print(f"skipping finished run {directory}")
         return directory
     torch.set_num_threads(torch_threads())

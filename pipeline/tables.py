@@ -26,7 +26,16 @@ from matplotlib.figure import Figure
 
 from pipeline.metric_info import PAPER_METRICS
 from pipeline.paper_numbers import paper_numbers
-from pipeline.records import IDENTITY_KEYS, RUN_JSON, STEPS, atomic_write_text, check_key, read_steps, record_status
+from pipeline.records import (
+    IDENTITY_KEYS,
+    RUN_JSON,
+    STEPS,
+    atomic_write_text,
+    check_key,
+    read_steps,
+    record_status,
+    run_difference,
+)
 
 METRIC_KEYS = tuple(m.name for m in PAPER_METRICS)
 METHOD_NAMES = (
@@ -62,11 +71,14 @@ IMAGE_KINDS = (("gt", "GT"), ("pred", "prediction"), ("score", "score map"), ("e
 
 @dataclass(frozen=True)
 class Runs:
-    """All run records: ``long`` (LONG_COLUMNS, finished runs), ``final`` (one row per run, last-step metrics)."""
+    """All run records: ``long`` (LONG_COLUMNS, finished runs), ``final`` (one row per run, last-step
+    metrics); ``skipped`` (unreadable records) and ``conflicts`` (records left out because a kept record
+    of the same run has other settings), one line each."""
 
     long: pd.DataFrame
     final: pd.DataFrame
     skipped: tuple[str, ...]
+    conflicts: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -133,25 +145,36 @@ def _load_run(directory: Path) -> tuple[dict, list[dict]]:
 
 def collect_runs(roots: list[Path]) -> Runs:
     """Read every run directory (holding run.json) under ``roots``; a run found twice counts once
-    (a finished copy wins, then the first root)."""
+    (a finished copy wins, then the first root). A copy left out with other settings (config) than the
+    kept one is listed in ``conflicts``: a table never mixes them silently."""
     records: dict[tuple, dict] = {}
     skipped: list[str] = []
+    conflicts: list[str] = []
     for root in roots:
         for run_json in sorted(Path(root).rglob(RUN_JSON)) if Path(root).is_dir() else []:
             directory = run_json.parent
             try:
                 info, rows = _load_run(directory)
             except (ValueError, OSError) as err:
-                skipped.append(f"{directory}: {str(err).splitlines()[0]}")
+                skipped.append(f"skipped unreadable run record {directory}: {str(err).splitlines()[0]}")
                 continue
             key = tuple(info[k] for k in IDENTITY_KEYS)
             status = record_status(info, directory)
             ok = [r for r in rows if r.get("status", "ok") == "ok" and isinstance(r.get("metrics"), dict)]
             if status == "done" and not ok:
                 status = "empty"
-            if key in records and (records[key]["status"] == "done" or status != "done"):
-                continue
-            records[key] = {"info": info, "rows": ok, "status": status, "directory": directory}
+            record = {"info": info, "rows": ok, "status": status, "directory": directory}
+            if key in records:
+                keep_first = records[key]["status"] == "done" or status != "done"
+                kept, left = (records[key], record) if keep_first else (record, records[key])
+                changed = run_difference(left["info"], kept["info"])
+                if changed is not None:
+                    conflicts.append(
+                        f"left out {left['directory']}: the same run as {kept['directory']} but a different {changed}"
+                    )
+                if keep_first:
+                    continue
+            records[key] = record
     long_rows, final_rows = [], []
     for record in records.values():
         info, rows = record["info"], record["rows"]
@@ -184,7 +207,7 @@ def collect_runs(roots: list[Path]) -> Runs:
     long = long.astype({"seed": "int64", "step": "int64", "n_views": "Int64", "value": "float64"})
     long = long.sort_values(list(LONG_COLUMNS[:8])).reset_index(drop=True)
     final_frame = pd.DataFrame(final_rows, columns=[*FINAL_COLUMNS, *METRIC_KEYS])
-    return Runs(long=long, final=final_frame, skipped=tuple(skipped))
+    return Runs(long=long, final=final_frame, skipped=tuple(skipped), conflicts=tuple(conflicts))
 
 
 def _stats(values: Float[np.ndarray, " n"]) -> tuple[float, float, int]:
@@ -314,7 +337,7 @@ def _select(final: pd.DataFrame, spec: Spec) -> pd.DataFrame:
     return final[keep]
 
 
-def _notes(selected: pd.DataFrame, done: pd.DataFrame, rows: pd.DataFrame, skipped: int) -> list[str]:
+def _notes(selected: pd.DataFrame, done: pd.DataFrame, rows: pd.DataFrame, runs: Runs) -> list[str]:
     notes = []
     valid = rows[[f"{m}_valid" for m in METRIC_KEYS]].to_numpy() if not rows.empty else np.zeros((0, 1))
     if ((valid > 0) & (valid < rows[["n"]].to_numpy())).any():
@@ -341,8 +364,13 @@ def _notes(selected: pd.DataFrame, done: pd.DataFrame, rows: pd.DataFrame, skipp
             label = method_label(run["method"], run["planner"], run["ablation"])
             reason = run["failure_reason"] or "no reason recorded"
             notes.append(f"Failed: {run['scene']} {label} seed {run['seed']} ({run['budget']}): {reason}.")
-    if skipped:
-        notes.append(f"{skipped} unreadable run record(s) skipped (listed by `python -m pipeline.tables`).")
+    if runs.skipped:
+        notes.append(f"{len(runs.skipped)} unreadable run record(s) skipped (listed by `python -m pipeline.tables`).")
+    if runs.conflicts:
+        notes.append(
+            f"{len(runs.conflicts)} run record(s) left out: the same run as a kept record with other settings "
+            "(listed by `python -m pipeline.tables`)."
+        )
     return notes
 
 
@@ -372,11 +400,11 @@ def build_table(runs: Runs, spec: Spec) -> Table:
         mean_rows, mean_notes = object_mean(done)
         parts.append(mean_rows)
     if not parts:
-        notes = _notes(selected, done, pd.DataFrame(columns=["n"]), len(runs.skipped))
+        notes = _notes(selected, done, pd.DataFrame(columns=["n"]), runs)
         return Table(spec.name, spec.title, pd.DataFrame(), (), tuple(notes))
     rows = _order(_mark_best(pd.concat(parts, ignore_index=True)))
     rows["label"] = [method_label(m, p, a) for m, p, a in zip(rows["method"], rows["planner"], rows["ablation"])]
-    notes = _notes(selected, done, rows, len(runs.skipped)) + [f"{OBJECT_MEAN}: {n}." for n in mean_notes]
+    notes = _notes(selected, done, rows, runs) + [f"{OBJECT_MEAN}: {n}." for n in mean_notes]
     return Table(spec.name, spec.title, rows, _header(done), tuple(notes))
 
 
@@ -607,7 +635,8 @@ def build_tables(
     """Collect runs, write runs.csv, the tables (md/csv/tex), the paper comparison and (unless
     ``figures`` is False) the curves and image grids.
 
-    Returns the files written and the unreadable run records skipped (one line each).
+    Returns the files written and one line per run record skipped (unreadable) or left out (settings
+    that conflict with a kept record of the same run).
     """
     runs = collect_runs([Path(outputs), *map(Path, runs_dirs)])
     results = Path(results)
@@ -622,7 +651,7 @@ def build_tables(
             atomic_write_text(path, text)
             written.append(path)
     if not figures:
-        return written, runs.skipped
+        return written, (*runs.skipped, *runs.conflicts)
     written += curves(runs.long, results / "figures")
     done = runs.final[runs.final["status"] == "done"].sort_values("seed")
     for _, run in done.drop_duplicates(list(GROUP)).iterrows():  # one grid per method and scene: lowest seed
@@ -630,7 +659,7 @@ def build_tables(
         name = f"grid_{run['scene']}_{group}_{run['budget']}_seed{run['seed']}.png"
         grid = image_grid(Path(run["directory"]), results / "figures" / "grids" / name)
         written += [grid] if grid is not None else []
-    return written, runs.skipped
+    return written, (*runs.skipped, *runs.conflicts)
 
 
 def parse_overrides(argv: list[str]) -> tuple[Path, Path]:
@@ -656,7 +685,7 @@ def main(argv: list[str]) -> int:
         print(f"pipeline.tables: error: {str(err).splitlines()[0]}", file=sys.stderr)
         return 1
     for line in skipped:
-        print(f"pipeline.tables: skipped unreadable run record {line}", file=sys.stderr)
+        print(f"pipeline.tables: {line}", file=sys.stderr)
     print(f"pipeline.tables: wrote {len(written)} files under {results} (runs.csv, tables/, figures/)")
     return 0
 

@@ -51,9 +51,14 @@ def test_smoke_episode_writes_complete_records(tmp_path):
     assert info["budget"] == "smoke" and info["field"] in ("hashgrid", "densegrid")
     assert info["git"]["commit"] is None or len(info["git"]["commit"]) == 40
     assert (directory / "images" / "step_01_pred.png").is_file()
-    # a finished run is skipped, not re-run
+    # a finished run is skipped, not re-run; one finished with other settings is refused, untouched
     assert run_episode(_cfg(tmp_path, "method=random", "budget.horizon=2")) == directory
     assert len(RunRecord(directory).completed_steps()) == 2
+    before = (directory / "run.json").read_text()
+    changed = r"finished with a different config.planner.num_candidates \(8 in the record, 9 now\)"
+    with pytest.raises(ValueError, match=changed):
+        run_episode(_cfg(tmp_path, "method=random", "budget.horizon=2", "planner.num_candidates=9"))
+    assert (directory / "run.json").read_text() == before and RunRecord(directory).is_done()
 
 
 @pytest.mark.slow

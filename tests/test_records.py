@@ -106,7 +106,7 @@ def test_resume_keeps_start_time_and_refuses_other_config(tmp_path):
     assert not list(record.directory.glob(".*.tmp"))
     timings = record.info()["timings"]
     assert timings["started"] == first and len(timings["resumed"]) == 1
-    with pytest.raises(ValueError, match="different config.train.iters"):
+    with pytest.raises(ValueError, match=r"different config.train.iters \(10 in the record, 11 now\)"):
         record.start(_info(config={"train": {"iters": 11}, "seed": 100}), repo=tmp_path)
     with pytest.raises(ValueError, match="different budget"):
         record.start(_info(budget="cpu"), repo=tmp_path)

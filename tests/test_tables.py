@@ -18,13 +18,13 @@ METRICS = ("psnr", "ssim", "lpips", "rgb", "acc", "comp", "cr", "vis")
 
 def make_run(
     root: Path, scene="hubble", method="nvf", planner="argmax", ablation="none", seed=100, final=None,
-    status="done", lpips_reason=None, steps=2,
+    status="done", lpips_reason=None, steps=2, config=None,
 ) -> RunRecord:
     """A synthetic run: `steps` step rows, the last one carrying `final` metric values (others 0)."""
     record = RunRecord(run_dir(root, scene, method, planner, ablation, "smoke", seed))
     source = "proxy" if scene.endswith("_proxy") else "mesh"
     keys = {"scene": scene, "method": method, "planner": planner, "ablation": ablation, "budget": "smoke", "seed": seed}
-    info = {**keys, "scene_source": source, "field": "densegrid", "device": "cpu", "config": {}}
+    info = {**keys, "scene_source": source, "field": "densegrid", "device": "cpu", "config": config or {}}
     info["lpips_missing_reason"] = lpips_reason
     record.start(info, repo=root)
     base = {m: 0.5 for m in METRICS}
@@ -133,6 +133,20 @@ def test_truncated_steps_and_bad_records_do_not_crash(tmp_path):
     assert read(record.steps_path) == before  # tables never modify run records
     assert len(skipped) == 1 and "junk" in skipped[0]
     assert "1 unreadable run record(s) skipped" in read(tmp_path / "res" / "tables" / "main.md")
+
+
+def test_the_same_run_with_other_settings_is_left_out_and_listed(tmp_path):
+    first, second = tmp_path / "out", tmp_path / "res" / "runs"
+    make_run(first, seed=100, final={"psnr": 30.0}, config={"planner": {"num_candidates": 512}})
+    make_run(second, seed=100, final={"psnr": 10.0}, config={"planner": {"num_candidates": 128}})
+    make_run(first, seed=101, final={"psnr": 20.0}, config={"planner": {"num_candidates": 128}})
+    make_run(second, seed=101, final={"psnr": 20.0}, config={"planner": {"num_candidates": 128}})  # no conflict
+    written, lines = build_tables(first, [second], tmp_path / "res", figures=False)
+    assert len(lines) == 1
+    assert lines[0].startswith(f"left out {second / 'hubble'}") and "config.planner.num_candidates (128 in" in lines[0]
+    md = read(tmp_path / "res" / "tables" / "main.md")
+    assert "1 run record(s) left out: the same run as a kept record with other settings" in md
+    assert "25.00 ± 5.00" in md  # seeds 100 (the first root's 30 dB, not 10) and 101 (20 dB)
 
 
 def test_committed_runs_and_object_mean_and_paper_comparison(tmp_path):
