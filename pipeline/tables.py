@@ -6,7 +6,9 @@
 table2_ablation, table34_nerf_assets, all_runs, paper_comparison}.{md,csv,tex}`` and ``figures/``
 (metric-vs-step curves, image grids). Only finished runs count; a cell is the mean ± population std
 over seeds at each run's last step (PROTOCOL.md 3). Step rows store NaN as ``null``
-(pipeline.records); it is read back as NaN and footnoted.
+(pipeline.records); it is read back as NaN and footnoted. A run whose recorded settings differ from what
+its named groups give today (``pipeline.overrides``) has them appended to its budget, e.g.
+``cpu+planner.num_candidates=512``, so it is never averaged or labelled with plain ``cpu`` runs.
 """
 
 import json
@@ -25,6 +27,7 @@ from jaxtyping import Float
 from matplotlib.figure import Figure
 
 from pipeline.metric_info import PAPER_METRICS
+from pipeline.overrides import NamedConfigs
 from pipeline.paper_numbers import paper_numbers
 from pipeline.records import (
     IDENTITY_KEYS,
@@ -58,6 +61,7 @@ PLANNERS = ("argmax", "opt")
 OBJECT_SCENES = ("chair", "drums", "ficus", "hotdog", "lego", "materials", "mic", "ship")
 ROOM_SCENES = ("hubble", "room")
 OBJECT_MEAN = "object-scene mean"
+CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
 LONG_COLUMNS = (
     "scene", "scene_source", "method", "planner", "ablation", "budget", "seed", "step", "n_views", "metric", "value"
 )
@@ -176,9 +180,11 @@ def collect_runs(roots: list[Path]) -> Runs:
                     continue
             records[key] = record
     long_rows, final_rows = [], []
+    named = NamedConfigs(CONF_DIR)
     for record in records.values():
         info, rows = record["info"], record["rows"]
         keys = {k: info[k] for k in IDENTITY_KEYS}
+        keys["budget"] = "+".join([info["budget"], *named.overrides(info)])
         source = str(info.get("scene_source", "unknown"))
         last = max(rows, key=lambda r: r["step"]) if rows else {"metrics": {}}
         final = {

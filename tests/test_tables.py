@@ -8,6 +8,7 @@ import imageio.v3 as iio
 import numpy as np
 import pandas as pd
 
+from pipeline.overrides import NamedConfigs
 from pipeline.paper_numbers import paper_numbers
 from pipeline.records import RunRecord, run_dir
 from pipeline.run import REPO
@@ -139,14 +140,31 @@ def test_the_same_run_with_other_settings_is_left_out_and_listed(tmp_path):
     first, second = tmp_path / "out", tmp_path / "res" / "runs"
     make_run(first, seed=100, final={"psnr": 30.0}, config={"planner": {"num_candidates": 512}})
     make_run(second, seed=100, final={"psnr": 10.0}, config={"planner": {"num_candidates": 128}})
-    make_run(first, seed=101, final={"psnr": 20.0}, config={"planner": {"num_candidates": 128}})
-    make_run(second, seed=101, final={"psnr": 20.0}, config={"planner": {"num_candidates": 128}})  # no conflict
+    make_run(first, seed=101, final={"psnr": 20.0}, config={"planner": {"num_candidates": 512}})
+    make_run(second, seed=101, final={"psnr": 20.0}, config={"planner": {"num_candidates": 512}})  # no conflict
     written, lines = build_tables(first, [second], tmp_path / "res", figures=False)
     assert len(lines) == 1
     assert lines[0].startswith(f"left out {second / 'hubble'}") and "config.planner.num_candidates (128 in" in lines[0]
     md = read(tmp_path / "res" / "tables" / "main.md")
+    assert "Budget: smoke+planner.num_candidates=512." in md  # 512 is not smoke's own value (8)
     assert "1 run record(s) left out: the same run as a kept record with other settings" in md
     assert "25.00 ± 5.00" in md  # seeds 100 (the first root's 30 dB, not 10) and 101 (20 dB)
+
+
+def test_runs_with_settings_beyond_their_budget_get_their_own_budget_label(tmp_path):
+    out = tmp_path / "out"
+    named = NamedConfigs(REPO / "conf").named(("hubble", "nvf", "argmax", "none", "smoke"))
+    wider = {**named, "planner": {**named["planner"], "num_candidates": 512}}
+    make_run(out, seed=100, final={"psnr": 30.0}, config=wider)
+    make_run(out, seed=101, final={"psnr": 10.0}, config=named)
+    build_tables(out, [], tmp_path / "res", figures=False)
+    md = read(tmp_path / "res" / "tables" / "main.md")
+    assert "Budget: smoke, smoke+planner.num_candidates=512." in md
+    rows = [line for line in md.splitlines() if "| hubble" in line]
+    assert len(rows) == 2 and all(line.rstrip(" |").endswith("1") for line in rows)  # never averaged together
+    assert any("smoke+planner.num_candidates=512" in line and "30.00" in line for line in rows)
+    frame = pd.read_csv(tmp_path / "res" / "runs.csv")
+    assert set(frame["budget"]) == {"smoke", "smoke+planner.num_candidates=512"}
 
 
 def test_committed_runs_and_object_mean_and_paper_comparison(tmp_path):
@@ -212,7 +230,8 @@ def test_summarize_run_lists_steps_and_the_paper_row(tmp_path):
 
 
 def test_tables_load_without_torch_open3d_or_lpips():
-    """Regenerating tables needs only the metrics' data (pipeline.metric_info), not the metrics' code."""
+    """Importing the tables needs only the metrics' data (pipeline.metric_info), not the metrics' code. (The
+    override check composes each run's named config groups, and the schema then loads torch.)"""
     code = "import sys, pipeline.tables; print(sorted({'torch', 'open3d', 'lpips'} & set(sys.modules)))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO)
     assert out.stdout.strip() == "[]"

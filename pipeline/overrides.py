@@ -1,0 +1,64 @@
+"""Settings a run record holds beyond its named config groups: what ``budget=cpu planner.num_candidates=512``
+adds to ``budget=cpu``, so that a table never labels such a run as plain ``cpu``."""
+
+import functools
+import json
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from hydra import compose, initialize_config_dir
+from hydra.core.global_hydra import GlobalHydra
+from hydra.errors import HydraException
+from omegaconf import OmegaConf
+
+from pipeline.records import to_jsonable
+
+GROUPS = ("scene", "method", "planner", "ablation", "budget")
+NOT_SETTINGS = ("paths", "seed")  # where files live; the seed is an identity key
+
+
+def _changed(recorded: Any, named: Any, prefix: str = "") -> list[tuple[str, Any]]:
+    """``(dotted key, recorded value)`` wherever the record has a value that differs from ``named``;
+    keys the record lacks (added to the code after the run) are not changes."""
+    if isinstance(recorded, dict) and isinstance(named, dict):
+        return [c for key in sorted(recorded) for c in _changed(recorded[key], named.get(key), f"{prefix}{key}.")]
+    return [] if recorded == named else [(prefix.rstrip("."), recorded)]
+
+
+def _text(value: Any) -> str:
+    return value if isinstance(value, str) else json.dumps(value)
+
+
+class NamedConfigs:
+    """Today's resolved config of each combination of named groups under ``conf_dir``, composed once."""
+
+    def __init__(self, conf_dir: Path):
+        self.conf_dir = Path(conf_dir)
+        self.named = functools.lru_cache(maxsize=None)(self._compose)
+
+    def _compose(self, groups: tuple[str, ...]) -> dict | None:
+        from pipeline.config import register_configs  # the schema imports the method library (torch): only when used
+
+        overrides = [f"{group}={name}" for group, name in zip(GROUPS, groups, strict=True)]
+        register_configs()
+        try:
+            if GlobalHydra.instance().is_initialized():
+                cfg = compose("config", overrides=overrides)
+            else:
+                with initialize_config_dir(str(self.conf_dir.resolve()), version_base="1.3"):
+                    cfg = compose("config", overrides=overrides)
+        except HydraException:
+            return None  # a group that no longer exists: nothing to compare against
+        return to_jsonable(OmegaConf.to_container(cfg, resolve=True))
+
+    def overrides(self, info: Mapping) -> tuple[str, ...]:
+        """``key=value`` (sorted) for every setting in the record's config whose value differs from what
+        its named groups give today: command-line overrides, or defaults changed since the run.
+        Empty when its groups can no longer be composed."""
+        named = self.named(tuple(str(info[group]) for group in GROUPS))
+        config = info.get("config")
+        if named is None or not isinstance(config, Mapping):
+            return ()
+        recorded = {k: v for k, v in to_jsonable(dict(config)).items() if k not in NOT_SETTINGS}
+        return tuple(f"{key}={_text(value)}" for key, value in _changed(recorded, named))
