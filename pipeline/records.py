@@ -193,9 +193,11 @@ def first_difference(old: Any, new: Any, prefix: str = "") -> tuple[str, Any, An
     return None if old == new else (prefix.rstrip(".") or "value", old, new)
 
 
-def run_difference(old_info: Mapping, new_info: Mapping) -> str | None:
-    """How two run infos differ as runs: ``<key> (<old> in the record, <new> now)`` for the first
-    differing identity key or setting (``config.<dotted key>``; ``paths`` are locations, not
+def run_difference(
+    old_info: Mapping, new_info: Mapping, labels: tuple[str, str] = ("in the record", "now")
+) -> str | None:
+    """How two run infos differ as runs: ``<key> (<old> <labels[0]>, <new> <labels[1]>)`` for the
+    first differing identity key or setting (``config.<dotted key>``; ``paths`` are locations, not
     settings), or None when both describe the same run."""
     old = {k: old_info.get(k) for k in IDENTITY_KEYS} | {"config": _settings(old_info.get("config"))}
     new = {k: new_info.get(k) for k in IDENTITY_KEYS} | {"config": _settings(new_info.get("config"))}
@@ -203,7 +205,7 @@ def run_difference(old_info: Mapping, new_info: Mapping) -> str | None:
     if found is None:
         return None
     key, was, now = found
-    return f"{key} ({json.dumps(was)} in the record, {json.dumps(now)} now)"
+    return f"{key} ({json.dumps(was)} {labels[0]}, {json.dumps(now)} {labels[1]})"
 
 
 def record_status(info: dict, directory: Path) -> str:

@@ -171,7 +171,7 @@ def collect_runs(roots: list[Path]) -> Runs:
             if key in records:
                 keep_first = records[key]["status"] == "done" or status != "done"
                 kept, left = (records[key], record) if keep_first else (record, records[key])
-                changed = run_difference(left["info"], kept["info"])
+                changed = run_difference(left["info"], kept["info"], labels=("here", "there"))
                 if changed is not None:
                     conflicts.append(
                         f"left out {left['directory']}: the same run as {kept['directory']} but a different {changed}"
