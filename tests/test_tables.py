@@ -144,7 +144,8 @@ def test_the_same_run_with_other_settings_is_left_out_and_listed(tmp_path):
     make_run(second, seed=101, final={"psnr": 20.0}, config={"planner": {"num_candidates": 512}})  # no conflict
     written, lines = build_tables(first, [second], tmp_path / "res", figures=False)
     assert len(lines) == 1
-    assert lines[0].startswith(f"left out {second / 'hubble'}") and "config.planner.num_candidates (128 here, 512 there)" in lines[0]
+    assert lines[0].startswith(f"left out {second / 'hubble'}")
+    assert "the same run as" in lines[0] and "config.planner.num_candidates (128 here, 512 there)" in lines[0]
     md = read(tmp_path / "res" / "tables" / "main.md")
     assert "Budget: smoke+planner.num_candidates=512." in md  # 512 is not smoke's own value (8)
     assert "1 run record(s) left out: the same run as a kept record with other settings" in md
