@@ -18,7 +18,7 @@ from jaxtyping import Float, Int
 from torch import Tensor
 
 from nvf.cameras import Intrinsics, camera_directions
-from nvf.config import EntropyConfig, TrainConfig
+from nvf.config import STAGES, EntropyConfig, TrainConfig
 from nvf.model import SceneModel
 from nvf.rendering import Samples, ray_sum
 from nvf.uncertainty.mixture import mixture_log_density, ray_mixture
@@ -26,7 +26,6 @@ from nvf.visibility import visibility_labels
 
 Progress = Callable[[str, int, int, float], None]
 
-STAGES = ("backbone", "variance", "visibility")
 AUX_LOSSES = ("none", "activenerf", "neurar")
 REFERENCE_STEPS = {"variance": 3, "visibility": 5}  # D6, D7: Adam steps per iteration (schedule=reference)
 BACKBONE_ADAM_EPS = 1e-15

@@ -13,6 +13,7 @@ from hydra.errors import HydraException
 from omegaconf import OmegaConf
 
 from pipeline.records import to_jsonable
+from pipeline.schema import register_configs
 
 GROUPS = ("scene", "method", "planner", "ablation", "budget")
 NOT_SETTINGS = ("paths", "seed")  # where files live; the seed is an identity key
@@ -38,8 +39,6 @@ class NamedConfigs:
         self.named = functools.lru_cache(maxsize=None)(self._compose)
 
     def _compose(self, groups: tuple[str, ...]) -> dict | None:
-        from pipeline.config import register_configs  # the schema imports the method library (torch): only when used
-
         overrides = [f"{group}={name}" for group, name in zip(GROUPS, groups, strict=True)]
         register_configs()
         try:

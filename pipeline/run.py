@@ -22,12 +22,13 @@ from tqdm import tqdm
 
 from nvf.planning import NoCandidatesError
 from nvf.training import TrainingDiverged
-from pipeline.config import ConfigError, register_configs, validate
+from pipeline.config import ConfigError, validate
 from pipeline.episode import Episode, resolve_device
 from pipeline.images import save_step_images
 from pipeline.metrics import LpipsMetric
 from pipeline.records import RunRecord, run_dir
 from pipeline.scenes import SceneError, load_scene
+from pipeline.schema import register_configs
 
 REPO = Path(__file__).resolve().parents[1]
 register_configs()

@@ -7,7 +7,8 @@ import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import open_dict
 
-from pipeline.config import ConfigError, register_configs, validate
+from pipeline.config import ConfigError, validate
+from pipeline.schema import register_configs
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 

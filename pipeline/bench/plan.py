@@ -36,9 +36,9 @@ from torch import Tensor
 from tqdm import tqdm
 
 from nvf.cameras import Intrinsics, camera_directions, pose_to_matrix, rays_from_camera_dirs
+from nvf.config import STAGES
 from nvf.field import INFERENCE_BLOCK, VIS_POSITION_WIDTH
 from nvf.planning import score_poses
-from nvf.training import STAGES
 from nvf.uncertainty import make_scorer
 from nvf.uncertainty.scorers import METHODS
 from pipeline.bench._report import write_report

@@ -38,19 +38,21 @@ from torch import Tensor
 from tqdm import tqdm
 
 from nvf.cameras import Intrinsics, look_at, matrix_to_pose
+from nvf.config import STAGES
 from nvf.encoding import cpp_extension
 from nvf.field import HEADS
 from nvf.model import RenderResult, SceneModel
 from nvf.planning import candidate_poses, seeded_generator
-from nvf.training import STAGES, Observations, train_backbone, train_model
+from nvf.training import Observations, train_backbone, train_model
 from pipeline.bench._report import write_report
 from pipeline.bench.field import matmul_gflops, median_seconds, mlp_flops
-from pipeline.config import ConfigError, register_configs, validate
+from pipeline.config import ConfigError, validate
 from pipeline.episode import EpisodeSettings
 from pipeline.evaluation import RENDER_CHUNK
 from pipeline.metrics import off_edge_psnr, psnr
 from pipeline.render import GroundTruthRenderer
 from pipeline.scenes import REPO, Scene, SceneError, load_scene
+from pipeline.schema import register_configs
 
 GOALS = {"train_samples_per_s": 1e6, "infer_samples_per_s": 3e6}
 HELD_OUT_VIEWS = 5
