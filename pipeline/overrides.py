@@ -37,10 +37,10 @@ class NamedConfigs:
     def __init__(self, conf_dir: Path):
         self.conf_dir = Path(conf_dir)
         self.named = functools.lru_cache(maxsize=None)(self._compose)
+        register_configs()
 
     def _compose(self, groups: tuple[str, ...]) -> dict | None:
         overrides = [f"{group}={name}" for group, name in zip(GROUPS, groups, strict=True)]
-        register_configs()
         try:
             if GlobalHydra.instance().is_initialized():
                 cfg = compose("config", overrides=overrides)

@@ -251,7 +251,7 @@ class RunRecord:
         now = utc_now()
         timings = {"started": now, "resumed": [], "ended": None}
         if previous:
-            changed = self.difference(info)
+            changed = run_difference(previous, info)
             if changed is not None:
                 message = f"run {self.directory} was started with a different {changed}"
                 raise ValueError(f"{message}; delete it or restore that setting")
