@@ -136,6 +136,7 @@ class PlannerConfig:
     los_samples: int = 200
     los_threshold: float = 0.95
     los_unobserved_free: bool = False  # M29 deviation: density 0 in cells no training sample reached
+    los_source: str = "model"  # M29: model (METHOD) | mesh (deviation: the scene mesh's exact line of sight)
     random_filters: bool = False
     score_chunk_rays: int = 8192
     opt: OptConfig = field(default_factory=OptConfig)

@@ -34,6 +34,8 @@ from nvf.uncertainty import ViewScorer
 from nvf.visibility import segment_transmittance
 
 GeneratorFactory = Callable[[str], torch.Generator]
+# (origin [3], points [n,3]) -> [n] True where the segment from origin to the point is free (M29, los_source=mesh)
+LineOfSight = Callable[[Float[Tensor, "3"], Float[Tensor, "n 3"]], Bool[Tensor, "n"]]
 
 _QUAT_EPS = 1e-9  # METHOD 13 step 2
 
@@ -96,6 +98,7 @@ def candidate_poses(
     collision_free: bool,
     generator: torch.Generator,
     apply_filters: bool = True,
+    line_of_sight: LineOfSight | None = None,
 ) -> Float[Tensor, "m 7"]:
     """Candidate poses of one planning step (METHOD 13), ``m <= cfg.num_candidates``.
 
@@ -104,8 +107,9 @@ def candidate_poses(
     threshold ``tau``) and, if ``collision_free``, the line-of-sight filter from ``current_pose``'s
     centre (M29: M17's ``segment_transmittance`` with ``cfg.los_samples`` stratified samples jittered
     by ``generator``, keep ``T > cfg.los_threshold``; with ``cfg.los_unobserved_free`` the density reads
-    0 in cells no training sample reached, ``model.observed_density``). Keep the first ``min(N, count)``. Raises
-    ``NoCandidatesError`` when a filter leaves nothing.
+    0 in cells no training sample reached, ``model.observed_density``; with ``cfg.los_source == "mesh"``
+    the exact segment test ``line_of_sight`` replaces the model, a deviation, docs/DEVIATIONS.md).
+    Keep the first ``min(N, count)``. Raises ``NoCandidatesError`` when a filter leaves nothing.
     """
     n = cfg.num_candidates
     drawn = 3 * n if collision_free else math.floor(cfg.oversample * n)
@@ -117,14 +121,20 @@ def candidate_poses(
             if current_pose is None:
                 raise ValueError("the collision-free sampler (M29) needs the current pose")
             origin = current_pose[4:].to(poses)
+            if cfg.los_source == "mesh":
+                if line_of_sight is None:
+                    raise ValueError("planner.los_source=mesh needs the scene mesh's line_of_sight test")
+                stages.append(("line-of-sight filter M29 (scene mesh)", lambda p: line_of_sight(origin, p[:, 4:])))
+            elif cfg.los_source == "model":
+                los_density = model.observed_density if cfg.los_unobserved_free else model.density
 
-            los_density = model.observed_density if cfg.los_unobserved_free else model.density
+                def los(p: Tensor) -> Tensor:
+                    trans = segment_transmittance(los_density, origin, p[:, 4:], cfg.los_samples, generator, model.aabb)
+                    return trans > cfg.los_threshold
 
-            def los(p: Tensor) -> Tensor:
-                trans = segment_transmittance(los_density, origin, p[:, 4:], cfg.los_samples, generator, model.aabb)
-                return trans > cfg.los_threshold
-
-            stages.append((f"line-of-sight filter M29 (T > {cfg.los_threshold:g})", los))
+                stages.append((f"line-of-sight filter M29 (T > {cfg.los_threshold:g})", los))
+            else:
+                raise ValueError(f"planner.los_source={cfg.los_source!r} is not one of model, mesh")
     for name, keep in stages:
         before = poses.shape[0]
         poses = poses[keep(poses)]
@@ -334,6 +344,7 @@ def select_next_view(
     tau: float,
     collision_free: bool,
     generators: GeneratorFactory,
+    line_of_sight: LineOfSight | None = None,
 ) -> Selection:
     """Choose the next view (METHOD 12-14).
 
@@ -347,11 +358,12 @@ def select_next_view(
       below the best starting candidate. No filter re-check after refinement (METHOD 14.4).
 
     ``tau`` and ``collision_free`` are the resolved scene values; ``current_pose`` is the most
-    recently observed pose (needed by the collision-free sampler).
+    recently observed pose (needed by the collision-free sampler); ``line_of_sight``: the scene mesh's
+    segment test, needed when ``cfg.los_source == "mesh"`` (``candidate_poses``).
     """
     filters = scorer is not None or cfg.random_filters
     candidates = candidate_poses(
-        model, cfg, camera_box, current_pose, tau, collision_free, generators("candidates"), apply_filters=filters
+        model, cfg, camera_box, current_pose, tau, collision_free, generators("candidates"), filters, line_of_sight
     )
     m = candidates.shape[0]
     if scorer is None:

@@ -23,6 +23,7 @@ _CHOICES: dict[str, tuple[Any, ...]] = {
     "ablation.name": ABLATIONS,
     "planner.name": ("argmax", "opt"),
     "planner.opt.param": ("quat_raw", "se3"),
+    "planner.los_source": ("model", "mesh"),
     "field.kind": ("hashgrid", "densegrid"),
     "field.backend": ("auto", "torch", "cpp"),
     "nvf.entropy.bound": ("huber", "moment_matched"),

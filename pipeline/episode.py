@@ -139,6 +139,7 @@ class Episode:
         selection = select_next_view(
             model, self.scorer, s.planner, self.scene.camera_box.to(self.device), current,
             self.plan_intrinsics, s.tau, s.collision_free, generator_factory(cfg.seed, step, self.device),
+            self.renderer.unoccluded,
         )  # fmt: skip
         t3 = time.perf_counter()
         self.previous_model = model if s.train.warm_start else None

@@ -181,12 +181,19 @@ class GroundTruthRenderer:
         visible = torch.zeros(points.shape[0], dtype=torch.bool)
         points = points.detach().cpu().to(torch.float32)
         for pose in c2w.detach().cpu().to(torch.float32):
-            to_point = points - pose[:3, 3]
-            distance = torch.linalg.norm(to_point, dim=-1)
-            t_hit, _ = self.cast_rays(pose[:3, 3].expand_as(points).numpy(), (to_point / distance[:, None]).numpy())
-            unoccluded = torch.from_numpy(t_hit >= distance.numpy() - 1e-4)
-            visible |= frustum_mask(points, pose, intr, math.inf) & unoccluded
+            visible |= frustum_mask(points, pose, intr, math.inf) & self.unoccluded(pose[:3, 3], points)
         return visible
+
+    def unoccluded(self, origin: Float[Tensor, "3"], points: Float[Tensor, "N 3"]) -> Bool[Tensor, "N"]:
+        """Whether the segment from ``origin`` to each point crosses no face (open3d ray cast, 1e-4
+        tolerance; a point at the origin is unoccluded). On ``points``' device."""
+        device = points.device
+        origin = origin.detach().cpu().to(torch.float32)
+        to_point = points.detach().cpu().to(torch.float32) - origin
+        distance = torch.linalg.norm(to_point, dim=-1)
+        dirs = to_point / distance.clamp(min=1e-12)[:, None]
+        t_hit, _ = self.cast_rays(origin.expand_as(to_point).numpy(), dirs.numpy())
+        return (torch.from_numpy(t_hit >= distance.numpy() - 1e-4) | (distance == 0)).to(device)
 
     def face_ids(self, c2w: Float[np.ndarray, "4 4"], intr: Intrinsics) -> Int[np.ndarray, "H W"]:
         """Face hit by each pixel-centre ray (``nvf.cameras.pixel_rays``), -1 = miss (PROTOCOL.md 4.3)."""

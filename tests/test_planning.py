@@ -200,6 +200,25 @@ def test_collision_filter_m29_unobserved_wall_is_free_only_with_the_switch():
     assert (out[:, 4] < 0.0).all(), "a candidate behind an observed wall passed the line-of-sight filter"
 
 
+def test_collision_filter_m29_from_the_mesh_replaces_the_model():
+    """``planner.los_source=mesh`` (M29 deviation): the given segment test decides, not the model's
+    density (the model's wall at x = 0 is ignored; the test's wall at x = 0.5 blocks), and it is required."""
+    model = ToyModel(ToyField(peak=0.0, walls=(0.0,)))
+    current = pose_looking([-1.0, 0.2, 0.1], [0.0, 0.0, 0.0])
+    seen_from = []
+
+    def mesh_sight(origin: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+        seen_from.append(origin)
+        return points[:, 0] < 0.5
+
+    c = cfg(n=64, los_source="mesh")
+    out = candidate_poses(model, c, BOX, current, 1e-4, True, seeded_generator(5, 2, "candidates"), True, mesh_sight)
+    assert (out[:, 4] < 0.5).all() and ((out[:, 4] > 0.0) & (out[:, 4] < 0.5)).any()
+    torch.testing.assert_close(seen_from[0], current[4:])
+    with pytest.raises(ValueError, match="los_source=mesh needs"):
+        candidate_poses(model, c, BOX, current, 1e-4, True, seeded_generator(5, 2, "candidates"))
+
+
 def test_no_candidates_error_names_the_filter():
     solid = ToyModel(ToyField(peak=1e6, width=100.0))
     with pytest.raises(NoCandidatesError, match=r"density filter M28 .* all 24 of 24 drawn"):

@@ -114,6 +114,18 @@ def test_line_of_sight_is_exact_occlusion_and_frustum(cube_renderer):
     assert cube_renderer.line_of_sight(points, torch.stack([below, away, above]), INTR).all()
 
 
+def test_unoccluded_segments_stop_at_faces_not_beyond_the_point(cube_renderer):
+    """M29 with ``planner.los_source=mesh``: a segment is blocked only by a face between its ends."""
+    origin = torch.tensor([0.0, 0.0, 2.0])
+    points = torch.tensor([
+        [0.0, 0.0, 0.31],  # just above the +z face: free
+        [0.0, 0.0, -1.0],  # behind the cube: blocked
+        [1.5, 0.0, -1.0],  # beside the cube: free
+        [0.0, 0.0, 2.0],  # the origin itself: free
+    ])  # fmt: skip
+    assert cube_renderer.unoccluded(origin, points).tolist() == [True, False, True, True]
+
+
 def test_resolve_backend(monkeypatch):
     assert resolve_backend("egl") == "egl" and resolve_backend("osmesa") == "osmesa"
     monkeypatch.setenv("PYOPENGL_PLATFORM", "osmesa")

@@ -135,7 +135,7 @@ class InitialViewModel:
         current = matrix_to_pose(self.scene.init_poses[-1].to(torch.float32))
         return candidate_poses(
             self.model, s.planner, self.scene.camera_box, current, s.tau, s.collision_free,
-            seeded_generator(int(self.cfg.seed), step, "candidates"),
+            seeded_generator(int(self.cfg.seed), step, "candidates"), line_of_sight=self.renderer.unoccluded,
         )  # fmt: skip
 
 
