@@ -245,7 +245,7 @@ def object_mean(final: pd.DataFrame) -> tuple[pd.DataFrame, tuple[str, ...]]:
     for key, group in objects.groupby(["budget", "method", "planner", "ablation"], sort=False):
         scenes = sorted(set(group["scene"]), key=_scene_rank)
         complete = group.groupby("seed").filter(lambda s: set(s["scene"]) == set(scenes))
-        text = f"mean over {len(scenes)} scenes ({', '.join(scenes)})"
+        text = f"mean over {len(scenes)} scene{'' if len(scenes) == 1 else 's'} ({', '.join(scenes)})"
         dropped = sorted(set(group["seed"]) - set(complete["seed"]))
         if dropped:
             text += f", seeds {', '.join(map(str, dropped))} left out (missing scenes)"
