@@ -181,6 +181,7 @@ def test_committed_runs_and_object_mean_and_paper_comparison(tmp_path):
     assert "| object-scene mean | NVF " in t34 and "22.50 ± 0.50" in t34  # per-seed means 22 and 23
     comparison = read(tmp_path / "res" / "tables" / "paper_comparison.md")
     assert "24.50 ± 0.50 / 26.10" in comparison  # hotdog NVF vs Table S3
+    assert "| object-scene mean (2 of 8) | NVF " in comparison  # the row says how many scenes it averages
     assert "22.50 ± 0.50 / 24.17" in comparison  # object-scene mean vs the 8-scene mean
     t1 = read(tmp_path / "res" / "tables" / "table1_opt.md")
     assert "NVF-OPT" in t1
