@@ -102,6 +102,7 @@ class TrainConfig:
     variance: StageBudget = field(default_factory=lambda: StageBudget(500, 4096, 1e-3))
     visibility: StageBudget = field(default_factory=lambda: StageBudget(500, 65536, 1e-3))
     schedule: str = "paper"  # paper | reference (D5-D7)
+    target_samples: int = 1 << 18  # schedule=reference: kept samples per batch of the dynamic batch (D5)
     stage_order: str = "var_first"  # var_first | vis_first
     var_loss_background: str = "random"  # random | black (M21)
     ablation_affects_training: bool = False

@@ -176,6 +176,27 @@ def _steps_per_iteration(cfg: TrainConfig, stage: str) -> int:
     raise ValueError(f"schedule must be 'paper' or 'reference', got {cfg.schedule!r}")
 
 
+class RayBatch:
+    """Rays per batch of the backbone and variance stages (METHOD 10, D5).
+
+    ``schedule=paper``: ``batch`` rays every time. ``schedule=reference``: the reference's dynamic
+    batch: start at ``target_samples // max_samples_per_ray`` rays (256 with METHOD's 2^18 and
+    1024), then after each batch scale the count by ``target_samples / kept samples``, truncated,
+    so that a batch keeps about ``target_samples`` samples. Two choices of ours: the count stays in
+    ``[1, target_samples]``, and a batch that kept no sample leaves it unchanged.
+    """
+
+    def __init__(self, cfg: TrainConfig, batch: int, max_samples_per_ray: int):
+        self.dynamic = cfg.schedule == "reference"
+        self.target = cfg.target_samples
+        self.rays = max(1, self.target // max_samples_per_ray) if self.dynamic else batch
+
+    def update(self, kept_samples: int) -> None:
+        """Adapt the next batch to the samples the last one kept (a no-op for ``schedule=paper``)."""
+        if self.dynamic and kept_samples > 0:
+            self.rays = min(self.target, max(1, int(self.rays * (self.target / kept_samples))))
+
+
 def _require_images(obs: Observations) -> None:
     if obs.num_images == 0:
         raise ValueError("empty training set: no observed images")
@@ -188,13 +209,14 @@ class _Recorder:
         self.stage, self.total, self.progress = stage, total, progress
         self.losses: list[float] = []
         self.steps = 0
-        self.samples = self.rays = 0
+        self.samples = self.rays = self.batches = 0
         self.start = time.perf_counter()
 
     def count(self, samples: Samples) -> None:
         """Add one rendered batch to the stage's kept samples per ray."""
         self.samples += samples.num_samples
         self.rays += samples.n_rays
+        self.batches += 1
 
     def check(self, loss: Float[Tensor, ""], iteration: int) -> float:
         value = float(loss.detach())
@@ -216,8 +238,9 @@ class _Recorder:
             self.progress(self.stage, iteration, self.total, loss)
 
     def summary(self) -> dict[str, float]:
-        """Iterations, optimiser steps, first/last loss, seconds, and ``samples_per_ray`` for stages
-        that render rays (the kept samples after alpha skipping, the stage's main cost)."""
+        """Iterations, optimiser steps, first/last loss, seconds, and for stages that render rays
+        ``samples_per_ray`` (the kept samples after alpha skipping, the stage's main cost) and
+        ``rays_per_batch`` (mean; it varies with the reference's dynamic batch)."""
         nan = float("nan")
         summary = {
             "iters": float(len(self.losses)),
@@ -228,6 +251,7 @@ class _Recorder:
         }
         if self.rays:
             summary["samples_per_ray"] = self.samples / self.rays
+            summary["rays_per_batch"] = self.rays / self.batches
         return summary
 
 
@@ -244,6 +268,7 @@ def train_backbone(
 ) -> dict[str, float]:
     """Stage 1: hash grid, density MLP and colour head on (M20) with the random background (M4).
 
+    ``cfg.backbone.batch`` rays per iteration, or the dynamic batch with ``schedule=reference`` (``RayBatch``, D5).
     Adam (eps 1e-15), ``lr(k) = lr * 0.01 ** (k / lr_decay_horizon)``; ``model.update_grid`` is
     called every iteration and refreshes the occupancy grid (M5) every ``update_every``; the cells of
     each batch's kept samples are marked observed (``grid.mark_observed``, read by M29's
@@ -262,15 +287,17 @@ def train_backbone(
         heads = heads | {"variance"}
     optimizer = torch.optim.Adam(param_groups, lr=cfg.backbone.lr, eps=BACKBONE_ADAM_EPS, fused=True)
     rec = _Recorder("backbone", cfg.backbone.iters, progress)
+    batch = RayBatch(cfg, cfg.backbone.batch, model.sampler_cfg.max_samples_per_ray)
     aux_losses: list[float] = []
     for k in range(cfg.backbone.iters):
         model.update_grid(k, generator)  # M5: a no-op unless k % sampler.update_every == 0
         for group in optimizer.param_groups:
             group["lr"] = backbone_lr(cfg, k)
-        origins, dirs, rgba, image = obs.sample_rays(cfg.backbone.batch, generator)
+        origins, dirs, rgba, image = obs.sample_rays(batch.rays, generator)
         background = _background(origins.shape[0], "random", generator, origins)
         result = model.render(origins, dirs, heads=heads, train=True, generator=generator, image_idx=image)
         rec.count(result.samples)
+        batch.update(result.samples.num_samples)
         model.grid.mark_observed(result.samples.positions(origins, dirs))
         pred = composite(result.rgb, result.acc, background)
         gt = _ground_truth(rgba, background)
@@ -323,7 +350,7 @@ def train_variance_head(
     The mixture (M9) uses the frozen density, colours and the current visibility head (untrained
     under ``var_first``); only ``q`` carries gradients. ``z`` is the ground truth on a random
     (or black, ``cfg.var_loss_background``) background. Adam with default eps, constant lr;
-    ``schedule=reference`` takes 3 steps per iteration, each on a fresh batch (D6). Iteration
+    ``schedule=reference`` takes 3 steps per iteration, each on a fresh dynamic batch (D6, ``RayBatch``). Iteration
     losses are means over their steps.
     """
     _require_images(obs)
@@ -333,16 +360,18 @@ def train_variance_head(
     if mix_cfg is None:
         return rec.summary()
     optimizer = torch.optim.Adam(model.field.parameter_groups()["variance"], lr=cfg.variance.lr, fused=True)
+    batch = RayBatch(cfg, cfg.variance.batch, model.sampler_cfg.max_samples_per_ray)
     for k in range(cfg.variance.iters):
         values = []
         for _ in range(steps):
-            origins, dirs, rgba, image = obs.sample_rays(cfg.variance.batch, generator)
+            origins, dirs, rgba, image = obs.sample_rays(batch.rays, generator)
             background = _background(origins.shape[0], cfg.var_loss_background, generator, origins)
             result = model.render(
                 origins, dirs, heads=_HEADS_VARIANCE_STAGE, train=True, generator=generator, image_idx=image
             )
             samples = result.samples
             rec.count(samples)
+            batch.update(samples.num_samples)
             mixture, _ = ray_mixture(
                 result.alpha.detach(),
                 result.rgb_s.detach(),

@@ -53,7 +53,7 @@ _POSITIVE = (
     "budget.recon_batch", "budget.gt_samples", "planner.num_candidates", "planner.resolution", "planner.los_samples",
     "planner.score_chunk_rays", "planner.opt.top_k", "planner.opt.iters", "planner.opt.chunk_rays",
     "train.backbone.iters", "train.backbone.batch", "train.variance.iters", "train.variance.batch",
-    "train.visibility.iters", "train.visibility.batch", "train.lr_decay_horizon", "train.label_samples",
+    "train.visibility.iters", "train.visibility.batch", "train.lr_decay_horizon", "train.label_samples", "train.target_samples",
     "field.num_levels", "field.features_per_level", "field.log2_hashmap_size", "field.base_resolution",
     "field.max_resolution", "field.dense_resolution", "field.dense_features", "field.hidden_dim",
     "sampler.grid_resolution", "sampler.step_size", "sampler.update_every", "sampler.max_samples_per_ray",

@@ -13,6 +13,7 @@ from nvf.config import EntropyConfig, FieldConfig, SamplerConfig, StageBudget, T
 from nvf.model import SceneModel  # noqa: E402
 from nvf.training import (  # noqa: E402
     Observations,
+    RayBatch,
     TrainingDiverged,
     activenerf_loss,
     backbone_lr,
@@ -250,6 +251,42 @@ def test_reference_schedule_step_counts(trained):
     assert stats.stages["variance"]["steps"] == 6  # D6: 3 fresh batches per iteration
     assert stats.stages["visibility"]["steps"] == 10  # D7: 5 steps on the same batch
     assert stats.seconds > 0
+
+
+def test_ray_batch_follows_the_reference_dynamic_batch_d5():
+    """D5: start at target // max_samples_per_ray rays, scale by target / kept samples; paper: fixed."""
+    reference = RayBatch(tiny_config(schedule="reference", target_samples=1000), 64, max_samples_per_ray=100)
+    assert reference.rays == 10
+    reference.update(500)  # half the target kept: twice the rays
+    assert reference.rays == 20
+    reference.update(0)  # nothing kept: unchanged (our choice; the reference would divide by zero)
+    assert reference.rays == 20
+    reference.update(1)  # capped at target_samples rays
+    assert reference.rays == 1000
+    paper = RayBatch(tiny_config(), 64, max_samples_per_ray=100)
+    paper.update(500)
+    assert paper.rays == 64
+
+
+def test_reference_schedule_keeps_about_target_samples_per_batch(trained):
+    """D5: with ``schedule=reference`` the backbone's batches adapt until they keep about ``target_samples``."""
+    model, obs = trained
+    target = 3000
+    cfg = tiny_config(schedule="reference", target_samples=target, backbone=StageBudget(12, 256, 1e-2))
+    kept: list[int] = []
+    model = copy_model(model)
+    render = model.render
+
+    def counting_render(*args, **kwargs):
+        result = render(*args, **kwargs)
+        kept.append(result.samples.num_samples)
+        return result
+
+    model.render = counting_render
+    stats = train_backbone(model, obs, cfg, torch.Generator().manual_seed(0))
+    assert kept[0] < target / 4  # starts at target // 1024 = 2 rays
+    assert all(0.5 * target < k < 2.0 * target for k in kept[-4:]), kept
+    assert stats["rays_per_batch"] != 256
 
 
 def test_ablation_affects_training_wo_var_skips_variance_stage(trained):
