@@ -1,14 +1,19 @@
 """Validation of a run's configuration (the schema is ``pipeline.schema``): ``validate`` runs before any
-work and raises ``ConfigError`` with one line naming the key.
+work and raises ``ConfigError`` with one line naming the key; ``compose_config`` composes and validates
+a config outside ``@hydra.main`` (benchmarks, experiments).
 """
 
+import sys
+from pathlib import Path
 from typing import Any
 
+from hydra import compose, initialize_config_dir
 from omegaconf import DictConfig, OmegaConf
 
 from nvf.config import STAGES
 from nvf.training import AUX_LOSSES
 from nvf.uncertainty.scorers import METHODS
+from pipeline.schema import register_configs
 
 ABLATIONS = ("none", "wo_vis", "wo_var", "ind_rays", "loose")
 
@@ -96,3 +101,16 @@ def validate(cfg: DictConfig) -> None:
         raise ConfigError(f"nvf.entropy.d0={d0} must be >= 0, -1 (auto) or null (the scene's value)")
     if cfg.device != "auto" and not (cfg.device == "cpu" or str(cfg.device).startswith("cuda")):
         raise ConfigError(f"device={cfg.device!r} must be auto, cpu, cuda or cuda:N")
+
+
+def compose_config(overrides: list[str]) -> DictConfig:
+    """conf/config.yaml with ``overrides``, validated; a bad value exits with one line (status 2)."""
+    register_configs()
+    with initialize_config_dir(str(Path(__file__).resolve().parents[1] / "conf"), version_base="1.3"):
+        cfg = compose("config", overrides=overrides)
+    try:
+        validate(cfg)
+    except ConfigError as err:
+        print(f"error: {err}", file=sys.stderr)
+        raise SystemExit(2) from None
+    return cfg

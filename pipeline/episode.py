@@ -19,7 +19,7 @@ from nvf.cameras import Intrinsics, matrix_to_pose, pose_to_matrix
 from nvf.config import BaselineConfig, EntropyConfig, FieldConfig, PlannerConfig, SamplerConfig, TrainConfig
 from nvf.model import SceneModel
 from nvf.planning import generator_factory, seeded_generator, select_next_view
-from nvf.training import Observations, train_model
+from nvf.training import Observations, TrainStats, train_model
 from nvf.uncertainty import make_scorer
 from pipeline.evaluation import Evaluator
 from pipeline.metrics import LpipsMetric
@@ -122,16 +122,22 @@ class Episode:
             model.load_state_dict(state, strict=False)
         return model
 
-    def step(self, step: int, progress: TrainProgress | None = None) -> tuple[dict, dict]:
-        """Run step ``step``; returns the step row and the images to save (name -> HxWx{1,3} array)."""
+    def train(self, obs: Observations, step: int, progress: TrainProgress | None = None) -> tuple[SceneModel, TrainStats]:
+        """A fresh model (``new_model``) trained on ``obs`` with the method's stages, as step ``step`` trains it."""
         cfg, s = self.cfg, self.settings
-        obs = self.observations()
         model = self.new_model(step)
-        t0 = time.perf_counter()
         stats = train_model(
             model, obs, s.train, list(cfg.method.stages), s.entropy,
             seeded_generator(cfg.seed, step, "train", self.device), cfg.method.aux_loss, progress,
         )  # fmt: skip
+        return model, stats
+
+    def step(self, step: int, progress: TrainProgress | None = None) -> tuple[dict, dict]:
+        """Run step ``step``; returns the step row and the images to save (name -> HxWx{1,3} array)."""
+        cfg, s = self.cfg, self.settings
+        obs = self.observations()
+        t0 = time.perf_counter()
+        model, stats = self.train(obs, step, progress)
         t1 = time.perf_counter()
         metrics, images = self.evaluator.evaluate(model, self.scorer, self.face_ids, obs, step)
         t2 = time.perf_counter()

@@ -1,11 +1,15 @@
-"""Per-step images of a run: GT | prediction | score map | depth of evaluation view 0, as PNGs."""
+"""Images written by the pipeline: per-step PNGs of a run (GT | prediction | score map | depth of
+evaluation view 0), colourised maps, and matplotlib figures saved atomically."""
 
+import os
+import tempfile
 from pathlib import Path
 
 import imageio.v3 as iio
 import matplotlib
 import numpy as np
 from jaxtyping import Float
+from matplotlib.figure import Figure
 
 
 def to_uint8(image: Float[np.ndarray, "H W 3"]) -> np.ndarray:
@@ -32,3 +36,16 @@ def save_step_images(directory: Path, step: int, images: dict[str, np.ndarray]) 
         tmp = directory / f".step_{step:02d}_{name}.png.tmp"
         iio.imwrite(tmp, to_uint8(rgb), extension=".png")
         tmp.replace(directory / f"step_{step:02d}_{name}.png")
+
+
+def save_figure(fig: Figure, path: Path) -> None:
+    """Save a figure as PNG atomically (temp file + os.replace)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".png", dir=path.parent)
+    os.close(fd)
+    try:
+        fig.savefig(tmp, format="png")
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

@@ -13,10 +13,8 @@ its named groups give today (``pipeline.overrides``) has them appended to its bu
 
 import json
 import math
-import os
 import re
 import sys
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,6 +24,7 @@ import pandas as pd
 from jaxtyping import Float
 from matplotlib.figure import Figure
 
+from pipeline.images import save_figure
 from pipeline.metric_info import PAPER_METRICS
 from pipeline.overrides import NamedConfigs
 from pipeline.paper_numbers import paper_numbers
@@ -528,19 +527,6 @@ def paper_comparison(tables: dict[str, Table]) -> Table:
     return Table("paper_comparison", "Ours vs the paper", pd.DataFrame(rows), header, notes)
 
 
-def _save_figure(fig: Figure, path: Path) -> None:
-    """Save a figure atomically (temp file + os.replace)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".png", dir=path.parent)
-    os.close(fd)
-    try:
-        fig.savefig(tmp, format="png")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def curves(long: pd.DataFrame, figures: Path) -> list[Path]:
     """Metric-vs-step curves per (scene, budget): mean ± population-std band over seeds, one line per
     method (colour by position, dashed for ablations)."""
@@ -568,7 +554,7 @@ def curves(long: pd.DataFrame, figures: Path) -> list[Path]:
             fig.legend(handles, labels, loc="upper right")
         fig.suptitle(f"{scene} ({budget} budget)")
         path = figures / f"curves_{scene}_{budget}.png"
-        _save_figure(fig, path)
+        save_figure(fig, path)
         written.append(path)
     return written
 
@@ -603,7 +589,7 @@ def image_grid(run_dir: Path, out_path: Path, max_rows: int = 5) -> Path | None:
                 ax.set_title(dict(IMAGE_KINDS).get(kind, kind))
             if j == 0:
                 ax.text(-0.05, 0.5, f"step {step}", transform=ax.transAxes, rotation=90, ha="right", va="center")
-    _save_figure(fig, Path(out_path))
+    save_figure(fig, Path(out_path))
     return Path(out_path)
 
 

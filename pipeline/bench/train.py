@@ -31,7 +31,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from hydra import compose, initialize_config_dir
 from jaxtyping import Float
 from omegaconf import DictConfig
 from torch import Tensor
@@ -46,13 +45,12 @@ from nvf.planning import candidate_poses, seeded_generator
 from nvf.training import Observations, train_backbone, train_model
 from pipeline.bench._report import write_report
 from pipeline.bench.field import matmul_gflops, median_seconds, mlp_flops
-from pipeline.config import ConfigError, validate
+from pipeline.config import compose_config
 from pipeline.episode import EpisodeSettings
 from pipeline.evaluation import RENDER_CHUNK
 from pipeline.metrics import off_edge_psnr, psnr
 from pipeline.render import GroundTruthRenderer
 from pipeline.scenes import REPO, Scene, SceneError, load_scene
-from pipeline.schema import register_configs
 
 GOALS = {"train_samples_per_s": 1e6, "infer_samples_per_s": 3e6}
 HELD_OUT_VIEWS = 5
@@ -70,19 +68,6 @@ class CountingModel(SceneModel):
         result = super().render(*args, **kwargs)
         self.samples += result.samples.num_samples
         return result
-
-
-def compose_config(overrides: list[str]) -> DictConfig:
-    """conf/config.yaml with ``overrides``, validated; a bad value exits with one line (status 2)."""
-    register_configs()
-    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
-        cfg = compose("config", overrides=overrides)
-    try:
-        validate(cfg)
-    except ConfigError as err:
-        print(f"error: {err}", file=sys.stderr)
-        raise SystemExit(2) from None
-    return cfg
 
 
 def load(cfg: DictConfig) -> Scene:

@@ -38,7 +38,8 @@ from nvf.training import Observations
 from nvf.uncertainty import ViewScorer, make_scorer
 from nvf.visibility import visibility_labels
 from pipeline.bench._report import write_report
-from pipeline.bench.train import InitialViewModel, compose_config
+from pipeline.bench.train import InitialViewModel
+from pipeline.config import compose_config
 from pipeline.scenes import REPO
 
 SURFACE_OFFSET = 0.01  # scene units: the surface point moves this far towards the candidate camera

@@ -1,0 +1,171 @@
+"""``python -m pipeline.uncertainty [overrides]``: the stand-alone uncertainty experiment (PROTOCOL 4.4,
+the paper's entropy-comparison figure), default ``scene=hotdog budget=cpu``.
+
+One model per method is trained, as an episode's step 0 trains it (the method's stages and seeds), on
+a one-sided "partial" training set (``partial_views``, drawn with seed 0) instead of the scene's
+initial views. NVF's four ablations change only the score, so they are scored on NVF's model (unless
+``train.ablation_affects_training``, which trains them on their own). On the scene's 20 evaluation
+views each entry's per-pixel score is correlated with the per-pixel error (patch- and view-level
+Pearson r, AUSE; ``pipeline.metrics.uncertainty_correlation``), next to the image and geometry
+metrics of its model (PROTOCOL 4). Writes ``results/uncertainty/<scene>_<budget>.{json,md,png}`` (or
+``--out DIR``): the numbers, a table, and GT | prediction | error | every entry's score map of view 0.
+"""
+
+import argparse
+import dataclasses
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from jaxtyping import Float
+from matplotlib.figure import Figure
+from torch import Tensor
+from tqdm import tqdm
+
+from nvf.cameras import look_at
+from pipeline.config import compose_config
+from pipeline.episode import Episode, resolve_device
+from pipeline.images import colorize, save_figure
+from pipeline.metrics import LpipsMetric
+from pipeline.records import atomic_write_text, to_jsonable
+from pipeline.scenes import REPO, S, Scene, SceneError, load_scene
+from pipeline.tables import method_label
+
+PARTIAL_VIEWS = 20
+PARTIAL_SEED = 0
+# (method, ablation) scored, in the order of the table and the figure
+ENTRIES = (
+    ("nvf", "none"), ("nvf", "wo_vis"), ("nvf", "wo_var"), ("nvf", "ind_rays"), ("nvf", "loose"),
+    ("wd", "none"), ("activermap", "none"), ("air", "none"), ("activenerf", "none"), ("neurar", "none"),
+)  # fmt: skip
+COLUMNS = (("patch_pearson", "patch r ↑"), ("view_pearson", "view r ↑"), ("ause", "AUSE ↓"), ("psnr", "PSNR ↑"))
+
+
+def _directions(theta: Float[Tensor, "n"], phi: Float[Tensor, "n"]) -> Float[Tensor, "n 3"]:
+    """``(sin phi cos theta, sin phi sin theta, cos phi)``, phi from +z (PROTOCOL 2.4)."""
+    return torch.stack([phi.sin() * theta.cos(), phi.sin() * theta.sin(), phi.cos()], -1)
+
+
+def partial_views(scene: Scene, generator: torch.Generator) -> Float[Tensor, "n 4 4"]:
+    """PROTOCOL 4.4's one-sided training set: 20 random views of Hubble or Hotdog, Room's 10 initial views.
+
+    Draw order (ours; the protocol gives only the distributions): theta [20], phi [20], look-at
+    targets [20, 3], up vectors [20, 3], all float64 uniforms from ``generator``.
+    """
+    if scene.name == "room":
+        return scene.init_poses.clone()  # the reference's pose file is unreleased (not confirmed)
+    if scene.name not in ("hubble", "hotdog"):
+        raise SceneError(
+            f"PROTOCOL 4.4 defines the partial training set for hubble, hotdog and room only, not {scene.name!r}; "
+            "pass scene=hubble, scene=hotdog or scene=room"
+        )
+    n = PARTIAL_VIEWS
+
+    def uniform(*shape: int) -> Tensor:
+        return torch.rand(*shape, generator=generator, dtype=torch.float64)
+
+    if scene.name == "hubble":  # theta ~ U[0, pi/2], phi ~ U[pi/4, 3pi/4]
+        theta, phi = uniform(n) * math.pi / 2, math.pi / 4 + uniform(n) * math.pi / 2
+        positions = S * (torch.tensor([0.0, 0.0, 3.0]) + torch.tensor([10.0, 10.0, 15.0]) * _directions(theta, phi))
+        targets = 2 * S * (torch.tensor([-0.5, -0.5, -1.0]) + uniform(n, 3) * torch.tensor([1.0, 1.0, 3.5]))
+    else:  # hotdog: theta ~ U[-pi/4, pi/4], phi ~ U[pi/4, pi/2]
+        theta, phi = -math.pi / 4 + uniform(n) * math.pi / 2, math.pi / 4 + uniform(n) * math.pi / 4
+        positions = torch.tensor([1.5, 1.5, 1.7]) * _directions(theta, phi)
+        targets = torch.tensor([-0.5, -0.5, 0.0]) + uniform(n, 3) * torch.tensor([1.0, 1.0, 0.5])
+    ups = uniform(n, 3)
+    return torch.stack([look_at(p, t, tuple(u.tolist())) for p, t, u in zip(positions, targets, ups)])
+
+
+def run(overrides: list[str], out: Path | None) -> list[Path]:
+    """Train, score and write the experiment for the configured scene and budget; returns the files."""
+    overrides = overrides if any(o.startswith("scene=") for o in overrides) else ["scene=hotdog", *overrides]
+    base = compose_config(overrides)
+    scene = load_scene(base.scene.name, Path(base.paths.assets))
+    partial = dataclasses.replace(scene, init_poses=partial_views(scene, torch.Generator().manual_seed(PARTIAL_SEED)))
+    device, lpips = resolve_device(base.device), LpipsMetric()
+    rows, maps, models = [], {}, {}
+    view0: dict[str, np.ndarray] = {}
+    start = time.perf_counter()
+    for method, ablation in tqdm(ENTRIES, desc="methods", disable=not sys.stderr.isatty()):
+        cfg = compose_config([*overrides, f"method={method}", f"ablation={ablation}"])
+        episode = Episode(cfg, partial, device, lpips)
+        obs = episode.observations()
+        key = (method, ablation if cfg.train.ablation_affects_training else "none")
+        if key not in models:
+            models[key] = episode.train(obs, 0)[0]
+        metrics, images = episode.evaluator.evaluate(models[key], episode.scorer, episode.face_ids, obs, 0)
+        label = method_label(method, "argmax", ablation)
+        rows.append({"label": label, "method": method, "ablation": ablation, "trained_as": "/".join(key), **metrics})
+        maps[label] = images["score"]
+        if key == ("nvf", "none"):
+            view0 = images
+    name = f"{base.scene.name}_{base.budget.name}"
+    out = REPO / "results" / "uncertainty" if out is None else out
+    report = {
+        "scene": base.scene.name, "scene_source": scene.source, "budget": base.budget.name,
+        "field": base.field.kind, "partial_views": len(partial.init_poses), "partial_seed": PARTIAL_SEED,
+        "seed": int(base.seed), "overrides": overrides, "rows": rows, "seconds": time.perf_counter() - start,
+        "lpips_missing_reason": lpips.missing,
+    }  # fmt: skip
+    atomic_write_text(out / f"{name}.json", json.dumps(to_jsonable(report), indent=2) + "\n")
+    atomic_write_text(out / f"{name}.md", markdown(report))
+    save_figure(figure(view0, maps), out / f"{name}.png")
+    return [out / f"{name}.{ext}" for ext in ("json", "md", "png")]
+
+
+def markdown(report: dict) -> str:
+    """The experiment's table: one row per entry, the correlations first."""
+    lines = [
+        f"# Uncertainty vs error: {report['scene']} ({report['scene_source']}), budget {report['budget']}",
+        "",
+        f"Models trained on {report['partial_views']} one-sided views (PROTOCOL 4.4, drawn with seed "
+        f"{report['partial_seed']}), scored on the 20 evaluation views. Pearson r of the per-pixel score with the "
+        "per-pixel error over 16 x 16 patches per view and over per-view sums; AUSE is our addition (lower is better).",
+        "",
+        "| Method | " + " | ".join(header for _, header in COLUMNS) + " | trained as |",
+        "|:--|" + "--:|" * len(COLUMNS) + ":--|",
+    ]
+    for row in report["rows"]:
+        cells = ["-" if row[key] is None or not math.isfinite(row[key]) else f"{row[key]:.3f}" for key, _ in COLUMNS]
+        lines.append(f"| {row['label']} | " + " | ".join(cells) + f" | {row['trained_as']} |")
+    return "\n".join(lines) + "\n"
+
+
+def figure(view0: dict[str, np.ndarray], maps: dict[str, np.ndarray]) -> Figure:
+    """GT, NVF's prediction, its per-pixel error and every entry's score map of evaluation view 0
+    (each map scaled to its own range, magma)."""
+    panels = [("GT", view0["gt"]), ("prediction (NVF)", view0["pred"])]
+    panels.append(("error (NVF)", colorize(np.abs(view0["pred"] - view0["gt"]).sum(-1), "magma")))
+    panels += [(label, colorize(score, "magma")) for label, score in maps.items()]
+    cols = 5
+    rows = math.ceil(len(panels) / cols)
+    fig = Figure(figsize=(2.6 * cols, 2.8 * rows), layout="constrained")
+    axes = np.asarray(fig.subplots(rows, cols, squeeze=False)).ravel()
+    for ax in axes:
+        ax.set_axis_off()
+    for ax, (title, image) in zip(axes, panels):
+        ax.imshow(np.clip(image, 0.0, 1.0))
+        ax.set_title(title, fontsize=9)
+    return fig
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="python -m pipeline.uncertainty", description=__doc__.splitlines()[0])
+    parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. scene=hubble budget=smoke")
+    parser.add_argument("--out", type=Path, default=None, help="output directory (default results/uncertainty)")
+    args = parser.parse_intermixed_args(argv)
+    try:
+        written = run(args.overrides, args.out)
+    except SceneError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    print("pipeline.uncertainty: wrote " + ", ".join(map(str, written)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,63 @@
+"""pipeline/uncertainty.py: PROTOCOL 4.4's stand-alone uncertainty experiment (one-sided training set,
+every method's score against the per-pixel error on the evaluation views)."""
+
+import json
+import math
+
+import imageio.v3 as iio
+import pytest
+import torch
+
+from pipeline import uncertainty
+from pipeline.scenes import S, SceneError, load_scene
+from pipeline.uncertainty import main, partial_views
+
+
+def test_hotdog_partial_views_follow_protocol_4_4(assets_dir):
+    scene = load_scene("hotdog", assets_dir)
+    poses = partial_views(scene, torch.Generator().manual_seed(0))
+    assert poses.shape == (20, 4, 4)
+    dirs = poses[:, :3, 3] / torch.tensor([1.5, 1.5, 1.7], dtype=poses.dtype)  # position = (1.5, 1.5, 1.7) ⊙ dir
+    torch.testing.assert_close(torch.linalg.norm(dirs, dim=-1), torch.ones(20, dtype=poses.dtype))
+    theta, phi = torch.atan2(dirs[:, 1], dirs[:, 0]), torch.acos(dirs[:, 2])
+    assert (theta.abs() <= math.pi / 4).all() and (phi >= math.pi / 4).all() and (phi <= math.pi / 2).all()
+    assert theta.max() - theta.min() > math.pi / 4  # one side, but spread over it
+    forward = -poses[:, :3, 2]  # each camera looks at a target in [-1/2, 1/2]^2 x [0, 1/2]: towards the object
+    assert (torch.nn.functional.cosine_similarity(forward, -poses[:, :3, 3], dim=-1) > 0.7).all()
+    torch.testing.assert_close(poses, partial_views(scene, torch.Generator().manual_seed(0)))
+    assert not torch.allclose(poses, partial_views(scene, torch.Generator().manual_seed(1)))
+
+
+def test_hubble_partial_views_and_other_scenes(assets_dir):
+    hubble = load_scene("hubble", assets_dir)
+    positions = partial_views(hubble, torch.Generator().manual_seed(0))[:, :3, 3]
+    dirs = (positions / S - torch.tensor([0.0, 0.0, 3.0], dtype=positions.dtype)) / torch.tensor([10.0, 10.0, 15.0])
+    torch.testing.assert_close(torch.linalg.norm(dirs, dim=-1), torch.ones(20, dtype=positions.dtype))
+    assert (dirs[:, 0] >= 0).all() and (dirs[:, 1] >= 0).all()  # theta in [0, pi/2]
+    room = load_scene("room", assets_dir)
+    torch.testing.assert_close(partial_views(room, torch.Generator()), room.init_poses)
+    with pytest.raises(SceneError, match="hubble, hotdog and room only"):
+        partial_views(load_scene("default", assets_dir), torch.Generator())
+
+
+def test_experiment_writes_every_entry_and_shares_nvf_model_with_its_ablations(assets_dir, tmp_path, monkeypatch):
+    monkeypatch.setattr(uncertainty, "ENTRIES", (("nvf", "none"), ("nvf", "wo_vis"), ("wd", "none")))
+    tiny = ["budget=smoke", "train.backbone.iters=4", "train.variance.iters=1", "train.visibility.iters=1"]
+    assert main([*tiny, f"paths.assets={assets_dir}", "--out", str(tmp_path)]) == 0
+    report = json.loads((tmp_path / "hotdog_smoke.json").read_text())
+    rows = {row["label"]: row for row in report["rows"]}
+    assert list(rows) == ["NVF", "w/o Vis.", "WD"] and report["partial_views"] == 20
+    assert rows["NVF"]["trained_as"] == rows["w/o Vis."]["trained_as"] == "nvf/none"  # ablations change the score only
+    assert rows["WD"]["trained_as"] == "wd/none"
+    assert rows["NVF"]["psnr"] == rows["w/o Vis."]["psnr"]  # the same model
+    assert all(math.isfinite(row["patch_pearson"]) and -1 <= row["patch_pearson"] <= 1 for row in rows.values())
+    assert rows["NVF"]["patch_pearson"] != rows["w/o Vis."]["patch_pearson"]  # but a different score
+    table = (tmp_path / "hotdog_smoke.md").read_text()
+    assert "| w/o Vis. |" in table and "patch r" in table
+    assert iio.imread(tmp_path / "hotdog_smoke.png").ndim == 3
+
+
+def test_unknown_scene_is_one_line_and_status_2(assets_dir, capsys):
+    assert main(["scene=default", f"paths.assets={assets_dir}"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: PROTOCOL 4.4 defines the partial training set")
