@@ -122,7 +122,9 @@ class Episode:
             model.load_state_dict(state, strict=False)
         return model
 
-    def train(self, obs: Observations, step: int, progress: TrainProgress | None = None) -> tuple[SceneModel, TrainStats]:
+    def train(
+        self, obs: Observations, step: int, progress: TrainProgress | None = None
+    ) -> tuple[SceneModel, TrainStats]:
         """A fresh model (``new_model``) trained on ``obs`` with the method's stages, as step ``step`` trains it."""
         cfg, s = self.cfg, self.settings
         model = self.new_model(step)

@@ -258,7 +258,8 @@ def object_mean(final: pd.DataFrame) -> tuple[pd.DataFrame, tuple[str, ...]]:
     if not per_seed:
         return pd.DataFrame(), ()
     rows = aggregate(pd.DataFrame(per_seed))
-    rows["scene_count"] = [counts[key] for key in zip(rows["budget"], rows["method"], rows["planner"], rows["ablation"])]
+    keys = zip(rows["budget"], rows["method"], rows["planner"], rows["ablation"])
+    rows["scene_count"] = [counts[key] for key in keys]
     if len(coverage) == 1:
         return rows, (f"{next(iter(coverage))} for every row",)
     return rows, tuple(f"{text}: {', '.join(labels)}" for text, labels in coverage.items())
