@@ -8,7 +8,8 @@ initial views. NVF's four ablations change only the score, so they are scored on
 views each entry's per-pixel score is correlated with the per-pixel error (patch- and view-level
 Pearson r, AUSE; ``pipeline.metrics.uncertainty_correlation``), next to the image and geometry
 metrics of its model (PROTOCOL 4). Writes ``results/uncertainty/<scene>_<budget>.{json,md,png}`` (or
-``--out DIR``): the numbers, a table, and GT | prediction | error | every entry's score map of view 0.
+``--out DIR``; settings beyond the budget are appended to its name, as in the tables): the numbers, a
+table, and GT | prediction | error | every entry's score map of view 0.
 """
 
 import argparse
@@ -23,6 +24,7 @@ import numpy as np
 import torch
 from jaxtyping import Float
 from matplotlib.figure import Figure
+from omegaconf import DictConfig, OmegaConf
 from torch import Tensor
 from tqdm import tqdm
 
@@ -31,6 +33,7 @@ from pipeline.config import compose_config
 from pipeline.episode import Episode, resolve_device
 from pipeline.images import colorize, save_figure
 from pipeline.metrics import LpipsMetric
+from pipeline.overrides import GROUPS, NamedConfigs
 from pipeline.records import atomic_write_text, to_jsonable
 from pipeline.scenes import REPO, S, Scene, SceneError, load_scene
 from pipeline.tables import method_label
@@ -88,7 +91,7 @@ def run(overrides: list[str], out: Path | None) -> list[Path]:
     partial = dataclasses.replace(scene, init_poses=partial_views(scene, torch.Generator().manual_seed(PARTIAL_SEED)))
     device, lpips = resolve_device(base.device), LpipsMetric()
     rows, maps, models = [], {}, {}
-    view0: dict[str, np.ndarray] = {}
+    view0: dict = {}  # the first entry's images of evaluation view 0, and its label
     start = time.perf_counter()
     for method, ablation in tqdm(ENTRIES, desc="methods", disable=not sys.stderr.isatty()):
         cfg = compose_config([*overrides, f"method={method}", f"ablation={ablation}"])
@@ -98,23 +101,32 @@ def run(overrides: list[str], out: Path | None) -> list[Path]:
         if key not in models:
             models[key] = episode.train(obs, 0)[0]
         metrics, images = episode.evaluator.evaluate(models[key], episode.scorer, episode.face_ids, obs, 0)
-        label = method_label(method, "argmax", ablation)
-        rows.append({"label": label, "method": method, "ablation": ablation, "trained_as": "/".join(key), **metrics})
-        maps[label] = images["score"]
-        if key == ("nvf", "none"):
-            view0 = images
-    name = f"{base.scene.name}_{base.budget.name}"
+        entry = method_label(method, "argmax", ablation)
+        rows.append({"label": entry, "method": method, "ablation": ablation, "trained_as": "/".join(key), **metrics})
+        maps[entry] = images["score"]
+        if not view0:
+            view0 = {**images, "label": entry}
+    label = budget_label(base)
+    name = f"{base.scene.name}_{label}"
     out = REPO / "results" / "uncertainty" if out is None else out
+    settings = [o for o in overrides if not o.startswith("paths.")]  # where files live is not a setting
     report = {
-        "scene": base.scene.name, "scene_source": scene.source, "budget": base.budget.name,
-        "field": base.field.kind, "partial_views": len(partial.init_poses), "partial_seed": PARTIAL_SEED,
-        "seed": int(base.seed), "overrides": overrides, "rows": rows, "seconds": time.perf_counter() - start,
+        "scene": base.scene.name, "scene_source": scene.source, "budget": label, "field": base.field.kind,
+        "partial_views": len(partial.init_poses), "partial_seed": PARTIAL_SEED, "seed": int(base.seed),
+        "overrides": settings, "rows": rows, "seconds": time.perf_counter() - start,
         "lpips_missing_reason": lpips.missing,
     }  # fmt: skip
     atomic_write_text(out / f"{name}.json", json.dumps(to_jsonable(report), indent=2) + "\n")
     atomic_write_text(out / f"{name}.md", markdown(report))
     save_figure(figure(view0, maps), out / f"{name}.png")
     return [out / f"{name}.{ext}" for ext in ("json", "md", "png")]
+
+
+def budget_label(cfg: DictConfig) -> str:
+    """The budget plus every setting beyond the named groups (``cpu+train.visibility.iters=500``), as the
+    tables label runs (``pipeline.overrides``), so another setting never overwrites the plain budget's files."""
+    info = {group: cfg[group].name for group in GROUPS} | {"config": OmegaConf.to_container(cfg, resolve=True)}
+    return "+".join([cfg.budget.name, *NamedConfigs(REPO / "conf").overrides(info)])
 
 
 def markdown(report: dict) -> str:
@@ -136,10 +148,11 @@ def markdown(report: dict) -> str:
 
 
 def figure(view0: dict[str, np.ndarray], maps: dict[str, np.ndarray]) -> Figure:
-    """GT, NVF's prediction, its per-pixel error and every entry's score map of evaluation view 0
-    (each map scaled to its own range, magma)."""
-    panels = [("GT", view0["gt"]), ("prediction (NVF)", view0["pred"])]
-    panels.append(("error (NVF)", colorize(np.abs(view0["pred"] - view0["gt"]).sum(-1), "magma")))
+    """GT, the first entry's prediction and per-pixel error, and every entry's score map of evaluation
+    view 0 (each map scaled to its own range, magma)."""
+    first = view0["label"]
+    panels = [("GT", view0["gt"]), (f"prediction ({first})", view0["pred"])]
+    panels.append((f"error ({first})", colorize(np.abs(view0["pred"] - view0["gt"]).sum(-1), "magma")))
     panels += [(label, colorize(score, "magma")) for label, score in maps.items()]
     cols = 5
     rows = math.ceil(len(panels) / cols)

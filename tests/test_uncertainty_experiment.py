@@ -44,7 +44,8 @@ def test_experiment_writes_every_entry_and_shares_nvf_model_with_its_ablations(a
     monkeypatch.setattr(uncertainty, "ENTRIES", (("nvf", "none"), ("nvf", "wo_vis"), ("wd", "none")))
     tiny = ["budget=smoke", "train.backbone.iters=4", "train.variance.iters=1", "train.visibility.iters=1"]
     assert main([*tiny, f"paths.assets={assets_dir}", "--out", str(tmp_path)]) == 0
-    report = json.loads((tmp_path / "hotdog_smoke.json").read_text())
+    name = "hotdog_smoke+train.backbone.iters=4+train.variance.iters=1+train.visibility.iters=1"  # never plain smoke
+    report = json.loads((tmp_path / f"{name}.json").read_text())
     rows = {row["label"]: row for row in report["rows"]}
     assert list(rows) == ["NVF", "w/o Vis.", "WD"] and report["partial_views"] == 20
     assert rows["NVF"]["trained_as"] == rows["w/o Vis."]["trained_as"] == "nvf/none"  # ablations change the score only
@@ -52,9 +53,9 @@ def test_experiment_writes_every_entry_and_shares_nvf_model_with_its_ablations(a
     assert rows["NVF"]["psnr"] == rows["w/o Vis."]["psnr"]  # the same model
     assert all(math.isfinite(row["patch_pearson"]) and -1 <= row["patch_pearson"] <= 1 for row in rows.values())
     assert rows["NVF"]["patch_pearson"] != rows["w/o Vis."]["patch_pearson"]  # but a different score
-    table = (tmp_path / "hotdog_smoke.md").read_text()
+    table = (tmp_path / f"{name}.md").read_text()
     assert "| w/o Vis. |" in table and "patch r" in table
-    assert iio.imread(tmp_path / "hotdog_smoke.png").ndim == 3
+    assert iio.imread(tmp_path / f"{name}.png").ndim == 3
 
 
 def test_unknown_scene_is_one_line_and_status_2(assets_dir, capsys):
