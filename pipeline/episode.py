@@ -20,7 +20,7 @@ from nvf.config import BaselineConfig, EntropyConfig, FieldConfig, PlannerConfig
 from nvf.model import SceneModel
 from nvf.planning import generator_factory, seeded_generator, select_next_view
 from nvf.training import Observations, TrainStats, train_model
-from nvf.uncertainty import make_scorer
+from nvf.uncertainty import ViewScorer, make_scorer
 from pipeline.evaluation import Evaluator
 from pipeline.metrics import LpipsMetric
 from pipeline.render import GroundTruthRenderer
@@ -54,6 +54,10 @@ class EpisodeSettings:
     planner: PlannerConfig
     tau: float
     collision_free: bool
+
+    def scorer(self, method: str) -> ViewScorer | None:
+        """``method``'s view scorer with these settings (NVF's resolved ``d0``); None for Random."""
+        return make_scorer(method, self.entropy, self.baseline, float(self.entropy.d0))
 
     @staticmethod
     def of(cfg: DictConfig, scene: Scene) -> "EpisodeSettings":
@@ -89,7 +93,7 @@ class Episode:
         size = cfg.budget.image_size
         self.intrinsics = Intrinsics.from_fov(size, size)
         self.plan_intrinsics = Intrinsics.from_fov(cfg.planner.resolution, cfg.planner.resolution)
-        self.scorer = make_scorer(cfg.method.name, self.settings.entropy, self.settings.baseline, float(self.settings.entropy.d0))
+        self.scorer = self.settings.scorer(cfg.method.name)
         self.evaluator = Evaluator(scene, self.renderer, cfg, device, lpips)
         self.poses: list[torch.Tensor] = []
         self.images: list[np.ndarray] = []  # RGBA [H, W, 4] training images, budget.gt_samples^2 per pixel

@@ -51,6 +51,11 @@ class NamedConfigs:
             return None  # a group that no longer exists: nothing to compare against
         return to_jsonable(OmegaConf.to_container(cfg, resolve=True))
 
+    def budget_label(self, info: Mapping) -> str:
+        """The record's budget plus its ``overrides`` (``cpu+planner.num_candidates=512``): what tables and
+        reports call its budget, so a run with other settings is never labelled as the plain budget."""
+        return "+".join([str(info["budget"]), *self.overrides(info)])
+
     def overrides(self, info: Mapping) -> tuple[str, ...]:
         """``key=value`` (sorted) for every setting in the record's config whose value differs from what
         its named groups give today: command-line overrides, or defaults changed since the run.

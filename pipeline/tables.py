@@ -183,7 +183,7 @@ def collect_runs(roots: list[Path]) -> Runs:
     for record in records.values():
         info, rows = record["info"], record["rows"]
         keys = {k: info[k] for k in IDENTITY_KEYS}
-        keys["budget"] = "+".join([info["budget"], *named.overrides(info)])
+        keys["budget"] = named.budget_label(info)
         source = str(info.get("scene_source", "unknown"))
         last = max(rows, key=lambda r: r["step"]) if rows else {"metrics": {}}
         final = {

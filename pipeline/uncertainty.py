@@ -29,8 +29,10 @@ from torch import Tensor
 from tqdm import tqdm
 
 from nvf.cameras import look_at
+from nvf.model import SceneModel
+from nvf.training import Observations
 from pipeline.config import compose_config
-from pipeline.episode import Episode, resolve_device
+from pipeline.episode import Episode, EpisodeSettings, resolve_device
 from pipeline.images import colorize, save_figure
 from pipeline.metrics import LpipsMetric
 from pipeline.overrides import GROUPS, NamedConfigs
@@ -90,17 +92,20 @@ def run(overrides: list[str], out: Path | None) -> list[Path]:
     scene = load_scene(base.scene.name, Path(base.paths.assets))
     partial = dataclasses.replace(scene, init_poses=partial_views(scene, torch.Generator().manual_seed(PARTIAL_SEED)))
     device, lpips = resolve_device(base.device), LpipsMetric()
-    rows, maps, models = [], {}, {}
+    rows, maps = [], {}
+    trained: dict[tuple[str, str], tuple[Episode, Observations, SceneModel]] = {}  # per training key
     view0: dict = {}  # the first entry's images of evaluation view 0, and its label
     start = time.perf_counter()
     for method, ablation in tqdm(ENTRIES, desc="methods", disable=not sys.stderr.isatty()):
         cfg = compose_config([*overrides, f"method={method}", f"ablation={ablation}"])
-        episode = Episode(cfg, partial, device, lpips)
-        obs = episode.observations()
         key = (method, ablation if cfg.train.ablation_affects_training else "none")
-        if key not in models:
-            models[key] = episode.train(obs, 0)[0]
-        metrics, images = episode.evaluator.evaluate(models[key], episode.scorer, episode.face_ids, obs, 0)
+        if key not in trained:  # an ablation scored on NVF's model shares its episode (renders, evaluator)
+            episode = Episode(cfg, partial, device, lpips)
+            obs = episode.observations()
+            trained[key] = (episode, obs, episode.train(obs, 0)[0])
+        episode, obs, model = trained[key]
+        scorer = EpisodeSettings.of(cfg, partial).scorer(method)
+        metrics, images = episode.evaluator.evaluate(model, scorer, episode.face_ids, obs, 0)
         entry = method_label(method, "argmax", ablation)
         rows.append({"label": entry, "method": method, "ablation": ablation, "trained_as": "/".join(key), **metrics})
         maps[entry] = images["score"]
@@ -126,7 +131,7 @@ def budget_label(cfg: DictConfig) -> str:
     """The budget plus every setting beyond the named groups (``cpu+train.visibility.iters=500``), as the
     tables label runs (``pipeline.overrides``), so another setting never overwrites the plain budget's files."""
     info = {group: cfg[group].name for group in GROUPS} | {"config": OmegaConf.to_container(cfg, resolve=True)}
-    return "+".join([cfg.budget.name, *NamedConfigs(REPO / "conf").overrides(info)])
+    return NamedConfigs(REPO / "conf").budget_label(info)
 
 
 def markdown(report: dict) -> str:

@@ -39,7 +39,6 @@ from nvf.cameras import Intrinsics, camera_directions, pose_to_matrix, rays_from
 from nvf.config import STAGES
 from nvf.field import INFERENCE_BLOCK, VIS_POSITION_WIDTH
 from nvf.planning import score_poses
-from nvf.uncertainty import make_scorer
 from nvf.uncertainty.scorers import METHODS
 from pipeline.bench._report import write_report
 from pipeline.bench.field import matmul_gflops, mlp_flops
@@ -89,7 +88,7 @@ def main(argv: list[str]) -> None:
     res = int(planner.resolution)
     intr = Intrinsics.from_fov(res, res)
     chunk = int(planner.score_chunk_rays)
-    scorers = {method: make_scorer(method, s.entropy, s.baseline, float(s.entropy.d0)) for method in SCORED}
+    scorers = {method: s.scorer(method) for method in SCORED}
     jobs: dict[str, Callable[[Tensor], object]] = {"plain_render": lambda p: plain_render(model, p, intr, chunk)}
     for method, scorer in scorers.items():
         jobs[method] = lambda p, scorer=scorer: score_poses(model, scorer, p, intr, chunk)
