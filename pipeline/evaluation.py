@@ -97,10 +97,16 @@ class Evaluator:
         self.patch = max(1, size // PATCHES_PER_SIDE)
 
     def evaluate(
-        self, model: SceneModel, scorer, face_ids: list[Int[np.ndarray, "H W"]], obs: Observations, step: int
+        self,
+        model: SceneModel,
+        scorer,
+        face_ids: list[Int[np.ndarray, "H W"]],
+        obs: Observations,
+        step: int,
+        view: int = 0,
     ) -> tuple[dict, dict]:
-        """Metrics of ``model`` after training on ``obs`` (step ``step``), and images of view 0.
-        ``face_ids``: the face hit by each pixel-centre ray of every training view (Vis.)."""
+        """Metrics of ``model`` after training on ``obs`` (step ``step``), and images of evaluation view
+        ``view``. ``face_ids``: the face hit by each pixel-centre ray of every training view (Vis.)."""
         cfg, scene = self.cfg, self.scene
         renders = [render_view(model, scorer, c2w.to(self.device), self.intrinsics) for c2w in scene.eval_poses]
         pred = np.stack([r["rgb"] for r in renders]).clip(0.0, 1.0)
@@ -130,5 +136,5 @@ class Evaluator:
             "vis_area": coverage.vis_area, "num_points": geometry.num_points,
             "patch_pearson": corr[0], "view_pearson": corr[1], "ause": corr[2],
         }  # fmt: skip
-        first = renders[0]
-        return metrics, {"gt": self.gt[0], "pred": pred[0], "score": first["score"], "depth": first["depth"]}
+        shown = renders[view]
+        return metrics, {"gt": self.gt[view], "pred": pred[view], "score": shown["score"], "depth": shown["depth"]}

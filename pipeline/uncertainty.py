@@ -9,7 +9,8 @@ views each entry's per-pixel score is correlated with the per-pixel error (patch
 Pearson r, AUSE; ``pipeline.metrics.uncertainty_correlation``), next to the image and geometry
 metrics of its model (PROTOCOL 4). Writes ``results/uncertainty/<scene>_<budget>.{json,md,png}`` (or
 ``--out DIR``; settings beyond the budget are appended to its name, as in the tables): the numbers, a
-table, and GT | prediction | error | every entry's score map of view 0.
+table, and GT | prediction | error | every entry's score map of the evaluation view that looks most
+unlike every training view (``least_seen_view``).
 """
 
 import argparse
@@ -85,6 +86,13 @@ def partial_views(scene: Scene, generator: torch.Generator) -> Float[Tensor, "n 
     return torch.stack([look_at(p, t, tuple(u.tolist())) for p, t, u in zip(positions, targets, ups)])
 
 
+def least_seen_view(eval_poses: Float[Tensor, "e 4 4"], train_poses: Float[Tensor, "t 4 4"]) -> int:
+    """Index of the evaluation view whose viewing direction (the camera's -z axis, OpenGL) makes the
+    largest angle with that of its nearest training view: the figure's view of the unseen side."""
+    eval_forward, train_forward = -eval_poses[:, :3, 2].double(), -train_poses[:, :3, 2].double()
+    return int((eval_forward @ train_forward.T).max(dim=1).values.argmin())
+
+
 def run(overrides: list[str], out: Path | None) -> list[Path]:
     """Train, score and write the experiment for the configured scene and budget; returns the files."""
     overrides = overrides if any(o.startswith("scene=") for o in overrides) else ["scene=hotdog", *overrides]
@@ -94,7 +102,8 @@ def run(overrides: list[str], out: Path | None) -> list[Path]:
     device, lpips = resolve_device(base.device), LpipsMetric()
     rows, maps = [], {}
     trained: dict[tuple[str, str], tuple[Episode, Observations, SceneModel]] = {}  # per training key
-    view0: dict = {}  # the first entry's images of evaluation view 0, and its label
+    view = least_seen_view(scene.eval_poses, partial.init_poses)
+    shown: dict = {}  # the first entry's images of evaluation view ``view``, and its label
     start = time.perf_counter()
     for method, ablation in tqdm(ENTRIES, desc="methods", disable=not sys.stderr.isatty()):
         cfg = compose_config([*overrides, f"method={method}", f"ablation={ablation}"])
@@ -105,12 +114,12 @@ def run(overrides: list[str], out: Path | None) -> list[Path]:
             trained[key] = (episode, obs, episode.train(obs, 0)[0])
         episode, obs, model = trained[key]
         scorer = EpisodeSettings.of(cfg, partial).scorer(method)
-        metrics, images = episode.evaluator.evaluate(model, scorer, episode.face_ids, obs, 0)
+        metrics, images = episode.evaluator.evaluate(model, scorer, episode.face_ids, obs, 0, view)
         entry = method_label(method, "argmax", ablation)
         rows.append({"label": entry, "method": method, "ablation": ablation, "trained_as": "/".join(key), **metrics})
         maps[entry] = images["score"]
-        if not view0:
-            view0 = {**images, "label": entry}
+        if not shown:
+            shown = {**images, "label": entry, "view": view}
     label = budget_label(base)
     name = f"{base.scene.name}_{label}"
     out = REPO / "results" / "uncertainty" if out is None else out
@@ -118,12 +127,13 @@ def run(overrides: list[str], out: Path | None) -> list[Path]:
     report = {
         "scene": base.scene.name, "scene_source": scene.source, "budget": label, "field": base.field.kind,
         "partial_views": len(partial.init_poses), "partial_seed": PARTIAL_SEED, "seed": int(base.seed),
+        "figure_view": view,
         "overrides": settings, "rows": rows, "seconds": time.perf_counter() - start,
         "lpips_missing_reason": lpips.missing,
     }  # fmt: skip
     atomic_write_text(out / f"{name}.json", json.dumps(to_jsonable(report), indent=2) + "\n")
     atomic_write_text(out / f"{name}.md", markdown(report))
-    save_figure(figure(view0, maps), out / f"{name}.png")
+    save_figure(figure(shown, maps), out / f"{name}.png")
     return [out / f"{name}.{ext}" for ext in ("json", "md", "png")]
 
 
@@ -152,12 +162,12 @@ def markdown(report: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def figure(view0: dict[str, np.ndarray], maps: dict[str, np.ndarray]) -> Figure:
-    """GT, the first entry's prediction and per-pixel error, and every entry's score map of evaluation
-    view 0 (each map scaled to its own range, magma)."""
-    first = view0["label"]
-    panels = [("GT", view0["gt"]), (f"prediction ({first})", view0["pred"])]
-    panels.append((f"error ({first})", colorize(np.abs(view0["pred"] - view0["gt"]).sum(-1), "magma")))
+def figure(shown: dict, maps: dict[str, np.ndarray]) -> Figure:
+    """GT, the first entry's prediction and per-pixel error, and every entry's score map of the shown
+    evaluation view (``shown["view"]``; each map scaled to its own range, magma)."""
+    first = shown["label"]
+    panels = [(f"GT (evaluation view {shown['view']})", shown["gt"]), (f"prediction ({first})", shown["pred"])]
+    panels.append((f"error ({first})", colorize(np.abs(shown["pred"] - shown["gt"]).sum(-1), "magma")))
     panels += [(label, colorize(score, "magma")) for label, score in maps.items()]
     cols = 5
     rows = math.ceil(len(panels) / cols)

@@ -8,9 +8,10 @@ import imageio.v3 as iio
 import pytest
 import torch
 
+from nvf.cameras import look_at
 from pipeline import uncertainty
 from pipeline.scenes import S, SceneError, load_scene
-from pipeline.uncertainty import main, partial_views
+from pipeline.uncertainty import least_seen_view, main, partial_views
 
 
 def test_hotdog_partial_views_follow_protocol_4_4(assets_dir):
@@ -40,6 +41,18 @@ def test_hubble_partial_views_and_other_scenes(assets_dir):
         partial_views(load_scene("default", assets_dir), torch.Generator())
 
 
+def test_figure_shows_the_evaluation_view_looking_most_unlike_every_training_view(assets_dir):
+    origin = torch.zeros(3)
+    ring = torch.stack([look_at(torch.tensor([math.cos(a), math.sin(a), 0.3]), origin) for a in (0.0, 1.5, 3.0, 4.5)])
+    assert least_seen_view(ring, ring[:1]) == 2  # the camera opposite the only training view
+    assert least_seen_view(ring, ring[[0, 2]]) in (1, 3)  # both 1.5 rad from the nearest training view
+    scene = load_scene("hotdog", assets_dir)
+    train = partial_views(scene, torch.Generator().manual_seed(0))
+    view = least_seen_view(scene.eval_poses, train)
+    seen_side = torch.nn.functional.normalize(train[:, :2, 3].mean(0), dim=0)
+    assert float(scene.eval_poses[view, :2, 3] @ seen_side) < 0  # on Hotdog's unseen half
+
+
 def test_experiment_writes_every_entry_and_shares_nvf_model_with_its_ablations(assets_dir, tmp_path, monkeypatch):
     monkeypatch.setattr(uncertainty, "ENTRIES", (("nvf", "none"), ("nvf", "wo_vis"), ("wd", "none")))
     tiny = ["budget=smoke", "train.backbone.iters=4", "train.variance.iters=1", "train.visibility.iters=1"]
@@ -48,6 +61,9 @@ def test_experiment_writes_every_entry_and_shares_nvf_model_with_its_ablations(a
     report = json.loads((tmp_path / f"{name}.json").read_text())
     rows = {row["label"]: row for row in report["rows"]}
     assert list(rows) == ["NVF", "w/o Vis.", "WD"] and report["partial_views"] == 20
+    hotdog = load_scene("hotdog", assets_dir)
+    train = partial_views(hotdog, torch.Generator().manual_seed(0))
+    assert report["figure_view"] == least_seen_view(hotdog.eval_poses, train)
     assert rows["NVF"]["trained_as"] == rows["w/o Vis."]["trained_as"] == "nvf/none"  # ablations change the score only
     assert rows["WD"]["trained_as"] == "wd/none"
     assert rows["NVF"]["psnr"] == rows["w/o Vis."]["psnr"]  # the same model
