@@ -10,7 +10,8 @@ Pearson r, AUSE; ``pipeline.metrics.uncertainty_correlation``), next to the imag
 metrics of its model (PROTOCOL 4). Writes ``results/uncertainty/<scene>_<budget>.{json,md,png}`` (or
 ``--out DIR``; settings beyond the budget are appended to its name, as in the tables): the numbers, a
 table, and GT | prediction | error | every entry's score map of the evaluation view that looks most
-unlike every training view (``least_seen_view``).
+unlike every training view (``least_seen_view``). ``--entries nvf,nvf-wo_vis,wd`` runs a subset of
+``ENTRIES`` (named ``method`` or ``method-ablation``), appended to the file name.
 """
 
 import argparse
@@ -93,8 +94,25 @@ def least_seen_view(eval_poses: Float[Tensor, "e 4 4"], train_poses: Float[Tenso
     return int((eval_forward @ train_forward.T).max(dim=1).values.argmin())
 
 
-def run(overrides: list[str], out: Path | None) -> list[Path]:
-    """Train, score and write the experiment for the configured scene and budget; returns the files."""
+def entry_name(method: str, ablation: str) -> str:
+    """``nvf``, ``nvf-wo_vis``, ...: an entry as ``--entries`` and the file names spell it."""
+    return method if ablation == "none" else f"{method}-{ablation}"
+
+
+def select_entries(names: list[str] | None) -> tuple[tuple[str, str], ...]:
+    """The entries of ``ENTRIES`` named in ``names``, in ``ENTRIES``' order (all of them for None)."""
+    if names is None:
+        return ENTRIES
+    known = [entry_name(*entry) for entry in ENTRIES]
+    unknown = [name for name in names if name not in known]
+    if unknown or not names:
+        raise ValueError(f"--entries: unknown {unknown or names}; choose from {','.join(known)}")
+    return tuple(entry for entry in ENTRIES if entry_name(*entry) in names)
+
+
+def run(overrides: list[str], out: Path | None, entries: tuple[tuple[str, str], ...] = ENTRIES) -> list[Path]:
+    """Train, score and write the experiment (``entries``) for the configured scene and budget; returns
+    the files."""
     overrides = overrides if any(o.startswith("scene=") for o in overrides) else ["scene=hotdog", *overrides]
     base = compose_config(overrides)
     scene = load_scene(base.scene.name, Path(base.paths.assets))
@@ -105,7 +123,7 @@ def run(overrides: list[str], out: Path | None) -> list[Path]:
     view = least_seen_view(scene.eval_poses, partial.init_poses)
     shown: dict = {}  # the first entry's images of evaluation view ``view``, and its label
     start = time.perf_counter()
-    for method, ablation in tqdm(ENTRIES, desc="methods", disable=not sys.stderr.isatty()):
+    for method, ablation in tqdm(entries, desc="methods", disable=not sys.stderr.isatty()):
         cfg = compose_config([*overrides, f"method={method}", f"ablation={ablation}"])
         key = (method, ablation if cfg.train.ablation_affects_training else "none")
         if key not in trained:  # an ablation scored on NVF's model shares its episode (renders, evaluator)
@@ -122,6 +140,8 @@ def run(overrides: list[str], out: Path | None) -> list[Path]:
             shown = {**images, "label": entry, "view": view}
     label = budget_label(base)
     name = f"{base.scene.name}_{label}"
+    if entries != ENTRIES:
+        name += "+entries=" + ",".join(entry_name(*entry) for entry in entries)
     out = REPO / "results" / "uncertainty" if out is None else out
     settings = [o for o in overrides if not o.startswith("paths.")]  # where files live is not a setting
     report = {
@@ -185,10 +205,12 @@ def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="python -m pipeline.uncertainty", description=__doc__.splitlines()[0])
     parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. scene=hubble budget=smoke")
     parser.add_argument("--out", type=Path, default=None, help="output directory (default results/uncertainty)")
+    parser.add_argument("--entries", default=None, help="comma-separated subset, e.g. nvf,nvf-wo_vis,wd (default all)")
     args = parser.parse_intermixed_args(argv)
     try:
-        written = run(args.overrides, args.out)
-    except SceneError as err:
+        entries = select_entries(None if args.entries is None else args.entries.split(","))
+        written = run(args.overrides, args.out, entries)
+    except (SceneError, ValueError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     print("pipeline.uncertainty: wrote " + ", ".join(map(str, written)))

@@ -53,11 +53,12 @@ def test_figure_shows_the_evaluation_view_looking_most_unlike_every_training_vie
     assert float(scene.eval_poses[view, :2, 3] @ seen_side) < 0  # on Hotdog's unseen half
 
 
-def test_experiment_writes_every_entry_and_shares_nvf_model_with_its_ablations(assets_dir, tmp_path, monkeypatch):
-    monkeypatch.setattr(uncertainty, "ENTRIES", (("nvf", "none"), ("nvf", "wo_vis"), ("wd", "none")))
+def test_experiment_writes_every_entry_and_shares_nvf_model_with_its_ablations(assets_dir, tmp_path):
     tiny = ["budget=smoke", "train.backbone.iters=4", "train.variance.iters=1", "train.visibility.iters=1"]
-    assert main([*tiny, f"paths.assets={assets_dir}", "--out", str(tmp_path)]) == 0
-    name = "hotdog_smoke+train.backbone.iters=4+train.variance.iters=1+train.visibility.iters=1"  # never plain smoke
+    assert main([*tiny, f"paths.assets={assets_dir}", "--out", str(tmp_path), "--entries", "wd,nvf-wo_vis,nvf"]) == 0
+    # never the plain budget's or the whole experiment's files
+    name = "hotdog_smoke+train.backbone.iters=4+train.variance.iters=1+train.visibility.iters=1"
+    name += "+entries=nvf,nvf-wo_vis,wd"
     report = json.loads((tmp_path / f"{name}.json").read_text())
     rows = {row["label"]: row for row in report["rows"]}
     assert list(rows) == ["NVF", "w/o Vis.", "WD"] and report["partial_views"] == 20
@@ -72,6 +73,18 @@ def test_experiment_writes_every_entry_and_shares_nvf_model_with_its_ablations(a
     table = (tmp_path / f"{name}.md").read_text()
     assert "| w/o Vis. |" in table and "patch r" in table
     assert iio.imread(tmp_path / f"{name}.png").ndim == 3
+
+
+def test_entries_select_a_subset_in_table_order_and_unknown_names_are_refused(capsys):
+    assert uncertainty.select_entries(None) == uncertainty.ENTRIES
+    assert uncertainty.select_entries(["air", "nvf-loose"]) == (("nvf", "loose"), ("air", "none"))
+    for bad in (["nvf-wo_opt"], []):
+        with pytest.raises(ValueError, match="choose from nvf,nvf-wo_vis"):
+            uncertainty.select_entries(bad)
+    assert main(["--entries", "nvf,vnf"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["error: --entries: unknown ['vnf']; choose from " + ",".join(
+        uncertainty.entry_name(*entry) for entry in uncertainty.ENTRIES)]
 
 
 def test_unknown_scene_is_one_line_and_status_2(assets_dir, capsys):
