@@ -94,6 +94,10 @@ def least_seen_view(eval_poses: Float[Tensor, "e 4 4"], train_poses: Float[Tenso
     return int((eval_forward @ train_forward.T).max(dim=1).values.argmin())
 
 
+class EntriesError(ValueError):
+    """``--entries`` names something that is not in ``ENTRIES``."""
+
+
 def entry_name(method: str, ablation: str) -> str:
     """``nvf``, ``nvf-wo_vis``, ...: an entry as ``--entries`` and the file names spell it."""
     return method if ablation == "none" else f"{method}-{ablation}"
@@ -106,7 +110,7 @@ def select_entries(names: list[str] | None) -> tuple[tuple[str, str], ...]:
     known = [entry_name(*entry) for entry in ENTRIES]
     unknown = [name for name in names if name not in known]
     if unknown or not names:
-        raise ValueError(f"--entries: unknown {unknown or names}; choose from {','.join(known)}")
+        raise EntriesError(f"--entries: unknown {unknown or names}; choose from {','.join(known)}")
     return tuple(entry for entry in ENTRIES if entry_name(*entry) in names)
 
 
@@ -207,10 +211,10 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--out", type=Path, default=None, help="output directory (default results/uncertainty)")
     parser.add_argument("--entries", default=None, help="comma-separated subset, e.g. nvf,nvf-wo_vis,wd (default all)")
     args = parser.parse_intermixed_args(argv)
+    names = None if args.entries is None else args.entries.split(",")
     try:
-        entries = select_entries(None if args.entries is None else args.entries.split(","))
-        written = run(args.overrides, args.out, entries)
-    except (SceneError, ValueError) as err:
+        written = run(args.overrides, args.out, select_entries(names))
+    except (SceneError, EntriesError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     print("pipeline.uncertainty: wrote " + ", ".join(map(str, written)))

@@ -79,7 +79,7 @@ def test_entries_select_a_subset_in_table_order_and_unknown_names_are_refused(ca
     assert uncertainty.select_entries(None) == uncertainty.ENTRIES
     assert uncertainty.select_entries(["air", "nvf-loose"]) == (("nvf", "loose"), ("air", "none"))
     for bad in (["nvf-wo_opt"], []):
-        with pytest.raises(ValueError, match="choose from nvf,nvf-wo_vis"):
+        with pytest.raises(uncertainty.EntriesError, match="choose from nvf,nvf-wo_vis"):
             uncertainty.select_entries(bad)
     assert main(["--entries", "nvf,vnf"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
