@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from hydra import compose, initialize_config_dir
+from hydra.errors import HydraException
 from omegaconf import DictConfig, OmegaConf
 
 from nvf.config import STAGES
@@ -105,13 +106,15 @@ def validate(cfg: DictConfig) -> None:
 
 
 def compose_config(overrides: list[str]) -> DictConfig:
-    """conf/config.yaml with ``overrides``, validated; a bad value exits with one line (status 2)."""
+    """conf/config.yaml with ``overrides``, validated; an override Hydra cannot apply (unknown key, wrong
+    type) or a bad value exits with one line (status 2)."""
     register_configs()
-    with initialize_config_dir(str(Path(__file__).resolve().parents[1] / "conf"), version_base="1.3"):
-        cfg = compose("config", overrides=overrides)
     try:
+        with initialize_config_dir(str(Path(__file__).resolve().parents[1] / "conf"), version_base="1.3"):
+            cfg = compose("config", overrides=overrides)
         validate(cfg)
-    except ConfigError as err:
-        print(f"error: {err}", file=sys.stderr)
+    except (HydraException, ConfigError) as err:
+        cause = f": {err.__cause__}" if err.__cause__ is not None else ""
+        print(f"error: {' '.join(f'{err}{cause}'.split())}", file=sys.stderr)
         raise SystemExit(2) from None
     return cfg
