@@ -17,6 +17,7 @@ from nvf.uncertainty.scorers import METHODS
 from pipeline.schema import register_configs
 
 ABLATIONS = ("none", "wo_vis", "wo_var", "ind_rays", "loose")
+CONF = Path(__file__).resolve().parents[1] / "conf"
 
 
 class ConfigError(ValueError):
@@ -69,12 +70,26 @@ _POSITIVE = (
 )  # fmt: skip
 
 
+def _check_ablation(cfg: DictConfig) -> None:
+    """Every value the ablation's file (``conf/ablation/<name>.yaml``) sets still holds: an override that
+    undoes it (``ablation=ind_rays nvf.entropy.d0=-1``) would label another method as the ablation."""
+    sets = OmegaConf.load(CONF / "ablation" / f"{cfg.ablation.name}.yaml")
+    for key, value in sets.get("nvf", {}).get("entropy", {}).items():
+        actual = cfg.nvf.entropy[key]
+        if actual != value:
+            raise ConfigError(
+                f"ablation={cfg.ablation.name} sets nvf.entropy.{key}={value}, but an override made it {actual}; "
+                "drop the override or the ablation"
+            )
+
+
 def validate(cfg: DictConfig) -> None:
     """Reject impossible values before any work starts (one line naming the key)."""
     for key, choices in _CHOICES.items():
         value = OmegaConf.select(cfg, key)
         if value not in choices:
             raise ConfigError(f"{key}={value!r} is not one of {', '.join(map(str, choices))}")
+    _check_ablation(cfg)
     for key, (alternative, recommended) in _NOT_IMPLEMENTED.items():
         if OmegaConf.select(cfg, key) == alternative:
             raise ConfigError(
@@ -110,7 +125,7 @@ def compose_config(overrides: list[str]) -> DictConfig:
     type) or a bad value exits with one line (status 2)."""
     register_configs()
     try:
-        with initialize_config_dir(str(Path(__file__).resolve().parents[1] / "conf"), version_base="1.3"):
+        with initialize_config_dir(str(CONF), version_base="1.3"):
             cfg = compose("config", overrides=overrides)
         validate(cfg)
     except (HydraException, ConfigError) as err:

@@ -13,11 +13,18 @@ from pipeline.config import compose_config
         ("nosuch.key=1", "Could not override 'nosuch.key'"),
         ("budget=nosuch", "Could not find 'budget/nosuch'"),
         ("train.backbone.iters=0", "train.backbone.iters=0 must be positive"),
+        ("ablation=ind_rays nvf.entropy.d0=-1", "sets nvf.entropy.d0=0.0, but an override made it -1"),
+        ("ablation=wo_vis nvf.entropy.use_visibility=true", "ablation=wo_vis sets nvf.entropy.use_visibility=False"),
     ],
 )
 def test_compose_config_exits_with_one_line_on_any_bad_override(override, needle, capsys):
     with pytest.raises(SystemExit) as exit_info:
-        compose_config([override])
+        compose_config(override.split())
     assert exit_info.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: ") and needle in err[0]
+
+
+def test_overrides_that_agree_with_the_ablation_compose():
+    assert compose_config(["ablation=ind_rays", "nvf.entropy.d0=0"]).nvf.entropy.d0 == 0.0
+    assert compose_config(["ablation=none", "nvf.entropy.d0=-1"]).nvf.entropy.d0 == -1.0  # no ablation to undo
