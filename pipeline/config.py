@@ -14,6 +14,7 @@ from omegaconf import DictConfig, OmegaConf
 from nvf.config import STAGES
 from nvf.training import AUX_LOSSES
 from nvf.uncertainty.scorers import METHODS
+from pipeline.overrides import changed_settings
 from pipeline.schema import register_configs
 
 ABLATIONS = ("none", "wo_vis", "wo_var", "ind_rays", "loose")
@@ -73,14 +74,14 @@ _POSITIVE = (
 def _check_ablation(cfg: DictConfig) -> None:
     """Every value the ablation's file (``conf/ablation/<name>.yaml``) sets still holds: an override that
     undoes it (``ablation=ind_rays nvf.entropy.d0=-1``) would label another method as the ablation."""
-    sets = OmegaConf.load(CONF / "ablation" / f"{cfg.ablation.name}.yaml")
-    for key, value in sets.get("nvf", {}).get("entropy", {}).items():
-        actual = cfg.nvf.entropy[key]
-        if actual != value:
-            raise ConfigError(
-                f"ablation={cfg.ablation.name} sets nvf.entropy.{key}={value}, but an override made it {actual}; "
-                "drop the override or the ablation"
-            )
+    sets = OmegaConf.to_container(OmegaConf.load(CONF / "ablation" / f"{cfg.ablation.name}.yaml"))
+    changed = changed_settings(sets, OmegaConf.to_container(cfg, resolve=True))
+    if changed:
+        key, value = changed[0]
+        raise ConfigError(
+            f"ablation={cfg.ablation.name} sets {key}={value}, but an override made it {OmegaConf.select(cfg, key)}; "
+            "drop the override or the ablation"
+        )
 
 
 def validate(cfg: DictConfig) -> None:

@@ -19,11 +19,13 @@ GROUPS = ("scene", "method", "planner", "ablation", "budget")
 NOT_SETTINGS = ("paths", "seed")  # where files live; the seed is an identity key
 
 
-def _changed(recorded: Any, named: Any, prefix: str = "") -> list[tuple[str, Any]]:
+def changed_settings(recorded: Any, named: Any, prefix: str = "") -> list[tuple[str, Any]]:
     """``(dotted key, recorded value)`` wherever the record has a value that differs from ``named``;
     keys the record lacks (added to the code after the run) are not changes."""
     if isinstance(recorded, dict) and isinstance(named, dict):
-        return [c for key in sorted(recorded) for c in _changed(recorded[key], named.get(key), f"{prefix}{key}.")]
+        return [
+            c for key in sorted(recorded) for c in changed_settings(recorded[key], named.get(key), f"{prefix}{key}.")
+        ]
     return [] if recorded == named else [(prefix.rstrip("."), recorded)]
 
 
@@ -65,4 +67,4 @@ class NamedConfigs:
         if named is None or not isinstance(config, Mapping):
             return ()
         recorded = {k: v for k, v in to_jsonable(dict(config)).items() if k not in NOT_SETTINGS}
-        return tuple(f"{key}={_text(value)}" for key, value in _changed(recorded, named))
+        return tuple(f"{key}={_text(value)}" for key, value in changed_settings(recorded, named))
