@@ -58,7 +58,7 @@ class EntropyConfig:
     bound: str = "huber"  # huber (M10) | moment_matched (M12, "Loose")
     use_visibility: bool = True  # false: w/o Vis.
     use_variance: bool = True  # false: w/o Var.
-    d0: float | None = None  # None: the scene's value (1.0, Room 6.0); 0 disables (Ind. Rays); -1: auto
+    d0: float | int | str | None = None  # M13: None = the scene's (1.0, Room 6.0); 0 disables (Ind. Rays); "auto"
     corr: str = "quadratic"  # quadratic | exp (M13)
     depth_mode: str = "pixel"  # pixel | chunk (D3, reference bug)
     chunk_rays: int = 4096  # depth_mode=chunk: row-major chunk size

@@ -73,7 +73,7 @@ _POSITIVE = (
 
 def _check_ablation(cfg: DictConfig) -> None:
     """Every value the ablation's file (``conf/ablation/<name>.yaml``) sets still holds: an override that
-    undoes it (``ablation=ind_rays nvf.entropy.d0=-1``) would label another method as the ablation."""
+    undoes it (``ablation=ind_rays nvf.entropy.d0=auto``) would label another method as the ablation."""
     sets = OmegaConf.to_container(OmegaConf.load(CONF / "ablation" / f"{cfg.ablation.name}.yaml"))
     changed = changed_settings(sets, OmegaConf.to_container(cfg, resolve=True))
     if changed:
@@ -115,8 +115,11 @@ def validate(cfg: DictConfig) -> None:
     if cfg.budget.eval_size < 32:
         raise ConfigError(f"budget.eval_size={cfg.budget.eval_size} must be >= 32 (LPIPS' AlexNet needs 32x32 inputs)")
     d0 = cfg.nvf.entropy.d0
-    if d0 is not None and d0 < 0 and d0 != -1:
-        raise ConfigError(f"nvf.entropy.d0={d0} must be >= 0, -1 (auto) or null (the scene's value)")
+    if d0 != "auto" and (isinstance(d0, str) or (d0 is not None and d0 < 0)):
+        raise ConfigError(
+            f"nvf.entropy.d0={d0} must be a number >= 0 (0 = Ind. Rays), auto (0.25 x the object box's diagonal) "
+            "or null (the scene's value)"
+        )
     if cfg.device != "auto" and not (cfg.device == "cpu" or str(cfg.device).startswith("cuda")):
         raise ConfigError(f"device={cfg.device!r} must be auto, cpu, cuda or cuda:N")
 

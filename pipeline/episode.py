@@ -42,6 +42,16 @@ def typed(cfg: DictConfig, cls: type):
     return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(cls), cfg))
 
 
+def resolved_d0(d0: float | int | str | None, scene: Scene) -> float:
+    """(M13) NVF's correlation length: None = the scene's value (1.0, Room 6.0; D4), ``"auto"`` = 0.25 x
+    the diagonal of the scene's object box (METHOD 8), a number as given (0 = Ind. Rays)."""
+    if d0 is None:
+        return float(scene.d0)
+    if d0 == "auto":
+        return 0.25 * float(torch.linalg.norm(scene.object_aabb[1] - scene.object_aabb[0]))
+    return float(d0)
+
+
 @dataclass
 class EpisodeSettings:
     """The resolved, typed settings of one run, with scene defaults filled in."""
@@ -62,10 +72,7 @@ class EpisodeSettings:
     @staticmethod
     def of(cfg: DictConfig, scene: Scene) -> "EpisodeSettings":
         entropy = typed(cfg.nvf.entropy, EntropyConfig)
-        if entropy.d0 is None:
-            entropy = dataclasses.replace(entropy, d0=scene.d0)
-        elif entropy.d0 == -1:  # auto: 0.25 x the object AABB's diagonal (METHOD 8, D4)
-            entropy = dataclasses.replace(entropy, d0=0.25 * float(torch.linalg.norm(scene.object_aabb[1] - scene.object_aabb[0])))
+        entropy = dataclasses.replace(entropy, d0=resolved_d0(entropy.d0, scene))
         planner = typed(cfg.planner, PlannerConfig)
         tau = planner.density_threshold if planner.density_threshold is not None else scene.density_threshold
         collision_free = planner.collision_free if planner.collision_free is not None else scene.collision_free
