@@ -106,7 +106,8 @@ class Evaluator:
         view: int = 0,
     ) -> tuple[dict, dict]:
         """Metrics of ``model`` after training on ``obs`` (step ``step``), and images of evaluation view
-        ``view``. ``face_ids``: the face hit by each pixel-centre ray of every training view (Vis.)."""
+        ``view``, with a scorer also ``view_error`` and ``view_score`` [V] (the per-view sums the view r
+        pairs). ``face_ids``: the face hit by each pixel-centre ray of every training view (Vis.)."""
         cfg, scene = self.cfg, self.scene
         renders = [render_view(model, scorer, c2w.to(self.device), self.intrinsics) for c2w in scene.eval_poses]
         pred = np.stack([r["rgb"] for r in renders]).clip(0.0, 1.0)
@@ -126,10 +127,11 @@ class Evaluator:
         for ids in face_ids:
             seen |= seen_faces(ids, num_faces)
         coverage = visual_coverage(seen, scene.mesh)
-        corr = (math.nan, math.nan, math.nan)
+        corr, view_sums = (math.nan, math.nan, math.nan), {}
         if scorer is not None:
             c = uncertainty_correlation(pred, self.gt, np.stack([r["score"] for r in renders]), self.patch)
             corr = (c.patch_pearson, c.view_pearson, c.ause)
+            view_sums = {"view_error": c.view_error, "view_score": c.view_score}
         metrics = {
             "psnr": images.psnr, "ssim": images.ssim, "lpips": images.lpips, "rgb": images.rgb,
             "acc": geometry.acc, "comp": geometry.comp, "cr": geometry.cr, "vis": coverage.vis,
@@ -137,4 +139,5 @@ class Evaluator:
             "patch_pearson": corr[0], "view_pearson": corr[1], "ause": corr[2],
         }  # fmt: skip
         shown = renders[view]
-        return metrics, {"gt": self.gt[view], "pred": pred[view], "score": shown["score"], "depth": shown["depth"]}
+        images = {"gt": self.gt[view], "pred": pred[view], "score": shown["score"], "depth": shown["depth"]}
+        return metrics, images | view_sums

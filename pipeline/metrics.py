@@ -327,11 +327,14 @@ def visual_coverage(seen: Bool[np.ndarray, "F"], mesh: trimesh.Trimesh) -> Cover
 
 @dataclass(frozen=True)
 class UncertaintyCorrelation:
-    """Pearson r between error and uncertainty over 32 x 32 patches and over views (4.4)."""
+    """Pearson r between error and uncertainty over 32 x 32 patches and over views (4.4), and the per-view
+    sums of error and score that the view-level r pairs (``[V]`` each)."""
 
     patch_pearson: float
     view_pearson: float
     ause: float
+    view_error: tuple[float, ...]
+    view_score: tuple[float, ...]
 
 
 def uncertainty_correlation(
@@ -346,4 +349,6 @@ def uncertainty_correlation(
         patch_pearson=correlation.patch_pearson(err, u, patch),
         view_pearson=correlation.view_pearson(err, u),
         ause=correlation.ause(err, u),
+        view_error=tuple(err.to(torch.float64).sum((1, 2)).tolist()),
+        view_score=tuple(u.to(torch.float64).sum((1, 2)).tolist()),
     )

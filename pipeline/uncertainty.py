@@ -138,7 +138,9 @@ def run(overrides: list[str], out: Path | None, entries: tuple[tuple[str, str], 
         scorer = EpisodeSettings.of(cfg, partial).scorer(method)
         metrics, images = episode.evaluator.evaluate(model, scorer, episode.face_ids, obs, 0, view)
         entry = method_label(method, "argmax", ablation)
-        rows.append({"label": entry, "method": method, "ablation": ablation, "trained_as": "/".join(key), **metrics})
+        view_sums = {"view_error": images["view_error"], "view_score": images["view_score"]}
+        row = {"label": entry, "method": method, "ablation": ablation, "trained_as": "/".join(key), **metrics}
+        rows.append(row | view_sums)
         maps[entry] = images["score"]
         if not shown:
             shown = {**images, "label": entry, "view": view}

@@ -258,6 +258,17 @@ def test_uncertainty_correlation_perfect_scores():
     assert uncertainty_correlation(pred, gt, -error).patch_pearson == pytest.approx(-1.0)
 
 
+def test_uncertainty_correlation_reports_the_per_view_sums_the_view_r_pairs():
+    """(PROTOCOL 4.4) view r is Pearson over per-view sums of error and score; both lists are returned."""
+    pred, gt = _random_pair(5, shape=(3, 32, 32, 3))
+    error = np.abs(pred - gt).sum(-1)
+    score = np.random.default_rng(0).random(error.shape)
+    result = uncertainty_correlation(pred, gt, score)
+    assert result.view_error == pytest.approx(error.sum((1, 2)).tolist(), rel=1e-5)
+    assert result.view_score == pytest.approx(score.sum((1, 2)).tolist(), rel=1e-9)
+    assert result.view_pearson == pytest.approx(np.corrcoef(result.view_error, result.view_score)[0, 1], abs=1e-9)
+
+
 def test_metric_table():
     paper = [m.name for m in PAPER_METRICS]
     assert paper == ["psnr", "ssim", "lpips", "rgb", "acc", "comp", "cr", "vis"]  # the paper's column order

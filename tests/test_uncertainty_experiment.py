@@ -70,6 +70,8 @@ def test_experiment_writes_every_entry_and_shares_nvf_model_with_its_ablations(a
     assert rows["NVF"]["psnr"] == rows["w/o Vis."]["psnr"]  # the same model
     assert all(math.isfinite(row["patch_pearson"]) and -1 <= row["patch_pearson"] <= 1 for row in rows.values())
     assert rows["NVF"]["patch_pearson"] != rows["w/o Vis."]["patch_pearson"]  # but a different score
+    assert rows["NVF"]["view_error"] == rows["w/o Vis."]["view_error"] and len(rows["NVF"]["view_error"]) == 20
+    assert rows["NVF"]["view_score"] != rows["w/o Vis."]["view_score"]  # the per-view sums the view r pairs
     table = (tmp_path / f"{name}.md").read_text()
     assert "| w/o Vis. |" in table and "patch r" in table
     assert iio.imread(tmp_path / f"{name}.png").ndim == 3
