@@ -12,6 +12,11 @@ metrics of its model (PROTOCOL 4). Writes ``results/uncertainty/<scene>_<budget>
 table, and GT | prediction | error | every entry's score map of the evaluation view that looks most
 unlike every training view (``least_seen_view``). ``--entries nvf,nvf-wo_vis,wd`` runs a subset of
 ``ENTRIES`` (named ``method`` or ``method-ablation``), appended to the file name.
+
+Every entry is trained and scored once per seed of ``--seeds`` (default ``SEEDS``, the tables' three):
+one model's correlations move by up to 0.2 (view r) with float-level differences alone (1 against 2
+torch threads, docs/BUDGETS.md), so a row is the mean ± population std over the seeds, and the JSON keeps
+every seed's numbers. Seeds other than ``SEEDS`` are appended to the file name.
 """
 
 import argparse
@@ -49,6 +54,7 @@ ENTRIES = (
     ("nvf", "none"), ("nvf", "wo_vis"), ("nvf", "wo_var"), ("nvf", "ind_rays"), ("nvf", "loose"),
     ("wd", "none"), ("activermap", "none"), ("air", "none"), ("activenerf", "none"), ("neurar", "none"),
 )  # fmt: skip
+SEEDS = (100, 101, 102)  # one model per entry and seed, as the tables' three seeds
 COLUMNS = (("patch_pearson", "patch r ↑"), ("view_pearson", "view r ↑"), ("ause", "AUSE ↓"), ("psnr", "PSNR ↑"))
 
 
@@ -94,8 +100,8 @@ def least_seen_view(eval_poses: Float[Tensor, "e 4 4"], train_poses: Float[Tenso
     return int((eval_forward @ train_forward.T).max(dim=1).values.argmin())
 
 
-class EntriesError(ValueError):
-    """``--entries`` names something that is not in ``ENTRIES``."""
+class ArgumentError(ValueError):
+    """A command-line argument the experiment cannot use (``--entries``, ``--seeds``, a ``seed=`` override)."""
 
 
 def entry_name(method: str, ablation: str) -> str:
@@ -110,50 +116,92 @@ def select_entries(names: list[str] | None) -> tuple[tuple[str, str], ...]:
     known = [entry_name(*entry) for entry in ENTRIES]
     unknown = [name for name in names if name not in known]
     if unknown or not names:
-        raise EntriesError(f"--entries: unknown {unknown or names}; choose from {','.join(known)}")
+        raise ArgumentError(f"--entries: unknown {unknown or names}; choose from {','.join(known)}")
     return tuple(entry for entry in ENTRIES if entry_name(*entry) in names)
 
 
-def run(overrides: list[str], out: Path | None, entries: tuple[tuple[str, str], ...] = ENTRIES) -> list[Path]:
-    """Train, score and write the experiment (``entries``) for the configured scene and budget; returns
-    the files."""
+def parse_seeds(text: str | None) -> tuple[int, ...]:
+    """``--seeds 100,101`` as a tuple of distinct integers (``SEEDS`` for None)."""
+    if text is None:
+        return SEEDS
+    try:
+        seeds = tuple(int(part) for part in text.split(","))
+    except ValueError:
+        seeds = ()
+    if not seeds or len(set(seeds)) != len(seeds):
+        raise ArgumentError(f"--seeds {text!r}: give distinct integers separated by commas, e.g. 100,101,102")
+    return seeds
+
+
+def summary(runs: list[dict]) -> dict:
+    """One row from an entry's per-seed results: each number's mean and population std (``<key>_std``) over
+    the seeds that have it, and every seed's results under ``seeds``."""
+    row: dict = {}
+    for key, value in runs[0].items():
+        if isinstance(value, int | float) and key != "seed":
+            values = np.array([run[key] for run in runs], dtype=np.float64)
+            valid = values[np.isfinite(values)]
+            row[key] = float(valid.mean()) if valid.size else math.nan
+            row[f"{key}_std"] = float(valid.std()) if valid.size else math.nan
+    return row | {"seeds": runs}
+
+
+def run(
+    overrides: list[str],
+    out: Path | None,
+    entries: tuple[tuple[str, str], ...] = ENTRIES,
+    seeds: tuple[int, ...] = SEEDS,
+) -> list[Path]:
+    """Train, score and write the experiment (``entries`` x ``seeds``) for the configured scene and budget;
+    returns the files."""
+    if any(o.startswith("seed=") for o in overrides):
+        raise ArgumentError("a seed= override: the experiment's seeds are --seeds (default 100,101,102)")
     overrides = overrides if any(o.startswith("scene=") for o in overrides) else ["scene=hotdog", *overrides]
     base = compose_config(overrides)
     scene = load_scene(base.scene.name, Path(base.paths.assets))
     partial = dataclasses.replace(scene, init_poses=partial_views(scene, torch.Generator().manual_seed(PARTIAL_SEED)))
     device, lpips = resolve_device(base.device), LpipsMetric()
-    rows, maps = [], {}
-    trained: dict[tuple[str, str], tuple[Episode, Observations, SceneModel]] = {}  # per training key
+    runs: dict[tuple[str, str], list[dict]] = {entry: [] for entry in entries}
+    maps: dict[str, np.ndarray] = {}  # the first seed's score maps of the figure's view, per entry label
     view = least_seen_view(scene.eval_poses, partial.init_poses)
-    shown: dict = {}  # the first entry's images of evaluation view ``view``, and its label
+    shown: dict = {}  # the first entry's images of evaluation view ``view`` (first seed), and its label
     start = time.perf_counter()
-    for method, ablation in tqdm(entries, desc="methods", disable=not sys.stderr.isatty()):
-        cfg = compose_config([*overrides, f"method={method}", f"ablation={ablation}"])
-        key = (method, ablation if cfg.train.ablation_affects_training else "none")
+    todo = [(seed, entry) for seed in seeds for entry in entries]
+    trained: dict[tuple[int, str, str], tuple[Episode, Observations, SceneModel]] = {}  # per seed and training key
+    for seed, (method, ablation) in tqdm(todo, desc="models", disable=not sys.stderr.isatty()):
+        cfg = compose_config([*overrides, f"seed={seed}", f"method={method}", f"ablation={ablation}"])
+        key = (seed, method, ablation if cfg.train.ablation_affects_training else "none")
         if key not in trained:  # an ablation scored on NVF's model shares its episode (renders, evaluator)
+            trained = {k: v for k, v in trained.items() if k[0] == seed}  # free the previous seed's models
             episode = Episode(cfg, partial, device, lpips)
             obs = episode.observations()
             trained[key] = (episode, obs, episode.train(obs, 0)[0])
         episode, obs, model = trained[key]
         scorer = EpisodeSettings.of(cfg, partial).scorer(method)
         metrics, images = episode.evaluator.evaluate(model, scorer, episode.face_ids, obs, 0, view)
-        entry = method_label(method, "argmax", ablation)
         view_sums = {"view_error": images["view_error"], "view_score": images["view_score"]}
-        row = {"label": entry, "method": method, "ablation": ablation, "trained_as": "/".join(key), **metrics}
-        rows.append(row | view_sums)
-        maps[entry] = images["score"]
-        if not shown:
-            shown = {**images, "label": entry, "view": view}
+        runs[(method, ablation)].append({"seed": seed, "trained_as": "/".join(key[1:]), **metrics} | view_sums)
+        entry = method_label(method, "argmax", ablation)
+        if seed == seeds[0]:
+            maps[entry] = images["score"]
+            shown = shown or {**images, "label": entry, "view": view}
+    rows = [
+        {"label": method_label(method, "argmax", ablation), "method": method, "ablation": ablation,
+         "trained_as": results[0]["trained_as"], **summary(results)}
+        for (method, ablation), results in runs.items()
+    ]  # fmt: skip
     label = budget_label(base)
     name = f"{base.scene.name}_{label}"
     if entries != ENTRIES:
         name += "+entries=" + ",".join(entry_name(*entry) for entry in entries)
+    if seeds != SEEDS:
+        name += "+seeds=" + ",".join(map(str, seeds))
     out = REPO / "results" / "uncertainty" if out is None else out
     settings = [o for o in overrides if not o.startswith("paths.")]  # where files live is not a setting
     report = {
         "scene": base.scene.name, "scene_source": scene.source, "budget": label, "field": base.field.kind,
-        "partial_views": len(partial.init_poses), "partial_seed": PARTIAL_SEED, "seed": int(base.seed),
-        "figure_view": view,
+        "partial_views": len(partial.init_poses), "partial_seed": PARTIAL_SEED, "seeds": list(seeds),
+        "torch_threads": torch.get_num_threads(), "figure_view": view, "figure_seed": seeds[0],
         "overrides": settings, "rows": rows, "seconds": time.perf_counter() - start,
         "lpips_missing_reason": lpips.missing,
     }  # fmt: skip
@@ -177,20 +225,29 @@ def markdown(report: dict) -> str:
         "",
         f"Models trained on {report['partial_views']} one-sided views (PROTOCOL 4.4, drawn with seed "
         f"{report['partial_seed']}), scored on the 20 evaluation views. Pearson r of the per-pixel score with the "
-        "per-pixel error over 16 x 16 patches per view and over per-view sums; AUSE is our addition (lower is better).",
+        "per-pixel error over 16 x 16 patches per view and over per-view sums; AUSE is our addition (lower is better). "
+        f"One model per entry and seed (seeds {', '.join(map(str, report['seeds']))}; "
+        f"{report['torch_threads']} torch threads): mean ± population std over the seeds.",
         "",
         "| Method | " + " | ".join(header for _, header in COLUMNS) + " | trained as |",
         "|:--|" + "--:|" * len(COLUMNS) + ":--|",
     ]
     for row in report["rows"]:
-        cells = ["-" if row[key] is None or not math.isfinite(row[key]) else f"{row[key]:.3f}" for key, _ in COLUMNS]
+        cells = [cell(row[key], row[f"{key}_std"], len(report["seeds"])) for key, _ in COLUMNS]
         lines.append(f"| {row['label']} | " + " | ".join(cells) + f" | {row['trained_as']} |")
     return "\n".join(lines) + "\n"
 
 
+def cell(mean: float | None, std: float, seeds: int) -> str:
+    """``0.553 ± 0.021`` (the mean alone from one seed), ``-`` if no seed has the number."""
+    if mean is None or not math.isfinite(mean):
+        return "-"
+    return f"{mean:.3f}" + (f" ± {std:.3f}" if seeds > 1 else "")
+
+
 def figure(shown: dict, maps: dict[str, np.ndarray]) -> Figure:
     """GT, the first entry's prediction and per-pixel error, and every entry's score map of the shown
-    evaluation view (``shown["view"]``; each map scaled to its own range, magma)."""
+    evaluation view (``shown["view"]``; the first seed's models; each map scaled to its own range, magma)."""
     first = shown["label"]
     panels = [(f"GT (evaluation view {shown['view']})", shown["gt"]), (f"prediction ({first})", shown["pred"])]
     panels.append((f"error ({first})", colorize(np.abs(shown["pred"] - shown["gt"]).sum(-1), "magma")))
@@ -212,11 +269,12 @@ def main(argv: list[str]) -> int:
     parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. scene=hubble budget=smoke")
     parser.add_argument("--out", type=Path, default=None, help="output directory (default results/uncertainty)")
     parser.add_argument("--entries", default=None, help="comma-separated subset, e.g. nvf,nvf-wo_vis,wd (default all)")
+    parser.add_argument("--seeds", default=None, help="comma-separated training seeds (default 100,101,102)")
     args = parser.parse_intermixed_args(argv)
     names = None if args.entries is None else args.entries.split(",")
     try:
-        written = run(args.overrides, args.out, select_entries(names))
-    except (SceneError, EntriesError) as err:
+        written = run(args.overrides, args.out, select_entries(names), parse_seeds(args.seeds))
+    except (SceneError, ArgumentError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     print("pipeline.uncertainty: wrote " + ", ".join(map(str, written)))

@@ -5,6 +5,7 @@ import json
 import math
 
 import imageio.v3 as iio
+import numpy as np
 import pytest
 import torch
 
@@ -55,10 +56,11 @@ def test_figure_shows_the_evaluation_view_looking_most_unlike_every_training_vie
 
 def test_experiment_writes_every_entry_and_shares_nvf_model_with_its_ablations(assets_dir, tmp_path):
     tiny = ["budget=smoke", "train.backbone.iters=4", "train.variance.iters=1", "train.visibility.iters=1"]
-    assert main([*tiny, f"paths.assets={assets_dir}", "--out", str(tmp_path), "--entries", "wd,nvf-wo_vis,nvf"]) == 0
+    args = ["--out", str(tmp_path), "--entries", "wd,nvf-wo_vis,nvf", "--seeds", "100,101"]
+    assert main([*tiny, f"paths.assets={assets_dir}", *args]) == 0
     # never the plain budget's or the whole experiment's files
     name = "hotdog_smoke+train.backbone.iters=4+train.variance.iters=1+train.visibility.iters=1"
-    name += "+entries=nvf,nvf-wo_vis,wd"
+    name += "+entries=nvf,nvf-wo_vis,wd+seeds=100,101"
     report = json.loads((tmp_path / f"{name}.json").read_text())
     rows = {row["label"]: row for row in report["rows"]}
     assert list(rows) == ["NVF", "w/o Vis.", "WD"] and report["partial_views"] == 20
@@ -70,10 +72,19 @@ def test_experiment_writes_every_entry_and_shares_nvf_model_with_its_ablations(a
     assert rows["NVF"]["psnr"] == rows["w/o Vis."]["psnr"]  # the same model
     assert all(math.isfinite(row["patch_pearson"]) and -1 <= row["patch_pearson"] <= 1 for row in rows.values())
     assert rows["NVF"]["patch_pearson"] != rows["w/o Vis."]["patch_pearson"]  # but a different score
-    assert rows["NVF"]["view_error"] == rows["w/o Vis."]["view_error"] and len(rows["NVF"]["view_error"]) == 20
-    assert rows["NVF"]["view_score"] != rows["w/o Vis."]["view_score"]  # the per-view sums the view r pairs
+    # a row is the mean and population std over the seeds, and keeps each seed's numbers
+    assert report["seeds"] == [100, 101] and report["torch_threads"] >= 1
+    for row in rows.values():
+        per_seed = [run["patch_pearson"] for run in row["seeds"]]
+        assert [run["seed"] for run in row["seeds"]] == [100, 101]
+        assert row["patch_pearson"] == pytest.approx(np.mean(per_seed))
+        assert row["patch_pearson_std"] == pytest.approx(np.std(per_seed))
+    assert rows["NVF"]["seeds"][0]["psnr"] != rows["NVF"]["seeds"][1]["psnr"]  # another seed trains another model
+    first = rows["NVF"]["seeds"][0]
+    assert first["view_error"] == rows["w/o Vis."]["seeds"][0]["view_error"] and len(first["view_error"]) == 20
+    assert first["view_score"] != rows["w/o Vis."]["seeds"][0]["view_score"]  # the per-view sums the view r pairs
     table = (tmp_path / f"{name}.md").read_text()
-    assert "| w/o Vis. |" in table and "patch r" in table
+    assert "| w/o Vis. |" in table and "patch r" in table and " ± " in table
     assert iio.imread(tmp_path / f"{name}.png").ndim == 3
 
 
@@ -81,12 +92,23 @@ def test_entries_select_a_subset_in_table_order_and_unknown_names_are_refused(ca
     assert uncertainty.select_entries(None) == uncertainty.ENTRIES
     assert uncertainty.select_entries(["air", "nvf-loose"]) == (("nvf", "loose"), ("air", "none"))
     for bad in (["nvf-wo_opt"], []):
-        with pytest.raises(uncertainty.EntriesError, match="choose from nvf,nvf-wo_vis"):
+        with pytest.raises(uncertainty.ArgumentError, match="choose from nvf,nvf-wo_vis"):
             uncertainty.select_entries(bad)
     assert main(["--entries", "nvf,vnf"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["error: --entries: unknown ['vnf']; choose from " + ",".join(
         uncertainty.entry_name(*entry) for entry in uncertainty.ENTRIES)]
+
+
+def test_seeds_are_distinct_integers_and_a_seed_override_is_refused(capsys):
+    assert uncertainty.parse_seeds(None) == uncertainty.SEEDS == (100, 101, 102)
+    assert uncertainty.parse_seeds("7,3") == (7, 3)
+    for bad in ("100,100", "1,x", ""):
+        with pytest.raises(uncertainty.ArgumentError, match="distinct integers"):
+            uncertainty.parse_seeds(bad)
+    assert main(["seed=101"]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        "error: a seed= override: the experiment's seeds are --seeds (default 100,101,102)"]
 
 
 def test_unknown_scene_is_one_line_and_status_2(assets_dir, capsys):
