@@ -227,7 +227,7 @@ def markdown(report: dict) -> str:
         f"{report['partial_seed']}), scored on the 20 evaluation views. Pearson r of the per-pixel score with the "
         "per-pixel error over 16 x 16 patches per view and over per-view sums; AUSE is our addition (lower is better). "
         f"One model per entry and seed (seeds {', '.join(map(str, report['seeds']))}; "
-        f"{report['torch_threads']} torch threads): mean ± population std over the seeds.",
+        f"torch threads: {report['torch_threads']}): mean ± population std over the seeds.",
         "",
         "| Method | " + " | ".join(header for _, header in COLUMNS) + " | trained as |",
         "|:--|" + "--:|" * len(COLUMNS) + ":--|",
