@@ -16,13 +16,16 @@ unlike every training view (``least_seen_view``). ``--entries nvf,nvf-wo_vis,wd`
 Every entry is trained and scored once per seed of ``--seeds`` (default ``SEEDS``, the tables' three):
 one model's correlations move by up to 0.2 (view r) with float-level differences alone (1 against 2
 torch threads, docs/BUDGETS.md), so a row is the mean ± population std over the seeds, and the JSON keeps
-every seed's numbers. Seeds other than ``SEEDS`` are appended to the file name.
+every seed's numbers. Seeds other than ``SEEDS`` are appended to the file name. A killed run resumes at
+its first missing seed.
 """
 
 import argparse
 import dataclasses
+import io
 import json
 import math
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -43,7 +46,7 @@ from pipeline.episode import Episode, EpisodeSettings, resolve_device
 from pipeline.images import colorize, save_figure
 from pipeline.metrics import LpipsMetric
 from pipeline.overrides import GROUPS, NamedConfigs
-from pipeline.records import atomic_write_text, to_jsonable
+from pipeline.records import atomic_write_bytes, atomic_write_text, to_jsonable
 from pipeline.scenes import REPO, S, Scene, SceneError, load_scene
 from pipeline.tables import method_label
 
@@ -135,15 +138,56 @@ def parse_seeds(text: str | None) -> tuple[int, ...]:
 
 def summary(runs: list[dict]) -> dict:
     """One row from an entry's per-seed results: each number's mean and population std (``<key>_std``) over
-    the seeds that have it, and every seed's results under ``seeds``."""
+    the seeds that have it (None and NaN are missing), and every seed's results under ``seeds``."""
     row: dict = {}
     for key, value in runs[0].items():
-        if isinstance(value, int | float) and key != "seed":
-            values = np.array([run[key] for run in runs], dtype=np.float64)
+        if key != "seed" and (value is None or isinstance(value, int | float)) and not isinstance(value, bool):
+            values = np.array([math.nan if run[key] is None else run[key] for run in runs], dtype=np.float64)
             valid = values[np.isfinite(values)]
             row[key] = float(valid.mean()) if valid.size else math.nan
             row[f"{key}_std"] = float(valid.std()) if valid.size else math.nan
     return row | {"seeds": runs}
+
+
+def score_seed(
+    overrides: list[str], seed: int, entries: tuple[tuple[str, str], ...], partial: Scene, view: int, lpips: LpipsMetric
+) -> tuple[list[dict], dict[str, np.ndarray]]:
+    """Train and score every entry with ``seed``: per entry its metrics, the per-view sums behind the view r
+    and the model it was scored on (``trained_as``); and the figure's arrays of evaluation view ``view``: ``gt``,
+    the first entry's ``pred``, and every entry's ``score:<label>`` map."""
+    results: list[dict] = []
+    arrays: dict[str, np.ndarray] = {}
+    trained: dict[tuple[str, str], tuple[Episode, Observations, SceneModel]] = {}  # per training key
+    for method, ablation in entries:
+        cfg = compose_config([*overrides, f"seed={seed}", f"method={method}", f"ablation={ablation}"])
+        key = (method, ablation if cfg.train.ablation_affects_training else "none")
+        if key not in trained:  # an ablation scored on NVF's model shares its episode (renders, evaluator)
+            episode = Episode(cfg, partial, resolve_device(cfg.device), lpips)
+            obs = episode.observations()
+            trained[key] = (episode, obs, episode.train(obs, 0)[0])
+        episode, obs, model = trained[key]
+        scorer = EpisodeSettings.of(cfg, partial).scorer(method)
+        metrics, images = episode.evaluator.evaluate(model, scorer, episode.face_ids, obs, 0, view)
+        view_sums = {"view_error": images["view_error"], "view_score": images["view_score"]}
+        results.append({"seed": seed, "trained_as": "/".join(key), **metrics} | view_sums)
+        arrays.setdefault("gt", images["gt"])
+        arrays.setdefault("pred", images["pred"])
+        arrays[f"score:{method_label(method, 'argmax', ablation)}"] = images["score"]
+    return results, arrays
+
+
+def save_seed(path: Path, results: list[dict], arrays: dict[str, np.ndarray], seconds: float) -> None:
+    """One finished seed (``score_seed``'s output and its seconds) as an ``.npz``, written atomically."""
+    buffer = io.BytesIO()
+    np.savez(buffer, results=np.array(json.dumps(to_jsonable({"results": results, "seconds": seconds}))), **arrays)
+    atomic_write_bytes(path, buffer.getvalue())
+
+
+def load_seed(path: Path) -> tuple[list[dict], dict[str, np.ndarray], float]:
+    """``save_seed``'s file back as ``(results, arrays, seconds)``."""
+    with np.load(path) as data:
+        saved = json.loads(str(data["results"]))
+        return saved["results"], {key: data[key] for key in data.files if key != "results"}, saved["seconds"]
 
 
 def run(
@@ -153,61 +197,51 @@ def run(
     seeds: tuple[int, ...] = SEEDS,
 ) -> list[Path]:
     """Train, score and write the experiment (``entries`` x ``seeds``) for the configured scene and budget;
-    returns the files."""
+    returns the files. Each finished seed is kept in ``.<name>.seeds/`` beside the files, so a killed run
+    resumes at its first missing seed (delete the directory to start over); it is removed once the files are
+    written."""
     if any(o.startswith("seed=") for o in overrides):
         raise ArgumentError("a seed= override: the experiment's seeds are --seeds (default 100,101,102)")
     overrides = overrides if any(o.startswith("scene=") for o in overrides) else ["scene=hotdog", *overrides]
     base = compose_config(overrides)
     scene = load_scene(base.scene.name, Path(base.paths.assets))
     partial = dataclasses.replace(scene, init_poses=partial_views(scene, torch.Generator().manual_seed(PARTIAL_SEED)))
-    device, lpips = resolve_device(base.device), LpipsMetric()
-    runs: dict[tuple[str, str], list[dict]] = {entry: [] for entry in entries}
-    maps: dict[str, np.ndarray] = {}  # the first seed's score maps of the figure's view, per entry label
     view = least_seen_view(scene.eval_poses, partial.init_poses)
-    shown: dict = {}  # the first entry's images of evaluation view ``view`` (first seed), and its label
-    start = time.perf_counter()
-    todo = [(seed, entry) for seed in seeds for entry in entries]
-    trained: dict[tuple[int, str, str], tuple[Episode, Observations, SceneModel]] = {}  # per seed and training key
-    for seed, (method, ablation) in tqdm(todo, desc="models", disable=not sys.stderr.isatty()):
-        cfg = compose_config([*overrides, f"seed={seed}", f"method={method}", f"ablation={ablation}"])
-        key = (seed, method, ablation if cfg.train.ablation_affects_training else "none")
-        if key not in trained:  # an ablation scored on NVF's model shares its episode (renders, evaluator)
-            trained = {k: v for k, v in trained.items() if k[0] == seed}  # free the previous seed's models
-            episode = Episode(cfg, partial, device, lpips)
-            obs = episode.observations()
-            trained[key] = (episode, obs, episode.train(obs, 0)[0])
-        episode, obs, model = trained[key]
-        scorer = EpisodeSettings.of(cfg, partial).scorer(method)
-        metrics, images = episode.evaluator.evaluate(model, scorer, episode.face_ids, obs, 0, view)
-        view_sums = {"view_error": images["view_error"], "view_score": images["view_score"]}
-        runs[(method, ablation)].append({"seed": seed, "trained_as": "/".join(key[1:]), **metrics} | view_sums)
-        entry = method_label(method, "argmax", ablation)
-        if seed == seeds[0]:
-            maps[entry] = images["score"]
-            shown = shown or {**images, "label": entry, "view": view}
-    rows = [
-        {"label": method_label(method, "argmax", ablation), "method": method, "ablation": ablation,
-         "trained_as": results[0]["trained_as"], **summary(results)}
-        for (method, ablation), results in runs.items()
-    ]  # fmt: skip
-    label = budget_label(base)
-    name = f"{base.scene.name}_{label}"
+    name = f"{base.scene.name}_{budget_label(base)}"
     if entries != ENTRIES:
         name += "+entries=" + ",".join(entry_name(*entry) for entry in entries)
     if seeds != SEEDS:
         name += "+seeds=" + ",".join(map(str, seeds))
     out = REPO / "results" / "uncertainty" if out is None else out
+    finished = out / f".{name}.seeds"
+    lpips, per_seed = LpipsMetric(), {}
+    for seed in tqdm(seeds, desc="seeds", disable=not sys.stderr.isatty()):
+        path = finished / f"seed_{seed}.npz"
+        if not path.exists():
+            start = time.perf_counter()
+            results, arrays = score_seed(overrides, seed, entries, partial, view, lpips)
+            save_seed(path, results, arrays, time.perf_counter() - start)
+        per_seed[seed] = load_seed(path)
+    rows = [
+        {"label": method_label(method, "argmax", ablation), "method": method, "ablation": ablation,
+         "trained_as": per_seed[seeds[0]][0][i]["trained_as"], **summary([per_seed[s][0][i] for s in seeds])}
+        for i, (method, ablation) in enumerate(entries)
+    ]  # fmt: skip
+    arrays = per_seed[seeds[0]][1]
+    labels = [row["label"] for row in rows]
+    shown = {"gt": arrays["gt"], "pred": arrays["pred"], "label": labels[0], "view": view}
     settings = [o for o in overrides if not o.startswith("paths.")]  # where files live is not a setting
     report = {
-        "scene": base.scene.name, "scene_source": scene.source, "budget": label, "field": base.field.kind,
+        "scene": base.scene.name, "scene_source": scene.source, "budget": budget_label(base), "field": base.field.kind,
         "partial_views": len(partial.init_poses), "partial_seed": PARTIAL_SEED, "seeds": list(seeds),
         "torch_threads": torch.get_num_threads(), "figure_view": view, "figure_seed": seeds[0],
-        "overrides": settings, "rows": rows, "seconds": time.perf_counter() - start,
+        "overrides": settings, "rows": rows, "seconds": sum(saved[2] for saved in per_seed.values()),
         "lpips_missing_reason": lpips.missing,
     }  # fmt: skip
     atomic_write_text(out / f"{name}.json", json.dumps(to_jsonable(report), indent=2) + "\n")
     atomic_write_text(out / f"{name}.md", markdown(report))
-    save_figure(figure(shown, maps), out / f"{name}.png")
+    save_figure(figure(shown, {label: arrays[f"score:{label}"] for label in labels}), out / f"{name}.png")
+    shutil.rmtree(finished)
     return [out / f"{name}.{ext}" for ext in ("json", "md", "png")]
 
 

@@ -115,3 +115,35 @@ def test_unknown_scene_is_one_line_and_status_2(assets_dir, capsys):
     assert main(["scene=default", f"paths.assets={assets_dir}"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: PROTOCOL 4.4 defines the partial training set")
+
+
+def test_a_killed_experiment_resumes_at_its_first_missing_seed(assets_dir, tmp_path, monkeypatch):
+    """Each finished seed is kept beside the files; a re-run scores only the missing seeds and then
+    removes them. Nothing is written until every seed is done."""
+    args = ["budget=smoke", "train.backbone.iters=2", f"paths.assets={assets_dir}", "--out", str(tmp_path)]
+    args += ["--entries", "wd", "--seeds", "100,101"]
+    real, scored = uncertainty.score_seed, []
+
+    def killed_at_101(overrides, seed, *rest):
+        if seed == 101:
+            raise KeyboardInterrupt
+        scored.append(seed)
+        return real(overrides, seed, *rest)
+
+    monkeypatch.setattr(uncertainty, "score_seed", killed_at_101)
+    with pytest.raises(KeyboardInterrupt):
+        main(args)
+    name = "hotdog_smoke+train.backbone.iters=2+entries=wd+seeds=100,101"
+    assert [p.name for p in (tmp_path / f".{name}.seeds").iterdir()] == ["seed_100.npz"]
+    assert not (tmp_path / f"{name}.json").exists()
+
+    def counted(overrides, seed, *rest):
+        scored.append(seed)
+        return real(overrides, seed, *rest)
+
+    monkeypatch.setattr(uncertainty, "score_seed", counted)
+    assert main(args) == 0
+    assert scored == [100, 101]  # seed 100 was not scored again
+    report = json.loads((tmp_path / f"{name}.json").read_text())
+    assert [run["seed"] for run in report["rows"][0]["seeds"]] == [100, 101] and report["seconds"] > 0
+    assert not (tmp_path / f".{name}.seeds").exists()
