@@ -152,7 +152,7 @@ class Episode:
         t0 = time.perf_counter()
         model, stats = self.train(obs, step, progress)
         t1 = time.perf_counter()
-        metrics, images = self.evaluator.evaluate(model, self.scorer, self.face_ids, obs, step)
+        metrics, images, _ = self.evaluator.evaluate(model, self.scorer, self.face_ids, obs, step)
         t2 = time.perf_counter()
         current = matrix_to_pose(self.poses[-1]).to(self.device)
         selection = select_next_view(

@@ -104,10 +104,10 @@ class Evaluator:
         obs: Observations,
         step: int,
         view: int = 0,
-    ) -> tuple[dict, dict]:
-        """Metrics of ``model`` after training on ``obs`` (step ``step``), and images of evaluation view
-        ``view``, with a scorer also ``view_error`` and ``view_score`` [V] (the per-view sums the view r
-        pairs). ``face_ids``: the face hit by each pixel-centre ray of every training view (Vis.)."""
+    ) -> tuple[dict, dict, dict]:
+        """Metrics of ``model`` after training on ``obs`` (step ``step``), images of evaluation view ``view``,
+        and with a scorer ``view_error`` and ``view_score`` [V], the per-view sums the view r pairs (else
+        empty). ``face_ids``: the face hit by each pixel-centre ray of every training view (Vis.)."""
         cfg, scene = self.cfg, self.scene
         renders = [render_view(model, scorer, c2w.to(self.device), self.intrinsics) for c2w in scene.eval_poses]
         pred = np.stack([r["rgb"] for r in renders]).clip(0.0, 1.0)
@@ -140,4 +140,4 @@ class Evaluator:
         }  # fmt: skip
         shown = renders[view]
         images = {"gt": self.gt[view], "pred": pred[view], "score": shown["score"], "depth": shown["depth"]}
-        return metrics, images | view_sums
+        return metrics, images, view_sums

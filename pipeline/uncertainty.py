@@ -167,8 +167,7 @@ def score_seed(
             trained[key] = (episode, obs, episode.train(obs, 0)[0])
         episode, obs, model = trained[key]
         scorer = EpisodeSettings.of(cfg, partial).scorer(method)
-        metrics, images = episode.evaluator.evaluate(model, scorer, episode.face_ids, obs, 0, view)
-        view_sums = {"view_error": images["view_error"], "view_score": images["view_score"]}
+        metrics, images, view_sums = episode.evaluator.evaluate(model, scorer, episode.face_ids, obs, 0, view)
         results.append({"seed": seed, "trained_as": "/".join(key), **metrics} | view_sums)
         arrays.setdefault("gt", images["gt"])
         arrays.setdefault("pred", images["pred"])

@@ -61,6 +61,13 @@ def test_smoke_episode_writes_complete_records(tmp_path):
     assert (directory / "run.json").read_text() == before and RunRecord(directory).is_done()
 
 
+
+def test_an_episode_with_a_scorer_saves_its_score_map(tmp_path):
+    directory = run_episode(_cfg(tmp_path, "method=wd", "budget.horizon=1", "train.backbone.iters=2"))
+    assert RunRecord(directory).is_done()
+    assert {"step_00_pred.png", "step_00_score.png"} <= {p.name for p in (directory / "images").iterdir()}
+
+
 @pytest.mark.slow
 def test_sigkill_mid_step_resumes_with_the_same_poses(tmp_path):
     """A run killed mid-step resumes at its last complete step and selects the same poses."""
