@@ -147,3 +147,15 @@ def test_a_killed_experiment_resumes_at_its_first_missing_seed(assets_dir, tmp_p
     report = json.loads((tmp_path / f"{name}.json").read_text())
     assert [run["seed"] for run in report["rows"][0]["seeds"]] == [100, 101] and report["seconds"] > 0
     assert not (tmp_path / f".{name}.seeds").exists()
+
+
+def test_a_row_is_the_mean_and_population_std_over_the_seeds_that_have_the_number():
+    runs = [
+        {"seed": 100, "trained_as": "nvf/none", "psnr": 10.0, "lpips": None, "ause": math.nan, "view_error": [1.0]},
+        {"seed": 101, "trained_as": "nvf/none", "psnr": 14.0, "lpips": 0.2, "ause": math.nan, "view_error": [2.0]},
+    ]
+    row = uncertainty.summary(runs)
+    assert (row["psnr"], row["psnr_std"]) == (12.0, 2.0)
+    assert (row["lpips"], row["lpips_std"]) == (0.2, 0.0)  # a missing value (None, as a saved seed keeps NaN) is skipped
+    assert math.isnan(row["ause"]) and math.isnan(row["ause_std"])
+    assert "seed" not in row and "view_error" not in row and row["seeds"] == runs
