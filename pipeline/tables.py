@@ -265,15 +265,22 @@ def object_mean(final: pd.DataFrame) -> tuple[pd.DataFrame, tuple[str, ...]]:
     return rows, tuple(f"{text}: {', '.join(labels)}" for text, labels in coverage.items())
 
 
+def _mixed_seed_counts(rows: pd.DataFrame) -> pd.Series:
+    """Per row: True if its (budget, scene) block has rows over different numbers of seeds ``n``."""
+    return rows["n"].groupby([rows["budget"], rows["scene"]]).transform("nunique") > 1
+
+
 def _mark_best(rows: pd.DataFrame) -> pd.DataFrame:
-    """Add ``<metric>_best``: the direction-aware best mean of each (budget, scene) block (not when all tie)."""
+    """Add ``<metric>_best``: the direction-aware best mean of each (budget, scene) block; none when all tie,
+    or when the block's rows average different numbers of seeds (a 3-seed mean is not comparable with one seed)."""
     rows = rows.copy()
+    comparable = ~_mixed_seed_counts(rows)
     for m in PAPER_METRICS:
         means = rows[f"{m.name}_mean"]
         block = means.groupby([rows["budget"], rows["scene"]])
         best = block.transform("max" if m.higher_is_better else "min")
         spread = block.transform("max") > block.transform("min")  # no bold when every row ties
-        rows[f"{m.name}_best"] = (means == best) & spread
+        rows[f"{m.name}_best"] = (means == best) & spread & comparable
     return rows
 
 
@@ -353,6 +360,11 @@ def _notes(selected: pd.DataFrame, done: pd.DataFrame, rows: pd.DataFrame, runs:
         notes.append("† some seeds lack this value: the cell averages the others.")
     if (valid == 0).any():
         notes.append("'-': no run has this value.")
+    if not rows.empty:
+        mixed = rows[_mixed_seed_counts(rows)].drop_duplicates(["budget", "scene"])
+        blocks = ", ".join(f"{scene} ({budget})" for budget, scene in zip(mixed["budget"], mixed["scene"]))
+        if blocks:
+            notes.append(f"No best is marked for {blocks}: its rows average different numbers of seeds (n).")
     for m in PAPER_METRICS:
         missing = done[done[m.name].isna()]
         if missing.empty:

@@ -86,6 +86,20 @@ def test_aggregation_mean_population_std_best_and_n(tmp_path):
     assert tmp_path / "res" / "figures" / "curves_hubble_smoke.png" in written
 
 
+def test_no_best_is_marked_where_rows_average_different_numbers_of_seeds(tmp_path):
+    out = tmp_path / "out"
+    for seed, psnr in zip((100, 101, 102), (20.0, 21.0, 23.0)):
+        make_run(out, method="nvf", seed=seed, final={"psnr": psnr})
+    make_run(out, method="random", seed=100, final={"psnr": 15.0})
+    make_run(out, method="random", seed=100, scene="hotdog", final={"psnr": 15.0})
+    make_run(out, method="nvf", seed=100, scene="hotdog", final={"psnr": 18.0})
+    build_tables(out, [], tmp_path / "res")
+    md = read(tmp_path / "res" / "tables" / "all_runs.md")
+    assert "21.33 ± 1.25" in md and "**21.33" not in md  # hubble: 3 seeds against 1
+    assert "**18.00**" in md  # hotdog: one seed each, comparable
+    assert "No best is marked for hubble (smoke): its rows average different numbers of seeds (n)." in md
+
+
 def test_every_table_written_and_no_runs_yet(tmp_path):
     written, _ = build_tables(tmp_path / "missing", [tmp_path / "also_missing"], tmp_path / "res")
     names = ("main", "table1_opt", "table2_ablation", "table34_nerf_assets", "methods", "all_runs", "paper_comparison")
