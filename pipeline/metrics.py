@@ -345,10 +345,11 @@ def uncertainty_correlation(
     level over per-view sums, and AUSE (an addition, labelled so). NaN where undefined."""
     err = (_clipped(pred) - _clipped(gt)).abs().sum(1)
     u = _tensor(scores).to(err.device)
+    view_error, view_score = correlation.view_sums(err, u)
     return UncertaintyCorrelation(
         patch_pearson=correlation.patch_pearson(err, u, patch),
         view_pearson=correlation.view_pearson(err, u),
         ause=correlation.ause(err, u),
-        view_error=tuple(err.to(torch.float64).sum((1, 2)).tolist()),
-        view_score=tuple(u.to(torch.float64).sum((1, 2)).tolist()),
+        view_error=tuple(view_error.tolist()),
+        view_score=tuple(view_score.tolist()),
     )

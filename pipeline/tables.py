@@ -215,7 +215,8 @@ def collect_runs(roots: list[Path]) -> Runs:
     return Runs(long=long, final=final_frame, skipped=tuple(skipped), conflicts=tuple(conflicts))
 
 
-def _stats(values: Float[np.ndarray, " n"]) -> tuple[float, float, int]:
+def mean_std_valid(values: Float[np.ndarray, " n"]) -> tuple[float, float, int]:
+    """Mean, population std and count of the finite ``values`` over seeds (NaN, NaN, 0 if none)."""
     valid = values[np.isfinite(values)]
     if not valid.size:
         return math.nan, math.nan, 0
@@ -228,7 +229,8 @@ def aggregate(final: pd.DataFrame) -> pd.DataFrame:
     for key, group in final.groupby(list(GROUP), sort=False):
         row = {**dict(zip(GROUP, key)), "scene_source": ", ".join(sorted(set(group["scene_source"]))), "n": len(group)}
         for metric in METRIC_KEYS:
-            row[f"{metric}_mean"], row[f"{metric}_std"], row[f"{metric}_valid"] = _stats(group[metric].to_numpy(float))
+            stats = mean_std_valid(group[metric].to_numpy(float))
+            row[f"{metric}_mean"], row[f"{metric}_std"], row[f"{metric}_valid"] = stats
         rows.append(row)
     return pd.DataFrame(rows)
 

@@ -41,14 +41,14 @@ from tqdm import tqdm
 from nvf.cameras import look_at
 from nvf.model import SceneModel
 from nvf.training import Observations
-from pipeline.config import compose_config
+from pipeline.config import CONF, compose_config
 from pipeline.episode import Episode, EpisodeSettings, resolve_device
 from pipeline.images import colorize, save_figure
 from pipeline.metrics import LpipsMetric
 from pipeline.overrides import GROUPS, NamedConfigs
 from pipeline.records import atomic_write_bytes, atomic_write_text, to_jsonable
 from pipeline.scenes import REPO, S, Scene, SceneError, load_scene
-from pipeline.tables import method_label
+from pipeline.tables import mean_std_valid, method_label
 
 PARTIAL_VIEWS = 20
 PARTIAL_SEED = 0
@@ -143,9 +143,7 @@ def summary(runs: list[dict]) -> dict:
     for key, value in runs[0].items():
         if key != "seed" and (value is None or isinstance(value, int | float)) and not isinstance(value, bool):
             values = np.array([math.nan if run[key] is None else run[key] for run in runs], dtype=np.float64)
-            valid = values[np.isfinite(values)]
-            row[key] = float(valid.mean()) if valid.size else math.nan
-            row[f"{key}_std"] = float(valid.std()) if valid.size else math.nan
+            row[key], row[f"{key}_std"], _ = mean_std_valid(values)
     return row | {"seeds": runs}
 
 
@@ -206,7 +204,8 @@ def run(
     scene = load_scene(base.scene.name, Path(base.paths.assets))
     partial = dataclasses.replace(scene, init_poses=partial_views(scene, torch.Generator().manual_seed(PARTIAL_SEED)))
     view = least_seen_view(scene.eval_poses, partial.init_poses)
-    name = f"{base.scene.name}_{budget_label(base)}"
+    label = budget_label(base)
+    name = f"{base.scene.name}_{label}"
     if entries != ENTRIES:
         name += "+entries=" + ",".join(entry_name(*entry) for entry in entries)
     if seeds != SEEDS:
@@ -231,7 +230,7 @@ def run(
     shown = {"gt": arrays["gt"], "pred": arrays["pred"], "label": labels[0], "view": view}
     settings = [o for o in overrides if not o.startswith("paths.")]  # where files live is not a setting
     report = {
-        "scene": base.scene.name, "scene_source": scene.source, "budget": budget_label(base), "field": base.field.kind,
+        "scene": base.scene.name, "scene_source": scene.source, "budget": label, "field": base.field.kind,
         "partial_views": len(partial.init_poses), "partial_seed": PARTIAL_SEED, "seeds": list(seeds),
         "torch_threads": torch.get_num_threads(), "figure_view": view, "figure_seed": seeds[0],
         "overrides": settings, "rows": rows, "seconds": sum(saved[2] for saved in per_seed.values()),
@@ -248,7 +247,7 @@ def budget_label(cfg: DictConfig) -> str:
     """The budget plus every setting beyond the named groups (``cpu+train.visibility.iters=500``), as the
     tables label runs (``pipeline.overrides``), so another setting never overwrites the plain budget's files."""
     info = {group: cfg[group].name for group in GROUPS} | {"config": OmegaConf.to_container(cfg, resolve=True)}
-    return NamedConfigs(REPO / "conf").budget_label(info)
+    return NamedConfigs(CONF).budget_label(info)
 
 
 def markdown(report: dict) -> str:

@@ -32,9 +32,16 @@ def patch_pearson(error: Float[Tensor, "V H W"], score: Float[Tensor, "V H W"], 
     return pearson(*pooled)
 
 
+def view_sums(
+    error: Float[Tensor, "V H W"], score: Float[Tensor, "V H W"]
+) -> tuple[Float[Tensor, "V"], Float[Tensor, "V"]]:
+    """Per-view sums of ``error`` and ``score`` in float64: the ``V`` pairs of the view-level r."""
+    return error.to(torch.float64).sum((1, 2)), score.to(torch.float64).sum((1, 2))
+
+
 def view_pearson(error: Float[Tensor, "V H W"], score: Float[Tensor, "V H W"]) -> float:
     """View-level r: Pearson of the per-view sums of ``error`` and ``score`` (``V`` pairs)."""
-    return pearson(error.to(torch.float64).sum((1, 2)), score.to(torch.float64).sum((1, 2)))
+    return pearson(*view_sums(error, score))
 
 
 def ause(error: Float[Tensor, "V H W"], score: Float[Tensor, "V H W"]) -> float:
