@@ -4,7 +4,6 @@ a config outside ``@hydra.main`` (benchmarks, experiments).
 """
 
 import sys
-from pathlib import Path
 from typing import Any
 
 from hydra import compose, initialize_config_dir
@@ -15,10 +14,10 @@ from nvf.config import STAGES
 from nvf.training import AUX_LOSSES
 from nvf.uncertainty.scorers import METHODS
 from pipeline.overrides import changed_settings
+from pipeline.repo import CONF
 from pipeline.schema import register_configs
 
 ABLATIONS = ("none", "wo_vis", "wo_var", "ind_rays", "loose")
-CONF = Path(__file__).resolve().parents[1] / "conf"
 
 
 class ConfigError(ValueError):

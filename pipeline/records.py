@@ -23,6 +23,7 @@ from types import MappingProxyType
 from typing import Any
 
 from pipeline.metric_info import METRICS
+from pipeline.repo import REPO
 
 KEY_PATTERN = re.compile(r"[A-Za-z0-9_.-]+")
 IDENTITY_KEYS = ("scene", "method", "planner", "ablation", "budget", "seed")
@@ -264,7 +265,7 @@ class RunRecord:
             timings["resumed"] = [*timings.get("resumed", []), now]
         for stale in self.directory.glob(".*.tmp"):  # temp files of a killed write
             stale.unlink()
-        repo = Path(__file__).resolve().parents[1] if repo is None else repo
+        repo = REPO if repo is None else repo
         record = {
             **info,
             "config": _settings(info["config"]),

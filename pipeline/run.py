@@ -30,7 +30,6 @@ from pipeline.records import RunRecord, run_dir
 from pipeline.scenes import SceneError, load_scene
 from pipeline.schema import register_configs
 
-REPO = Path(__file__).resolve().parents[1]
 register_configs()
 
 
@@ -102,7 +101,7 @@ def run_episode(cfg: DictConfig) -> Path:
     lpips = LpipsMetric()
     episode = Episode(cfg, scene, device, lpips)
     done_rows = record.completed_steps()
-    record.start(run_info(cfg, scene.source, device, lpips.missing), repo=REPO)
+    record.start(run_info(cfg, scene.source, device, lpips.missing))
     episode.replay(done_rows)
     horizon = int(cfg.budget.horizon)
     if done_rows:

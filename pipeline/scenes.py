@@ -33,10 +33,10 @@ from torch import Tensor
 
 from nvf.cameras import Intrinsics, look_at
 from pipeline import procedural
+from pipeline.repo import REPO, RESULTS
 
 Vec = Sequence[float | int] | np.ndarray  # a point or vector; beartype rejects ints as floats
 
-REPO = Path(__file__).resolve().parents[1]
 NERF_OBJECTS = ("chair", "drums", "ficus", "lego", "materials", "mic", "ship")
 PAPER_SCENES = ("chair", "drums", "ficus", "hotdog", "lego", "materials", "mic", "ship", "hubble", "room")
 SCENE_NAMES = (*PAPER_SCENES, "default", *(f"{name}_proxy" for name in NERF_OBJECTS))
@@ -500,7 +500,7 @@ def main(argv: list[str] | None = None) -> None:
     show_parser = sub.add_parser("show", help="write a PNG grid of a scene's views and a top view")
     show_parser.add_argument("scene", help=f"one of: {', '.join(SCENE_NAMES)}")
     show_parser.add_argument("--assets", type=Path, default=None, help="assets directory (default: NVF_ASSETS)")
-    show_parser.add_argument("--out", type=Path, default=REPO / "results" / "figures" / "scenes")
+    show_parser.add_argument("--out", type=Path, default=RESULTS / "figures" / "scenes")
     show_parser.add_argument("--res", type=int, default=128, help="view resolution in pixels")
     args = parser.parse_args(argv)
     if args.res < 8:

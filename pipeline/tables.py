@@ -38,6 +38,7 @@ from pipeline.records import (
     record_status,
     run_difference,
 )
+from pipeline.repo import CONF
 
 METRIC_KEYS = tuple(m.name for m in PAPER_METRICS)
 METHOD_NAMES = (
@@ -60,7 +61,6 @@ PLANNERS = ("argmax", "opt")
 OBJECT_SCENES = ("chair", "drums", "ficus", "hotdog", "lego", "materials", "mic", "ship")
 ROOM_SCENES = ("hubble", "room")
 OBJECT_MEAN = "object-scene mean"
-CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
 LONG_COLUMNS = (
     "scene", "scene_source", "method", "planner", "ablation", "budget", "seed", "step", "n_views", "metric", "value"
 )
@@ -179,7 +179,7 @@ def collect_runs(roots: list[Path]) -> Runs:
                     continue
             records[key] = record
     long_rows, final_rows = [], []
-    named = NamedConfigs(CONF_DIR)
+    named = NamedConfigs(CONF)
     for record in records.values():
         info, rows = record["info"], record["rows"]
         keys = {k: info[k] for k in IDENTITY_KEYS}

@@ -41,13 +41,14 @@ from tqdm import tqdm
 from nvf.cameras import look_at
 from nvf.model import SceneModel
 from nvf.training import Observations
-from pipeline.config import CONF, compose_config
+from pipeline.config import compose_config
 from pipeline.episode import Episode, EpisodeSettings, resolve_device
 from pipeline.images import colorize, save_figure
 from pipeline.metrics import LpipsMetric
 from pipeline.overrides import GROUPS, NamedConfigs
 from pipeline.records import atomic_write_bytes, atomic_write_text, to_jsonable
-from pipeline.scenes import REPO, S, Scene, SceneError, load_scene
+from pipeline.repo import CONF, RESULTS
+from pipeline.scenes import S, Scene, SceneError, load_scene
 from pipeline.tables import mean_std_valid, method_label
 
 PARTIAL_VIEWS = 20
@@ -210,7 +211,7 @@ def run(
         name += "+entries=" + ",".join(entry_name(*entry) for entry in entries)
     if seeds != SEEDS:
         name += "+seeds=" + ",".join(map(str, seeds))
-    out = REPO / "results" / "uncertainty" if out is None else out
+    out = RESULTS / "uncertainty" if out is None else out
     finished = out / f".{name}.seeds"
     lpips, per_seed = LpipsMetric(), {}
     for seed in tqdm(seeds, desc="seeds", disable=not sys.stderr.isatty()):

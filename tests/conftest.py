@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import torch
 
-REPO = Path(__file__).resolve().parents[1]
+from pipeline.repo import REPO
 
 
 def _shared(env: str, relative: str) -> Path:

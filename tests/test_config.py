@@ -1,16 +1,14 @@
 """Hydra config tree: every group option composes, validates, and impossible values are rejected."""
 
 import itertools
-from pathlib import Path
 
 import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import open_dict
 
 from pipeline.config import ConfigError, validate
+from pipeline.repo import CONF
 from pipeline.schema import register_configs
-
-CONF = Path(__file__).resolve().parents[1] / "conf"
 
 
 def _options(group: str) -> list[str]:

@@ -16,7 +16,8 @@ from hydra import compose, initialize_config_dir
 from pipeline.episode import Episode
 from pipeline.metrics import LpipsMetric
 from pipeline.records import RunRecord
-from pipeline.run import REPO, run_episode
+from pipeline.repo import REPO
+from pipeline.run import run_episode
 from pipeline.scenes import load_scene
 
 SMOKE = ["budget=smoke", "scene=default"]

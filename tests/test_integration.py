@@ -19,7 +19,7 @@ from pipeline.bench.train import observations
 from pipeline.episode import EpisodeSettings
 from pipeline.metrics import edge_pixels, off_edge_psnr, psnr
 from pipeline.render import GroundTruthRenderer
-from pipeline.run import REPO
+from pipeline.repo import REPO
 from pipeline.scenes import load_scene
 
 pytestmark = pytest.mark.slow

@@ -5,7 +5,8 @@ import copy
 from hydra import compose, initialize_config_dir
 
 from pipeline.overrides import NamedConfigs
-from pipeline.run import REPO, run_settings
+from pipeline.repo import REPO
+from pipeline.run import run_settings
 
 GROUPS = ["scene=default", "method=nvf", "planner=argmax", "ablation=none", "budget=smoke", "seed=101"]
 

@@ -12,8 +12,7 @@ from omegaconf import OmegaConf
 
 from nvf.cameras import Intrinsics
 from pipeline.records import RunRecord, check_key, read_steps, run_dir, to_jsonable
-
-REPO = Path(__file__).resolve().parents[1]
+from pipeline.repo import REPO
 
 
 def _info(**overrides) -> dict:

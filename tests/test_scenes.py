@@ -3,16 +3,14 @@
 import math
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 import trimesh
 
+from pipeline.repo import REPO
 from pipeline.scenes import NERF_OBJECTS, SCENE_NAMES, SceneError, load_scene, rule_views
-
-REPO = Path(__file__).resolve().parents[1]
 
 # PROTOCOL 2.3: rounded initial views, position -> look-at target
 INIT = {

@@ -11,7 +11,7 @@ import pandas as pd
 from pipeline.overrides import NamedConfigs
 from pipeline.paper_numbers import paper_numbers
 from pipeline.records import RunRecord, run_dir
-from pipeline.run import REPO
+from pipeline.repo import REPO
 from pipeline.tables import LONG_COLUMNS, build_tables, image_grid, main, method_label, summarize_run
 
 METRICS = ("psnr", "ssim", "lpips", "rgb", "acc", "comp", "cr", "vis")
@@ -249,7 +249,7 @@ def test_tables_load_without_torch_open3d_or_lpips():
     """Regenerating tables needs only the metrics' data (pipeline.metric_info), not the metrics' code, and
     composing a run's named config groups (pipeline.overrides) needs only the schema, not the method library."""
     code = (
-        "import sys, pipeline.tables, pipeline.overrides as o; o.NamedConfigs(pipeline.tables.CONF_DIR).named("
+        "import sys, pipeline.repo, pipeline.tables, pipeline.overrides as o; o.NamedConfigs(pipeline.repo.CONF).named("
         "('hubble', 'nvf', 'argmax', 'none', 'smoke')); print(sorted({'torch', 'open3d', 'lpips'} & set(sys.modules)))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO)

@@ -19,7 +19,8 @@ from hydra import compose, initialize_config_dir
 
 from pipeline.bench._report import write_report
 from pipeline.records import RunRecord
-from pipeline.run import REPO, run_episode
+from pipeline.repo import CONF, RESULTS
+from pipeline.run import run_episode
 
 
 def step_summary(row: dict) -> dict:
@@ -35,10 +36,10 @@ def step_summary(row: dict) -> dict:
 def main(argv: list[str]) -> None:
     parser = argparse.ArgumentParser(prog="python -m pipeline.bench episode", description=__doc__.splitlines()[0])
     parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. method=random")
-    parser.add_argument("--out", type=Path, default=REPO / "results" / "bench" / "episode.json", help="JSON report path")
+    parser.add_argument("--out", type=Path, default=RESULTS / "bench" / "episode.json", help="JSON report path")
     parser.add_argument("--outputs", type=Path, default=None, help="keep the run records here (default: a temporary directory)")
     args = parser.parse_intermixed_args(argv)
-    with tempfile.TemporaryDirectory() as tmp, initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
+    with tempfile.TemporaryDirectory() as tmp, initialize_config_dir(str(CONF), version_base="1.3"):
         outputs = args.outputs.resolve() if args.outputs else Path(tmp)
         cfg = compose("config", overrides=[*args.overrides, f"paths.outputs={outputs}"])
         start = time.perf_counter()

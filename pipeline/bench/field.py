@@ -19,7 +19,6 @@ import argparse
 import statistics
 import time
 from collections.abc import Callable
-from pathlib import Path
 
 import torch
 from jaxtyping import Float
@@ -29,8 +28,8 @@ from nvf.config import FieldConfig
 from nvf.encoding import cpp_extension
 from nvf.field import HEADS, RadianceField, spherical_harmonics
 from pipeline.bench._report import write_report
+from pipeline.repo import RESULTS
 
-REPO = Path(__file__).resolve().parents[2]
 AABB = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 CPU_BUDGET_LOG2 = 15
 
@@ -219,6 +218,6 @@ def main(argv: list[str]) -> None:
         "goals": {"train_samples_per_s": 1e6, "infer_samples_per_s": 3e6},
         "variants": results,
     }
-    out = REPO / "results" / "bench" / "field.json"
+    out = RESULTS / "bench" / "field.json"
     write_report(report, out)
     print(f"wrote {out}")

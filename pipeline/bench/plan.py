@@ -44,7 +44,7 @@ from pipeline.bench._report import write_report
 from pipeline.bench.field import matmul_gflops, mlp_flops
 from pipeline.bench.train import RGB, CountingModel, InitialViewModel
 from pipeline.config import compose_config
-from pipeline.scenes import REPO
+from pipeline.repo import RESULTS
 
 CANDIDATES = 512  # the paper's N; a later planner.num_candidates=... override wins
 WARMUP_CANDIDATES = 8
@@ -72,7 +72,7 @@ def timed(fn: Callable[[], object]) -> tuple[float, float]:
 def main(argv: list[str]) -> None:
     parser = argparse.ArgumentParser(prog="python -m pipeline.bench plan", description=__doc__.splitlines()[0])
     parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. budget=smoke")
-    parser.add_argument("--out", type=Path, default=REPO / "results" / "bench" / "plan.json", help="JSON report path")
+    parser.add_argument("--out", type=Path, default=RESULTS / "bench" / "plan.json", help="JSON report path")
     parser.add_argument("--repeats", type=int, default=1, help="timed passes over all candidates")
     parser.add_argument("--blocks", type=int, default=8, help="candidate blocks per pass (ratio = median over blocks)")
     args = parser.parse_intermixed_args(argv)

@@ -16,7 +16,8 @@ from pathlib import Path
 from nvf.cameras import Intrinsics
 from pipeline.bench._report import write_report
 from pipeline.render import GroundTruthRenderer
-from pipeline.scenes import REPO, SceneError, load_scene
+from pipeline.repo import RESULTS
+from pipeline.scenes import SceneError, load_scene
 
 PAPER_RESOLUTION = 512
 
@@ -37,7 +38,7 @@ def main(argv: list[str]) -> None:
     parser.add_argument("--views", type=int, default=8, help="evaluation views timed per scene and resolution")
     parser.add_argument("--scenes", nargs="+", default=["default", "room"])
     parser.add_argument("--assets", type=Path, default=None, help="assets directory (default: NVF_ASSETS)")
-    parser.add_argument("--out", type=Path, default=REPO / "results" / "bench" / "render.json")
+    parser.add_argument("--out", type=Path, default=RESULTS / "bench" / "render.json")
     args = parser.parse_args(argv)
     if args.res < 8 or not 1 <= args.views <= 20:
         print("error: --res must be >= 8 and --views in 1..20", file=sys.stderr)

@@ -50,7 +50,8 @@ from pipeline.episode import EpisodeSettings
 from pipeline.evaluation import RENDER_CHUNK
 from pipeline.metrics import off_edge_psnr, psnr
 from pipeline.render import GroundTruthRenderer
-from pipeline.scenes import REPO, Scene, SceneError, load_scene
+from pipeline.repo import RESULTS
+from pipeline.scenes import Scene, SceneError, load_scene
 
 GOALS = {"train_samples_per_s": 1e6, "infer_samples_per_s": 3e6}
 HELD_OUT_VIEWS = 5
@@ -199,7 +200,7 @@ def inference_rate(
 def main(argv: list[str]) -> None:
     parser = argparse.ArgumentParser(prog="python -m pipeline.bench train", description=__doc__.splitlines()[0])
     parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. budget=smoke")
-    parser.add_argument("--out", type=Path, default=REPO / "results" / "bench" / "train.json", help="JSON report path")
+    parser.add_argument("--out", type=Path, default=RESULTS / "bench" / "train.json", help="JSON report path")
     parser.add_argument("--repeats", type=int, default=3, help="timed inference passes (median)")
     args = parser.parse_intermixed_args(argv)
     if args.repeats < 1:

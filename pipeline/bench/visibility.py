@@ -40,7 +40,7 @@ from nvf.visibility import visibility_labels
 from pipeline.bench._report import write_report
 from pipeline.bench.train import InitialViewModel
 from pipeline.config import compose_config
-from pipeline.scenes import REPO
+from pipeline.repo import RESULTS
 
 SURFACE_OFFSET = 0.01  # scene units: the surface point moves this far towards the candidate camera
 MIN_ACCUMULATION = 0.5  # PROTOCOL 4.2's surface rule
@@ -124,7 +124,7 @@ def _mean_of(sets: list[dict], key: str) -> float | None:
 def main(argv: list[str]) -> None:
     parser = argparse.ArgumentParser(prog="python -m pipeline.bench visibility", description=__doc__.splitlines()[0])
     parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. train.visibility.iters=500")
-    default_out = REPO / "results" / "bench" / "visibility.json"
+    default_out = RESULTS / "bench" / "visibility.json"
     parser.add_argument("--out", type=Path, default=default_out, help="JSON report path")
     parser.add_argument("--sets", type=int, default=3, help="candidate sets (the planner's draws at steps 0..N-1)")
     args = parser.parse_intermixed_args(argv)
