@@ -132,7 +132,14 @@ def compose_config(overrides: list[str]) -> DictConfig:
             cfg = compose("config", overrides=overrides)
         validate(cfg)
     except (HydraException, ConfigError) as err:
-        cause = f": {err.__cause__}" if err.__cause__ is not None else ""
-        print(f"error: {' '.join(f'{err}{cause}'.split())}", file=sys.stderr)
+        print(error_line(err), file=sys.stderr)
         raise SystemExit(2) from None
     return cfg
+
+
+def error_line(err: Exception) -> str:
+    """``err`` (a Hydra composition error or a ``ConfigError``) and its cause as one ``error: ...`` line,
+    without Hydra's config search path and OmegaConf's ``full_key: ... object_type=...`` trailer."""
+    cause = f": {err.__cause__}" if err.__cause__ is not None else ""
+    message = f"{err}{cause}".split("Config search path:")[0].split("full_key:")[0]
+    return f"error: {' '.join(message.split())}"

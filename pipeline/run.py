@@ -16,13 +16,14 @@ import hydra
 import numpy as np
 import torch
 from hydra.core.hydra_config import HydraConfig
+from hydra.errors import HydraException
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
 from nvf.planning import NoCandidatesError
 from nvf.training import TrainingDiverged
-from pipeline.config import ConfigError, validate
+from pipeline.config import ConfigError, error_line, validate
 from pipeline.episode import Episode, resolve_device
 from pipeline.images import save_step_images
 from pipeline.metrics import LpipsMetric
@@ -161,5 +162,17 @@ def main(cfg: DictConfig) -> None:
         print(f"table:   {table}")
 
 
+def cli() -> None:
+    """``python -m pipeline.run``: ``main`` behind Hydra, except that a config Hydra cannot compose (an unknown
+    group option or key, a value of the wrong type, a malformed override) exits with one line (status 1, like
+    every other bad input here) instead of Hydra's report."""
+    os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra then raises its errors to us instead of printing a report
+    try:
+        main()
+    except HydraException as err:
+        print(error_line(err), file=sys.stderr)
+        sys.exit(1)
+
+
 if __name__ == "__main__":
-    main()
+    cli()

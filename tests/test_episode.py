@@ -104,11 +104,21 @@ def test_missing_mesh_is_one_line_and_nonzero(tmp_path):
     assert not any(tmp_path.glob("lego/*/*/seed_*/steps.jsonl"))
 
 
-def test_unknown_scene_lists_the_choices(tmp_path):
-    proc = _cli(tmp_path, "scene=atlantis")
+@pytest.mark.parametrize(
+    ("override", "expected"),
+    [
+        ("scene=atlantis", ("atlantis", "lego_proxy")),
+        ("train.backbone.iters=many", ("train.backbone.iters", "Integer")),
+    ],
+)
+def test_a_config_hydra_cannot_compose_is_one_line(tmp_path, override, expected):
+    """An unknown group option (with Hydra's list of the available ones) or a value of the wrong type."""
+    proc = _cli(tmp_path, override)
     _, err = proc.communicate(timeout=300)
-    assert proc.returncode != 0
-    assert "atlantis" in err and "lego_proxy" in err  # Hydra's list of available options
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert proc.returncode == 1 and len(lines) == 1 and lines[0].startswith("error: "), err
+    assert all(word in lines[0] for word in expected) and "search path" not in lines[0]
+    assert not any(tmp_path.iterdir())
 
 
 def test_impossible_value_names_the_key(tmp_path):
