@@ -8,57 +8,19 @@
 // cell = min(floor, N_l - 1); dense levels (the first n_dense) use x + y (N_l+1) + z (N_l+1)^2,
 // hashed levels (x*1 ^ y*2654435761 ^ z*805459861) & mask in uint32. The forward runs level-outer
 // over blocks of samples; the backward is conflict free without atomics: each task owns one level
-// and a 16-float slice of the features, i.e. disjoint table entries.
+// and a 16-float slice of the features, i.e. disjoint table entries. Both find a block's cells for one
+// level first, as structure-of-arrays loops the compiler vectorises (that arithmetic, not the table
+// reads, was three quarters of the forward's time), then read or write the table sample by sample.
 #include <torch/extension.h>
 #include <ATen/Parallel.h>
 
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 namespace {
-
-struct Cell {
-  uint32_t idx[8];
-  float w[8];
-  float frac[3];  // position inside the cell, per axis
-};
-
-inline void locate(const float* p, int32_t res, bool dense, uint32_t mask, Cell& cell) {
-  uint32_t i[3];
-  float f[3];
-  for (int k = 0; k < 3; ++k) {
-    const float x = std::min(std::max(p[k], 0.0f), 1.0f) * static_cast<float>(res);
-    const float fl = std::min(std::floor(x), static_cast<float>(res - 1));
-    i[k] = static_cast<uint32_t>(fl);
-    f[k] = x - fl;
-    cell.frac[k] = f[k];
-  }
-  const float wx[2] = {1.0f - f[0], f[0]}, wy[2] = {1.0f - f[1], f[1]}, wz[2] = {1.0f - f[2], f[2]};
-  uint32_t tx[2], ty[2], tz[2];
-  if (dense) {
-    const uint32_t r1 = static_cast<uint32_t>(res) + 1u;
-    for (int d = 0; d < 2; ++d) {
-      tx[d] = i[0] + d;
-      ty[d] = (i[1] + d) * r1;
-      tz[d] = (i[2] + d) * r1 * r1;
-    }
-  } else {
-    for (int d = 0; d < 2; ++d) {
-      tx[d] = i[0] + d;
-      ty[d] = (i[1] + d) * 2654435761u;
-      tz[d] = (i[2] + d) * 805459861u;
-    }
-  }
-  int c = 0;
-  for (int a = 0; a < 2; ++a)
-    for (int b = 0; b < 2; ++b)
-      for (int e = 0; e < 2; ++e, ++c) {
-        cell.idx[c] = dense ? tx[a] + ty[b] + tz[e] : ((tx[a] ^ ty[b] ^ tz[e]) & mask);
-        cell.w[c] = wx[a] * wy[b] * wz[e];
-      }
-}
 
 struct Levels {
   std::vector<int32_t> res;
@@ -76,8 +38,66 @@ Levels read_levels(const torch::Tensor& levels, const torch::Tensor& offsets) {
 }
 
 // Level-outer loop over blocks of samples: a level's table stays in cache while its block is read
-// (3x faster than sample-outer on ray-coherent samples).
-constexpr int64_t kBlock = 1024;
+// (3x faster than sample-outer on ray-coherent samples). 256 samples keep a block's cells (BlockCells,
+// 22 KiB) in L1: the forward took 2.2 ms for 16k samples x 16 levels against 4.2 ms with 1024 and 3.1 ms
+// for the sample-by-sample lookup it replaced.
+constexpr int64_t kBlock = 256;
+
+// A block of samples' coordinates, one array per axis: block_points reads them once per block.
+struct BlockPoints {
+  alignas(64) float xyz[3][kBlock];
+};
+
+void block_points(const float* u, int64_t m, BlockPoints& points) {
+  for (int64_t s = 0; s < m; ++s)
+    for (int k = 0; k < 3; ++k) points.xyz[k][s] = u[3 * s + k];
+}
+
+// The 8 corners' table rows and trilinear weights of m <= kBlock samples at one level, corner-major;
+// in loops over the samples without branches, which the compiler vectorises.
+struct BlockCells {
+  alignas(64) int32_t cell[3][kBlock];
+  alignas(64) float frac[3][kBlock];
+  alignas(64) uint32_t idx[8][kBlock];
+  alignas(64) float w[8][kBlock];
+};
+
+void locate_block(const BlockPoints& points, int64_t m, int32_t res, bool dense, uint32_t mask, BlockCells& out) {
+  const float scale = static_cast<float>(res), top = static_cast<float>(res - 1);
+  for (int k = 0; k < 3; ++k) {
+    const float* p = points.xyz[k];
+    int32_t* cell = out.cell[k];
+    float* frac = out.frac[k];
+    for (int64_t s = 0; s < m; ++s) {
+      const float x = std::min(std::max(p[s], 0.0f), 1.0f) * scale;
+      const float fl = std::min(std::floor(x), top);
+      cell[s] = static_cast<int32_t>(fl);
+      frac[s] = x - fl;
+    }
+  }
+  const uint32_t r1 = static_cast<uint32_t>(res) + 1u;
+  const uint32_t sy = dense ? r1 : 2654435761u, sz = dense ? r1 * r1 : 805459861u;
+  for (int c = 0; c < 8; ++c) {
+    const uint32_t a = (c >> 2) & 1u, b = (c >> 1) & 1u, e = c & 1u;  // corner c = (a, b, e): x outer, z inner
+    const int32_t *cx = out.cell[0], *cy = out.cell[1], *cz = out.cell[2];
+    const float *fx = out.frac[0], *fy = out.frac[1], *fz = out.frac[2];
+    uint32_t* idx = out.idx[c];
+    float* w = out.w[c];
+    if (dense) {
+      for (int64_t s = 0; s < m; ++s)
+        idx[s] = (static_cast<uint32_t>(cx[s]) + a) + (static_cast<uint32_t>(cy[s]) + b) * sy +
+                 (static_cast<uint32_t>(cz[s]) + e) * sz;
+    } else {
+      for (int64_t s = 0; s < m; ++s)
+        idx[s] = ((static_cast<uint32_t>(cx[s]) + a) ^ ((static_cast<uint32_t>(cy[s]) + b) * sy) ^
+                  ((static_cast<uint32_t>(cz[s]) + e) * sz)) & mask;
+    }
+    for (int64_t s = 0; s < m; ++s) {
+      const float wx = a ? fx[s] : 1.0f - fx[s], wy = b ? fy[s] : 1.0f - fy[s], wz = e ? fz[s] : 1.0f - fz[s];
+      w[s] = wx * wy * wz;
+    }
+  }
+}
 
 template <int FS>
 void forward_kernel(const float* u, const float* table, float* out, int64_t n, const Levels& lv, int64_t n_dense,
@@ -85,19 +105,20 @@ void forward_kernel(const float* u, const float* table, float* out, int64_t n, c
   const int64_t F = FS > 0 ? FS : f_dyn;
   const int64_t L = static_cast<int64_t>(lv.res.size());
   at::parallel_for(0, n, kBlock, [&](int64_t begin, int64_t end) {
-    Cell cell;
+    auto points = std::make_unique<BlockPoints>();
+    auto cells = std::make_unique<BlockCells>();
     for (int64_t b0 = begin; b0 < end; b0 += kBlock) {
-      const int64_t b1 = std::min(end, b0 + kBlock);
+      const int64_t m = std::min(end, b0 + kBlock) - b0;
+      block_points(u + 3 * b0, m, *points);
       for (int64_t l = 0; l < L; ++l) {
+        locate_block(*points, m, lv.res[l], l < n_dense, mask, *cells);
         const float* base = table + lv.offset[l] * F;
-        for (int64_t s = b0; s < b1; ++s) {
-          locate(u + 3 * s, lv.res[l], l < n_dense, mask, cell);
-          float* o = out + s * L * F + l * F;
-          for (int64_t f = 0; f < F; ++f) o[f] = 0.0f;
-          for (int c = 0; c < 8; ++c) {
-            const float* t = base + static_cast<int64_t>(cell.idx[c]) * F;
-            const float w = cell.w[c];
-            for (int64_t f = 0; f < F; ++f) o[f] += w * t[f];
+        for (int64_t s = 0; s < m; ++s) {
+          float* o = out + (b0 + s) * L * F + l * F;
+          for (int64_t f = 0; f < F; ++f) {  // accumulated in a register: out may alias table
+            float acc = 0.0f;
+            for (int c = 0; c < 8; ++c) acc += cells->w[c][s] * base[static_cast<int64_t>(cells->idx[c][s]) * F + f];
+            o[f] = acc;
           }
         }
       }
@@ -142,20 +163,22 @@ torch::Tensor backward(torch::Tensor grad_out, torch::Tensor u, int64_t rows, to
   const int64_t n_tasks = L * n_chunks;
   const int64_t n_threads = std::min<int64_t>(at::get_num_threads(), n_tasks);
   at::parallel_for(0, n_threads, 1, [&](int64_t begin, int64_t end) {
-    Cell cell;
+    auto points = std::make_unique<BlockPoints>();
+    auto cells = std::make_unique<BlockCells>();
     for (int64_t worker = begin; worker < end; ++worker) {
       for (int64_t b0 = 0; b0 < n; b0 += kBlock) {
-        const int64_t b1 = std::min(n, b0 + kBlock);
+        const int64_t m = std::min(n, b0 + kBlock) - b0;
+        block_points(up + 3 * b0, m, *points);
         for (int64_t task = worker; task < n_tasks; task += n_threads) {
           const int64_t l = task / n_chunks;
           const int64_t f0 = (task % n_chunks) * chunk, f1 = std::min(F, f0 + chunk);
           float* base = tp + lv.offset[l] * F;
-          for (int64_t s = b0; s < b1; ++s) {
-            locate(up + 3 * s, lv.res[l], l < n_dense, mask, cell);
-            const float* g = gp + s * L * F + l * F;
+          locate_block(*points, m, lv.res[l], l < n_dense, mask, *cells);
+          for (int64_t s = 0; s < m; ++s) {
+            const float* g = gp + (b0 + s) * L * F + l * F;
             for (int c = 0; c < 8; ++c) {
-              float* t = base + static_cast<int64_t>(cell.idx[c]) * F;
-              const float w = cell.w[c];
+              float* t = base + static_cast<int64_t>(cells->idx[c][s]) * F;
+              const float w = cells->w[c][s];
               for (int64_t f = f0; f < f1; ++f) t[f] += w * g[f];
             }
           }
@@ -182,32 +205,40 @@ torch::Tensor backward_input(torch::Tensor grad_out, torch::Tensor u, torch::Ten
   float* gu = grad_u.data_ptr<float>();
   const uint32_t mask = static_cast<uint32_t>(hash_mask);
   at::parallel_for(0, n, kBlock, [&](int64_t begin, int64_t end) {
-    Cell cell;
-    for (int64_t s = begin; s < end; ++s) {
-      const float* p = up + 3 * s;
-      float acc[3] = {0.0f, 0.0f, 0.0f};
+    auto points = std::make_unique<BlockPoints>();
+    auto cells = std::make_unique<BlockCells>();
+    for (int64_t b0 = begin; b0 < end; b0 += kBlock) {
+      const int64_t m = std::min(end, b0 + kBlock) - b0;
+      block_points(up + 3 * b0, m, *points);
+      float acc[kBlock][3] = {};
       for (int64_t l = 0; l < L; ++l) {
-        locate(p, lv.res[l], l < n_dense, mask, cell);
+        locate_block(*points, m, lv.res[l], l < n_dense, mask, *cells);
         const float* base = tp + lv.offset[l] * F;
-        const float* g = gp + s * L * F + l * F;
         const float res = static_cast<float>(lv.res[l]);
-        const float w[3][2] = {{1.0f - cell.frac[0], cell.frac[0]},
-                               {1.0f - cell.frac[1], cell.frac[1]},
-                               {1.0f - cell.frac[2], cell.frac[2]}};
-        int c = 0;
-        for (int a = 0; a < 2; ++a)
-          for (int b = 0; b < 2; ++b)
-            for (int e = 0; e < 2; ++e, ++c) {
-              const float* t = base + static_cast<int64_t>(cell.idx[c]) * F;
-              float dot = 0.0f;
-              for (int64_t f = 0; f < F; ++f) dot += g[f] * t[f];
-              dot *= res;
-              acc[0] += dot * (a ? 1.0f : -1.0f) * w[1][b] * w[2][e];
-              acc[1] += dot * w[0][a] * (b ? 1.0f : -1.0f) * w[2][e];
-              acc[2] += dot * w[0][a] * w[1][b] * (e ? 1.0f : -1.0f);
-            }
+        for (int64_t s = 0; s < m; ++s) {
+          const float* g = gp + (b0 + s) * L * F + l * F;
+          const float w[3][2] = {{1.0f - cells->frac[0][s], cells->frac[0][s]},
+                                 {1.0f - cells->frac[1][s], cells->frac[1][s]},
+                                 {1.0f - cells->frac[2][s], cells->frac[2][s]}};
+          int c = 0;
+          for (int a = 0; a < 2; ++a)
+            for (int b = 0; b < 2; ++b)
+              for (int e = 0; e < 2; ++e, ++c) {
+                const float* t = base + static_cast<int64_t>(cells->idx[c][s]) * F;
+                float dot = 0.0f;
+                for (int64_t f = 0; f < F; ++f) dot += g[f] * t[f];
+                dot *= res;
+                acc[s][0] += dot * (a ? 1.0f : -1.0f) * w[1][b] * w[2][e];
+                acc[s][1] += dot * w[0][a] * (b ? 1.0f : -1.0f) * w[2][e];
+                acc[s][2] += dot * w[0][a] * w[1][b] * (e ? 1.0f : -1.0f);
+              }
+        }
       }
-      for (int k = 0; k < 3; ++k) gu[3 * s + k] = (p[k] > 0.0f && p[k] < 1.0f) ? acc[k] : 0.0f;
+      for (int64_t s = 0; s < m; ++s)
+        for (int k = 0; k < 3; ++k) {
+          const float p = points->xyz[k][s];
+          gu[3 * (b0 + s) + k] = (p > 0.0f && p < 1.0f) ? acc[s][k] : 0.0f;
+        }
     }
   });
   return grad_u;
