@@ -16,7 +16,7 @@ from hydra import compose, initialize_config_dir
 from pipeline.episode import Episode
 from pipeline.metrics import LpipsMetric
 from pipeline.records import RunRecord
-from pipeline.repo import REPO
+from pipeline.repo import CONF, REPO
 from pipeline.run import run_episode
 from pipeline.scenes import load_scene
 
@@ -24,7 +24,7 @@ SMOKE = ["budget=smoke", "scene=default"]
 
 
 def _cfg(tmp_path: Path, *overrides: str):
-    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
+    with initialize_config_dir(str(CONF), version_base="1.3"):
         return compose("config", overrides=[*SMOKE, f"paths.outputs={tmp_path}", *overrides])
 
 

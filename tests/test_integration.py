@@ -7,7 +7,6 @@ import math
 import numpy as np
 import pytest
 import torch
-from hydra import compose, initialize_config_dir
 
 from nvf.cameras import Intrinsics, look_at, matrix_to_pose
 from nvf.model import SceneModel
@@ -16,10 +15,10 @@ from nvf.training import train_model
 from nvf.uncertainty import make_scorer
 from nvf.visibility import visibility_labels
 from pipeline.bench.train import observations
+from pipeline.config import compose_config
 from pipeline.episode import EpisodeSettings
 from pipeline.metrics import edge_pixels, off_edge_psnr, psnr
 from pipeline.render import GroundTruthRenderer
-from pipeline.repo import REPO
 from pipeline.scenes import load_scene
 
 pytestmark = pytest.mark.slow
@@ -28,8 +27,7 @@ HEAD_STAGES = ("variance", "visibility")
 
 @pytest.fixture(scope="module")
 def setup():
-    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
-        cfg = compose("config", overrides=["budget=cpu", "scene=default"])
+    cfg = compose_config(["budget=cpu", "scene=default"])
     scene = load_scene("default")
     settings = EpisodeSettings.of(cfg, scene)
     renderer = GroundTruthRenderer(scene.mesh)

@@ -5,7 +5,7 @@ import copy
 from hydra import compose, initialize_config_dir
 
 from pipeline.overrides import NamedConfigs
-from pipeline.repo import REPO
+from pipeline.repo import CONF
 from pipeline.run import run_settings
 
 GROUPS = ["scene=default", "method=nvf", "planner=argmax", "ablation=none", "budget=smoke", "seed=101"]
@@ -13,23 +13,23 @@ GROUPS = ["scene=default", "method=nvf", "planner=argmax", "ablation=none", "bud
 
 def _info(*overrides: str) -> dict:
     """run.json's identity and config for a run made with the named groups plus ``overrides``."""
-    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
+    with initialize_config_dir(str(CONF), version_base="1.3"):
         return run_settings(compose("config", overrides=[*GROUPS, *overrides, "paths.outputs=/elsewhere"]))
 
 
 def test_a_run_of_the_named_groups_has_no_overrides():
-    assert NamedConfigs(REPO / "conf").overrides(_info()) == ()  # seed and paths are not settings
+    assert NamedConfigs(CONF).overrides(_info()) == ()  # seed and paths are not settings
 
 
 def test_command_line_overrides_are_found_with_their_recorded_values():
     info = _info("planner.num_candidates=9", "nvf.entropy.corr=exp")
-    assert NamedConfigs(REPO / "conf").overrides(info) == ("nvf.entropy.corr=exp", "planner.num_candidates=9")
+    assert NamedConfigs(CONF).overrides(info) == ("nvf.entropy.corr=exp", "planner.num_candidates=9")
 
 
 def test_keys_a_record_lacks_are_not_overrides_and_unknown_groups_give_none():
     info = _info()
     older = copy.deepcopy(info)
     del older["config"]["planner"]["los_unobserved_free"]  # a key added to the code after this run
-    named = NamedConfigs(REPO / "conf")
+    named = NamedConfigs(CONF)
     assert named.overrides(older) == ()
     assert named.overrides({**info, "scene": "no_such_scene"}) == ()

@@ -11,7 +11,7 @@ import pandas as pd
 from pipeline.overrides import NamedConfigs
 from pipeline.paper_numbers import paper_numbers
 from pipeline.records import RunRecord, run_dir
-from pipeline.repo import REPO
+from pipeline.repo import CONF, REPO
 from pipeline.tables import LONG_COLUMNS, build_tables, image_grid, main, method_label, summarize_run
 
 METRICS = ("psnr", "ssim", "lpips", "rgb", "acc", "comp", "cr", "vis")
@@ -168,7 +168,7 @@ def test_the_same_run_with_other_settings_is_left_out_and_listed(tmp_path):
 
 def test_runs_with_settings_beyond_their_budget_get_their_own_budget_label(tmp_path):
     out = tmp_path / "out"
-    named = NamedConfigs(REPO / "conf").named(("hubble", "nvf", "argmax", "none", "smoke"))
+    named = NamedConfigs(CONF).named(("hubble", "nvf", "argmax", "none", "smoke"))
     wider = {**named, "planner": {**named["planner"], "num_candidates": 512}}
     make_run(out, seed=100, final={"psnr": 30.0}, config=wider)
     make_run(out, seed=101, final={"psnr": 10.0}, config=named)
