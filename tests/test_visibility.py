@@ -2,12 +2,15 @@
 
 import math
 
+import numpy as np
 import pytest
 import torch
 
 from nvf.cameras import Intrinsics, look_at
 from nvf.config import TrainConfig
 from nvf.visibility import SATURATION, frustum_mask, segment_transmittance, visibility_labels
+from pipeline.render import GroundTruthRenderer
+from pipeline.scenes import load_scene
 
 RADIUS = 0.5
 INTR = Intrinsics.from_fov(16, 16, 90.0)
@@ -163,3 +166,38 @@ def test_labels_do_not_track_gradients():
     cfg = TrainConfig(label_samples=8)
     labels = visibility_labels(lambda x: torch.relu(lin(x)[:, 0]), torch.rand(10, 3), c2w, INTR, cfg)
     assert not labels.requires_grad
+
+
+def test_exact_density_labels_of_the_default_scene_agree_with_line_of_sight():
+    """M17-M18 with the default scene's exact density (sigma = 1e3 inside the mesh, open3d's
+    occupancy) and its three initial 64-px views, on 4000 points 0.01 outside the surface: with
+    METHOD's K = 200 the labels agree with the exact line of sight on >= 95% of the points (measured
+    0.980), so the label rule is not what holds the trained model's agreement below 90%
+    (test_integration). The cpu budget's K = 32 agrees less (measured 0.868): its samples are 0.1
+    apart and step over thin walls."""
+    import open3d as o3d  # after pyrender's platform is set (pipeline.render)
+
+    scene = load_scene("default")
+    inside = o3d.t.geometry.RaycastingScene()
+    inside.add_triangles(
+        o3d.core.Tensor(np.ascontiguousarray(scene.mesh.vertices, dtype=np.float32)),
+        o3d.core.Tensor(np.ascontiguousarray(scene.mesh.faces, dtype=np.uint32)),
+    )
+
+    def exact_density(x: torch.Tensor) -> torch.Tensor:
+        occupied = inside.compute_occupancy(o3d.core.Tensor(x.numpy().astype(np.float32))).numpy()
+        return torch.from_numpy(occupied.astype(np.float32)) * 1e3
+
+    points, faces = scene.mesh.sample(4000, return_index=True, seed=0)
+    points = torch.tensor(points + 0.01 * scene.mesh.face_normals[faces], dtype=torch.float32)
+    intr = Intrinsics.from_fov(64, 64)
+    with GroundTruthRenderer(scene.mesh) as renderer:
+        truth = renderer.line_of_sight(points, scene.init_poses, intr)
+    accuracy = {}
+    for k in (32, 200):
+        labels = visibility_labels(exact_density, points, scene.init_poses, intr, TrainConfig(label_samples=k))
+        accuracy[k] = ((labels > 0.5) == truth).float().mean().item()
+    print(f"exact-density label agreement: K=32 {accuracy[32]:.3f}, K=200 {accuracy[200]:.3f}")
+    assert accuracy[200] >= 0.95
+    assert accuracy[32] < accuracy[200]
+    assert 0.2 < truth.float().mean().item() < 0.8  # both classes populated
