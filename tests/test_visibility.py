@@ -173,7 +173,7 @@ def test_exact_density_labels_of_the_default_scene_agree_with_line_of_sight():
     occupancy) and its three initial 64-px views, on 4000 points 0.01 outside the surface: with
     METHOD's K = 200 the labels agree with the exact line of sight on >= 95% of the points (measured
     0.980), so the label rule is not what holds the trained model's agreement below 90%
-    (test_integration). The cpu budget's K = 32 agrees less (measured 0.868): its samples are 0.1
+    (test_integration). The cpu budget's K = 32 agrees less (measured 0.868): its samples are ~0.06
     apart and step over thin walls."""
     import open3d as o3d  # after pyrender's platform is set (pipeline.render)
 
