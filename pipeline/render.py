@@ -195,6 +195,12 @@ class GroundTruthRenderer:
         t_hit, _ = self.cast_rays(origin.expand_as(to_point).numpy(), dirs.numpy())
         return (torch.from_numpy(t_hit >= distance.numpy() - 1e-4) | (distance == 0)).to(device)
 
+    def inside(self, points: Float[Tensor, "N 3"]) -> Bool[Tensor, "N"]:
+        """Whether each point lies inside the mesh (open3d's occupancy query, which assumes a
+        watertight mesh: near an open edge a point can be misjudged). On ``points``' device."""
+        query = self._o3d.core.Tensor(points.detach().cpu().to(torch.float32).numpy())
+        return torch.from_numpy(self._raycaster.compute_occupancy(query).numpy() > 0.5).to(points.device)
+
     def face_ids(self, c2w: Float[np.ndarray, "4 4"], intr: Intrinsics) -> Int[np.ndarray, "H W"]:
         """Face hit by each pixel-centre ray (``nvf.cameras.pixel_rays``), -1 = miss (PROTOCOL.md 4.3)."""
         origins, dirs = pixel_rays(torch.from_numpy(c2w.astype(np.float32)), intr)
