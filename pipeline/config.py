@@ -3,9 +3,11 @@ work and raises ``ConfigError`` with one line naming the key; ``compose_config``
 a config outside ``@hydra.main`` (benchmarks, experiments).
 """
 
+import re
 import sys
 from typing import Any
 
+import torch
 from hydra import compose, initialize_config_dir
 from hydra.errors import HydraException
 from omegaconf import DictConfig, OmegaConf
@@ -119,8 +121,20 @@ def validate(cfg: DictConfig) -> None:
             f"nvf.entropy.d0={d0} must be a number >= 0 (0 = Ind. Rays), auto (0.25 x the object box's diagonal) "
             "or null (the scene's value)"
         )
-    if cfg.device != "auto" and not (cfg.device == "cpu" or str(cfg.device).startswith("cuda")):
-        raise ConfigError(f"device={cfg.device!r} must be auto, cpu, cuda or cuda:N")
+    _check_device(str(cfg.device))
+
+
+def _check_device(device: str) -> None:
+    """``auto``, ``cpu``, or a CUDA device that torch can see here."""
+    if device in ("auto", "cpu"):
+        return
+    if re.fullmatch(r"cuda(:\d+)?", device) is None:
+        raise ConfigError(f"device={device!r} must be auto, cpu, cuda or cuda:N")
+    index, count = int(device.partition(":")[2] or 0), torch.cuda.device_count()
+    if index >= count:
+        raise ConfigError(
+            f"device={device} but torch sees {count} CUDA device(s) on this machine; use device=auto (CUDA when present) or device=cpu"
+        )
 
 
 def compose_config(overrides: list[str]) -> DictConfig:

@@ -3,6 +3,7 @@
 import itertools
 
 import pytest
+import torch
 from hydra import compose, initialize_config_dir
 from omegaconf import open_dict
 
@@ -93,6 +94,7 @@ def test_budgets_scale_only_sizes(composer):
         ("nvf.entropy.bound", "exact", "nvf.entropy.bound"),
         ("planner.opt.ray_fraction", 1.5, "planner.opt.ray_fraction"),
         ("device", "tpu", "device"),
+        ("device", "cudax", "device"),
         ("baseline.activenerf_variant", "B", "not implemented"),
         ("baseline.air_view_score", "topk", "not implemented"),
         ("baseline.neurar_loss", "nll", "not implemented"),
@@ -107,6 +109,18 @@ def test_validation_names_the_key(composer, key, value, needle):
     with pytest.raises(ConfigError, match=needle) as err:
         validate(cfg)
     assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize(("device", "visible"), [("cuda", 0), ("cuda:1", 1)])
+def test_a_cuda_device_torch_cannot_see_is_one_line(composer, monkeypatch, device, visible):
+    """``device=cuda`` on a machine without it fails at validation, not with torch's traceback mid-run."""
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: visible)
+    cfg = composer(f"device={device}")
+    with pytest.raises(ConfigError, match=f"device={device} but torch sees {visible} CUDA") as err:
+        validate(cfg)
+    assert "\n" not in str(err.value)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: visible + 1)
+    validate(cfg)
 
 
 def _select(cfg, dotted):
