@@ -702,6 +702,9 @@ def main(argv: list[str]) -> int:
         return 1
     for line in skipped:
         print(f"pipeline.tables: {line}", file=sys.stderr)
+    if not outputs.is_dir():
+        note = f"paths.outputs={outputs} is not a directory; only {results / 'runs'} was read"
+        print(f"pipeline.tables: note: {note}", file=sys.stderr)
     print(f"pipeline.tables: wrote {len(written)} files under {results} (runs.csv, tables/, figures/)")
     return 0
 

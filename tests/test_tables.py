@@ -214,6 +214,15 @@ def test_cli_reads_outputs_and_committed_runs(tmp_path, capsys):
     assert [p.name for p in grids] == ["grid_hubble_nvf-argmax-none_smoke_seed100.png"]
 
 
+def test_cli_says_when_the_outputs_directory_is_missing(tmp_path, capsys):
+    """A mistyped paths.outputs still gives the committed runs' tables, and one line saying so."""
+    make_run(tmp_path / "res" / "runs", seed=101)
+    assert main([f"paths.outputs={tmp_path / 'typo'}", f"paths.results={tmp_path / 'res'}"]) == 0
+    err = capsys.readouterr().err
+    assert f"paths.outputs={tmp_path / 'typo'} is not a directory; only {tmp_path / 'res' / 'runs'} was read" in err
+    assert set(pd.read_csv(tmp_path / "res" / "runs.csv")["seed"]) == {101}
+
+
 def test_cli_rejects_unknown_arguments(capsys):
     assert main(["paths.foo=1"]) == 1
     assert "unknown argument 'paths.foo=1'" in capsys.readouterr().err
