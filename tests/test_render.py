@@ -126,7 +126,6 @@ def test_unoccluded_segments_stop_at_faces_not_beyond_the_point(cube_renderer):
     assert cube_renderer.unoccluded(origin, points).tolist() == [True, False, True, True]
 
 
-
 def test_inside_is_the_closed_mesh_interior(cube_renderer):
     """The exact density's support (tests/test_visibility.py): inside the box and not outside it."""
     points = torch.tensor([
@@ -136,6 +135,7 @@ def test_inside_is_the_closed_mesh_interior(cube_renderer):
         [2.0, 0.0, 0.0],  # far outside
     ])  # fmt: skip
     assert cube_renderer.inside(points).tolist() == [True, True, False, False]
+
 
 def test_resolve_backend(monkeypatch):
     assert resolve_backend("egl") == "egl" and resolve_backend("osmesa") == "osmesa"
