@@ -14,7 +14,7 @@ from nvf.planning import score_poses
 from nvf.training import train_model
 from nvf.uncertainty import make_scorer
 from nvf.visibility import visibility_labels
-from pipeline.bench.train import observations
+from pipeline.bench.train import held_out_poses, observations, view_psnr
 from pipeline.config import compose_config
 from pipeline.episode import EpisodeSettings
 from pipeline.metrics import edge_pixels, off_edge_psnr, psnr
@@ -60,13 +60,13 @@ def held_out(setup):
     cfg, scene, settings, renderer, intr = setup
     obs = observations(renderer, scene.eval_poses, intr)
     model = trained(settings, scene, obs, ["backbone"])
-    held_out = ring(scene, 5, 40.0, 17.0, float(torch.linalg.norm(scene.eval_poses[0, :3, 3] - scene.tight_box.mean(0))))
-    pred = np.stack([model.render_image(c2w, intr)["rgb"].numpy() for c2w in held_out])
-    gt = np.stack([renderer.render(c2w, intr).rgb for c2w in held_out])
+    poses = held_out_poses(scene)
+    pred = np.stack([model.render_image(c2w, intr)["rgb"].numpy() for c2w in poses])
+    gt = np.stack([renderer.render(c2w, intr).rgb for c2w in poses])
     return pred, gt
 
 
-@pytest.mark.xfail(strict=False, reason="measured 23.3 dB at the cpu budget (25.1 after 1500 iterations, whose training views reach 53.9 dB): the 13% of pixels on edges of the aliased 64-px ground truth carry 79% of the error (89% at 1500 iterations); off the edges 29.5 dB (test below); against a 4x4-supersampled ground truth 26.7-27.1 dB, and 28.7 dB with that ground truth and 300 iterations (pipeline.bench train budget.gt_samples=4 train.backbone.iters=300, docs/BUDGETS.md)")
+@pytest.mark.xfail(strict=False, reason="measured 23.3 dB at the cpu budget (25.1 after 1500 iterations, whose training views reach 53.9 dB): the 13% of pixels on edges of the aliased 64-px ground truth carry 79% of the error (89% at 1500 iterations); off the edges 29.5 dB (test below); against a 4x4-supersampled ground truth 26.7-27.1 dB, and 28.4-29.0 dB with that ground truth and 400 iterations (test_backbone_reaches_28db_against_antialiased_ground_truth, docs/BUDGETS.md)")
 def test_backbone_reaches_28db_on_held_out_views(held_out):
     """The backbone at the cpu budget, trained on 20 views, renders 5 held-out views at >= 28 dB."""
     pred, gt = held_out
@@ -83,6 +83,22 @@ def test_backbone_reaches_28db_off_edges(held_out):
     pred, gt = held_out
     value = off_edge_psnr(pred, gt)
     print(f"held-out PSNR off the ground truth's edges: {value:.2f} dB ({edge_pixels(gt).mean():.3f} of pixels on edges)")
+    assert value >= 28.0
+
+
+def test_backbone_reaches_28db_against_antialiased_ground_truth(setup):
+    """The whole stack can reach the 28 dB goal when the ground truth is anti-aliased like the paper's
+    Blender renders (every training and held-out pixel the mean of 4 x 4 sub-pixel samples,
+    ``budget.gt_samples=4``) and stage 1 runs 400 iterations instead of the cpu budget's 150
+    (seeds 0 / 1 / 2 at one thread: 28.48 / 28.40 / 29.02 dB; seed 0 at two threads 28.36; at 300 iterations
+    seeds 0 / 1 gave 27.77 / 28.32)."""
+    cfg, scene, settings, renderer, intr = setup
+    obs = observations(renderer, scene.eval_poses, intr, gt_samples=4)
+    backbone = dataclasses.replace(settings.train.backbone, iters=400)
+    settings = dataclasses.replace(settings, train=dataclasses.replace(settings.train, backbone=backbone))
+    model = trained(settings, scene, obs, ["backbone"])
+    value, _ = view_psnr(model, renderer, held_out_poses(scene), intr, gt_samples=4)
+    print(f"held-out PSNR against a 4x4-supersampled ground truth after 400 iterations: {value:.2f} dB")
     assert value >= 28.0
 
 
