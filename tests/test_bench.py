@@ -38,6 +38,12 @@ def test_train_bench_writes_rates_fractions_and_psnr(tmp_path):
         assert report[f"{key}_fraction_of_limit"] == pytest.approx(report[f"{key}_samples_per_s"] / limit)
         goal = train.GOALS[f"{key}_samples_per_s"]
         assert report["goals_within_limit"][f"{key}_samples_per_s"] == (limit >= goal)
+    floor = report["train_samples_per_s_field_floor"]  # the field's own work only: timed apart
+    assert floor > 0 and report["field_floor_kept_samples"] > 0
+    assert report["field_floor_marched_samples"] >= report["field_floor_kept_samples"]
+    assert report["train_marched_per_iter"] >= report["train_samples_per_iter"]
+    assert report["train_fraction_of_field_floor"] == pytest.approx(report["train_samples_per_s"] / floor)
+    assert report["train_goal_within_field_floor"] == (floor >= train.GOALS["train_samples_per_s"])
 
 
 def test_plan_bench_writes_every_scorer_against_a_plain_render(tmp_path):

@@ -12,6 +12,9 @@ In one run, on the scene's 20 evaluation views rendered at ``budget.image_size``
   ``<key>_samples_per_s_at_limit`` is the rate if the MLPs ran at that matmul rate and nothing else
   cost time, and ``goals_within_limit`` says whether each goal is below it (a goal above it cannot
   be met at METHOD's MLP sizes on this machine);
+- the field floor (``field_floor``): the kept-sample rate if an iteration cost only the field's own
+  work (forward + backward on the kept samples, the skipping pass's density on the marched ones, the
+  occupancy update over its period), timed apart after training; ``train_goal_within_field_floor``;
 - the PSNR of the trained backbone on 5 held-out views (the ring of tests/test_integration.py) and
   on the first 5 training views (fit vs. generalisation), also off the ground truth's edges.
   ``budget.gt_samples=K`` renders every ground-truth view (training and test) as the mean of ``K x K``
@@ -59,11 +62,17 @@ RGB = frozenset({"rgb"})
 
 
 class CountingModel(SceneModel):
-    """A ``SceneModel`` counting the kept samples of every ``render`` call."""
+    """A ``SceneModel`` counting the kept samples of every ``render`` call, and the marched samples its
+    skipping pass evaluated."""
 
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         self.samples = 0
+        self.marched = 0
+
+    def _skip(self, samples, *args, **kwargs):
+        self.marched += samples.num_samples
+        return super()._skip(samples, *args, **kwargs)
 
     def render(self, *args, **kwargs) -> RenderResult:
         result = super().render(*args, **kwargs)
@@ -160,16 +169,19 @@ class IterationClock:
         self.wall: list[float] = []
         self.cpu: list[float] = []
         self.samples: list[int] = []
+        self.marched: list[int] = []
         self.bar = tqdm(total=total, desc="backbone", unit="it", leave=False, disable=not sys.stderr.isatty())
 
     def __call__(self, stage: str, iteration: int, total: int, loss: float) -> None:
         self.wall.append(time.perf_counter())
         self.cpu.append(time.process_time())
         self.samples.append(self.model.samples)
+        self.marched.append(self.model.marched)
         self.bar.update(1)
 
     def rates(self, warmup: int) -> dict[str, float]:
-        """Kept samples/s over iterations ``warmup..end`` (wall and CPU per thread) and ms per iteration."""
+        """Kept samples/s over iterations ``warmup..end`` (wall and CPU per thread), ms, kept and marched
+        samples per iteration."""
         iters = len(self.wall) - warmup
         samples = self.samples[-1] - self.samples[warmup - 1]
         wall = self.wall[-1] - self.wall[warmup - 1]
@@ -179,6 +191,7 @@ class IterationClock:
             "train_samples_per_s_cpu": samples / cpu,
             "train_ms_per_iter": 1e3 * wall / iters,
             "train_samples_per_iter": samples / iters,
+            "train_marched_per_iter": (self.marched[-1] - self.marched[warmup - 1]) / iters,
         }
 
 
@@ -195,6 +208,61 @@ def inference_rate(
     wall, cpu = median_seconds(render_all, repeats)
     per_pass = (model.samples - before) / (repeats + 1)
     return per_pass / wall, per_pass / cpu, per_pass
+
+
+def field_floor(
+    model: SceneModel,
+    obs: Observations,
+    rays: int,
+    per_iter: tuple[float, float],
+    update_every: int,
+    generator: torch.Generator,
+    repeats: int,
+) -> dict[str, float | int]:
+    """The field's own work in a stage-1 iteration, timed apart on one batch of ``rays`` training rays
+    (median of ``repeats``, wall and CPU): forward + backward of density and colour on the batch's kept
+    samples, the skipping pass's ``no_grad`` density on its marched samples, and one occupancy update
+    (every cell, as in warm-up). Scaled per sample to ``per_iter`` = (kept, marched) samples of the
+    training's mean iteration, plus the update over ``update_every``, ``train_samples_per_s_field_floor``
+    is the kept-sample rate if marching, volume rendering, the loss and Adam cost nothing. Leaves the
+    occupancy grid updated once more."""
+    origins, dirs, _, _ = obs.sample_rays(rays, generator)
+    with torch.no_grad():
+        marched = model.grid.march(origins, dirs, jitter=True, generator=generator).positions(origins, dirs)
+        kept = model.render(origins, dirs, train=True, generator=generator).samples
+    kept_x, kept_d = kept.positions(origins, dirs), dirs[kept.ray_idx]
+
+    def train_field() -> None:
+        model.field.zero_grad(set_to_none=True)
+        out = model.field(kept_x, kept_d, RGB)
+        (out.rgb.sum() + out.sigma.sum()).backward()
+
+    def skip_density() -> None:
+        with torch.no_grad():
+            model.field.density_and_encoding(marched)
+
+    def grid_update() -> None:
+        with torch.no_grad():
+            model.update_grid(0, generator)
+
+    timed = {name: median_seconds(fn, repeats) for name, fn in
+             (("field_fwd_bwd", train_field), ("skip_density", skip_density), ("grid_update", grid_update))}  # fmt: skip
+    model.field.zero_grad(set_to_none=True)
+    r: dict[str, float | int] = {
+        "field_floor_kept_samples": kept.num_samples,
+        "field_floor_marched_samples": marched.shape[0],
+    }
+    kept_per_iter, marched_per_iter = per_iter
+    for i, suffix in enumerate(("", "_cpu")):
+        seconds = (
+            timed["field_fwd_bwd"][i] * kept_per_iter / kept.num_samples
+            + timed["skip_density"][i] * marched_per_iter / marched.shape[0]
+            + timed["grid_update"][i] / update_every
+        )
+        r[f"train_samples_per_s_field_floor{suffix}"] = kept_per_iter / seconds
+    for name, (wall, _) in timed.items():
+        r[f"field_floor_{name}_ms"] = 1e3 * wall
+    return r
 
 
 def main(argv: list[str]) -> None:
@@ -248,12 +316,17 @@ def main(argv: list[str]) -> None:
     r["train_view_psnr"], r["train_view_psnr_off_edges"] = view_psnr(
         model, renderer, obs.c2w[:HELD_OUT_VIEWS], intr, gt_samples
     )
+    generator = torch.Generator().manual_seed(int(cfg.seed))
+    per_iter = (r["train_samples_per_iter"], r["train_marched_per_iter"])
+    r.update(field_floor(model, obs, s.train.backbone.batch, per_iter, s.sampler.update_every, generator, args.repeats))
+    r["train_fraction_of_field_floor"] = r["train_samples_per_s"] / r["train_samples_per_s_field_floor"]
 
     report = {
         **r,
         "goals": GOALS,
         "goals_met": {key: r[key] >= goal for key, goal in GOALS.items()},
         "goals_within_limit": {key: r[f"{key}_at_limit"] >= goal for key, goal in GOALS.items()},
+        "train_goal_within_field_floor": r["train_samples_per_s_field_floor"] >= GOALS["train_samples_per_s"],
         "settings": {
             "budget": cfg.budget.name, "scene": cfg.scene.name, "field_kind": s.field.kind,
             "field_backend": s.field.backend,
@@ -284,5 +357,12 @@ def main(argv: list[str]) -> None:
         f"{report['settings']['train_samples_per_ray']:.1f} samples/ray "
         f"(train); {report['seconds']:.0f} s"
     )
+    print(
+        f"field floor {r['train_samples_per_s_field_floor']:.3e} kept samples/s: forward+backward "
+        f"{r['field_floor_field_fwd_bwd_ms']:.1f} ms ({r['field_floor_kept_samples']} kept), skipping pass "
+        f"{r['field_floor_skip_density_ms']:.1f} ms ({r['field_floor_marched_samples']} marched; training's mean "
+        f"{r['train_samples_per_iter']:.0f} kept, {r['train_marched_per_iter']:.0f} marched), grid update "
+        f"{r['field_floor_grid_update_ms']:.0f} ms / {s.sampler.update_every}; training runs at "
+        f"{r['train_fraction_of_field_floor']:.2f} of it"
+    )
     print(f"wrote {args.out}")
-
