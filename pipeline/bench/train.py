@@ -220,21 +220,22 @@ def field_floor(
     repeats: int,
 ) -> dict[str, float | int]:
     """The field's own work in a stage-1 iteration, timed apart on one batch of ``rays`` training rays
-    (median of ``repeats``, wall and CPU): forward + backward of density and colour on the batch's kept
-    samples, the skipping pass's ``no_grad`` density on its marched samples, and one occupancy update
-    (every cell, as in warm-up). Scaled per sample to ``per_iter`` = (kept, marched) samples of the
-    training's mean iteration, plus the update over ``update_every``, ``train_samples_per_s_field_floor``
-    is the kept-sample rate if marching, volume rendering, the loss and Adam cost nothing. Leaves the
-    occupancy grid updated once more."""
+    (median of ``repeats``, wall and CPU): the skipping pass's ``no_grad`` density and encoding on the
+    batch's marched samples; forward + backward of density and colour on its kept samples, reusing their
+    encoding as training does; one occupancy update (every cell, as in warm-up). Scaled per sample to
+    ``per_iter`` (the training's mean kept and marched samples per iteration), with the update spread over
+    ``update_every`` iterations, this gives ``train_samples_per_s_field_floor``: the kept-sample rate if
+    marching, volume rendering, the loss and Adam cost nothing. Leaves the occupancy grid updated once more."""
     origins, dirs, _, _ = obs.sample_rays(rays, generator)
     with torch.no_grad():
         marched = model.grid.march(origins, dirs, jitter=True, generator=generator).positions(origins, dirs)
         kept = model.render(origins, dirs, train=True, generator=generator).samples
-    kept_x, kept_d = kept.positions(origins, dirs), dirs[kept.ray_idx]
+        kept_x, kept_d = kept.positions(origins, dirs), dirs[kept.ray_idx]
+        encoded = model.field.density_and_encoding(kept_x)[2]
 
     def train_field() -> None:
         model.field.zero_grad(set_to_none=True)
-        out = model.field(kept_x, kept_d, RGB)
+        out = model.field(kept_x, kept_d, RGB, encoded=encoded)
         (out.rgb.sum() + out.sigma.sum()).backward()
 
     def skip_density() -> None:
