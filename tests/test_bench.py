@@ -44,6 +44,9 @@ def test_train_bench_writes_rates_fractions_and_psnr(tmp_path):
     assert report["train_marched_per_iter"] >= report["train_samples_per_iter"]
     assert report["train_fraction_of_field_floor"] == pytest.approx(report["train_samples_per_s"] / floor)
     assert report["train_goal_within_field_floor"] == (floor >= train.GOALS["train_samples_per_s"])
+    mlp_floor = report["train_samples_per_s_mlp_floor"]  # the MLPs' layers alone: no hash encoding, faster
+    assert mlp_floor > floor
+    assert report["train_goal_within_mlp_floor"] == (mlp_floor >= train.GOALS["train_samples_per_s"])
 
 
 def test_plan_bench_writes_every_scorer_against_a_plain_render(tmp_path):

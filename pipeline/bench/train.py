@@ -14,7 +14,8 @@ In one run, on the scene's 20 evaluation views rendered at ``budget.image_size``
   be met at METHOD's MLP sizes on this machine);
 - the field floor (``field_floor``): the kept-sample rate if an iteration cost only the field's own
   work (forward + backward on the kept samples, the skipping pass's density on the marched ones, the
-  occupancy update over its period), timed apart after training; ``train_goal_within_field_floor``;
+  occupancy update over its period), timed apart after training, and the MLP floor, the same with only
+  the MLPs' layers (no hash encoding); ``train_goal_within_field_floor``, ``train_goal_within_mlp_floor``;
 - the PSNR of the trained backbone on 5 held-out views (the ring of tests/test_integration.py) and
   on the first 5 training views (fit vs. generalisation), also off the ground truth's edges.
   ``budget.gt_samples=K`` renders every ground-truth view (training and test) as the mean of ``K x K``
@@ -42,9 +43,10 @@ from tqdm import tqdm
 from nvf.cameras import Intrinsics, look_at, matrix_to_pose
 from nvf.config import STAGES
 from nvf.encoding import cpp_extension
-from nvf.field import HEADS
+from nvf.field import HEADS, FieldOutput
 from nvf.model import RenderResult, SceneModel
 from nvf.planning import candidate_poses, seeded_generator
+from nvf.rendering import Samples
 from nvf.training import Observations, train_backbone, train_model
 from pipeline.bench._report import write_report
 from pipeline.bench.field import matmul_gflops, median_seconds, mlp_flops
@@ -70,7 +72,7 @@ class CountingModel(SceneModel):
         self.samples = 0
         self.marched = 0
 
-    def _skip(self, samples, *args, **kwargs):
+    def _skip(self, samples: Samples, *args, **kwargs) -> tuple[Samples, FieldOutput | None, Tensor | None]:
         self.marched += samples.num_samples
         return super()._skip(samples, *args, **kwargs)
 
@@ -225,7 +227,10 @@ def field_floor(
     encoding as training does; one occupancy update (every cell, as in warm-up). Scaled per sample to
     ``per_iter`` (the training's mean kept and marched samples per iteration), with the update spread over
     ``update_every`` iterations, this gives ``train_samples_per_s_field_floor``: the kept-sample rate if
-    marching, volume rendering, the loss and Adam cost nothing. Leaves the occupancy grid updated once more."""
+    marching, volume rendering, the loss and Adam cost nothing. ``train_samples_per_s_mlp_floor``: the same
+    with only the MLPs' layers on the same rows (density MLP and colour head forward + backward on the kept
+    samples, the density MLP on the marched samples and on every grid cell), i.e. if the hash encoding also
+    cost nothing. Leaves the occupancy grid updated once more."""
     origins, dirs, _, _ = obs.sample_rays(rays, generator)
     with torch.no_grad():
         marched = model.grid.march(origins, dirs, jitter=True, generator=generator).positions(origins, dirs)
@@ -246,23 +251,45 @@ def field_floor(
         with torch.no_grad():
             model.update_grid(0, generator)
 
-    timed = {name: median_seconds(fn, repeats) for name, fn in
-             (("field_fwd_bwd", train_field), ("skip_density", skip_density), ("grid_update", grid_update))}  # fmt: skip
-    model.field.zero_grad(set_to_none=True)
+    field = model.field
+    kept_encoded = encoded.clone().requires_grad_()
+    kept_head_in = torch.randn(kept.num_samples, field.color_head[0].in_features, requires_grad=True)
+    marched_encoded = torch.randn(marched.shape[0], field.encoding.out_dim)
+    cell_encoded = torch.randn(model.grid.resolution**3, field.encoding.out_dim)
+
+    def mlp_fwd_bwd() -> None:
+        field.zero_grad(set_to_none=True)
+        (field.density_mlp(kept_encoded).sum() + field.color_head(kept_head_in).sum()).backward()
+
+    def mlp_skip_density() -> None:
+        with torch.no_grad():
+            field.density_mlp(marched_encoded)
+
+    def mlp_grid_update() -> None:
+        with torch.no_grad():
+            field.density_mlp(cell_encoded)
+
+    work = {
+        "field": (("fwd_bwd", train_field), ("skip_density", skip_density), ("grid_update", grid_update)),
+        "mlp": (("fwd_bwd", mlp_fwd_bwd), ("skip_density", mlp_skip_density), ("grid_update", mlp_grid_update)),
+    }
     r: dict[str, float | int] = {
         "field_floor_kept_samples": kept.num_samples,
         "field_floor_marched_samples": marched.shape[0],
     }
     kept_per_iter, marched_per_iter = per_iter
-    for i, suffix in enumerate(("", "_cpu")):
-        seconds = (
-            timed["field_fwd_bwd"][i] * kept_per_iter / kept.num_samples
-            + timed["skip_density"][i] * marched_per_iter / marched.shape[0]
-            + timed["grid_update"][i] / update_every
-        )
-        r[f"train_samples_per_s_field_floor{suffix}"] = kept_per_iter / seconds
-    for name, (wall, _) in timed.items():
-        r[f"field_floor_{name}_ms"] = 1e3 * wall
+    for floor, parts in work.items():
+        timed = {name: median_seconds(fn, repeats) for name, fn in parts}
+        for i, suffix in enumerate(("", "_cpu")):
+            seconds = (
+                timed["fwd_bwd"][i] * kept_per_iter / kept.num_samples
+                + timed["skip_density"][i] * marched_per_iter / marched.shape[0]
+                + timed["grid_update"][i] / update_every
+            )
+            r[f"train_samples_per_s_{floor}_floor{suffix}"] = kept_per_iter / seconds
+        for name, (wall, _) in timed.items():
+            r[f"{floor}_floor_{name}_ms"] = 1e3 * wall
+    field.zero_grad(set_to_none=True)
     return r
 
 
@@ -328,6 +355,7 @@ def main(argv: list[str]) -> None:
         "goals_met": {key: r[key] >= goal for key, goal in GOALS.items()},
         "goals_within_limit": {key: r[f"{key}_at_limit"] >= goal for key, goal in GOALS.items()},
         "train_goal_within_field_floor": r["train_samples_per_s_field_floor"] >= GOALS["train_samples_per_s"],
+        "train_goal_within_mlp_floor": r["train_samples_per_s_mlp_floor"] >= GOALS["train_samples_per_s"],
         "settings": {
             "budget": cfg.budget.name, "scene": cfg.scene.name, "field_kind": s.field.kind,
             "field_backend": s.field.backend,
@@ -360,10 +388,15 @@ def main(argv: list[str]) -> None:
     )
     print(
         f"field floor {r['train_samples_per_s_field_floor']:.3e} kept samples/s: forward+backward "
-        f"{r['field_floor_field_fwd_bwd_ms']:.1f} ms ({r['field_floor_kept_samples']} kept), skipping pass "
+        f"{r['field_floor_fwd_bwd_ms']:.1f} ms ({r['field_floor_kept_samples']} kept), skipping pass "
         f"{r['field_floor_skip_density_ms']:.1f} ms ({r['field_floor_marched_samples']} marched; training's mean "
         f"{r['train_samples_per_iter']:.0f} kept, {r['train_marched_per_iter']:.0f} marched), grid update "
         f"{r['field_floor_grid_update_ms']:.0f} ms / {s.sampler.update_every}; training runs at "
         f"{r['train_fraction_of_field_floor']:.2f} of it"
+    )
+    print(
+        f"MLP floor {r['train_samples_per_s_mlp_floor']:.3e} kept samples/s (the MLPs' layers alone on the same rows: "
+        f"forward+backward {r['mlp_floor_fwd_bwd_ms']:.1f} ms, skipping pass {r['mlp_floor_skip_density_ms']:.1f} ms, "
+        f"grid update {r['mlp_floor_grid_update_ms']:.0f} ms / {s.sampler.update_every})"
     )
     print(f"wrote {args.out}")
