@@ -7,12 +7,10 @@ heads, train, generator, sampler)``); the scorer is a ``nvf.uncertainty.ViewScor
 
 Randomness (PROTOCOL.md 3): every draw uses a generator from a ``GeneratorFactory``, a callable that
 maps a purpose string to a fresh generator seeded from ``(run seed, step, purpose)``; see
-``generator_factory``. Purposes used here: ``"candidates"`` (pose draws and the M29 jitter),
+``nvf.seeding.generator_factory``. Purposes used here: ``"candidates"`` (pose draws and the M29 jitter),
 ``"random_pick"`` (Random) and ``"opt_rays/<iteration>"`` (-OPT ray subsets).
 """
 
-import functools
-import hashlib
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -30,10 +28,10 @@ from nvf.cameras import (
     se3_update,
 )
 from nvf.config import OptConfig, PlannerConfig
+from nvf.seeding import GeneratorFactory
 from nvf.uncertainty import ViewScorer
 from nvf.visibility import segment_transmittance
 
-GeneratorFactory = Callable[[str], torch.Generator]
 # (origin [3], points [n,3]) -> [n] True where the segment from origin to the point is free (M29, los_source=mesh)
 LineOfSight = Callable[[Float[Tensor, "3"], Float[Tensor, "n 3"]], Bool[Tensor, "n"]]
 
@@ -42,19 +40,6 @@ _QUAT_EPS = 1e-9  # METHOD 13 step 2
 
 class NoCandidatesError(RuntimeError):
     """Every candidate pose was rejected by a filter (METHOD 13: an error of the step)."""
-
-
-def seeded_generator(seed: int, step: int, purpose: str, device: torch.device | str = "cpu") -> torch.Generator:
-    """Generator seeded from ``(seed, step, purpose)`` via SHA-256 (stable across processes)."""
-    digest = hashlib.sha256(f"{seed}/{step}/{purpose}".encode()).digest()
-    generator = torch.Generator(device=device)
-    generator.manual_seed(int.from_bytes(digest[:8], "little") & ((1 << 63) - 1))
-    return generator
-
-
-def generator_factory(seed: int, step: int, device: torch.device | str = "cpu") -> GeneratorFactory:
-    """``purpose -> seeded_generator(seed, step, purpose, device)`` for one planning step."""
-    return functools.partial(seeded_generator, seed, step, device=device)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -41,15 +41,17 @@ from tqdm import tqdm
 from nvf.cameras import look_at
 from nvf.model import SceneModel
 from nvf.training import Observations
-from pipeline.config import compose_config
-from pipeline.episode import Episode, EpisodeSettings, resolve_device
-from pipeline.images import colorize, save_figure
-from pipeline.metrics import LpipsMetric
-from pipeline.overrides import GROUPS, NamedConfigs
-from pipeline.records import atomic_write_bytes, atomic_write_text, to_jsonable
+from pipeline.config.validation import compose_config
+from pipeline.episode.loop import Episode
+from pipeline.episode.settings import EpisodeSettings, resolve_device
+from pipeline.episode.images import colorize, save_figure
+from pipeline.metrics.image import LpipsMetric
+from pipeline.config.named import GROUPS, NamedConfigs
+from pipeline.records.store import atomic_write_bytes, atomic_write_text, to_jsonable
 from pipeline.repo import CONF, RESULTS
-from pipeline.scenes import S, Scene, SceneError, load_scene
-from pipeline.tables import mean_std_valid, method_label
+from pipeline.scenes.scene import S, Scene, SceneError, load_scene
+from pipeline.tables.aggregate import mean_std_valid
+from pipeline.tables.labels import method_label
 
 PARTIAL_VIEWS = 20
 PARTIAL_SEED = 0

@@ -7,9 +7,9 @@ import torch
 from hydra import compose, initialize_config_dir
 from omegaconf import open_dict
 
-from pipeline.config import ConfigError, validate
+from pipeline.config.validation import ConfigError, validate
 from pipeline.repo import CONF
-from pipeline.schema import register_configs
+from pipeline.config.schema import register_configs
 
 
 def _options(group: str) -> list[str]:

@@ -3,9 +3,9 @@ holds Hydra's global state): every bad override is one line and status 2."""
 
 import pytest
 
-from pipeline.config import compose_config
-from pipeline.episode import EpisodeSettings
-from pipeline.scenes import load_scene
+from pipeline.config.validation import compose_config
+from pipeline.episode.settings import EpisodeSettings
+from pipeline.scenes.scene import load_scene
 
 
 @pytest.mark.parametrize(

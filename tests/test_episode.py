@@ -13,12 +13,12 @@ import pytest
 import torch
 from hydra import compose, initialize_config_dir
 
-from pipeline.episode import Episode
-from pipeline.metrics import LpipsMetric
-from pipeline.records import RunRecord
+from pipeline.episode.loop import Episode
+from pipeline.metrics.image import LpipsMetric
+from pipeline.records.store import RunRecord
 from pipeline.repo import CONF, REPO
-from pipeline.run import run_episode
-from pipeline.scenes import load_scene
+from pipeline.episode.runner import run_episode
+from pipeline.scenes.scene import load_scene
 
 SMOKE = ["budget=smoke", "scene=default"]
 

@@ -10,8 +10,8 @@ from nvf.cameras import Intrinsics, look_at
 from nvf.config import FieldConfig, SamplerConfig
 from nvf.model import SceneModel
 from nvf.training import Observations
-from pipeline.evaluation import reconstruct_points
-from pipeline.metrics import points_from_rays
+from pipeline.metrics.evaluation import reconstruct_points
+from pipeline.metrics.geometry import points_from_rays
 
 AABB = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 

@@ -15,11 +15,11 @@ from nvf.training import train_model
 from nvf.uncertainty import make_scorer
 from nvf.visibility import visibility_labels
 from pipeline.bench.train import held_out_poses, observations, view_psnr
-from pipeline.config import compose_config
-from pipeline.episode import EpisodeSettings
-from pipeline.metrics import edge_pixels, off_edge_psnr, psnr
-from pipeline.render import GroundTruthRenderer
-from pipeline.scenes import load_scene
+from pipeline.config.validation import compose_config
+from pipeline.episode.settings import EpisodeSettings
+from pipeline.metrics.image import edge_pixels, off_edge_psnr, psnr
+from pipeline.scenes.render import GroundTruthRenderer
+from pipeline.scenes.scene import load_scene
 
 pytestmark = pytest.mark.slow
 HEAD_STAGES = ("variance", "visibility")

@@ -9,22 +9,13 @@ import trimesh
 from PIL import Image
 from skimage.metrics import structural_similarity
 
-from pipeline import metrics
-from pipeline.lpips_weights import LpipsUnavailable, default_sources, load_lpips_alex
-from pipeline.metric_info import METRICS, PAPER_METRICS
-from pipeline.metrics import (
-    LpipsMetric,
-    geometry_metrics,
-    image_metrics,
-    points_from_rays,
-    psnr,
-    psnr_from_mse,
-    rgb_mse,
-    seen_faces,
-    ssim,
-    uncertainty_correlation,
-    visual_coverage,
-)
+from pipeline.metrics import image as metrics
+from pipeline.metrics.lpips_weights import LpipsUnavailable, default_sources, load_lpips_alex
+from pipeline.metrics.info import METRICS, PAPER_METRICS
+from pipeline.metrics.correlation import uncertainty_correlation
+from pipeline.metrics.coverage import seen_faces, visual_coverage
+from pipeline.metrics.geometry import geometry_metrics, points_from_rays
+from pipeline.metrics.image import LpipsMetric, image_metrics, psnr, psnr_from_mse, rgb_mse, ssim
 
 # Published LPIPS(alex, v0.1) of the IQA-PyTorch calibration pairs (../shared/calibration/lpips/README.md).
 CALIBRATION = {"I03": 0.7237, "I04": 0.2572, "I06": 0.0508, "I08": 0.0521, "I19": 0.4253}

@@ -4,9 +4,9 @@ import copy
 
 from hydra import compose, initialize_config_dir
 
-from pipeline.overrides import NamedConfigs
+from pipeline.config.named import NamedConfigs
 from pipeline.repo import CONF
-from pipeline.run import run_settings
+from pipeline.episode.runner import run_settings
 
 GROUPS = ["scene=default", "method=nvf", "planner=argmax", "ablation=none", "budget=smoke", "seed=101"]
 

@@ -20,15 +20,14 @@ from nvf.planning import (
     NoCandidatesError,
     argmax_first,
     candidate_poses,
-    generator_factory,
     ray_subset,
     refine_poses,
     sample_poses,
     score_poses,
-    seeded_generator,
     select_next_view,
     top_k_first,
 )
+from nvf.seeding import generator_factory, seeded_generator
 from nvf.rendering import Samples, alpha_from_density, expected_depth, ray_sum, weights_from_alpha
 from nvf.uncertainty import ViewScorer, make_scorer
 

@@ -11,7 +11,7 @@ import torch
 from omegaconf import OmegaConf
 
 from nvf.cameras import Intrinsics
-from pipeline.records import RunRecord, check_key, read_steps, run_dir, to_jsonable
+from pipeline.records.store import RunRecord, check_key, read_steps, run_dir, to_jsonable
 from pipeline.repo import REPO
 
 

@@ -7,7 +7,7 @@ import torch
 import trimesh
 
 from nvf.cameras import Intrinsics, look_at, pixel_rays, project
-from pipeline.render import GroundTruthRenderer, resolve_backend
+from pipeline.scenes.render import GroundTruthRenderer, resolve_backend
 
 INTR = Intrinsics.from_fov(96, 80)  # non-square on purpose: width and height must not be swapped
 
@@ -147,7 +147,7 @@ def test_resolve_backend(monkeypatch):
 
 def test_textured_mesh_renders_its_texture(assets_dir):
     """Hubble's five textured parts share one atlas: the render is grey/gold, not noise (PROTOCOL 2.2)."""
-    from pipeline.scenes import load_scene
+    from pipeline.scenes.scene import load_scene
 
     scene = load_scene("hubble", assets_dir)
     with GroundTruthRenderer(scene.mesh) as renderer:

@@ -10,7 +10,7 @@ import torch
 import trimesh
 
 from pipeline.repo import REPO
-from pipeline.scenes import NERF_OBJECTS, SCENE_NAMES, SceneError, load_scene, rule_views
+from pipeline.scenes.scene import NERF_OBJECTS, SCENE_NAMES, SceneError, load_scene, rule_views
 
 # PROTOCOL 2.3: rounded initial views, position -> look-at target
 INIT = {
@@ -223,7 +223,7 @@ def test_show_cli_bad_input(capsys):
                             text=True, timeout=120)
     assert result.returncode != 0
     assert len(result.stderr.strip().splitlines()) == 1 and "Traceback" not in result.stderr
-    from pipeline.scenes import main
+    from pipeline.scenes.__main__ import main
 
     with pytest.raises(SystemExit) as info:
         main(["show", "lego", "--assets", "/nonexistent"])

@@ -8,11 +8,16 @@ import imageio.v3 as iio
 import numpy as np
 import pandas as pd
 
-from pipeline.overrides import NamedConfigs
-from pipeline.paper_numbers import paper_numbers
-from pipeline.records import RunRecord, run_dir
+from pipeline.config.named import NamedConfigs
+from pipeline.tables.paper import paper_numbers
+from pipeline.records.store import RunRecord, run_dir
 from pipeline.repo import CONF, REPO
-from pipeline.tables import LONG_COLUMNS, build_tables, image_grid, main, method_label, summarize_run
+from pipeline.tables.__main__ import main
+from pipeline.tables.build import build_tables
+from pipeline.tables.figures import image_grid
+from pipeline.tables.labels import method_label
+from pipeline.tables.load import LONG_COLUMNS
+from pipeline.tables.summary import summarize_run
 
 METRICS = ("psnr", "ssim", "lpips", "rgb", "acc", "comp", "cr", "vis")
 
@@ -255,10 +260,10 @@ def test_summarize_run_lists_steps_and_the_paper_row(tmp_path):
 
 
 def test_tables_load_without_torch_open3d_or_lpips():
-    """Regenerating tables needs only the metrics' data (pipeline.metric_info), not the metrics' code, and
-    composing a run's named config groups (pipeline.overrides) needs only the schema, not the method library."""
+    """Regenerating tables needs only the metrics' data (pipeline.metrics.info), not the metrics' code, and
+    composing a run's named config groups (pipeline.config.named) needs only the schema, not the method library."""
     code = (
-        "import sys, pipeline.repo, pipeline.tables, pipeline.overrides as o; o.NamedConfigs(pipeline.repo.CONF).named("
+        "import sys, pipeline.repo, pipeline.tables.__main__, pipeline.config.named as o; o.NamedConfigs(pipeline.repo.CONF).named("
         "('hubble', 'nvf', 'argmax', 'none', 'smoke')); print(sorted({'torch', 'open3d', 'lpips'} & set(sys.modules)))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO)

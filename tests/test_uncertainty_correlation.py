@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from nvf.uncertainty.correlation import ause, patch_pearson, view_pearson
+from pipeline.metrics.correlation import ause, patch_pearson, view_pearson
 
 
 def test_patch_pearson_pools_32x32_patches():

@@ -18,9 +18,9 @@ import torch
 from hydra import compose, initialize_config_dir
 
 from pipeline.bench._report import write_report
-from pipeline.records import RunRecord
+from pipeline.records.store import RunRecord
 from pipeline.repo import CONF, RESULTS
-from pipeline.run import run_episode
+from pipeline.episode.runner import run_episode
 
 
 def step_summary(row: dict) -> dict:

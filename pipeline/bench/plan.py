@@ -43,7 +43,7 @@ from nvf.uncertainty.scorers import METHODS
 from pipeline.bench._report import write_report
 from pipeline.bench.field import matmul_gflops, mlp_flops
 from pipeline.bench.train import RGB, CountingModel, InitialViewModel
-from pipeline.config import compose_config
+from pipeline.config.validation import compose_config
 from pipeline.repo import RESULTS
 
 CANDIDATES = 512  # the paper's N; a later planner.num_candidates=... override wins

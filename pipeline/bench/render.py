@@ -15,9 +15,9 @@ from pathlib import Path
 
 from nvf.cameras import Intrinsics
 from pipeline.bench._report import write_report
-from pipeline.render import GroundTruthRenderer
+from pipeline.scenes.render import GroundTruthRenderer
 from pipeline.repo import RESULTS
-from pipeline.scenes import SceneError, load_scene
+from pipeline.scenes.scene import SceneError, load_scene
 
 PAPER_RESOLUTION = 512
 

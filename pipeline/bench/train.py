@@ -45,18 +45,19 @@ from nvf.config import STAGES
 from nvf.encoding import cpp_extension
 from nvf.field import HEADS, FieldOutput
 from nvf.model import RenderResult, SceneModel
-from nvf.planning import candidate_poses, seeded_generator
+from nvf.planning import candidate_poses
+from nvf.seeding import seeded_generator
 from nvf.rendering import Samples
 from nvf.training import Observations, train_backbone, train_model
 from pipeline.bench._report import write_report
 from pipeline.bench.field import matmul_gflops, median_seconds, mlp_flops
-from pipeline.config import compose_config
-from pipeline.episode import EpisodeSettings
-from pipeline.evaluation import RENDER_CHUNK
-from pipeline.metrics import off_edge_psnr, psnr
-from pipeline.render import GroundTruthRenderer
+from pipeline.config.validation import compose_config
+from pipeline.episode.settings import EpisodeSettings
+from pipeline.metrics.evaluation import RENDER_CHUNK
+from pipeline.metrics.image import off_edge_psnr, psnr
+from pipeline.scenes.render import GroundTruthRenderer
 from pipeline.repo import RESULTS
-from pipeline.scenes import Scene, SceneError, load_scene
+from pipeline.scenes.scene import Scene, SceneError, load_scene
 
 GOALS = {"train_samples_per_s": 1e6, "infer_samples_per_s": 3e6}
 HELD_OUT_VIEWS = 5

@@ -39,7 +39,7 @@ from nvf.uncertainty import ViewScorer, make_scorer
 from nvf.visibility import visibility_labels
 from pipeline.bench._report import write_report
 from pipeline.bench.train import InitialViewModel
-from pipeline.config import compose_config
+from pipeline.config.validation import compose_config
 from pipeline.repo import RESULTS
 
 SURFACE_OFFSET = 0.01  # scene units: the surface point moves this far towards the candidate camera

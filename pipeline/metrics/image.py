@@ -1,9 +1,5 @@
-"""Benchmark metrics (PROTOCOL.md 4): image quality, geometry, visual coverage, uncertainty quality.
-
-Images are ``[V, H, W, 3]`` floats (numpy or torch) and are clipped to ``[0, 1]`` first (4.1);
-points are ``[P, 3]`` in scene units; meshes are ``trimesh.Trimesh``. Every metric returns plain
-Python floats. Names, labels and directions for tables are in ``pipeline.metric_info``.
-"""
+"""Image metrics (PROTOCOL.md 4.1): RGB (pooled MSE), PSNR, SSIM and LPIPS of the rendered evaluation
+views against the ground truth, plus the off-edge PSNR diagnostic. Every metric returns a plain float."""
 
 import math
 import warnings
@@ -13,39 +9,18 @@ from pathlib import Path
 
 import lpips
 import numpy as np
-import open3d as o3d
 import torch
 import torch.nn.functional as F
-import trimesh
-from jaxtyping import Bool, Float, Int
-from scipy.spatial import cKDTree
+from jaxtyping import Bool, Float
 from torch import Tensor
 
-from nvf.uncertainty import correlation
-from pipeline.lpips_weights import LpipsUnavailable, load_lpips_alex
-
-Array = np.ndarray | Tensor
-
-
-def _tensor(x: Array) -> Tensor:
-    return x if isinstance(x, Tensor) else torch.from_numpy(np.asarray(x))
-
-
-def _numpy(x: Array) -> np.ndarray:
-    return x.detach().cpu().numpy() if isinstance(x, Tensor) else np.asarray(x)
-
-
-def _clipped(images: Float[Array, "V H W 3"]) -> Float[Tensor, "V 3 H W"]:
-    """Images as float64 ``[V, 3, H, W]`` clipped to [0, 1], on their own device."""
-    return _tensor(images).to(torch.float64).clamp(0.0, 1.0).permute(0, 3, 1, 2)
-
-
-# --- 4.1 image metrics -------------------------------------------------------------------------
+from pipeline.metrics.arrays import Array, as_numpy, clipped
+from pipeline.metrics.lpips_weights import LpipsUnavailable, load_lpips_alex
 
 
 def rgb_mse(pred: Float[Array, "V H W 3"], gt: Float[Array, "V H W 3"]) -> float:
     """RGB: MSE pooled over every value of the clipped stacks (4.1)."""
-    return (_clipped(pred) - _clipped(gt)).square().mean().item()
+    return (clipped(pred) - clipped(gt)).square().mean().item()
 
 
 def psnr_from_mse(mse: float) -> float:
@@ -74,8 +49,8 @@ def edge_pixels(gt: Float[np.ndarray, "V H W 3"], tol: float = 0.02) -> Bool[np.
 def off_edge_psnr(pred: Float[Array, "V H W 3"], gt: Float[Array, "V H W 3"]) -> float:
     """``psnr`` (clipped, pooled MSE) over the pixels that are not ``edge_pixels`` of ``gt`` (a
     diagnostic, not a paper metric)."""
-    squared = (_clipped(pred) - _clipped(gt)).square().mean(1)  # [V, H, W]
-    off_edge = torch.from_numpy(~edge_pixels(_numpy(gt))).to(squared.device)
+    squared = (clipped(pred) - clipped(gt)).square().mean(1)  # [V, H, W]
+    off_edge = torch.from_numpy(~edge_pixels(as_numpy(gt))).to(squared.device)
     return psnr_from_mse(squared[off_edge].mean().item())
 
 
@@ -99,7 +74,7 @@ def ssim(
     border is discarded); mean over pixels, channels and images. ``data_range=None`` uses
     ``max(range(pred stack), range(gt stack))``.
     """
-    x, y = _clipped(pred), _clipped(gt)
+    x, y = clipped(pred), clipped(gt)
     if min(x.shape[-2:]) < window:
         raise ValueError(f"SSIM needs images of at least {window} x {window} pixels, got {tuple(x.shape[-2:])}")
     if data_range is None:
@@ -164,7 +139,7 @@ class LpipsMetric:
         """The GT side of ``against`` (None without weights); ~10 MB per 512 x 512 image."""
         if self.model is None:
             return None
-        y = _clipped(gt)
+        y = clipped(gt)
         parts = [self._features(b) for b in y.split(self._batch(y))]
         return [torch.cat(layer) for layer in zip(*parts)]
 
@@ -173,7 +148,7 @@ class LpipsMetric:
         """Mean LPIPS of ``pred`` against the images ``reference`` was computed from."""
         if self.model is None:
             return math.nan
-        x = _clipped(pred)
+        x = clipped(pred)
         if len(reference[0]) != len(x):
             raise ValueError(f"LPIPS reference holds {len(reference[0])} images, got {len(x)} predictions")
         n = self._batch(x)
@@ -216,140 +191,4 @@ def image_metrics(
         lpips=lpips_value,
         rgb=mse,
         lpips_missing=lpips_metric.missing,
-    )
-
-
-# --- 4.2 geometry ------------------------------------------------------------------------------
-
-
-def points_from_rays(
-    origins: Float[Array, "R 3"],
-    dirs: Float[Array, "R 3"],
-    depth: Float[Array, "R"],
-    acc: Float[Array, "R"],
-    min_acc: float = 0.5,
-) -> Float[Array, "P 3"]:
-    """Reconstructed points ``o + D d`` of the rays with accumulation ``A > min_acc`` (4.2, M3)."""
-    keep = acc > min_acc
-    return origins[keep] + depth[keep][:, None] * dirs[keep]
-
-
-def sample_surface(mesh: trimesh.Trimesh, count: int, seed: int) -> Float[np.ndarray, "N 3"]:
-    """``count`` area-uniform samples of the mesh surface, reproducible from ``seed`` (4.2)."""
-    points, _ = trimesh.sample.sample_surface(mesh, count, seed=seed)
-    return np.asarray(points, dtype=np.float64)
-
-
-def remove_statistical_outliers(
-    points: Float[Array, "P 3"], neighbors: int = 20, std_ratio: float = 10.0
-) -> Float[np.ndarray, "M 3"]:
-    """Drop points whose mean distance to their ``neighbors`` nearest points exceeds the global
-    mean + ``std_ratio`` std of that quantity (open3d ``remove_statistical_outlier``, 4.2)."""
-    pts = np.ascontiguousarray(_numpy(points), dtype=np.float64)
-    if len(pts) == 0:
-        return pts.reshape(0, 3)
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
-    _, kept = cloud.remove_statistical_outlier(nb_neighbors=neighbors, std_ratio=std_ratio)
-    return pts[np.asarray(kept, dtype=np.int64)]
-
-
-@dataclass(frozen=True)
-class GeometryMetrics:
-    """Acc. and Comp. (mean NN distances, NaN for an empty reconstruction), C.R. and the point count used."""
-
-    acc: float
-    comp: float
-    cr: float
-    num_points: int
-
-
-def geometry_metrics(
-    points: Float[Array, "P 3"],
-    mesh: trimesh.Trimesh,
-    threshold: float,
-    seed: int = 0,
-    num_gt_samples: int = 500_000,
-    outlier_neighbors: int = 20,
-    outlier_std_ratio: float = 10.0,
-) -> GeometryMetrics:
-    """Acc., Comp. and C.R. of reconstructed points against the GT mesh (4.2).
-
-    Outliers are removed from ``points`` first; GT points are ``num_gt_samples`` area-uniform samples
-    drawn with ``seed``; C.R. counts GT points whose nearest reconstructed point is closer than
-    ``threshold`` (0.01; Room 0.1). An empty reconstruction gives Acc = Comp = NaN and C.R. = 0.
-    """
-    rec = remove_statistical_outliers(points, outlier_neighbors, outlier_std_ratio)
-    if len(rec) == 0:
-        return GeometryMetrics(acc=math.nan, comp=math.nan, cr=0.0, num_points=0)
-    gt = sample_surface(mesh, num_gt_samples, seed)
-    to_gt, _ = cKDTree(gt).query(rec)
-    to_rec, _ = cKDTree(rec).query(gt)
-    return GeometryMetrics(
-        acc=float(to_gt.mean()),
-        comp=float(to_rec.mean()),
-        cr=float((to_rec < threshold).mean()),
-        num_points=len(rec),
-    )
-
-
-# --- 4.3 visual coverage -----------------------------------------------------------------------
-
-
-def seen_faces(face_ids: Int[Array, "*views H W"], num_faces: int) -> Bool[np.ndarray, "F"]:
-    """Mask of the faces hit by at least one pixel of the face-id images (-1 = miss) (4.3)."""
-    ids = _numpy(face_ids).ravel()
-    seen = np.zeros(num_faces, dtype=bool)
-    seen[ids[ids >= 0]] = True
-    return seen
-
-
-@dataclass(frozen=True)
-class Coverage:
-    """Vis. (fraction of faces seen) and the area-weighted fraction ``vis_area`` (logged only)."""
-
-    vis: float
-    vis_area: float
-
-
-def visual_coverage(seen: Bool[np.ndarray, "F"], mesh: trimesh.Trimesh) -> Coverage:
-    """Vis. = |seen faces| / |faces| and the seen fraction of the surface area (4.3).
-
-    ``seen`` is the union over all observed poses, e.g. ``seen_faces(...) | seen_faces(...)``.
-    """
-    if len(seen) != len(mesh.faces):
-        raise ValueError(f"seen mask has {len(seen)} entries, the mesh has {len(mesh.faces)} faces")
-    areas = np.asarray(mesh.area_faces, dtype=np.float64)
-    return Coverage(vis=float(seen.mean()), vis_area=float(areas[seen].sum() / areas.sum()))
-
-
-# --- 4.4 uncertainty quality -------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class UncertaintyCorrelation:
-    """Pearson r between error and uncertainty over 32 x 32 patches and over views (4.4), and the per-view
-    sums of error and score that the view-level r pairs (``[V]`` each)."""
-
-    patch_pearson: float
-    view_pearson: float
-    ause: float
-    view_error: tuple[float, ...]
-    view_score: tuple[float, ...]
-
-
-def uncertainty_correlation(
-    pred: Float[Array, "V H W 3"], gt: Float[Array, "V H W 3"], scores: Float[Array, "V H W"], patch: int = 32
-) -> UncertaintyCorrelation:
-    """Correlation of the per-pixel error ``sum_ch |pred - gt|`` with the per-pixel score (4.4),
-    computed by ``nvf.uncertainty.correlation``: patch level over ``patch`` x ``patch`` tiles, view
-    level over per-view sums, and AUSE (an addition, labelled so). NaN where undefined."""
-    err = (_clipped(pred) - _clipped(gt)).abs().sum(1)
-    u = _tensor(scores).to(err.device)
-    view_error, view_score = correlation.view_sums(err, u)
-    return UncertaintyCorrelation(
-        patch_pearson=correlation.patch_pearson(err, u, patch),
-        view_pearson=correlation.view_pearson(err, u),
-        ause=correlation.ause(err, u),
-        view_error=tuple(view_error.tolist()),
-        view_score=tuple(view_score.tolist()),
     )

@@ -6,11 +6,14 @@ the evaluation views, both ``[V, H, W]``. Every statistic is computed in float64
 """
 
 import math
+from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
 from jaxtyping import Float
 from torch import Tensor
+
+from pipeline.metrics.arrays import Array, as_tensor, clipped
 
 AUSE_FRACTIONS = 100  # removal fractions f = 0, 0.01, ..., 0.99
 
@@ -64,3 +67,33 @@ def ause(error: Float[Tensor, "V H W"], score: Float[Tensor, "V H W"]) -> float:
     by_score = torch.argsort(score.to(torch.float64).reshape(-1), descending=True, stable=True)
     by_error = torch.argsort(e, descending=True, stable=True)
     return float((curve(by_score) - curve(by_error)).mean())
+
+
+@dataclass(frozen=True)
+class UncertaintyCorrelation:
+    """Pearson r between error and uncertainty over 32 x 32 patches and over views (4.4), and the per-view
+    sums of error and score that the view-level r pairs (``[V]`` each)."""
+
+    patch_pearson: float
+    view_pearson: float
+    ause: float
+    view_error: tuple[float, ...]
+    view_score: tuple[float, ...]
+
+
+def uncertainty_correlation(
+    pred: Float[Array, "V H W 3"], gt: Float[Array, "V H W 3"], scores: Float[Array, "V H W"], patch: int = 32
+) -> UncertaintyCorrelation:
+    """Correlation of the per-pixel error ``sum_ch |pred - gt|`` with the per-pixel score (4.4),
+    computed by this module's statistics: patch level over ``patch`` x ``patch`` tiles, view
+    level over per-view sums, and AUSE (an addition, labelled so). NaN where undefined."""
+    err = (clipped(pred) - clipped(gt)).abs().sum(1)
+    u = as_tensor(scores).to(err.device)
+    view_error, view_score = view_sums(err, u)
+    return UncertaintyCorrelation(
+        patch_pearson=patch_pearson(err, u, patch),
+        view_pearson=view_pearson(err, u),
+        ause=ause(err, u),
+        view_error=tuple(view_error.tolist()),
+        view_score=tuple(view_score.tolist()),
+    )

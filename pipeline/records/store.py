@@ -22,7 +22,7 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
-from pipeline.metric_info import METRICS
+from pipeline.metrics.info import METRICS
 from pipeline.repo import REPO
 
 KEY_PATTERN = re.compile(r"[A-Za-z0-9_.-]+")

@@ -9,83 +9,24 @@ and, with the same seed, selects the same poses (every draw is seeded from (seed
 import dataclasses
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 import torch
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from nvf.cameras import Intrinsics, matrix_to_pose, pose_to_matrix
-from nvf.config import BaselineConfig, EntropyConfig, FieldConfig, PlannerConfig, SamplerConfig, TrainConfig
 from nvf.model import SceneModel
-from nvf.planning import generator_factory, seeded_generator, select_next_view
+from nvf.planning import select_next_view
+from nvf.seeding import generator_factory, seeded_generator
 from nvf.training import Observations, TrainStats, train_model
-from nvf.uncertainty import ViewScorer, make_scorer
-from pipeline.evaluation import Evaluator
-from pipeline.metrics import LpipsMetric
-from pipeline.render import GroundTruthRenderer
-from pipeline.scenes import Scene
+from pipeline.episode.settings import EpisodeSettings
+from pipeline.metrics.evaluation import Evaluator
+from pipeline.metrics.image import LpipsMetric
+from pipeline.scenes.render import GroundTruthRenderer
+from pipeline.scenes.scene import Scene
 
 # (stage, iteration, total, loss) -> None: drives the inner progress bar
 TrainProgress = Callable[[str, int, int, float], None]
-
-
-def resolve_device(name: str) -> torch.device:
-    """``auto`` is CUDA when present, else CPU."""
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(name)
-
-
-def typed(cfg: DictConfig, cls: type):
-    """A plain dataclass instance of ``cls`` from a config node (nvf/ never sees OmegaConf)."""
-    return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(cls), cfg))
-
-
-def resolved_d0(d0: float | int | str | None, scene: Scene) -> float:
-    """(M13) NVF's correlation length: None = the scene's value (1.0, Room 6.0; D4), ``"auto"`` = 0.25 x
-    the diagonal of the scene's object box (METHOD 8), a number as given (0 = Ind. Rays)."""
-    if d0 is None:
-        return float(scene.d0)
-    if d0 == "auto":
-        return 0.25 * float(torch.linalg.norm(scene.object_aabb[1] - scene.object_aabb[0]))
-    return float(d0)
-
-
-@dataclass
-class EpisodeSettings:
-    """The resolved, typed settings of one run, with scene defaults filled in."""
-
-    field: FieldConfig
-    sampler: SamplerConfig
-    train: TrainConfig
-    entropy: EntropyConfig
-    baseline: BaselineConfig
-    planner: PlannerConfig
-    tau: float
-    collision_free: bool
-
-    def scorer(self, method: str) -> ViewScorer | None:
-        """``method``'s view scorer with these settings (NVF's resolved ``d0``); None for Random."""
-        return make_scorer(method, self.entropy, self.baseline, float(self.entropy.d0))
-
-    @staticmethod
-    def of(cfg: DictConfig, scene: Scene) -> "EpisodeSettings":
-        entropy = typed(cfg.nvf.entropy, EntropyConfig)
-        entropy = dataclasses.replace(entropy, d0=resolved_d0(entropy.d0, scene))
-        planner = typed(cfg.planner, PlannerConfig)
-        tau = planner.density_threshold if planner.density_threshold is not None else scene.density_threshold
-        collision_free = planner.collision_free if planner.collision_free is not None else scene.collision_free
-        return EpisodeSettings(
-            field=typed(cfg.field, FieldConfig),
-            sampler=typed(cfg.sampler, SamplerConfig),
-            train=typed(cfg.train, TrainConfig),
-            entropy=entropy,
-            baseline=typed(cfg.baseline, BaselineConfig),
-            planner=planner,
-            tau=float(tau),
-            collision_free=bool(collision_free),
-        )
 
 
 class Episode:

@@ -12,14 +12,10 @@ the Hydra key is ``paths.assets``):
 - chair, drums, ficus, lego, materials, mic, ship: the first of ``<name>/<name>.glb``, ``.gltf``,
   ``.ply``, ``.obj`` that exists, already in the scene frame (NeRF-synthetic, Z-up); its bounds must
   match the PROTOCOL 2.1 tight box to 5% of its diagonal (a Y-up export fails this check).
-
-``python -m pipeline.scenes show SCENE`` draws a scene's views (see ``main``).
 """
 
-import argparse
 import math
 import os
-import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,8 +28,8 @@ from PIL import Image
 from torch import Tensor
 
 from nvf.cameras import Intrinsics, look_at
-from pipeline import procedural
-from pipeline.repo import REPO, RESULTS
+from pipeline.repo import REPO
+from pipeline.scenes import procedural
 
 Vec = Sequence[float | int] | np.ndarray  # a point or vector; beartype rejects ints as floats
 
@@ -406,113 +402,3 @@ def load_scene(name: str, assets_dir: Path | None = None) -> Scene:
                  camera_box=_tensor(spec.camera_box), tight_box=_tensor(tight), init_poses=init, eval_poses=evals,
                  density_threshold=spec.density_threshold, d0=spec.d0, cr_threshold=spec.cr_threshold,
                  collision_free=spec.collision_free, n_init=spec.n_init)
-
-
-# ----------------------------------------------------------------------------------------------
-# python -m pipeline.scenes show SCENE
-
-
-def _top_view(scene: Scene, renderer, res: int) -> tuple[np.ndarray, list[float]]:
-    """Orthographic top view (rays straight down from just above the highest camera), lightly height-shaded."""
-    poses = torch.cat([scene.init_poses, scene.eval_poses]).double().numpy()
-    points = np.concatenate([scene.camera_box.double().numpy(), scene.tight_box.double().numpy(), poses[:, :3, 3]])
-    lo, hi = points.min(0), points.max(0)
-    margin = 0.05 * float(np.max(hi[:2] - lo[:2]))
-    lo, hi = lo - margin, hi + margin
-    width = int(res * (hi[0] - lo[0]) / max(hi[1] - lo[1], hi[0] - lo[0]) * 2)
-    height = int(res * (hi[1] - lo[1]) / max(hi[1] - lo[1], hi[0] - lo[0]) * 2)
-    xs = np.linspace(lo[0], hi[0], width)
-    ys = np.linspace(hi[1], lo[1], height)
-    gx, gy = np.meshgrid(xs, ys)
-    start = poses[:, 2, 3].max() + 1e-3
-    origins = np.stack([gx, gy, np.full_like(gx, start)], -1).reshape(-1, 3)
-    dirs = np.broadcast_to(np.array([0.0, 0.0, -1.0]), origins.shape)
-    t_hit, ids = renderer.cast_rays(origins, dirs)
-    mesh = scene.mesh
-    if mesh.visual.kind == "texture":
-        colors = mesh.visual.to_color().vertex_colors[mesh.faces, :3].mean(axis=1) / 255.0
-    else:
-        colors = mesh.visual.face_colors[:, :3] / 255.0
-    image = np.ones((len(ids), 3))
-    hit = ids >= 0
-    z = start - t_hit[hit]
-    tight = scene.tight_box.double().numpy()
-    shade = 0.55 + 0.45 * np.clip((z - tight[0, 2]) / (tight[1, 2] - tight[0, 2]), 0.0, 1.0)
-    image[hit] = colors[ids[hit]] * shade[:, None]
-    return image.reshape(height, width, 3), [lo[0], hi[0], lo[1], hi[1]]
-
-
-def show(scene: Scene, out_dir: Path, res: int) -> Path:
-    """PNG grid of the initial and evaluation views plus a top view with boxes and camera positions."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.patches import Rectangle
-
-    from pipeline.render import GroundTruthRenderer
-
-    intr = Intrinsics.from_fov(res, res)
-    with GroundTruthRenderer(scene.mesh) as renderer:
-        init = [renderer.render(p, intr).rgb for p in scene.init_poses]
-        evals = [renderer.render(p, intr).rgb for p in scene.eval_poses]
-        top, extent = _top_view(scene, renderer, res)
-    cols, init_rows = 5, math.ceil(len(init) / 5)
-    rows = init_rows + 4
-    fig = plt.figure(figsize=(2.0 * cols + 6.5, 2.0 * rows + 0.4))
-    grid = fig.add_gridspec(rows, cols + 3)
-    for i, image in enumerate(init + evals):
-        row, col = divmod(i, cols) if i < len(init) else (init_rows + (i - len(init)) // cols, (i - len(init)) % cols)
-        ax = fig.add_subplot(grid[row, col])
-        ax.imshow(image)
-        ax.set_title(f"init {i}" if i < len(init) else f"eval {i - len(init)}", fontsize=8,
-                     color="tab:red" if i < len(init) else "tab:blue")
-        ax.axis("off")
-    ax = fig.add_subplot(grid[:, cols:])
-    ax.imshow(top, extent=extent)
-    cam, tight = scene.camera_box.numpy(), scene.tight_box.numpy()
-    ax.add_patch(Rectangle(cam[0, :2], *(cam[1, :2] - cam[0, :2]), fill=False, ec="k", lw=1.2, label="camera box"))
-    ax.add_patch(Rectangle(tight[0, :2], *(tight[1, :2] - tight[0, :2]), fill=False, ec="gray", ls="--",
-                           label="tight box"))
-    arrow = 0.06 * float(np.max(cam[1, :2] - cam[0, :2]))
-    for poses, color, label in ((scene.eval_poses, "tab:blue", "eval"), (scene.init_poses, "tab:red", "init")):
-        p = poses.double().numpy()
-        ax.scatter(p[:, 0, 3], p[:, 1, 3], s=18, c=color, label=f"{label} cameras", zorder=3)
-        view = -p[:, :2, 2]
-        ax.quiver(p[:, 0, 3], p[:, 1, 3], arrow * view[:, 0], arrow * view[:, 1], color=color, angles="xy",
-                  scale_units="xy", scale=1, width=0.004, zorder=3)
-    ax.set_xlabel("x")
-    ax.set_ylabel("y")
-    ax.legend(fontsize=7, loc="upper right")
-    ax.set_title(f"{scene.name} ({scene.source}): top view, z-shaded", fontsize=9)
-    fig.tight_layout()
-    out_dir.mkdir(parents=True, exist_ok=True)
-    path = out_dir / f"{scene.name}.png"
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
-    return path
-
-
-def main(argv: list[str] | None = None) -> None:
-    """``show SCENE [--assets DIR] [--out DIR] [--res N]``: bad input is one line on stderr and exit status 2."""
-    parser = argparse.ArgumentParser(prog="python -m pipeline.scenes", description=__doc__.splitlines()[0])
-    sub = parser.add_subparsers(dest="command", required=True)
-    show_parser = sub.add_parser("show", help="write a PNG grid of a scene's views and a top view")
-    show_parser.add_argument("scene", help=f"one of: {', '.join(SCENE_NAMES)}")
-    show_parser.add_argument("--assets", type=Path, default=None, help="assets directory (default: NVF_ASSETS)")
-    show_parser.add_argument("--out", type=Path, default=RESULTS / "figures" / "scenes")
-    show_parser.add_argument("--res", type=int, default=128, help="view resolution in pixels")
-    args = parser.parse_args(argv)
-    if args.res < 8:
-        print(f"error: --res must be at least 8, got {args.res}", file=sys.stderr)
-        raise SystemExit(2)
-    try:
-        scene = load_scene(args.scene, args.assets)
-    except SceneError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        raise SystemExit(2) from None
-    print(show(scene, args.out, args.res))
-
-
-if __name__ == "__main__":
-    main()

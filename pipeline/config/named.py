@@ -12,8 +12,8 @@ from hydra.core.global_hydra import GlobalHydra
 from hydra.errors import HydraException
 from omegaconf import OmegaConf
 
-from pipeline.records import to_jsonable
-from pipeline.schema import register_configs
+from pipeline.records.store import to_jsonable
+from pipeline.config.schema import register_configs
 
 GROUPS = ("scene", "method", "planner", "ablation", "budget")
 NOT_SETTINGS = ("paths", "seed")  # where files live; the seed is an identity key

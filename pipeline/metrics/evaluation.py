@@ -12,19 +12,14 @@ from torch import Tensor
 
 from nvf.cameras import Intrinsics, pixel_rays
 from nvf.model import SceneModel
-from nvf.planning import seeded_generator
+from nvf.seeding import seeded_generator
 from nvf.training import Observations
-from pipeline.metrics import (
-    LpipsMetric,
-    geometry_metrics,
-    image_metrics,
-    points_from_rays,
-    seen_faces,
-    uncertainty_correlation,
-    visual_coverage,
-)
-from pipeline.render import GroundTruthRenderer
-from pipeline.scenes import Scene
+from pipeline.metrics.correlation import uncertainty_correlation
+from pipeline.metrics.coverage import seen_faces, visual_coverage
+from pipeline.metrics.geometry import geometry_metrics, points_from_rays
+from pipeline.metrics.image import LpipsMetric, image_metrics
+from pipeline.scenes.render import GroundTruthRenderer
+from pipeline.scenes.scene import Scene
 
 RENDER_CHUNK = 4096  # rays per model call at inference
 PATCHES_PER_SIDE = 16  # PROTOCOL 4.4: 32x32 patches of a 512x512 view

@@ -15,9 +15,9 @@ from omegaconf import DictConfig, OmegaConf
 from nvf.config import STAGES
 from nvf.training import AUX_LOSSES
 from nvf.uncertainty.scorers import METHODS
-from pipeline.overrides import changed_settings
+from pipeline.config.named import changed_settings
 from pipeline.repo import CONF
-from pipeline.schema import register_configs
+from pipeline.config.schema import register_configs
 
 ABLATIONS = ("none", "wo_vis", "wo_var", "ind_rays", "loose")
 

@@ -1,0 +1,53 @@
+"""Run records -> long CSV -> paper-style tables (md, csv, tex), comparison with the paper, figures.
+
+``python -m pipeline.tables [paths.outputs=DIR] [paths.results=DIR]`` reads every run under
+``paths.outputs`` and ``${paths.results}/runs`` (committed records: run.json + steps.jsonl) and writes
+``${paths.results}/runs.csv`` (long format; NaN as an empty field), ``tables/{main, table1_opt,
+table2_ablation, table34_nerf_assets, all_runs, paper_comparison}.{md,csv,tex}`` and ``figures/``
+(metric-vs-step curves, image grids). Only finished runs count; a cell is the mean ± population std
+over seeds at each run's last step (PROTOCOL.md 3). Step rows store NaN as ``null``
+(``pipeline.records``); it is read back as NaN and footnoted. A run whose recorded settings differ from what
+its named groups give today (``pipeline.config.named``) has them appended to its budget, e.g.
+``cpu+planner.num_candidates=512``, so it is never averaged or labelled with plain ``cpu`` runs.
+"""
+
+import sys
+from pathlib import Path
+
+from pipeline.tables.build import build_tables
+
+
+def parse_overrides(argv: list[str]) -> tuple[Path, Path]:
+    """(outputs, results) from ``paths.outputs=...`` / ``paths.results=...`` (defaults as conf/paths)."""
+    paths = {"paths.outputs": Path("outputs"), "paths.results": Path("results")}
+    for arg in argv:
+        key, sep, value = arg.partition("=")
+        if not sep or key not in paths or not value:
+            raise ValueError(f"unknown argument {arg!r}: use paths.outputs=DIR and/or paths.results=DIR")
+        paths[key] = Path(value)
+    return paths["paths.outputs"], paths["paths.results"]
+
+
+def main(argv: list[str]) -> int:
+    """Command-line entry point; returns the exit code."""
+    if any(arg in ("-h", "--help") for arg in argv):
+        print(__doc__.strip())
+        return 0
+    try:
+        outputs, results = parse_overrides(argv)
+        written, skipped = build_tables(outputs, [results / "runs"], results)
+    except (ValueError, OSError) as err:
+        print(f"pipeline.tables: error: {str(err).splitlines()[0]}", file=sys.stderr)
+        return 1
+    for line in skipped:
+        print(f"pipeline.tables: {line}", file=sys.stderr)
+    if not outputs.is_dir():
+        note = f"paths.outputs={outputs} is not a directory; only {results / 'runs'} was read"
+        print(f"pipeline.tables: note: {note}", file=sys.stderr)
+    print(f"pipeline.tables: wrote {len(written)} files under {results} (runs.csv, tables/, figures/)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
+

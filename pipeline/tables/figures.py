@@ -1,0 +1,84 @@
+"""Figures from run records: metric-vs-step curves per scene and budget, and a run's image grid (steps x
+GT | prediction | score map | depth)."""
+
+import re
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
+
+from pipeline.episode.images import save_figure
+from pipeline.metrics.info import PAPER_METRICS
+from pipeline.tables.labels import label_rank, method_label, rank
+
+
+IMAGE_NAME = re.compile(r"step_(\d+)_(.+)\.png")
+IMAGE_KINDS = (("gt", "GT"), ("pred", "prediction"), ("score", "score map"), ("entropy", "entropy"), ("depth", "depth"))
+
+
+def curves(long: pd.DataFrame, figures: Path) -> list[Path]:
+    """Metric-vs-step curves per (scene, budget): mean ± population-std band over seeds, one line per
+    method (colour by position, dashed for ablations)."""
+    written = []
+    for (scene, budget), frame in long.groupby(["scene", "budget"]):
+        fig = Figure(figsize=(16, 7), dpi=80)
+        fig.subplots_adjust(left=0.04, right=0.85, bottom=0.08, top=0.9, wspace=0.3, hspace=0.35)
+        axes = fig.subplots(2, 4).ravel()
+        groups = sorted(frame.groupby(["method", "planner", "ablation"]), key=lambda kv: label_rank(*kv[0]))
+        for ax, m in zip(axes, PAPER_METRICS):
+            for i, ((method, planner, ablation), group) in enumerate(groups):
+                series = group[group["metric"] == m.name].groupby("step")["value"]
+                mean, std = series.mean(), series.std(ddof=0).fillna(0.0)
+                if mean.notna().any():
+                    color = f"C{i % 10}"  # the 10-colour cycle; ablations dashed, so no two lines look alike
+                    style = "-" if ablation == "none" else "--"
+                    label = method_label(method, planner, ablation)
+                    ax.plot(mean.index, mean.to_numpy(), color=color, linestyle=style, label=label)
+                    low, high = (mean - std).to_numpy(), (mean + std).to_numpy()
+                    ax.fill_between(mean.index, low, high, alpha=0.2, color=color)
+            ax.set_title(f"{m.label} {m.arrow}")
+            ax.set_xlabel("step")
+        handles, labels = axes[0].get_legend_handles_labels()
+        if handles:
+            fig.legend(handles, labels, loc="upper right")
+        fig.suptitle(f"{scene} ({budget} budget)")
+        path = figures / f"curves_{scene}_{budget}.png"
+        save_figure(fig, path)
+        written.append(path)
+    return written
+
+
+def image_grid(run_dir: Path, out_path: Path, max_rows: int = 5) -> Path | None:
+    """Assemble ``images/step_XX_<kind>.png`` of a run into one grid: rows = up to ``max_rows`` evenly
+    spaced steps (first and last included), columns = GT, prediction, score/entropy map, depth, others.
+    None when the run saved no images."""
+    found: dict[int, dict[str, Path]] = {}
+    for path in sorted((Path(run_dir) / "images").glob("step_*.png")):
+        match = IMAGE_NAME.fullmatch(path.name)
+        if match:
+            found.setdefault(int(match.group(1)), {})[match.group(2)] = path
+    if not found:
+        return None
+    kinds = sorted(
+        {kind for images in found.values() for kind in images},
+        key=lambda kind: (rank(IMAGE_KINDS, kind), kind),
+    )
+    steps = sorted(found)
+    steps = [steps[round(i)] for i in np.linspace(0, len(steps) - 1, min(max_rows, len(steps)))]
+    fig = Figure(figsize=(2.5 * len(kinds), 2.5 * len(steps)), layout="constrained")
+    axes = np.asarray(fig.subplots(len(steps), len(kinds), squeeze=False))
+    for i, step in enumerate(steps):
+        for j, kind in enumerate(kinds):
+            ax = axes[i, j]
+            ax.set_axis_off()
+            if kind in found[step]:
+                image = iio.imread(found[step][kind])
+                ax.imshow(image[..., :3] if image.ndim == 3 else image, cmap=None if image.ndim == 3 else "viridis")
+            if i == 0:
+                ax.set_title(dict(IMAGE_KINDS).get(kind, kind))
+            if j == 0:
+                ax.text(-0.05, 0.5, f"step {step}", transform=ax.transAxes, rotation=90, ha="right", va="center")
+    save_figure(fig, Path(out_path))
+    return Path(out_path)

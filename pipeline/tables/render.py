@@ -1,0 +1,86 @@
+"""A ``Table`` as Markdown, CSV and LaTeX texts: cells 'mean ± std' (bold for the best, † where some
+seeds lack the value), header lines and footnotes."""
+
+import pandas as pd
+
+from pipeline.metrics.info import PAPER_METRICS
+from pipeline.tables.aggregate import Table
+
+
+def _cell(row: pd.Series, metric: str, decimals: int) -> str:
+    """'mean ± std' ('mean' alone from one seed; bold if best, † if some seeds lack it, '-' if none has
+    it), then ' / paper' if any."""
+    mean, std, valid = row[f"{metric}_mean"], row[f"{metric}_std"], row[f"{metric}_valid"]
+    text = "-"
+    if valid > 0:
+        text = f"{mean:.{decimals}f}" + (f" ± {std:.{decimals}f}" if valid > 1 else "")
+        if row.get(f"{metric}_best", False):
+            text = f"**{text}**"
+        text += "†" if valid < row["n"] else ""
+    if f"{metric}_paper" in row:
+        text += f" / {row[f'{metric}_paper']:.{decimals}f}"
+    return text
+
+
+def _grid(table: Table, label_header: str) -> tuple[list[str], list[list[str]]]:
+    """Column names and Markdown cell texts (csv drops the bold marks, tex converts them)."""
+    keys = (["section"] if "section" in table.rows else []) + (["budget"] if table.rows["budget"].nunique() > 1 else [])
+    columns = [key.capitalize() for key in keys] + ["Scene", label_header]
+    columns += [f"{m.label}{m.arrow}" for m in PAPER_METRICS] + ["n"]
+    cells = []
+    for _, row in table.rows.iterrows():
+        line = [str(row[key]) for key in keys] + [row["scene"], row["label"]]
+        line += [_cell(row, m.name, m.decimals) for m in PAPER_METRICS]
+        cells.append(line + [str(int(row["n"]))])
+    return columns, cells
+
+
+TEX_SPECIALS = (
+    ("\\", r"\textbackslash{}"), ("&", r"\&"), ("%", r"\%"), ("$", r"\$"), ("#", r"\#"), ("_", r"\_"),
+    ("{", r"\{"), ("}", r"\}"), ("~", r"\textasciitilde{}"), ("^", r"\textasciicircum{}"),
+    ("±", r"$\pm$"), ("↑", r"$\uparrow$"), ("↓", r"$\downarrow$"), ("†", r"$^\dagger$"),
+)
+
+
+def tex_escape(text: str) -> str:
+    """LaTeX for plain text (specials escaped, ± ↑ ↓ † as math); '**x**' (a best cell) becomes bold."""
+    specials = dict(TEX_SPECIALS)
+    bold = text.startswith("**") and "**" in text[2:]
+    if bold:
+        inner, rest = text[2:].split("**", 1)
+        return r"\textbf{" + tex_escape(inner) + "}" + tex_escape(rest)
+    return "".join(specials.get(ch, ch) for ch in text)
+
+
+def render(table: Table, label_header: str, experiment: str | None) -> dict[str, str]:
+    """The table as {'md', 'csv', 'tex'} texts ('no runs yet' texts when it has no rows)."""
+    if table.rows.empty:
+        command = f"python -m pipeline.run -m experiment={experiment}" if experiment else "python -m pipeline.run"
+        message = f"No runs yet for {table.name}: run `{command}`, then `python -m pipeline.tables`."
+        return {
+            "md": "\n".join([f"# {table.title}", "", message, "", *(f"- {n}" for n in table.notes)]).rstrip() + "\n",
+            "csv": pd.DataFrame({"note": [message, *table.notes]}).to_csv(index=False),
+            "tex": "\n".join([f"% {table.title}", tex_escape(message), *(tex_escape(n) for n in table.notes)]) + "\n",
+        }
+    columns, cells = _grid(table, label_header)
+    markdown = pd.DataFrame(cells, columns=columns).to_markdown(index=False, disable_numparse=True)
+    md = [f"# {table.title}", "", *table.header, "", markdown, "", *(f"- {n}" for n in table.notes)]
+    plain = [[c.replace("**", "") for c in line] for line in cells]
+    csv = "".join(f"# {line}\n" for line in (table.title, *table.header))
+    csv += pd.DataFrame(plain, columns=columns).to_csv(index=False) + "".join(f"# {n}\n" for n in table.notes)
+    tex = [
+        f"% {table.title}",
+        *(f"% {line}" for line in table.header),
+        r"\begin{tabular}{" + "l" * (len(columns) - 9) + "c" * 8 + "r}",
+        r"\toprule",
+        " & ".join(map(tex_escape, columns)) + r" \\",
+        r"\midrule",
+        *(" & ".join(map(tex_escape, line)) + r" \\" for line in cells),
+        r"\bottomrule",
+        r"\end{tabular}",
+        *(r"\par{\footnotesize " + tex_escape(n) + "}" for n in table.notes),
+    ]
+    return {"md": "\n".join(md) + "\n", "csv": csv, "tex": "\n".join(tex) + "\n"}
+
+
+LABEL_HEADERS = {"table2_ablation": "Variant"}

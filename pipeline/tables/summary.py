@@ -1,0 +1,44 @@
+"""One run's per-step metrics as Markdown (``<run_dir>/summary.md``), with the paper's row for its scene
+and method where the paper has one."""
+
+import math
+from pathlib import Path
+
+import pandas as pd
+
+from pipeline.metrics.info import PAPER_METRICS
+from pipeline.records.store import atomic_write_text, record_status
+from pipeline.tables.labels import METRIC_KEYS, base_scene, method_label
+from pipeline.tables.load import load_run, metric_value
+from pipeline.tables.paper import paper_numbers
+
+
+def summarize_run(run_dir: Path) -> Path:
+    """Per-step metrics of one run (and the paper's row for its scene and method, if any) as Markdown
+    in ``<run_dir>/summary.md``; returns its path."""
+    info, rows = load_run(Path(run_dir))
+    label = method_label(info["method"], info["planner"], info["ablation"])
+    columns = ["Step", "Views"] + [f"{m.label}{m.arrow}" for m in PAPER_METRICS] + ["Seconds"]
+    cells = []
+    for row in rows:
+        if row.get("status", "ok") != "ok" or not isinstance(row.get("metrics"), dict):
+            continue
+        values = [metric_value(row["metrics"].get(metric)) for metric in METRIC_KEYS]
+        seconds = row.get("seconds") if isinstance(row.get("seconds"), dict) else {}
+        total = sum(v for v in seconds.values() if isinstance(v, (int, float)))
+        line = [str(row["step"]), str(row.get("n_views", ""))]
+        line += ["-" if v is None or math.isnan(v) else f"{v:.{m.decimals}f}" for v, m in zip(values, PAPER_METRICS)]
+        cells.append(line + [f"{total:.1f}"])
+    paper = paper_numbers()
+    match = paper[paper["table"].isin(["S3", "S4"]) & (paper["scene"] == base_scene(info["scene"]))]
+    for _, ref in match[match["method"] == label].iterrows():
+        cells.append([f"paper ({ref['table']})", ""] + [f"{ref[m.name]:.{m.decimals}f}" for m in PAPER_METRICS] + [""])
+    table = pd.DataFrame(cells, columns=columns).to_markdown(index=False, disable_numparse=True)
+    source = info.get("scene_source", "unknown")
+    notes = [f"Status: {record_status(info, Path(run_dir))}. Scene source: {source}."]
+    if info.get("lpips_missing_reason"):
+        notes.append(f"LPIPS missing: {info['lpips_missing_reason']}.")
+    title = f"# {info['scene']} / {label} / {info['budget']} budget / seed {info['seed']}"
+    path = Path(run_dir) / "summary.md"
+    atomic_write_text(path, "\n".join([title, "", table, "", *(f"- {n}" for n in notes)]) + "\n")
+    return path
