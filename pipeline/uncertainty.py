@@ -39,8 +39,11 @@ from torch import Tensor
 from tqdm import tqdm
 
 from nvf.cameras import look_at
+from nvf.config import BaselineConfig, EntropyConfig
+from nvf.methods import load_method
 from nvf.model import SceneModel
 from nvf.training import Observations
+from pipeline.config.catalog import ablation_configs, method_configs
 from pipeline.config.validation import compose_config
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings, resolve_device
@@ -49,17 +52,28 @@ from pipeline.metrics.image import LpipsMetric
 from pipeline.config.named import GROUPS, NamedConfigs
 from pipeline.records.store import atomic_write_bytes, atomic_write_text, to_jsonable
 from pipeline.repo import CONF, RESULTS
-from pipeline.scenes.scene import S, Scene, SceneError, load_scene
+from pipeline.scenes.scene import Scene, SceneError, load_scene
 from pipeline.tables.aggregate import mean_std_valid
-from pipeline.tables.labels import method_label
+from pipeline.tables.labels import row_name
 
+S = 0.16665  # PROTOCOL 2.3: the reference's scale unit s (Hubble's partial views)
 PARTIAL_VIEWS = 20
 PARTIAL_SEED = 0
-# (method, ablation) scored, in the order of the table and the figure
-ENTRIES = (
-    ("nvf", "none"), ("nvf", "wo_vis"), ("nvf", "wo_var"), ("nvf", "ind_rays"), ("nvf", "loose"),
-    ("wd", "none"), ("activermap", "none"), ("air", "none"), ("activenerf", "none"), ("neurar", "none"),
-)  # fmt: skip
+
+
+def all_entries() -> tuple[tuple[str, str], ...]:
+    """Every (method, ablation) with a score, in the order of the table and the figure: each ablated method
+    (NVF), then its ablations in Table S2's order, then the other methods that score views, in table order
+    (``conf/method``, ``conf/ablation``; Random has no score)."""
+    ablations = [a for a in ablation_configs().values() if a["name"] != "none"]
+    ablated = {a["of"] for a in ablations}
+    entries = [(method, "none") for method in ablated] + [(a["of"], a["name"]) for a in ablations]
+    scoring = [name for name, m in method_configs().items() if load_method(m["implementation"]).scorer(
+        EntropyConfig(), BaselineConfig(), 1.0) is not None]  # fmt: skip
+    return (*entries, *((name, "none") for name in scoring if name not in ablated))
+
+
+ENTRIES = all_entries()
 SEEDS = (100, 101, 102)  # one model per entry and seed, as the tables' three seeds
 COLUMNS = (("patch_pearson", "patch r ↑"), ("view_pearson", "view r ↑"), ("ause", "AUSE ↓"), ("psnr", "PSNR ↑"))
 
@@ -167,12 +181,13 @@ def score_seed(
             obs = episode.observations()
             trained[key] = (episode, obs, episode.train(obs, 0)[0])
         episode, obs, model = trained[key]
-        scorer = EpisodeSettings.of(cfg, partial).scorer(method)
+        scorer = EpisodeSettings.of(cfg, partial).scorer(load_method(cfg.method.implementation))
         metrics, images, view_sums = episode.evaluator.evaluate(model, scorer, episode.face_ids, obs, 0, view)
-        results.append({"seed": seed, "trained_as": "/".join(key), **metrics} | view_sums)
+        label = row_name(OmegaConf.to_container(cfg, resolve=True)).label
+        results.append({"seed": seed, "label": label, "trained_as": "/".join(key), **metrics} | view_sums)
         arrays.setdefault("gt", images["gt"])
         arrays.setdefault("pred", images["pred"])
-        arrays[f"score:{method_label(method, 'argmax', ablation)}"] = images["score"]
+        arrays[f"score:{label}"] = images["score"]
     return results, arrays
 
 
@@ -204,7 +219,7 @@ def run(
         raise ArgumentError("a seed= override: the experiment's seeds are --seeds (default 100,101,102)")
     overrides = overrides if any(o.startswith("scene=") for o in overrides) else ["scene=hotdog", *overrides]
     base = compose_config(overrides)
-    scene = load_scene(base.scene.name, Path(base.paths.assets))
+    scene = load_scene(base.scene, Path(base.paths.assets))
     partial = dataclasses.replace(scene, init_poses=partial_views(scene, torch.Generator().manual_seed(PARTIAL_SEED)))
     view = least_seen_view(scene.eval_poses, partial.init_poses)
     label = budget_label(base)
@@ -224,7 +239,7 @@ def run(
             save_seed(path, results, arrays, time.perf_counter() - start)
         per_seed[seed] = load_seed(path)
     rows = [
-        {"label": method_label(method, "argmax", ablation), "method": method, "ablation": ablation,
+        {"label": per_seed[seeds[0]][0][i]["label"], "method": method, "ablation": ablation,
          "trained_as": per_seed[seeds[0]][0][i]["trained_as"], **summary([per_seed[s][0][i] for s in seeds])}
         for i, (method, ablation) in enumerate(entries)
     ]  # fmt: skip

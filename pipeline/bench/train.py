@@ -86,7 +86,7 @@ class CountingModel(SceneModel):
 def load(cfg: DictConfig) -> Scene:
     """The configured scene; a missing mesh exits with one line (status 2)."""
     try:
-        return load_scene(cfg.scene.name, Path(cfg.paths.assets))
+        return load_scene(cfg.scene, Path(cfg.paths.assets))
     except SceneError as err:
         print(f"error: {err}", file=sys.stderr)
         raise SystemExit(2) from None

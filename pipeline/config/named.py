@@ -12,6 +12,7 @@ from hydra.core.global_hydra import GlobalHydra
 from hydra.errors import HydraException
 from omegaconf import OmegaConf
 
+from pipeline.records.compat import drop_retired
 from pipeline.records.store import to_jsonable
 from pipeline.config.schema import register_configs
 
@@ -66,5 +67,5 @@ class NamedConfigs:
         config = info.get("config")
         if named is None or not isinstance(config, Mapping):
             return ()
-        recorded = {k: v for k, v in to_jsonable(dict(config)).items() if k not in NOT_SETTINGS}
+        recorded = {k: v for k, v in drop_retired(to_jsonable(dict(config))).items() if k not in NOT_SETTINGS}
         return tuple(f"{key}={_text(value)}" for key, value in changed_settings(recorded, named))

@@ -13,8 +13,7 @@ from hydra.errors import HydraException
 from omegaconf import DictConfig, OmegaConf
 
 from nvf.config import STAGES
-from nvf.training import AUX_LOSSES
-from nvf.uncertainty.scorers import METHODS
+from nvf.methods import load_method
 from pipeline.config.named import changed_settings
 from pipeline.repo import CONF
 from pipeline.config.schema import register_configs
@@ -27,8 +26,6 @@ class ConfigError(ValueError):
 
 
 _CHOICES: dict[str, tuple[Any, ...]] = {
-    "method.name": METHODS,
-    "method.aux_loss": AUX_LOSSES,
     "ablation.name": ABLATIONS,
     "planner.name": ("argmax", "opt"),
     "planner.opt.param": ("quat_raw", "se3"),
@@ -102,6 +99,10 @@ def validate(cfg: DictConfig) -> None:
         value = OmegaConf.select(cfg, key)
         if value is None or value <= 0:
             raise ConfigError(f"{key}={value!r} must be positive")
+    try:
+        load_method(cfg.method.implementation)
+    except ValueError as err:
+        raise ConfigError(f"method.implementation: {err} (conf/method/{cfg.method.name}.yaml)") from None
     stages = list(cfg.method.stages)
     if not stages or stages[0] != "backbone" or any(s not in STAGES for s in stages):
         raise ConfigError(f"method.stages={stages} must start with 'backbone' and use only {', '.join(STAGES)}")

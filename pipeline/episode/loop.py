@@ -15,6 +15,7 @@ import torch
 from omegaconf import DictConfig
 
 from nvf.cameras import Intrinsics, matrix_to_pose, pose_to_matrix
+from nvf.methods import load_method
 from nvf.model import SceneModel
 from nvf.planning import select_next_view
 from nvf.seeding import generator_factory, seeded_generator
@@ -41,7 +42,8 @@ class Episode:
         size = cfg.budget.image_size
         self.intrinsics = Intrinsics.from_fov(size, size)
         self.plan_intrinsics = Intrinsics.from_fov(cfg.planner.resolution, cfg.planner.resolution)
-        self.scorer = self.settings.scorer(cfg.method.name)
+        self.method = load_method(cfg.method.implementation)
+        self.scorer = self.settings.scorer(self.method)
         self.evaluator = Evaluator(scene, self.renderer, cfg, device, lpips)
         self.poses: list[torch.Tensor] = []
         self.images: list[np.ndarray] = []  # RGBA [H, W, 4] training images, budget.gt_samples^2 per pixel
@@ -82,7 +84,7 @@ class Episode:
         model = self.new_model(step)
         stats = train_model(
             model, obs, s.train, list(cfg.method.stages), s.entropy,
-            seeded_generator(cfg.seed, step, "train", self.device), cfg.method.aux_loss, progress,
+            seeded_generator(cfg.seed, step, "train", self.device), self.method.aux_loss, progress,
         )  # fmt: skip
         return model, stats
 

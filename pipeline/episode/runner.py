@@ -89,7 +89,7 @@ def run_episode(cfg: DictConfig) -> Path:
     torch.set_num_threads(torch_threads())
     torch.manual_seed(int(cfg.seed))
     np.random.seed(int(cfg.seed) % 2**32)
-    scene = load_scene(cfg.scene.name, Path(cfg.paths.assets))
+    scene = load_scene(cfg.scene, Path(cfg.paths.assets))
     device = resolve_device(cfg.device)
     lpips = LpipsMetric()
     episode = Episode(cfg, scene, device, lpips)

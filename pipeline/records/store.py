@@ -23,6 +23,7 @@ from types import MappingProxyType
 from typing import Any
 
 from pipeline.metrics.info import METRICS
+from pipeline.records.compat import drop_retired
 from pipeline.repo import REPO
 
 KEY_PATTERN = re.compile(r"[A-Za-z0-9_.-]+")
@@ -184,8 +185,9 @@ def _parse_row(line: str) -> dict | None:
 
 
 def _settings(config: Any) -> Any:
-    """A resolved config without its ``paths`` group (locations, not experiment settings)."""
-    return {k: v for k, v in config.items() if k != "paths"} if isinstance(config, Mapping) else config
+    """A resolved config without its ``paths`` group (locations, not experiment settings) and without the
+    keys the schema has retired (``pipeline.records.compat``)."""
+    return {k: v for k, v in drop_retired(config).items() if k != "paths"} if isinstance(config, Mapping) else config
 
 
 def first_difference(old: Any, new: Any, prefix: str = "") -> tuple[str, Any, Any] | None:
