@@ -15,7 +15,7 @@ unlike every training view (``least_seen_view``). ``--entries nvf,nvf-wo_vis,wd`
 
 Every entry is trained and scored once per seed of ``--seeds`` (default ``SEEDS``, the tables' three):
 one model's correlations move by up to 0.2 (view r) with float-level differences alone (1 against 2
-torch threads, docs/BUDGETS.md), so a row is the mean ± population std over the seeds, and the JSON keeps
+torch threads, results/uncertainty/README.md), so a row is the mean ± population std over the seeds, and the JSON keeps
 every seed's numbers. Seeds other than ``SEEDS`` are appended to the file name. A killed run resumes at
 its first missing seed.
 """
