@@ -1,4 +1,4 @@
-"""pipeline/metrics.py + pipeline/lpips_weights.py: PROTOCOL.md 4 metric definitions."""
+"""pipeline/metrics/image.py + pipeline/metrics/lpips_weights.py: PROTOCOL.md 4 metric definitions."""
 
 import math
 
