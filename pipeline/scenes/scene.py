@@ -1,7 +1,7 @@
 """Scene registry: meshes in the Z-up scene frame, boxes, constants and view rigs (PROTOCOL.md 2).
 
 Scenes: the ten paper scenes (mesh-backed), ``default`` (embedded procedural object) and
-``<name>_proxy`` for the seven NeRF-synthetic objects (procedural analogues, pipeline.procedural).
+``<name>_proxy`` for the seven NeRF-synthetic objects (procedural analogues, pipeline.scenes.procedural).
 
 Mesh lookup under the assets directory (argument, else ``NVF_ASSETS``, else ``<repo>/data/assets``;
 the Hydra key is ``paths.assets``):
