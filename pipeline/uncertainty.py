@@ -6,7 +6,7 @@ a one-sided "partial" training set (``partial_views``, drawn with seed 0) instea
 initial views. NVF's four ablations change only the score, so they are scored on NVF's model (unless
 ``train.ablation_affects_training``, which trains them on their own). On the scene's 20 evaluation
 views each entry's per-pixel score is correlated with the per-pixel error (patch- and view-level
-Pearson r, AUSE; ``pipeline.metrics.uncertainty_correlation``), next to the image and geometry
+Pearson r, AUSE; ``pipeline.metrics.correlation.uncertainty_correlation``), next to the image and geometry
 metrics of its model (PROTOCOL 4). Writes ``results/uncertainty/<scene>_<budget>.{json,md,png}`` (or
 ``--out DIR``; settings beyond the budget are appended to its name, as in the tables): the numbers, a
 table, and GT | prediction | error | every entry's score map of the evaluation view that looks most
@@ -15,7 +15,7 @@ unlike every training view (``least_seen_view``). ``--entries nvf,nvf-wo_vis,wd`
 
 Every entry is trained and scored once per seed of ``--seeds`` (default ``SEEDS``, the tables' three):
 one model's correlations move by up to 0.2 (view r) with float-level differences alone (1 against 2
-torch threads, docs/BUDGETS.md), so a row is the mean ± population std over the seeds, and the JSON keeps
+torch threads, results/uncertainty/README.md), so a row is the mean ± population std over the seeds, and the JSON keeps
 every seed's numbers. Seeds other than ``SEEDS`` are appended to the file name. A killed run resumes at
 its first missing seed.
 """
@@ -263,7 +263,7 @@ def run(
 
 def budget_label(cfg: DictConfig) -> str:
     """The budget plus every setting beyond the named groups (``cpu+train.visibility.iters=500``), as the
-    tables label runs (``pipeline.overrides``), so another setting never overwrites the plain budget's files."""
+    tables label runs (``pipeline.config.named``), so another setting never overwrites the plain budget's files."""
     info = {group: cfg[group].name for group in GROUPS} | {"config": OmegaConf.to_container(cfg, resolve=True)}
     return NamedConfigs(CONF).budget_label(info)
 

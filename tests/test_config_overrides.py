@@ -1,4 +1,4 @@
-"""pipeline.config.compose_config outside @hydra.main (kept apart from test_config.py, whose module fixture
+"""pipeline.config.validation.compose_config outside @hydra.main (kept apart from test_config.py, whose module fixture
 holds Hydra's global state): every bad override is one line and status 2."""
 
 import pytest

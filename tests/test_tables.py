@@ -1,4 +1,4 @@
-"""pipeline/tables.py: long CSV, aggregation over seeds at the last step, paper-style tables, figures."""
+"""pipeline/tables/: long CSV, aggregation over seeds at the last step, paper-style tables, figures."""
 
 import subprocess
 import sys

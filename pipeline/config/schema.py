@@ -86,7 +86,7 @@ class AblationConfig:
 
 @dataclass
 class BudgetConfig:
-    """What a budget scales besides training, planning and field sizes (DESIGN.md, budgets)."""
+    """What a budget scales besides training, planning and field sizes (docs/BUDGETS.md)."""
 
     name: str = "paper"
     image_size: int = 512  # ground truth and training images (square, 90 degree FoV)

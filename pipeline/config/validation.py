@@ -1,4 +1,4 @@
-"""Validation of a run's configuration (the schema is ``pipeline.schema``): ``validate`` runs before any
+"""Validation of a run's configuration (the schema is ``pipeline.config.schema``): ``validate`` runs before any
 work and raises ``ConfigError`` with one line naming the key; ``compose_config`` composes and validates
 a config outside ``@hydra.main`` (benchmarks, experiments).
 """

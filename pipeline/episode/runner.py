@@ -31,7 +31,7 @@ class StepFailed(RuntimeError):
 
 
 def torch_threads() -> int:
-    """Threads per job: the machine's cores divided among the launcher's parallel jobs (DESIGN.md:
+    """Threads per job: the machine's cores divided among the launcher's parallel jobs (measured:
     two 2-thread jobs on 2 cores ran 3.5x slower than two 1-thread jobs)."""
     cores = os.cpu_count() or 1
     jobs = 1
