@@ -7,7 +7,7 @@ initial views. NVF's four ablations change only the score, so they are scored on
 ``train.ablation_affects_training``, which trains them on their own). On the scene's 20 evaluation
 views each entry's per-pixel score is correlated with the per-pixel error (patch- and view-level
 Pearson r, AUSE; ``pipeline.metrics.correlation.uncertainty_correlation``), next to the image and geometry
-metrics of its model (PROTOCOL 4). Writes ``results/uncertainty/<scene>_<budget>.{json,md,png}`` (or
+metrics of its model (PROTOCOL 4). Writes ``${paths.results}/uncertainty/<scene>_<budget>.{json,md,png}`` (or
 ``--out DIR``; settings beyond the budget are appended to its name, as in the tables): the numbers, a
 table, and GT | prediction | error | every entry's score map of the evaluation view that looks most
 unlike every training view (``least_seen_view``). ``--entries nvf,nvf-wo_vis,wd`` runs a subset of
@@ -43,6 +43,7 @@ from nvf.config import BaselineConfig, EntropyConfig
 from nvf.methods import load_method
 from nvf.model import SceneModel
 from nvf.training import Observations
+from pipeline.cli import description, fail
 from pipeline.config.catalog import ablation_configs, method_configs
 from pipeline.config.validation import compose_config
 from pipeline.episode.loop import Episode
@@ -51,7 +52,7 @@ from pipeline.episode.images import colorize, save_figure
 from pipeline.metrics.image import LpipsMetric
 from pipeline.config.named import GROUPS, NamedConfigs
 from pipeline.records.store import atomic_write_bytes, atomic_write_text, to_jsonable
-from pipeline.repo import CONF, RESULTS
+from pipeline.repo import CONF
 from pipeline.scenes.scene import Scene, SceneError, load_scene
 from pipeline.tables.aggregate import mean_std_valid
 from pipeline.tables.labels import row_name
@@ -228,7 +229,7 @@ def run(
         name += "+entries=" + ",".join(entry_name(*entry) for entry in entries)
     if seeds != SEEDS:
         name += "+seeds=" + ",".join(map(str, seeds))
-    out = RESULTS / "uncertainty" if out is None else out
+    out = Path(base.paths.results) / "uncertainty" if out is None else out
     finished = out / f".{name}.seeds"
     lpips, per_seed = LpipsMetric(), {}
     for seed in tqdm(seeds, desc="seeds", disable=not sys.stderr.isatty()):
@@ -315,9 +316,9 @@ def figure(shown: dict, maps: dict[str, np.ndarray]) -> Figure:
 
 
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.uncertainty", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m pipeline.uncertainty", description=description(__doc__))
     parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. scene=hubble budget=smoke")
-    parser.add_argument("--out", type=Path, default=None, help="output directory (default results/uncertainty)")
+    parser.add_argument("--out", type=Path, default=None, help="output directory (default ${paths.results}/uncertainty)")
     parser.add_argument("--entries", default=None, help="comma-separated subset, e.g. nvf,nvf-wo_vis,wd (default all)")
     parser.add_argument("--seeds", default=None, help="comma-separated training seeds (default 100,101,102)")
     args = parser.parse_intermixed_args(argv)
@@ -325,8 +326,7 @@ def main(argv: list[str]) -> int:
     try:
         written = run(args.overrides, args.out, select_entries(names), parse_seeds(args.seeds))
     except (SceneError, ArgumentError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
+        fail(str(err))
     print("pipeline.uncertainty: wrote " + ", ".join(map(str, written)))
     return 0
 
