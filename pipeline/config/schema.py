@@ -104,6 +104,14 @@ class MetricsConfig:
 
 
 @dataclass
+class DiagnosticsConfig:
+    """Extra measurements recorded in each step's row; they never change a run's views or metrics, so they
+    are not settings (records made with and without them are the same run)."""
+
+    rank_against: str | None = None  # an ablation (conf/ablation) whose score ranks the same candidates too
+
+
+@dataclass
 class NvfConfig:
     entropy: EntropyConfig = dataclasses.field(default_factory=EntropyConfig)
 
@@ -124,6 +132,7 @@ class RunConfig:
     nvf: NvfConfig = dataclasses.field(default_factory=NvfConfig)
     baseline: BaselineConfig = dataclasses.field(default_factory=BaselineConfig)
     metrics: MetricsConfig = dataclasses.field(default_factory=MetricsConfig)
+    diagnostics: DiagnosticsConfig = dataclasses.field(default_factory=DiagnosticsConfig)
     seed: int = 100
     device: str = "auto"  # auto | cpu | cuda | cuda:N
     save_images: bool = True

@@ -14,6 +14,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from nvf.config import STAGES
 from nvf.methods import load_method
+from pipeline.config.catalog import declared
 from pipeline.config.named import changed_settings
 from pipeline.repo import CONF
 from pipeline.config.schema import register_configs
@@ -122,6 +123,9 @@ def validate(cfg: DictConfig) -> None:
             f"nvf.entropy.d0={d0} must be a number >= 0 (0 = Ind. Rays), auto (0.25 x the object box's diagonal) "
             "or null (the scene's value)"
         )
+    rival = cfg.diagnostics.rank_against
+    if rival is not None and rival not in declared("ablation"):
+        raise ConfigError(f"diagnostics.rank_against={rival!r} is not one of {', '.join(declared('ablation'))}")
     _check_device(str(cfg.device))
 
 

@@ -7,6 +7,9 @@ tables), because its value is implied by keys that remain: it never makes an old
 from collections.abc import Mapping
 from typing import Any
 
+# what never changes a run's views or metrics (added measurements, whether images are saved): not part of its identity
+NOT_SETTINGS = ("diagnostics", "save_images")
+
 RETIRED_KEYS = {
     "method.aux_loss": "implied by method.name: a method's stage-1 loss belongs to its class (nvf.methods)",
 }
