@@ -102,8 +102,10 @@ def per_seed(outputs: Path, budget: str, planner: str, scenes: tuple[str, ...], 
     final = runs.final[
         (runs.final["status"] == "done") & (runs.final["budget"] == budget) & (runs.final["planner"] == planner)
     ]
+    entries = {NVF, WO_VIS, IND_RAYS, *BASELINES}
+    mine = np.array([(m, a) in entries for m, a in zip(final["method"], final["ablation"])], dtype=bool)
     rows = []
-    for _, run in final[final["scene"].isin(scenes) & final["seed"].isin(seeds)].iterrows():
+    for _, run in final[final["scene"].isin(scenes) & final["seed"].isin(seeds) & mine].iterrows():
         steps = [json.loads(line) for line in (Path(run["directory"]) / "steps.jsonl").read_text().splitlines()]
         agreement = [s["rank_agreement"] for s in steps if "rank_agreement" in s]
         rows.append({
