@@ -49,6 +49,7 @@ from pipeline.metrics.image import LpipsMetric
 from pipeline.config.named import GROUPS, NamedConfigs
 from pipeline.records.store import atomic_write_bytes, atomic_write_text, to_jsonable
 from pipeline.repo import CONF, RESULTS
+from pipeline.scenes.blender import blender_python
 from pipeline.scenes.scene import S, Scene, SceneError, load_scene
 from pipeline.tables.aggregate import mean_std_valid
 from pipeline.tables.labels import method_label
@@ -204,7 +205,7 @@ def run(
         raise ArgumentError("a seed= override: the experiment's seeds are --seeds (default 100,101,102)")
     overrides = overrides if any(o.startswith("scene=") for o in overrides) else ["scene=hotdog", *overrides]
     base = compose_config(overrides)
-    scene = load_scene(base.scene.name, Path(base.paths.assets))
+    scene = load_scene(base.scene.name, Path(base.paths.assets), blender_python(base.paths.blender_python))
     partial = dataclasses.replace(scene, init_poses=partial_views(scene, torch.Generator().manual_seed(PARTIAL_SEED)))
     view = least_seen_view(scene.eval_poses, partial.init_poses)
     label = budget_label(base)

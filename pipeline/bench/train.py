@@ -57,6 +57,7 @@ from pipeline.metrics.evaluation import RENDER_CHUNK
 from pipeline.metrics.image import off_edge_psnr, psnr
 from pipeline.scenes.render import GroundTruthRenderer
 from pipeline.repo import RESULTS
+from pipeline.scenes.blender import blender_python
 from pipeline.scenes.scene import Scene, SceneError, load_scene
 
 GOALS = {"train_samples_per_s": 1e6, "infer_samples_per_s": 3e6}
@@ -86,7 +87,7 @@ class CountingModel(SceneModel):
 def load(cfg: DictConfig) -> Scene:
     """The configured scene; a missing mesh exits with one line (status 2)."""
     try:
-        return load_scene(cfg.scene.name, Path(cfg.paths.assets))
+        return load_scene(cfg.scene.name, Path(cfg.paths.assets), blender_python(cfg.paths.blender_python))
     except SceneError as err:
         print(f"error: {err}", file=sys.stderr)
         raise SystemExit(2) from None

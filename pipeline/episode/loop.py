@@ -22,7 +22,7 @@ from nvf.training import Observations, TrainStats, train_model
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.evaluation import Evaluator
 from pipeline.metrics.image import LpipsMetric
-from pipeline.scenes.render import GroundTruthRenderer
+from pipeline.scenes.ground_truth import open_renderer
 from pipeline.scenes.scene import Scene
 
 # (stage, iteration, total, loss) -> None: drives the inner progress bar
@@ -30,25 +30,34 @@ TrainProgress = Callable[[str, int, int, float], None]
 
 
 class Episode:
-    """The state of one episode: the scene, its renderer, the observed views and the evaluator."""
+    """The state of one episode: the scene, its ground-truth renderer (one per episode: for
+    ``render.backend=blender`` one Blender process; ``close`` ends it), the observed views and the evaluator."""
 
     def __init__(self, cfg: DictConfig, scene: Scene, device: torch.device, lpips: LpipsMetric):
         self.cfg = cfg
         self.scene = scene
         self.device = device
         self.settings = EpisodeSettings.of(cfg, scene)
-        self.renderer = GroundTruthRenderer(scene.mesh)
+        self.renderer = open_renderer(scene, cfg)
         size = cfg.budget.image_size
         self.intrinsics = Intrinsics.from_fov(size, size)
         self.plan_intrinsics = Intrinsics.from_fov(cfg.planner.resolution, cfg.planner.resolution)
         self.scorer = self.settings.scorer(cfg.method.name)
-        self.evaluator = Evaluator(scene, self.renderer, cfg, device, lpips)
         self.poses: list[torch.Tensor] = []
         self.images: list[np.ndarray] = []  # RGBA [H, W, 4] training images, budget.gt_samples^2 per pixel
         self.face_ids: list[np.ndarray] = []  # [H, W] face hit by each pixel-centre ray, for Vis. (PROTOCOL 4.3)
-        for c2w in scene.init_poses:
-            self.observe(c2w)
+        try:
+            self.evaluator = Evaluator(scene, self.renderer, cfg, device, lpips)
+            for c2w in scene.init_poses:
+                self.observe(c2w)
+        except BaseException:
+            self.close()
+            raise
         self.previous_model: SceneModel | None = None
+
+    def close(self) -> None:
+        """Release the ground-truth renderer (for Blender, end its process)."""
+        self.renderer.close()
 
     def observe(self, c2w: torch.Tensor) -> None:
         """Render the ground truth at ``c2w`` and add it to the observations."""

@@ -3,15 +3,17 @@
 Scenes: the ten paper scenes (mesh-backed), ``default`` (embedded procedural object) and
 ``<name>_proxy`` for the seven NeRF-synthetic objects (procedural analogues, pipeline.procedural).
 
-Mesh lookup under the assets directory (argument, else ``NVF_ASSETS``, else ``<repo>/data/assets``;
-the Hydra key is ``paths.assets``):
+Asset lookup under the assets directory (argument, else ``NVF_ASSETS``, else ``<repo>/data/assets``;
+the Hydra key is ``paths.assets``): the first of ``<name>/<name>.blend``, ``.glb``, ``.gltf``, ``.ply``,
+``.obj`` that exists (a .blend is preferred over a mesh), then the development file names
+``room/room_nvf_gt_yup.obj`` (+ .mtl; Y-up, mapped by (x, y, z) -> (x, -z, y)),
+``hotdog/hotdog_nvf_geom_heuristic_colors.ply`` and ``hubble/hubble_nasaA_zup_m.glb``. Hubble's asset is
+fitted uniformly into the tight box (PROTOCOL 2.2); every other asset must already be in the Z-up scene
+frame: its bounds must match the PROTOCOL 2.1 tight box to 5% of its diagonal (a Y-up export fails).
 
-- room: ``room/room_nvf_gt_yup.obj`` (+ .mtl), Y-up, mapped by (x, y, z) -> (x, -z, y);
-- hotdog: ``hotdog/hotdog_nvf_geom_heuristic_colors.ply``, used as is;
-- hubble: ``hubble/hubble_nasaA_zup_m.glb``, fitted uniformly into the tight box (PROTOCOL 2.2);
-- chair, drums, ficus, lego, materials, mic, ship: the first of ``<name>/<name>.glb``, ``.gltf``,
-  ``.ply``, ``.obj`` that exists, already in the scene frame (NeRF-synthetic, Z-up); its bounds must
-  match the PROTOCOL 2.1 tight box to 5% of its diagonal (a Y-up export fails this check).
+A ``.blend`` is read by Blender (``pipeline.scenes.blender.export_blend``): the scene's mesh is its
+render-visible triangles, each coloured with its material's base colour; the Blender backend renders the
+file itself, the pyrender backend those flat-coloured triangles.
 """
 
 import math
@@ -36,7 +38,7 @@ Vec = Sequence[float | int] | np.ndarray  # a point or vector; beartype rejects 
 NERF_OBJECTS = ("chair", "drums", "ficus", "lego", "materials", "mic", "ship")
 PAPER_SCENES = ("chair", "drums", "ficus", "hotdog", "lego", "materials", "mic", "ship", "hubble", "room")
 SCENE_NAMES = (*PAPER_SCENES, "default", *(f"{name}_proxy" for name in NERF_OBJECTS))
-MESH_EXTENSIONS = ("glb", "gltf", "ply", "obj")
+ASSET_EXTENSIONS = ("blend", "glb", "gltf", "ply", "obj")
 FIXED_MESH_FILES = {
     "room": "room/room_nvf_gt_yup.obj",
     "hotdog": "hotdog/hotdog_nvf_geom_heuristic_colors.ply",
@@ -47,15 +49,19 @@ K = 6 * S
 
 
 class SceneError(Exception):
-    """A scene cannot be built (unknown name, missing, unreadable or degenerate mesh); one-line message."""
+    """A scene cannot be built (unknown name, missing, unreadable or degenerate asset); one-line message."""
 
 
 @dataclass(frozen=True, eq=False)
 class Scene:
-    """One benchmark scene (PROTOCOL.md 2): mesh in the Z-up scene frame, boxes, views and constants."""
+    """One benchmark scene (PROTOCOL.md 2): mesh in the Z-up scene frame, boxes, views and constants.
+
+    ``asset`` is the file the ground truth comes from (None for proxies and the procedural default);
+    ``asset_to_scene`` the similarity that placed a .blend's triangles in the scene frame (the Blender
+    backend moves the cameras by its inverse)."""
 
     name: str
-    source: str  # mesh | proxy | procedural
+    source: str  # blend | mesh | proxy | procedural
     mesh: trimesh.Trimesh
     object_aabb: Float[Tensor, "2 3"]
     camera_box: Float[Tensor, "2 3"]
@@ -67,6 +73,8 @@ class Scene:
     cr_threshold: float  # C.R. distance (PROTOCOL 4.2)
     collision_free: bool  # M29 candidate sampler (Room)
     n_init: int
+    asset: Path | None = None
+    asset_to_scene: Float[np.ndarray, "4 4"] | None = None
 
 
 @dataclass(frozen=True)
@@ -321,41 +329,63 @@ def read_mesh(path: Path) -> trimesh.Trimesh:
     return mesh
 
 
-def _mesh_candidates(name: str, assets: Path) -> list[Path]:
-    if name in FIXED_MESH_FILES:
-        return [assets / FIXED_MESH_FILES[name]]
-    return [assets / name / f"{name}.{ext}" for ext in MESH_EXTENSIONS]
+def _asset_candidates(name: str, assets: Path) -> list[Path]:
+    fixed = [assets / FIXED_MESH_FILES[name]] if name in FIXED_MESH_FILES else []
+    return [assets / name / f"{name}.{ext}" for ext in ASSET_EXTENSIONS] + fixed
 
 
-def find_mesh(name: str, assets: Path) -> Path:
-    """The mesh file of paper scene ``name`` (lookup rule in the module docstring) or a one-line ``SceneError``."""
-    candidates = _mesh_candidates(name, assets)
+def find_asset(name: str, assets: Path) -> Path:
+    """The asset file of paper scene ``name`` (lookup rule in the module docstring) or a one-line ``SceneError``."""
+    candidates = _asset_candidates(name, assets)
     for path in candidates:
         if path.is_file():
             return path
     expected = " or ".join(str(p) for p in candidates)
     hint = ""
     if name in NERF_OBJECTS:
-        hint = (f"; or use scene '{name}_proxy' (procedural analogue); to convert {name}.blend open it in Blender, "
-                f"File > Export > glTF 2.0 (.glb) with Include > Transform > +Y Up unticked, save as "
-                f"{assets / name / (name + '.glb')}")
-    raise SceneError(f"scene '{name}': mesh not found, expected {expected}; set paths.assets or NVF_ASSETS to the "
+        hint = (f"; or use scene '{name}_proxy' (procedural analogue); the README says where {name}.blend comes "
+                f"from; a glTF export of it (File > Export > glTF 2.0, Include > Transform > +Y Up unticked) "
+                f"works too, saved as {assets / name / (name + '.glb')}")
+    raise SceneError(f"scene '{name}': asset not found, expected {expected}; set paths.assets or NVF_ASSETS to the "
                      f"assets directory{hint}")
 
 
-def _placed(name: str, mesh: trimesh.Trimesh, tight: np.ndarray, path: Path) -> trimesh.Trimesh:
-    """Put a paper-scene mesh into the scene frame (PROTOCOL 2.2)."""
-    if name == "room":  # Y-up -> Z-up: (x, y, z) -> (x, -z, y)
-        mesh.apply_transform(np.array([[1, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]], dtype=float))
+def _placed(name: str, mesh: trimesh.Trimesh, tight: np.ndarray, path: Path) -> np.ndarray:
+    """Put a paper scene's asset into the scene frame (PROTOCOL 2.2), in place; returns the 4x4 transform applied."""
+    transform = np.eye(4)
+    if name == "room" and path.name == Path(FIXED_MESH_FILES["room"]).name:  # Y-up -> Z-up: (x, y, z) -> (x, -z, y)
+        transform = np.array([[1, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]], dtype=float)
+        mesh.apply_transform(transform)
     if name == "hubble":  # uniform scale into the tight box, bounding-box centre at its centre
-        mesh.apply_scale(float(np.min((tight[1] - tight[0]) / mesh.extents)))
-        mesh.apply_translation((tight[0] + tight[1]) / 2.0 - mesh.bounds.mean(axis=0))
-        return mesh
+        scale = float(np.min((tight[1] - tight[0]) / mesh.extents))
+        mesh.apply_scale(scale)
+        offset = (tight[0] + tight[1]) / 2.0 - mesh.bounds.mean(axis=0)
+        mesh.apply_translation(offset)
+        transform = np.diag([scale, scale, scale, 1.0])
+        transform[:3, 3] = offset
+        return transform
     mismatch = float(np.abs(mesh.bounds - tight).max())
     if mismatch > 0.05 * float(np.linalg.norm(tight[1] - tight[0])):
-        raise SceneError(f"scene '{name}': mesh {path} has bounds {np.round(mesh.bounds, 3).tolist()} but the "
-                         f"PROTOCOL 2.1 tight box is {tight.tolist()}; export it Z-up in the scene frame "
-                         "(Blender glTF: untick +Y Up)")
+        fix = ("move and scale its objects into that box in Blender (Z-up, the NeRF-synthetic frame), or hide helper "
+               "objects from rendering" if path.suffix == ".blend" else "export it Z-up in the scene frame (Blender "
+               "glTF: untick +Y Up)")
+        raise SceneError(f"scene '{name}': {path} has bounds {np.round(mesh.bounds, 3).tolist()} but the "
+                         f"PROTOCOL 2.1 tight box is {tight.tolist()}; {fix}")
+    return transform
+
+
+def read_asset(path: Path, blender_python: Path | None = None) -> trimesh.Trimesh:
+    """The coloured triangles of an asset: a .blend through Blender (``export_blend``), else ``read_mesh``."""
+    if path.suffix != ".blend":
+        return read_mesh(path)
+    from pipeline.scenes.blender import BlenderError, blender_python as default_python, export_blend
+
+    try:
+        mesh = export_blend(path, blender_python or default_python())
+    except BlenderError as exc:
+        raise SceneError(f"cannot read {path}: {exc}") from None
+    if not np.isfinite(mesh.vertices).all() or not mesh.area > 0.0 or not np.all(mesh.extents > 0.0):
+        raise SceneError(f"{path} is degenerate (non-finite vertices, zero area or a flat bounding box)")
     return mesh
 
 
@@ -383,8 +413,9 @@ def _default_scene() -> Scene:
                  eval_poses=evals, density_threshold=1e-4, d0=1.0, cr_threshold=0.01, collision_free=False, n_init=3)
 
 
-def load_scene(name: str, assets_dir: Path | None = None) -> Scene:
-    """Build scene ``name`` (one of ``SCENE_NAMES``); mesh-backed scenes read from ``assets_dir``."""
+def load_scene(name: str, assets_dir: Path | None = None, blender_python: Path | None = None) -> Scene:
+    """Build scene ``name`` (one of ``SCENE_NAMES``); paper scenes read their asset from ``assets_dir``
+    (a .blend with Blender's Python ``blender_python``, default ``pipeline.scenes.blender.blender_python()``)."""
     if name not in SCENE_NAMES:
         raise SceneError(f"unknown scene '{name}'; choose one of: {', '.join(SCENE_NAMES)}")
     if name == "default":
@@ -392,13 +423,17 @@ def load_scene(name: str, assets_dir: Path | None = None) -> Scene:
     base = name.removesuffix("_proxy")
     spec = SPECS[base]
     tight = np.array(spec.tight_box, dtype=np.float64)
+    path = transform = None
     if name.endswith("_proxy"):
         mesh, source = procedural.build_proxy(base, tight), "proxy"
     else:
-        path = find_mesh(base, Path(assets_dir) if assets_dir is not None else default_assets_dir())
-        mesh, source = _placed(base, read_mesh(path), tight, path), "mesh"
+        path = find_asset(base, Path(assets_dir) if assets_dir is not None else default_assets_dir())
+        mesh = read_asset(path, blender_python)
+        transform = _placed(base, mesh, tight, path)
+        source = "blend" if path.suffix == ".blend" else "mesh"
     init, evals = _VIEWS[spec.views]() if spec.views in _VIEWS else rule_views(tight)
     return Scene(name=name, source=source, mesh=mesh, object_aabb=_tensor(spec.object_aabb),
                  camera_box=_tensor(spec.camera_box), tight_box=_tensor(tight), init_poses=init, eval_poses=evals,
                  density_threshold=spec.density_threshold, d0=spec.d0, cr_threshold=spec.cr_threshold,
-                 collision_free=spec.collision_free, n_init=spec.n_init)
+                 collision_free=spec.collision_free, n_init=spec.n_init, asset=path,
+                 asset_to_scene=transform if source == "blend" else None)
