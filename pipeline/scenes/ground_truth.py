@@ -13,12 +13,13 @@ from pipeline.scenes.scene import Scene
 Renderer = GroundTruthRenderer | BlenderRenderer
 
 
-def open_renderer(scene: Scene, cfg: DictConfig) -> Renderer:
+def open_renderer(scene: Scene, cfg: DictConfig, threads: int | None = None) -> Renderer:
     """pyrender's ``GroundTruthRenderer`` or a ``BlenderRenderer`` (one Blender worker, ``render.samples``
-    samples per pixel, torch's thread count); close it when done."""
+    samples per pixel, ``threads`` render threads, default torch's thread count); close it when done."""
     if cfg.render.backend == "blender":
         python = blender_python(cfg.paths.blender_python)
-        return BlenderRenderer(scene, int(cfg.render.samples), python, threads=torch.get_num_threads())
+        threads = threads or torch.get_num_threads()
+        return BlenderRenderer(scene, int(cfg.render.samples), python, threads=threads)
     return GroundTruthRenderer(scene.mesh)
 
 
