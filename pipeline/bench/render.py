@@ -1,16 +1,17 @@
-"""``python -m pipeline.bench render [--res N ...] [--views K] [--samples S] [--scenes ...]``: ground-truth
-render time per view, both backends side by side in one run.
+"""``python -m pipeline.bench render [--res N ...] [--views K] [--samples S] [--scenes ...] [--backends ...]``:
+ground-truth render time per view, both backends side by side in one run.
 
 For each scene (default: ``default``, ``hotdog`` and ``room``) and resolution (default 64, the cpu budget's,
 128 and the paper's 512, PROTOCOL.md 1), times over the first K evaluation views, reported as medians after
 one warm-up view: the RGBA of the pyrender backend (flat, one sample per pixel: ``render_rgba`` with
 ``budget.gt_samples=1``), the RGBA of the Blender backend (Cycles at S samples per pixel, as many render
 threads as cores) and the shared open3d ray cast (depth, mask, face ids), which both backends add to the
-RGB; also the Blender worker's start (Blender, the scene, its BVH on the first view is in the warm-up).
-Writes ``results/bench/render.json`` and prints a table.
+RGB; also the Blender worker's start (Blender and the scene; its BVH, built on the first view, is in the
+warm-up). ``--backends pyrender`` leaves Blender out. Writes ``results/bench/render.json`` and prints a table.
 """
 
 import argparse
+import contextlib
 import os
 import platform
 import statistics
@@ -44,43 +45,48 @@ def main(argv: list[str]) -> None:
     parser.add_argument("--samples", type=int, default=RenderConfig.samples, help="Cycles samples per pixel")
     parser.add_argument("--scenes", nargs="+", default=["default", "hotdog", "room"])
     parser.add_argument("--assets", type=Path, default=None, help="assets directory (default: NVF_ASSETS)")
+    parser.add_argument("--backends", nargs="+", choices=["pyrender", "blender"], default=["pyrender", "blender"])
     parser.add_argument("--out", type=Path, default=RESULTS / "bench" / "render.json")
     args = parser.parse_args(argv)
     if min(args.res) < 8 or not 1 <= args.views <= 20 or args.samples < 1:
         print("error: --res must be >= 8, --views in 1..20 and --samples >= 1", file=sys.stderr)
         raise SystemExit(2)
     python, threads = blender_python(), os.cpu_count() or 1
-    rows = []
+    use_blender, rows, version = "blender" in args.backends, [], None
     try:
         for name in args.scenes:
             scene = load_scene(name, args.assets, python)
             poses = [p.numpy().astype("float64") for p in scene.eval_poses[: args.views]]
-            start = time.perf_counter()
-            blender = BlenderRenderer(scene, args.samples, python, threads=threads)
-            start_s = time.perf_counter() - start
-            with blender, GroundTruthRenderer(scene.mesh) as flat:
+            with contextlib.ExitStack() as stack:
+                flat = stack.enter_context(GroundTruthRenderer(scene.mesh))
+                start = time.perf_counter()
+                blender = stack.enter_context(BlenderRenderer(scene, args.samples, python, threads)) if use_blender else None
+                start_s = time.perf_counter() - start
                 for res in sorted(set(args.res)):
                     intr = Intrinsics.from_fov(res, res)
-                    pyrender_ms = 1e3 * _median_seconds(lambda p: flat.render_rgba(p, intr), poses)
-                    blender_ms = 1e3 * _median_seconds(lambda p: blender.render_rgba(p, intr), poses)
-                    rows.append({
-                        "scene": name, "source": scene.source, "faces": len(scene.mesh.faces), "resolution": res,
-                        "views": len(poses), "pyrender_rgba_ms": pyrender_ms, "blender_rgba_ms": blender_ms,
-                        "blender_over_pyrender": blender_ms / pyrender_ms,
-                        "ray_cast_ms": 1e3 * _median_seconds(lambda p: flat.ray_cast_view(p, intr), poses),
-                        "blender_start_s": start_s, "pyrender_platform": flat.backend,
-                        "cycles_device": blender.device,
-                    })  # fmt: skip
+                    row = {"scene": name, "source": scene.source, "faces": len(scene.mesh.faces), "resolution": res,
+                           "views": len(poses), "pyrender_platform": flat.backend}
+                    if "pyrender" in args.backends:
+                        row["pyrender_rgba_ms"] = 1e3 * _median_seconds(lambda p: flat.render_rgba(p, intr), poses)
+                    if blender is not None:
+                        row["blender_rgba_ms"] = 1e3 * _median_seconds(lambda p: blender.render_rgba(p, intr), poses)
+                        row.update(blender_start_s=start_s, cycles_device=blender.device)
+                        version = blender.version
+                    if "pyrender_rgba_ms" in row and "blender_rgba_ms" in row:
+                        row["blender_over_pyrender"] = row["blender_rgba_ms"] / row["pyrender_rgba_ms"]
+                    row["ray_cast_ms"] = 1e3 * _median_seconds(lambda p: flat.ray_cast_view(p, intr), poses)
+                    rows.append(row)
     except SceneError as exc:
         print(f"error: {exc}", file=sys.stderr)
         raise SystemExit(2) from None
     report = {"benchmark": "render", "statistic": "median ms per view", "machine": platform.platform(),
               "processor": platform.processor(), "cores": threads, "cycles_samples": args.samples,
-              "blender": blender.version, "rows": rows}
+              "blender": version, "rows": rows}
     write_report(report, args.out)
     print(f"{'scene':<9}{'faces':>7}{'res':>5}{'pyrender ms':>13}{'Blender ms':>12}{'ratio':>8}{'ray cast ms':>13}"
           f"  (Cycles {args.samples} spp, {threads} threads)")
+    nan = float("nan")
     for r in rows:
-        print(f"{r['scene']:<9}{r['faces']:>7}{r['resolution']:>5}{r['pyrender_rgba_ms']:>13.1f}"
-              f"{r['blender_rgba_ms']:>12.1f}{r['blender_over_pyrender']:>8.1f}{r['ray_cast_ms']:>13.1f}")
+        print(f"{r['scene']:<9}{r['faces']:>7}{r['resolution']:>5}{r.get('pyrender_rgba_ms', nan):>13.1f}"
+              f"{r.get('blender_rgba_ms', nan):>12.1f}{r.get('blender_over_pyrender', nan):>8.1f}{r['ray_cast_ms']:>13.1f}")
     print(f"wrote {args.out}")

@@ -57,8 +57,8 @@ class Scene:
     """One benchmark scene (PROTOCOL.md 2): mesh in the Z-up scene frame, boxes, views and constants.
 
     ``asset`` is the file the ground truth comes from (None for proxies and the procedural default);
-    ``asset_to_scene`` the similarity that placed a .blend's triangles in the scene frame (the Blender
-    backend moves the cameras by its inverse)."""
+    ``asset_to_scene`` the similarity that placed its triangles in the scene frame (for a .blend, the
+    Blender backend moves the cameras by its inverse instead)."""
 
     name: str
     source: str  # blend | mesh | proxy | procedural
@@ -435,5 +435,4 @@ def load_scene(name: str, assets_dir: Path | None = None, blender_python: Path |
     return Scene(name=name, source=source, mesh=mesh, object_aabb=_tensor(spec.object_aabb),
                  camera_box=_tensor(spec.camera_box), tight_box=_tensor(tight), init_poses=init, eval_poses=evals,
                  density_threshold=spec.density_threshold, d0=spec.d0, cr_threshold=spec.cr_threshold,
-                 collision_free=spec.collision_free, n_init=spec.n_init, asset=path,
-                 asset_to_scene=transform if source == "blend" else None)
+                 collision_free=spec.collision_free, n_init=spec.n_init, asset=path, asset_to_scene=transform)
