@@ -7,7 +7,8 @@ one warm-up view: the RGBA of the pyrender backend (flat, one sample per pixel: 
 ``budget.gt_samples=1``), the RGBA of the Blender backend (Cycles at S samples per pixel, as many render
 threads as cores) and the shared open3d ray cast (depth, mask, face ids), which both backends add to the
 RGB; also the Blender worker's start (Blender and the scene; its BVH, built on the first view, is in the
-warm-up). ``--backends pyrender`` leaves Blender out. Writes ``results/bench/render.json`` and prints a table.
+warm-up). ``--backends pyrender`` leaves Blender out. The machine's load average at the start and end is
+recorded (other jobs on the cores slow both backends). Writes ``results/bench/render.json`` and prints a table.
 """
 
 import argparse
@@ -52,7 +53,7 @@ def main(argv: list[str]) -> None:
         print("error: --res must be >= 8, --views in 1..20 and --samples >= 1", file=sys.stderr)
         raise SystemExit(2)
     python, threads = blender_python(), os.cpu_count() or 1
-    use_blender, rows, version = "blender" in args.backends, [], None
+    use_blender, rows, version, load_start = "blender" in args.backends, [], None, os.getloadavg()
     try:
         for name in args.scenes:
             scene = load_scene(name, args.assets, python)
@@ -81,7 +82,8 @@ def main(argv: list[str]) -> None:
         raise SystemExit(2) from None
     report = {"benchmark": "render", "statistic": "median ms per view", "machine": platform.platform(),
               "processor": platform.processor(), "cores": threads, "cycles_samples": args.samples,
-              "blender": version, "rows": rows}
+              "blender": version, "load_average_1_5_15_min": {"start": load_start, "end": os.getloadavg()},
+              "rows": rows}
     write_report(report, args.out)
     print(f"{'scene':<9}{'faces':>7}{'res':>5}{'pyrender ms':>13}{'Blender ms':>12}{'ratio':>8}{'ray cast ms':>13}"
           f"  (Cycles {args.samples} spp, {threads} threads)")

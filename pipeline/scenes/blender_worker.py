@@ -251,13 +251,21 @@ class Worker:
     # -- geometry
 
     def _viewport_as_render(self, scene) -> None:
-        """Make the depsgraph's (viewport) evaluation what Cycles renders: render visibility and modifier
-        levels; the evaluated triangles are then the rendered ones."""
+        """Make the depsgraph's (viewport) evaluation what Cycles renders: render visibility, instancers
+        and modifier levels; the evaluated triangles are then the rendered ones."""
         for collection in self.bpy.data.collections:
             collection.hide_viewport = collection.hide_render
+        layers = [self.bpy.context.view_layer.layer_collection]
+        while layers:
+            layer = layers.pop()
+            layer.hide_viewport = False  # the eye icon: a viewport-only hide
+            layers.extend(layer.children)
+        in_layer = set(self.bpy.context.view_layer.objects)
         for obj in scene.objects:
             obj.hide_viewport = obj.hide_render
-            obj.hide_set(False)
+            if obj in in_layer:
+                obj.hide_set(False)
+            obj.show_instancer_for_viewport = obj.show_instancer_for_render
             for modifier in obj.modifiers:
                 modifier.show_viewport = modifier.show_render
                 if hasattr(modifier, "render_levels") and hasattr(modifier, "levels"):
