@@ -2,6 +2,7 @@
 overrides (``paths.assets=DIR``, ``paths.results=DIR``), argparse only for what is not config, ``--help``
 from the module's docstring, and bad input as one ``error: ...`` line on stderr with exit status 2."""
 
+import argparse
 import sys
 from typing import NoReturn
 
@@ -17,3 +18,11 @@ def fail(message: str) -> NoReturn:
     """Print ``error: <message>`` (one line) on stderr and exit with ``BAD_INPUT``."""
     print(f"error: {' '.join(str(message).split())}", file=sys.stderr)
     raise SystemExit(BAD_INPUT)
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse whose errors (an unknown option, a missing argument) follow the convention: one line and
+    ``BAD_INPUT``, not argparse's usage block."""
+
+    def error(self, message: str) -> NoReturn:
+        fail(f"{self.prog}: {message} (see --help)")

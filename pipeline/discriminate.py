@@ -18,7 +18,6 @@ dB), ``details.csv`` (both PSNR measures, every seed's difference, which baselin
 ``paths.outputs=DIR``).
 """
 
-import argparse
 import json
 import math
 import shlex
@@ -32,7 +31,7 @@ import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 from scipy import stats
 
-from pipeline.cli import description, fail
+from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.named import GROUPS, NamedConfigs
 from pipeline.config.validation import compose_config
 from pipeline.records.store import atomic_write_text
@@ -201,7 +200,7 @@ def parse_list(text: str, cast, name: str) -> tuple:
 
 
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.discriminate", description=description(__doc__))
+    parser = ArgumentParser(prog="python -m pipeline.discriminate", description=description(__doc__))
     parser.add_argument("overrides", nargs="*", help="Hydra overrides of the budget, e.g. budget=cpu train.precision=bf16")
     parser.add_argument("--scenes", default=",".join(SCENES), help=f"comma-separated (default {','.join(SCENES)})")
     parser.add_argument("--seeds", default=",".join(map(str, SEEDS)), help="comma-separated (default 100,101,102)")

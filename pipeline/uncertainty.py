@@ -20,7 +20,6 @@ every seed's numbers. Seeds other than ``SEEDS`` are appended to the file name. 
 its first missing seed.
 """
 
-import argparse
 import dataclasses
 import io
 import json
@@ -43,7 +42,7 @@ from nvf.config import BaselineConfig, EntropyConfig
 from nvf.methods import load_method
 from nvf.model import SceneModel
 from nvf.training import Observations
-from pipeline.cli import description, fail
+from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.catalog import ablation_configs, method_configs
 from pipeline.config.validation import compose_config
 from pipeline.episode.loop import Episode
@@ -53,6 +52,7 @@ from pipeline.metrics.image import LpipsMetric
 from pipeline.config.named import GROUPS, NamedConfigs
 from pipeline.records.store import atomic_write_bytes, atomic_write_text, to_jsonable
 from pipeline.repo import CONF
+from pipeline.scenes.blender import blender_python
 from pipeline.scenes.scene import Scene, SceneError, load_scene
 from pipeline.tables.aggregate import mean_std_valid
 from pipeline.tables.labels import row_name
@@ -220,7 +220,7 @@ def run(
         raise ArgumentError("a seed= override: the experiment's seeds are --seeds (default 100,101,102)")
     overrides = overrides if any(o.startswith("scene=") for o in overrides) else ["scene=hotdog", *overrides]
     base = compose_config(overrides)
-    scene = load_scene(base.scene, Path(base.paths.assets))
+    scene = load_scene(base.scene, Path(base.paths.assets), blender_python(base.paths.blender_python))
     partial = dataclasses.replace(scene, init_poses=partial_views(scene, torch.Generator().manual_seed(PARTIAL_SEED)))
     view = least_seen_view(scene.eval_poses, partial.init_poses)
     label = budget_label(base)
@@ -316,7 +316,7 @@ def figure(shown: dict, maps: dict[str, np.ndarray]) -> Figure:
 
 
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.uncertainty", description=description(__doc__))
+    parser = ArgumentParser(prog="python -m pipeline.uncertainty", description=description(__doc__))
     parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. scene=hubble budget=smoke")
     parser.add_argument("--out", type=Path, default=None, help="output directory (default ${paths.results}/uncertainty)")
     parser.add_argument("--entries", default=None, help="comma-separated subset, e.g. nvf,nvf-wo_vis,wd (default all)")

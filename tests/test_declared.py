@@ -92,7 +92,7 @@ def test_a_new_scene_from_one_yaml_and_its_mesh_runs_and_reaches_the_tables(tmp_
     assert (directory / "DONE").is_file() and directory.parts[-4] == "toy_box"
     build_tables(tmp_path / "outputs", [], tmp_path / "results", figures=False)
     table = (tmp_path / "results" / "tables" / "all_runs.md").read_text()
-    assert "| toy_box |" in table and "toy_box (mesh)" in table
+    assert "| toy_box |" in table and "toy_box (mesh toy_box/toy_box.ply" in table
 
 
 @pytest.mark.parametrize("bad", ["nvf.methods.Nothing", "nvf.config.TrainConfig"])

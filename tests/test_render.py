@@ -172,10 +172,16 @@ def test_render_bench_and_dispatch(tmp_path, capsys):
 
     from pipeline.bench.__main__ import main as bench_main
 
+    from pipeline.scenes.blender import blender_python, missing_python
+
     out = tmp_path / "render.json"
-    bench_main(["render", "--res", "16", "--views", "1", "--scenes", "default", "--out", str(out)])
+    backends = ["pyrender"] if missing_python(blender_python()) else ["pyrender", "blender"]
+    bench_main(["render", "--res", "16", "24", "--views", "1", "--samples", "2", "--scenes", "default",
+                "--backends", *backends, "--out", str(out)])
     rows = json.loads(out.read_text())["rows"]
-    assert [r["resolution"] for r in rows] == [16, 512] and all(r["face_id_ms"] > 0 for r in rows)
+    assert [r["resolution"] for r in rows] == [16, 24] and all(r["ray_cast_ms"] > 0 for r in rows)
+    assert all(r[f"{backend}_rgba_ms"] > 0 for r in rows for backend in backends)
+    assert all(("blender_over_pyrender" in r) == ("blender" in backends) for r in rows)
     with pytest.raises(SystemExit) as info:
         bench_main(["no_such_bench"])
     assert info.value.code == 2 and "unknown benchmark" in capsys.readouterr().err

@@ -1,6 +1,7 @@
 """Declared scenes: PROTOCOL.md 2.1-2.5 boxes and views, mesh loading and placement, errors, the show CLI."""
 
 import math
+import shutil
 import subprocess
 import sys
 
@@ -10,10 +11,12 @@ import torch
 import trimesh
 
 from pipeline.repo import REPO
-from pipeline.scenes.scene import SceneError, load_scene, scene_config, scene_names
+from pipeline.scenes.blender import blender_python, missing_python
+from pipeline.scenes.scene import SceneError, find_asset, load_scene, scene_config, scene_names
 from pipeline.scenes.views import rule_views
 
 PROXIES = [name for name in scene_names() if name.endswith("_proxy")]
+NO_BLENDER = missing_python(blender_python())
 
 # PROTOCOL 2.3: rounded initial views, position -> look-at target
 INIT = {
@@ -66,9 +69,17 @@ def lego_layout_expected(centre, a, target, top, top_target):
     return views + [(top, top_target)]
 
 
+class _Scenes(dict):
+    """The development scenes; Room (room/room.blend) only where Blender is installed, else its tests skip."""
+
+    def __missing__(self, name):
+        pytest.skip(f"{name}'s .blend needs Blender: {NO_BLENDER}")
+
+
 @pytest.fixture(scope="module")
 def mesh_scenes(assets_dir):
-    return {name: load_scene(name, assets_dir) for name in ("hubble", "hotdog", "room")}
+    names = ("hubble", "hotdog") if NO_BLENDER else ("hubble", "hotdog", "room")
+    return _Scenes({name: load_scene(name, assets_dir) for name in names})
 
 
 def test_paper_scenes_are_declared():
@@ -170,17 +181,43 @@ def test_proxies_fit_tight_box(name):
 
 
 def test_mesh_placement(mesh_scenes):
-    room, hotdog, hubble = mesh_scenes["room"], mesh_scenes["hotdog"], mesh_scenes["hubble"]
-    np.testing.assert_allclose(room.mesh.bounds, room.tight_box.double().numpy(), atol=2e-3)
+    hotdog, hubble = mesh_scenes["hotdog"], mesh_scenes["hubble"]
     np.testing.assert_allclose(hotdog.mesh.bounds, hotdog.tight_box.double().numpy(), atol=2e-3)
-    assert len(room.mesh.faces) == 20100 and len(hotdog.mesh.faces) == 66000 and len(hubble.mesh.faces) == 5128
+    assert len(hotdog.mesh.faces) == 66000 and len(hubble.mesh.faces) == 5128
     box = hubble.tight_box.double().numpy()
     np.testing.assert_allclose(hubble.mesh.bounds.mean(0), (box[0] + box[1]) / 2, atol=1e-5)
     np.testing.assert_allclose((box[0] + box[1]) / 2, (0, 0.0271, 0.3581), atol=1e-4)
     assert np.isclose(hubble.mesh.extents, box[1] - box[0], atol=1e-5).any()
     assert hubble.mesh.visual.kind == "texture"
-    assert room.mesh.visual.kind == "face" and len(np.unique(room.mesh.visual.face_colors, axis=0)) == 5
-    assert all(s.source == "mesh" for s in mesh_scenes.values())
+    assert hotdog.source == hubble.source == "mesh"
+    # the tight box's x extent over the model's 11.64 m (PROTOCOL 2.2's uniform fit)
+    assert hubble.asset.name == "hubble_nasaA_zup_m.glb" and hubble.asset_to_scene[0, 0] == pytest.approx(0.1584, abs=1e-4)
+
+
+def test_room_blend_is_preferred_over_its_mesh(mesh_scenes, assets_dir):
+    """room/room.blend is found before the development mesh; its render-visible triangles (the pillows' and
+    cushions' subdivision at render level: 40,260 where the mesh has 20,100) fill the tight box in the
+    scene frame, coloured by the room's five materials."""
+    room = mesh_scenes["room"]
+    assert room.source == "blend" and room.asset == assets_dir / "room" / "room.blend"
+    np.testing.assert_allclose(room.mesh.bounds, room.tight_box.double().numpy(), atol=2e-3)
+    assert len(room.mesh.faces) == 40260 and room.mesh.visual.kind == "face"
+    assert len(np.unique(room.mesh.visual.face_colors, axis=0)) == 5
+    np.testing.assert_array_equal(room.asset_to_scene, np.eye(4))
+
+
+def test_room_development_mesh_is_mapped_to_z_up(assets_dir, tmp_path):
+    """Without a .blend, Room's development mesh (Y-up) is used, rotated into the Z-up scene frame."""
+    (tmp_path / "room").mkdir()
+    for name in ("room_nvf_gt_yup.obj", "room_nvf_gt_yup.mtl"):
+        shutil.copy(assets_dir / "room" / name, tmp_path / "room" / name)
+    assert find_asset(scene_config("room"), tmp_path)[0].name == "room_nvf_gt_yup.obj"
+    room = load_scene("room", tmp_path)
+    np.testing.assert_allclose(room.mesh.bounds, room.tight_box.double().numpy(), atol=2e-3)
+    assert room.source == "mesh" and len(room.mesh.faces) == 20100 and room.mesh.visual.kind == "face"
+    assert len(np.unique(room.mesh.visual.face_colors, axis=0)) == 5 and room.asset_to_scene[2, 1] == 1.0
+    (tmp_path / "room" / "room.blend").write_bytes(b"")
+    assert find_asset(scene_config("room"), tmp_path)[0].name == "room.blend"  # a .blend is preferred
 
 
 def test_default_scene():
@@ -201,8 +238,8 @@ def test_missing_mesh_errors(tmp_path):
         load_scene("lego", tmp_path)
     message = str(info.value)
     assert "\n" not in message and "lego.glb" in message and "lego_proxy" in message and "NVF_ASSETS" in message
-    assert "paths.assets" in message and "README" in message
-    with pytest.raises(SceneError, match="room_nvf_gt_yup.obj"):
+    assert "paths.assets" in message and "lego.blend" in message and "README" in message
+    with pytest.raises(SceneError, match="room.blend.*room_nvf_gt_yup.obj"):
         load_scene("room", tmp_path)
     with pytest.raises(SceneError, match="unknown scene"):
         load_scene("teapot", tmp_path)
@@ -245,6 +282,6 @@ def test_show_cli_bad_input(capsys):
     from pipeline.scenes.__main__ import main
 
     with pytest.raises(SystemExit) as info:
-        main(["show", "lego", "--assets", "/nonexistent"])
+        main(["show", "lego", "paths.assets=/nonexistent"])
     err = capsys.readouterr().err
     assert info.value.code == 2 and len(err.strip().splitlines()) == 1 and "lego_proxy" in err

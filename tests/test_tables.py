@@ -27,13 +27,15 @@ METRICS = ("psnr", "ssim", "lpips", "rgb", "acc", "comp", "cr", "vis")
 
 def make_run(
     root: Path, scene="hubble", method="nvf", planner="argmax", ablation="none", seed=100, final=None,
-    status="done", lpips_reason=None, steps=2, config=None,
+    status="done", lpips_reason=None, steps=2, config=None, source=None, ground_truth=None,
 ) -> RunRecord:
     """A synthetic run: `steps` step rows, the last one carrying `final` metric values (others 0)."""
     record = RunRecord(run_dir(root, scene, method, planner, ablation, "smoke", seed))
-    source = "proxy" if scene.endswith("_proxy") else "mesh"
+    source = source or ("proxy" if scene.endswith("_proxy") else "mesh")
     keys = {"scene": scene, "method": method, "planner": planner, "ablation": ablation, "budget": "smoke", "seed": seed}
     info = {**keys, "scene_source": source, "field": "densegrid", "device": "cpu", "config": config or {}}
+    if ground_truth is not None:
+        info["ground_truth"] = ground_truth
     info["lpips_missing_reason"] = lpips_reason
     record.start(info, repo=root)
     base = {m: 0.5 for m in METRICS}
@@ -79,6 +81,21 @@ def test_long_csv_has_exactly_the_columns(tmp_path):
     assert set(frame["scene_source"]) == {"mesh"}
 
 
+def test_tables_and_summaries_say_which_file_and_backend_made_the_ground_truth(tmp_path):
+    """Each scene's asset file and ground-truth backend in the table header and the run summary; a record
+    from before the Blender backend (no ``ground_truth``) is pyrender's."""
+    out = tmp_path / "out"
+    blender = {"backend": "blender", "asset": "room/room.blend", "samples": 64, "device": "CPU", "blender": "5.0.1"}
+    room = make_run(out, scene="room", source="blend", ground_truth=blender)
+    make_run(out, scene="hubble")
+    build_tables(out, [], tmp_path / "res", figures=False)
+    md = read(tmp_path / "res" / "tables" / "all_runs.md")
+    assert "room (blend room/room.blend, ground truth Blender Cycles 64 spp)" in md
+    assert "hubble (mesh, ground truth pyrender)" in md
+    summary = read(summarize_run(room.directory))
+    assert "Scene source: blend (room/room.blend). Ground truth: Blender Cycles 64 spp." in summary
+
+
 def test_aggregation_mean_population_std_best_and_n(tmp_path):
     out = tmp_path / "out"
     for seed, psnr in zip((100, 101, 102), (20.0, 21.0, 23.0)):
@@ -92,7 +109,7 @@ def test_aggregation_mean_population_std_best_and_n(tmp_path):
     assert "**0.100 ± 0.000**" in md  # lower LPIPS wins
     assert "**0.0100 ± 0.0000**" in md  # lower RGB wins: Random
     assert "15.00 ± 0.00" in md and "**15.00" not in md
-    assert "Budget: smoke" in md and "hubble (mesh)" in md and "step 1" in md
+    assert "Budget: smoke" in md and "hubble (mesh, ground truth pyrender)" in md and "step 1" in md
     csv = pd.read_csv(tmp_path / "res" / "tables" / "main.csv", comment="#")
     assert list(csv["Method"]) == ["Random", "NVF"] and list(csv["n"]) == [3, 3]
     assert list(csv.columns[2:10]) == ["PSNR↑", "SSIM↑", "LPIPS↓", "RGB↓", "Acc.↓", "Comp.↓", "C.R.↑", "Vis.↑"]

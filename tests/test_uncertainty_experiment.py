@@ -89,13 +89,20 @@ def test_experiment_writes_every_entry_and_shares_nvf_model_with_its_ablations(a
     assert iio.imread(tmp_path / f"{name}.png").ndim == 3
 
 
+def exit_code(argv: list[str]) -> int:
+    """``main``'s exit status: bad input raises SystemExit (one line on stderr, pipeline.cli)."""
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    return info.value.code
+
+
 def test_entries_select_a_subset_in_table_order_and_unknown_names_are_refused(capsys):
     assert uncertainty.select_entries(None) == uncertainty.ENTRIES
     assert uncertainty.select_entries(["air", "nvf-loose"]) == (("nvf", "loose"), ("air", "none"))
     for bad in (["nvf-wo_opt"], []):
         with pytest.raises(uncertainty.ArgumentError, match="choose from nvf,nvf-wo_vis"):
             uncertainty.select_entries(bad)
-    assert main(["--entries", "nvf,vnf"]) == 2
+    assert exit_code(["--entries", "nvf,vnf"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["error: --entries: unknown ['vnf']; choose from " + ",".join(
         uncertainty.entry_name(*entry) for entry in uncertainty.ENTRIES)]
@@ -107,13 +114,13 @@ def test_seeds_are_distinct_integers_and_a_seed_override_is_refused(capsys):
     for bad in ("100,100", "1,x", ""):
         with pytest.raises(uncertainty.ArgumentError, match="distinct integers"):
             uncertainty.parse_seeds(bad)
-    assert main(["seed=101"]) == 2
+    assert exit_code(["seed=101"]) == 2
     assert capsys.readouterr().err.strip().splitlines() == [
         "error: a seed= override: the experiment's seeds are --seeds (default 100,101,102)"]
 
 
 def test_unknown_scene_is_one_line_and_status_2(assets_dir, capsys):
-    assert main(["scene=default", f"paths.assets={assets_dir}"]) == 2
+    assert exit_code(["scene=default", f"paths.assets={assets_dir}"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: PROTOCOL 4.4 defines the partial training set")
 

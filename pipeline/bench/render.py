@@ -1,12 +1,19 @@
-"""``python -m pipeline.bench render [--res N] [--views K] [--assets DIR] [--scenes ...]``: GT render time per view.
+"""``python -m pipeline.bench render [--res N ...] [--views K] [--samples S] [--scenes ...] [--backends ...]``:
+ground-truth render time per view, both backends side by side in one run.
 
-For each scene (default: ``default`` and ``room``) and resolution (the cpu budget's, 128 by default,
-and the paper's 512, PROTOCOL.md 1), times over the first K evaluation views, reported as medians:
-RGB + depth with pyrender and face ids with open3d ray casting, separately. Writes
-``results/bench/render.json`` and prints a table.
+For each scene (default: ``default``, ``hotdog`` and ``room``) and resolution (default 64, the cpu budget's,
+128 and the paper's 512, PROTOCOL.md 1), times over the first K evaluation views, reported as medians after
+one warm-up view: the RGBA of the pyrender backend (flat, one sample per pixel: ``render_rgba`` with
+``budget.gt_samples=1``), the RGBA of the Blender backend (Cycles at S samples per pixel, as many render
+threads as cores) and the shared open3d ray cast (depth, mask, face ids), which both backends add to the
+RGB; also the Blender worker's start (Blender and the scene; its BVH, built on the first view, is in the
+warm-up). ``--backends pyrender`` leaves Blender out. The machine's load average at the start and end is
+recorded (other jobs on the cores slow both backends). Writes ``results/bench/render.json`` and prints a table.
 """
 
 import argparse
+import contextlib
+import os
 import platform
 import statistics
 import sys
@@ -15,15 +22,15 @@ from pathlib import Path
 
 from nvf.cameras import Intrinsics
 from pipeline.bench._report import write_report
-from pipeline.scenes.render import GroundTruthRenderer
+from pipeline.config.schema import RenderConfig
 from pipeline.repo import RESULTS
+from pipeline.scenes.blender import BlenderRenderer, blender_python
+from pipeline.scenes.render import GroundTruthRenderer
 from pipeline.scenes.scene import SceneError, load_scene
-
-PAPER_RESOLUTION = 512
 
 
 def _median_seconds(fn, poses) -> float:
-    fn(poses[0])  # warm-up: context creation, shader compilation, texture upload
+    fn(poses[0])  # warm-up: context creation, shader compilation, texture upload, Cycles' BVH and kernels
     times = []
     for pose in poses:
         start = time.perf_counter()
@@ -34,37 +41,54 @@ def _median_seconds(fn, poses) -> float:
 
 def main(argv: list[str]) -> None:
     parser = argparse.ArgumentParser(prog="python -m pipeline.bench render", description=__doc__.splitlines()[0])
-    parser.add_argument("--res", type=int, default=128, help="cpu-budget resolution (the paper's 512 is always run)")
-    parser.add_argument("--views", type=int, default=8, help="evaluation views timed per scene and resolution")
-    parser.add_argument("--scenes", nargs="+", default=["default", "room"])
+    parser.add_argument("--res", type=int, nargs="+", default=[64, 128, 512], help="resolutions (pixels per side)")
+    parser.add_argument("--views", type=int, default=4, help="evaluation views timed per scene and resolution")
+    parser.add_argument("--samples", type=int, default=RenderConfig.samples, help="Cycles samples per pixel")
+    parser.add_argument("--scenes", nargs="+", default=["default", "hotdog", "room"])
     parser.add_argument("--assets", type=Path, default=None, help="assets directory (default: NVF_ASSETS)")
+    parser.add_argument("--backends", nargs="+", choices=["pyrender", "blender"], default=["pyrender", "blender"])
     parser.add_argument("--out", type=Path, default=RESULTS / "bench" / "render.json")
     args = parser.parse_args(argv)
-    if args.res < 8 or not 1 <= args.views <= 20:
-        print("error: --res must be >= 8 and --views in 1..20", file=sys.stderr)
+    if min(args.res) < 8 or not 1 <= args.views <= 20 or args.samples < 1:
+        print("error: --res must be >= 8, --views in 1..20 and --samples >= 1", file=sys.stderr)
         raise SystemExit(2)
-    rows = []
-    for name in args.scenes:
-        try:
-            scene = load_scene(name, args.assets)
-        except SceneError as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            raise SystemExit(2) from None
-        poses = [p.numpy().astype("float64") for p in scene.eval_poses[: args.views]]
-        with GroundTruthRenderer(scene.mesh) as renderer:
-            for res in sorted({args.res, PAPER_RESOLUTION}):
-                intr = Intrinsics.from_fov(res, res)
-                rows.append({
-                    "scene": name, "faces": len(scene.mesh.faces), "resolution": res, "views": len(poses),
-                    "rgb_depth_ms": 1e3 * _median_seconds(lambda p: renderer.render_rgb_depth(p, intr), poses),
-                    "face_id_ms": 1e3 * _median_seconds(lambda p: renderer.face_ids(p, intr), poses),
-                    "backend": renderer.backend,
-                })
+    python, threads = blender_python(), os.cpu_count() or 1
+    use_blender, rows, version, load_start = "blender" in args.backends, [], None, os.getloadavg()
+    try:
+        for name in args.scenes:
+            scene = load_scene(name, args.assets, python)
+            poses = [p.numpy().astype("float64") for p in scene.eval_poses[: args.views]]
+            with contextlib.ExitStack() as stack:
+                flat = stack.enter_context(GroundTruthRenderer(scene.mesh))
+                start = time.perf_counter()
+                blender = stack.enter_context(BlenderRenderer(scene, args.samples, python, threads)) if use_blender else None
+                start_s = time.perf_counter() - start
+                for res in sorted(set(args.res)):
+                    intr = Intrinsics.from_fov(res, res)
+                    row = {"scene": name, "source": scene.source, "faces": len(scene.mesh.faces), "resolution": res,
+                           "views": len(poses), "pyrender_platform": flat.backend}
+                    if "pyrender" in args.backends:
+                        row["pyrender_rgba_ms"] = 1e3 * _median_seconds(lambda p: flat.render_rgba(p, intr), poses)
+                    if blender is not None:
+                        row["blender_rgba_ms"] = 1e3 * _median_seconds(lambda p: blender.render_rgba(p, intr), poses)
+                        row.update(blender_start_s=start_s, cycles_device=blender.device)
+                        version = blender.version
+                    if "pyrender_rgba_ms" in row and "blender_rgba_ms" in row:
+                        row["blender_over_pyrender"] = row["blender_rgba_ms"] / row["pyrender_rgba_ms"]
+                    row["ray_cast_ms"] = 1e3 * _median_seconds(lambda p: flat.ray_cast_view(p, intr), poses)
+                    rows.append(row)
+    except SceneError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
     report = {"benchmark": "render", "statistic": "median ms per view", "machine": platform.platform(),
-              "processor": platform.processor(), "rows": rows}
+              "processor": platform.processor(), "cores": threads, "cycles_samples": args.samples,
+              "blender": version, "load_average_1_5_15_min": {"start": load_start, "end": os.getloadavg()},
+              "rows": rows}
     write_report(report, args.out)
-    print(f"{'scene':<10}{'faces':>8}{'res':>6}{'rgb+depth ms':>15}{'face ids ms':>14}  backend")
+    print(f"{'scene':<9}{'faces':>7}{'res':>5}{'pyrender ms':>13}{'Blender ms':>12}{'ratio':>8}{'ray cast ms':>13}"
+          f"  (Cycles {args.samples} spp, {threads} threads)")
+    nan = float("nan")
     for r in rows:
-        print(f"{r['scene']:<10}{r['faces']:>8}{r['resolution']:>6}{r['rgb_depth_ms']:>15.1f}{r['face_id_ms']:>14.1f}"
-              f"  {r['backend']}")
+        print(f"{r['scene']:<9}{r['faces']:>7}{r['resolution']:>5}{r.get('pyrender_rgba_ms', nan):>13.1f}"
+              f"{r.get('blender_rgba_ms', nan):>12.1f}{r.get('blender_over_pyrender', nan):>8.1f}{r['ray_cast_ms']:>13.1f}")
     print(f"wrote {args.out}")

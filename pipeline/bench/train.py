@@ -19,7 +19,8 @@ In one run, on the scene's 20 evaluation views rendered at ``budget.image_size``
 - the PSNR of the trained backbone on 5 held-out views (the ring of tests/test_integration.py) and
   on the first 5 training views (fit vs. generalisation), also off the ground truth's edges.
   ``budget.gt_samples=K`` renders every ground-truth view (training and test) as the mean of ``K x K``
-  sub-pixel samples, an anti-aliased ground truth like the paper's Blender renders (as in an episode).
+  sub-pixel samples, an anti-aliased ground truth like the paper's Blender renders (as in an episode);
+  ``render.backend=blender`` takes the ground truth from Blender Cycles instead.
 
 Rates are given from wall time and (``*_cpu``) from process CPU time / threads, which is robust
 to other jobs on the cores. The model runs on the CPU. Writes ``results/bench/train.json``
@@ -57,6 +58,8 @@ from pipeline.metrics.evaluation import RENDER_CHUNK
 from pipeline.metrics.image import off_edge_psnr, psnr
 from pipeline.scenes.render import GroundTruthRenderer
 from pipeline.repo import RESULTS
+from pipeline.scenes.blender import blender_python
+from pipeline.scenes.ground_truth import Renderer, ground_truth_info, open_renderer
 from pipeline.scenes.scene import Scene, SceneError, load_scene
 
 GOALS = {"train_samples_per_s": 1e6, "infer_samples_per_s": 3e6}
@@ -86,17 +89,17 @@ class CountingModel(SceneModel):
 def load(cfg: DictConfig) -> Scene:
     """The configured scene; a missing mesh exits with one line (status 2)."""
     try:
-        return load_scene(cfg.scene, Path(cfg.paths.assets))
+        return load_scene(cfg.scene, Path(cfg.paths.assets), blender_python(cfg.paths.blender_python))
     except SceneError as err:
         print(f"error: {err}", file=sys.stderr)
         raise SystemExit(2) from None
 
 
 def observations(
-    renderer: GroundTruthRenderer, poses: Float[Tensor, "n 4 4"], intr: Intrinsics, gt_samples: int = 1
+    renderer: Renderer, poses: Float[Tensor, "n 4 4"], intr: Intrinsics, gt_samples: int = 1
 ) -> Observations:
     """Ground-truth RGBA views at ``poses`` (RGB black where the mask is empty), each pixel the mean of
-    ``gt_samples^2`` sub-pixel samples (``GroundTruthRenderer.render_rgba``)."""
+    ``gt_samples^2`` sub-pixel samples (``render_rgba``; Blender's: 1, Cycles' own samples)."""
     images = np.stack([renderer.render_rgba(c2w, intr, gt_samples) for c2w in poses])
     return Observations(torch.from_numpy(images), poses.to(torch.float32), intr)
 
@@ -154,7 +157,7 @@ def held_out_poses(
 
 
 def view_psnr(
-    model: SceneModel, renderer: GroundTruthRenderer, poses: Float[Tensor, "n 4 4"], intr: Intrinsics, gt_samples: int
+    model: SceneModel, renderer: Renderer, poses: Float[Tensor, "n 4 4"], intr: Intrinsics, gt_samples: int
 ) -> tuple[float, float]:
     """PSNR of the model's renders of ``poses`` against the ground truth (``gt_samples^2`` samples per
     pixel; pooled over the views), over all pixels and off the ground truth's edges
@@ -308,7 +311,7 @@ def main(argv: list[str]) -> None:
     s = EpisodeSettings.of(cfg, scene)
     size = int(cfg.budget.image_size)
     intr = Intrinsics.from_fov(size, size)
-    renderer = GroundTruthRenderer(scene.mesh)
+    renderer = open_renderer(scene, cfg)  # render.backend: pyrender's or Blender's ground truth
     gt_samples = int(cfg.budget.gt_samples)
     obs = observations(renderer, scene.eval_poses, intr, gt_samples)
 
@@ -345,6 +348,7 @@ def main(argv: list[str]) -> None:
     r["train_view_psnr"], r["train_view_psnr_off_edges"] = view_psnr(
         model, renderer, obs.c2w[:HELD_OUT_VIEWS], intr, gt_samples
     )
+    renderer.close()
     generator = torch.Generator().manual_seed(int(cfg.seed))
     per_iter = (r["train_samples_per_iter"], r["train_marched_per_iter"])
     r.update(field_floor(model, obs, s.train.backbone.batch, per_iter, s.sampler.update_every, generator, args.repeats))
@@ -368,7 +372,7 @@ def main(argv: list[str]) -> None:
             "infer_samples_per_ray": infer_samples / (obs.num_images * intr.num_pixels),
             "infer_chunk": RENDER_CHUNK, "matmul_rows": rows,
             "inference_repeats": args.repeats, "heldout_views": HELD_OUT_VIEWS, "gt_samples_per_side": gt_samples,
-            "overrides": args.overrides,
+            "ground_truth": ground_truth_info(scene, renderer, Path(cfg.paths.assets)), "overrides": args.overrides,
         },
         "seconds": time.perf_counter() - start,
     }  # fmt: skip

@@ -27,6 +27,17 @@ class PathsConfig:
     assets: str = MISSING
     outputs: str = "outputs"
     results: str = "results"
+    blender_python: str = ".venv-blender/bin/python"  # Blender's Python (bpy); relative to the repository root
+
+
+@dataclass
+class RenderConfig:
+    """Which ground-truth backend renders the RGB (PROTOCOL 1): ``pyrender`` (flat, unlit, ``budget.gt_samples``
+    squared samples per pixel) or ``blender`` (Cycles, ``samples`` samples per pixel, lit; pipeline.scenes.blender).
+    Depth, hit mask and face ids come from the same ray cast with either."""
+
+    backend: str = "pyrender"
+    samples: int = 64  # Cycles samples per pixel (blender only)
 
 
 @dataclass
@@ -126,6 +137,7 @@ class RunConfig:
     ablation: AblationConfig = dataclasses.field(default_factory=AblationConfig)
     planner: PlannerConfig = dataclasses.field(default_factory=PlannerConfig)
     budget: BudgetConfig = dataclasses.field(default_factory=BudgetConfig)
+    render: RenderConfig = dataclasses.field(default_factory=RenderConfig)
     field: FieldConfig = dataclasses.field(default_factory=FieldConfig)
     sampler: SamplerConfig = dataclasses.field(default_factory=SamplerConfig)
     train: TrainConfig = dataclasses.field(default_factory=TrainConfig)

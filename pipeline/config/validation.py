@@ -45,6 +45,7 @@ _CHOICES: dict[str, tuple[Any, ...]] = {
     "baseline.air_view_score": ("pixel_mean", "topk"),
     "baseline.activenerf_variant": ("A", "B"),
     "baseline.neurar_loss": ("residual_mse", "nll"),
+    "render.backend": ("pyrender", "blender"),
 }
 
 # METHOD 12 alternatives named in the config but not implemented: key -> (alternative, recommended default).
@@ -57,7 +58,7 @@ _NOT_IMPLEMENTED: dict[str, tuple[Any, Any]] = {
 
 _POSITIVE = (
     "budget.image_size", "budget.eval_size", "budget.horizon", "budget.gt_points", "budget.recon_points",
-    "budget.recon_batch", "budget.gt_samples", "planner.num_candidates", "planner.resolution", "planner.los_samples",
+    "budget.recon_batch", "budget.gt_samples", "render.samples", "planner.num_candidates", "planner.resolution", "planner.los_samples",
     "planner.score_chunk_rays", "planner.opt.top_k", "planner.opt.iters", "planner.opt.chunk_rays",
     "train.backbone.iters", "train.backbone.batch", "train.variance.iters", "train.variance.batch",
     "train.visibility.iters", "train.visibility.batch", "train.lr_decay_horizon", "train.label_samples",
@@ -127,6 +128,23 @@ def validate(cfg: DictConfig) -> None:
     if rival is not None and rival not in declared("ablation"):
         raise ConfigError(f"diagnostics.rank_against={rival!r} is not one of {', '.join(declared('ablation'))}")
     _check_device(str(cfg.device))
+    _check_render(cfg)
+
+
+def _check_render(cfg: DictConfig) -> None:
+    """The Blender backend anti-aliases with Cycles' samples, and needs Blender's Python."""
+    if cfg.render.backend != "blender":
+        return
+    if cfg.budget.gt_samples != 1:
+        raise ConfigError(
+            f"budget.gt_samples={cfg.budget.gt_samples} supersamples the pyrender ground truth; with render.backend=blender "
+            "Cycles filters each pixel over render.samples samples: set budget.gt_samples=1"
+        )
+    from pipeline.scenes.blender import blender_python, missing_python
+
+    reason = missing_python(blender_python(cfg.paths.blender_python))
+    if reason:
+        raise ConfigError(f"render.backend=blender: {reason}")
 
 
 def _check_device(device: str) -> None:

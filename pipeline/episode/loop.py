@@ -26,8 +26,8 @@ from nvf.uncertainty import ViewScorer
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.evaluation import Evaluator
 from pipeline.metrics.image import LpipsMetric
-from pipeline.scenes.render import GroundTruthRenderer
 from pipeline.repo import CONF
+from pipeline.scenes.ground_truth import open_renderer
 from pipeline.scenes.scene import Scene
 
 # (stage, iteration, total, loss) -> None: drives the inner progress bar
@@ -35,26 +35,31 @@ TrainProgress = Callable[[str, int, int, float], None]
 
 
 class Episode:
-    """The state of one episode: the scene, its renderer, the observed views and the evaluator."""
+    """The state of one episode: the scene, its ground-truth renderer (one per episode: for
+    ``render.backend=blender`` one Blender process; ``close`` ends it), the observed views and the evaluator."""
 
     def __init__(self, cfg: DictConfig, scene: Scene, device: torch.device, lpips: LpipsMetric):
         self.cfg = cfg
         self.scene = scene
         self.device = device
         self.settings = EpisodeSettings.of(cfg, scene)
-        self.renderer = GroundTruthRenderer(scene.mesh)
         size = cfg.budget.image_size
         self.intrinsics = Intrinsics.from_fov(size, size)
         self.plan_intrinsics = Intrinsics.from_fov(cfg.planner.resolution, cfg.planner.resolution)
         self.method = load_method(cfg.method.implementation)
         self.scorer = self.settings.scorer(self.method)
         self.rival = self.rival_scorer(cfg.diagnostics.rank_against)
-        self.evaluator = Evaluator(scene, self.renderer, cfg, device, lpips)
+        self.renderer = open_renderer(scene, cfg)  # last: a Blender renderer is a process, closed by close()
         self.poses: list[torch.Tensor] = []
         self.images: list[np.ndarray] = []  # RGBA [H, W, 4] training images, budget.gt_samples^2 per pixel
         self.face_ids: list[np.ndarray] = []  # [H, W] face hit by each pixel-centre ray, for Vis. (PROTOCOL 4.3)
-        for c2w in scene.init_poses:
-            self.observe(c2w)
+        try:
+            self.evaluator = Evaluator(scene, self.renderer, cfg, device, lpips)
+            for c2w in scene.init_poses:
+                self.observe(c2w)
+        except BaseException:
+            self.close()
+            raise
         self.previous_model: SceneModel | None = None
 
     def rival_scorer(self, ablation: str | None) -> tuple[str, ViewScorer] | None:
@@ -64,6 +69,10 @@ class Episode:
             return None
         rival_cfg = OmegaConf.merge(self.cfg, OmegaConf.load(CONF / "ablation" / f"{ablation}.yaml"))
         return ablation, EpisodeSettings.of(rival_cfg, self.scene).scorer(self.method)
+
+    def close(self) -> None:
+        """Release the ground-truth renderer (for Blender, end its process)."""
+        self.renderer.close()
 
     def observe(self, c2w: torch.Tensor) -> None:
         """Render the ground truth at ``c2w`` and add it to the observations."""

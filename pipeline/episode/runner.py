@@ -23,7 +23,9 @@ from pipeline.episode.loop import Episode
 from pipeline.episode.settings import resolve_device
 from pipeline.metrics.image import LpipsMetric
 from pipeline.records.store import RunRecord, run_dir
-from pipeline.scenes.scene import load_scene
+from pipeline.scenes.blender import blender_python
+from pipeline.scenes.ground_truth import ground_truth_info
+from pipeline.scenes.scene import Scene, load_scene
 
 
 class StepFailed(RuntimeError):
@@ -61,10 +63,15 @@ def run_settings(cfg: DictConfig) -> dict:
     }
 
 
-def run_info(cfg: DictConfig, scene_source: str, device: torch.device, lpips_reason: str | None) -> dict:
+def run_info(
+    cfg: DictConfig, scene_source: str, device: torch.device, lpips_reason: str | None, ground_truth: dict
+) -> dict:
+    """run.json's content: the run's settings, the scene's source, ``ground_truth`` (backend and asset file:
+    ``pipeline.scenes.ground_truth.ground_truth_info``), device, threads and why LPIPS is missing (if it is)."""
     return {
         **run_settings(cfg),
         "scene_source": scene_source,
+        "ground_truth": ground_truth,
         "field": cfg.field.kind,
         "device": str(device),
         "torch_threads": torch.get_num_threads(),
@@ -89,12 +96,24 @@ def run_episode(cfg: DictConfig) -> Path:
     torch.set_num_threads(torch_threads())
     torch.manual_seed(int(cfg.seed))
     np.random.seed(int(cfg.seed) % 2**32)
-    scene = load_scene(cfg.scene, Path(cfg.paths.assets))
+    scene = load_scene(cfg.scene, Path(cfg.paths.assets), blender_python(cfg.paths.blender_python))
     device = resolve_device(cfg.device)
     lpips = LpipsMetric()
     episode = Episode(cfg, scene, device, lpips)
+    try:
+        return _run_steps(cfg, directory, record, episode, scene, device, lpips)
+    finally:
+        episode.close()
+
+
+def _run_steps(
+    cfg: DictConfig, directory: Path, record: RunRecord, episode: Episode, scene: Scene, device: torch.device,
+    lpips: LpipsMetric,
+) -> Path:
+    """Record and run the steps of ``episode`` not yet in ``record``; returns the run directory."""
     done_rows = record.completed_steps()
-    record.start(run_info(cfg, scene.source, device, lpips.missing))
+    ground_truth = ground_truth_info(scene, episode.renderer, Path(cfg.paths.assets))
+    record.start(run_info(cfg, scene.source, device, lpips.missing, ground_truth))
     episode.replay(done_rows)
     horizon = int(cfg.budget.horizon)
     if done_rows:

@@ -18,7 +18,7 @@ from pipeline.metrics.correlation import uncertainty_correlation
 from pipeline.metrics.coverage import seen_faces, visual_coverage
 from pipeline.metrics.geometry import geometry_metrics, points_from_rays
 from pipeline.metrics.image import LpipsMetric, image_metrics
-from pipeline.scenes.render import GroundTruthRenderer
+from pipeline.scenes.ground_truth import Renderer
 from pipeline.scenes.scene import Scene
 
 RENDER_CHUNK = 4096  # rays per model call at inference
@@ -81,7 +81,7 @@ class Evaluator:
     computes a step's metrics (PROTOCOL 4)."""
 
     def __init__(
-        self, scene: Scene, renderer: GroundTruthRenderer, cfg: DictConfig, device: torch.device, lpips: LpipsMetric
+        self, scene: Scene, renderer: Renderer, cfg: DictConfig, device: torch.device, lpips: LpipsMetric
     ):
         self.scene, self.cfg, self.device, self.lpips = scene, cfg, device, lpips
         size = int(cfg.budget.eval_size)

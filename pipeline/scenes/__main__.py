@@ -1,33 +1,44 @@
-"""``python -m pipeline.scenes show SCENE``: draw a scene's views (``pipeline.scenes.show``)."""
+"""``python -m pipeline.scenes show SCENE [KEY=VALUE ...] [--res N] [--out PATH]``: draw a scene's initial and
+evaluation views and a top view with its boxes and cameras (``pipeline.scenes.show``), to check an asset
+before a long run.
 
-import argparse
-import sys
+The overrides are the run config's, e.g. ``paths.assets=DIR``, ``render.backend=blender render.samples=32``;
+the picture goes to ``${paths.results}/figures/scenes/<scene>.png`` unless ``--out`` names a folder. Bad input
+is one line on stderr and exit status 2.
+"""
+
+import os
 from pathlib import Path
 
-from pipeline.repo import RESULTS
+from pipeline.cli import ArgumentParser, description, fail
+from pipeline.config.validation import compose_config
+from pipeline.scenes.blender import blender_python
+from pipeline.scenes.ground_truth import open_renderer
 from pipeline.scenes.scene import SceneError, load_scene, scene_names
 from pipeline.scenes.show import show
 
 
 def main(argv: list[str] | None = None) -> None:
-    """``show SCENE [--assets DIR] [--out DIR] [--res N]``: bad input is one line on stderr and exit status 2."""
-    parser = argparse.ArgumentParser(prog="python -m pipeline.scenes", description=__doc__.splitlines()[0])
+    parser = ArgumentParser(prog="python -m pipeline.scenes", description=description(__doc__))
     sub = parser.add_subparsers(dest="command", required=True)
     show_parser = sub.add_parser("show", help="write a PNG grid of a scene's views and a top view")
     show_parser.add_argument("scene", help=f"one of: {', '.join(scene_names())}")
-    show_parser.add_argument("--assets", type=Path, default=None, help="assets directory (default: NVF_ASSETS)")
-    show_parser.add_argument("--out", type=Path, default=RESULTS / "figures" / "scenes")
+    show_parser.add_argument("overrides", nargs="*", metavar="KEY=VALUE",
+                             help="config overrides, e.g. paths.assets=DIR render.backend=blender")  # fmt: skip
+    show_parser.add_argument("--out", type=Path, default=None, help="folder (default ${paths.results}/figures/scenes)")
     show_parser.add_argument("--res", type=int, default=128, help="view resolution in pixels")
     args = parser.parse_args(argv)
     if args.res < 8:
-        print(f"error: --res must be at least 8, got {args.res}", file=sys.stderr)
-        raise SystemExit(2)
+        fail(f"--res must be at least 8, got {args.res}")
+    cfg = compose_config(args.overrides)
+    out = args.out or Path(cfg.paths.results) / "figures" / "scenes"
     try:
-        scene = load_scene(args.scene, args.assets)
+        scene = load_scene(args.scene, Path(cfg.paths.assets), blender_python(cfg.paths.blender_python))
+        with open_renderer(scene, cfg, threads=os.cpu_count()) as renderer:
+            path = show(scene, renderer, out, args.res)
     except SceneError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        raise SystemExit(2) from None
-    print(show(scene, args.out, args.res))
+        fail(str(exc))
+    print(path)
 
 
 if __name__ == "__main__":

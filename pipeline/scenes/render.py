@@ -1,8 +1,10 @@
 """Ground-truth renderer: RGB, depth, hit mask and per-pixel face ids of a mesh, headless (PROTOCOL.md 1, 4.3).
 
-RGB and depth come from pyrender (unlit, ``RenderFlags.FLAT``: the RGB is the object colour, black
-where the mesh is missed); face ids come from open3d ray casting of the exact pixel-centre rays of
-``nvf.cameras.pixel_rays``, so they do not depend on rasterisation or multisampling.
+``GroundTruthRenderer`` is the pyrender backend (``render.backend=pyrender``): RGB and depth from
+pyrender (unlit, ``RenderFlags.FLAT``: the RGB is the object colour, black where the mesh is missed).
+Face ids, visibility and occupancy come from ``MeshRays``, open3d ray casting of the exact pixel-centre
+rays of ``nvf.cameras.pixel_rays``, so they do not depend on rasterisation or multisampling; the Blender
+backend (``pipeline.scenes.blender``) shares it.
 
 pyrender is imported lazily, after ``PYOPENGL_PLATFORM`` is chosen (osmesa on CPU, egl on CUDA).
 Measured on the CPU machine kind: importing ``triton`` *after* pyrender with OSMesa segfaults (two
@@ -62,34 +64,51 @@ def _import_pyrender(platform: str):
     return importlib.import_module("pyrender")
 
 
-def _as_opaque_primitive(pyrender, part: trimesh.Trimesh):
-    """One unlit, double-sided pyrender primitive per part: vertex/face colours or a base-colour texture."""
-    positions = part.vertices[part.faces].reshape(-1, 3).astype(np.float32)
-    color_0 = texcoord_0 = texture = None
-    factor = np.ones(4)
+@dataclass
+class CornerColors:
+    """A mesh's base colour per triangle corner (sRGB values in [0, 1]), or per-corner UVs into a texture."""
+
+    colors: Float[np.ndarray, "C 4"] | None
+    uv: Float[np.ndarray, "C 2"] | None
+    texture: object  # PIL image (with ``factor``) or None
+    factor: Float[np.ndarray, "4"]
+
+
+def corner_colors(part: trimesh.Trimesh) -> CornerColors:
+    """Vertex/face colours or a base-colour texture of ``part``, unrolled to its triangles' corners
+    (``C = 3 F``, in face order), as both ground-truth backends draw them."""
     visual = part.visual
+    colors = uv = texture = None
+    factor = np.ones(4)
     if visual.kind == "texture" and getattr(visual.material, "baseColorTexture", None) is not None:
-        texcoord_0 = visual.uv[part.faces].reshape(-1, 2).astype(np.float32)
+        uv = visual.uv[part.faces].reshape(-1, 2).astype(np.float32)
         texture = visual.material.baseColorTexture
         if visual.material.baseColorFactor is not None:
             factor = np.asarray(visual.material.baseColorFactor, dtype=np.float64) / 255.0
     elif visual.kind == "vertex":
-        color_0 = visual.vertex_colors[part.faces].reshape(-1, 4)
+        colors = visual.vertex_colors[part.faces].reshape(-1, 4)
     elif visual.kind == "face":
-        color_0 = np.repeat(visual.face_colors, 3, axis=0)
+        colors = np.repeat(visual.face_colors, 3, axis=0)
     else:
-        color_0 = np.repeat(visual.to_color().face_colors, 3, axis=0) if visual.defined else None
-    if color_0 is not None:
-        color_0 = color_0.astype(np.float32) / 255.0
+        colors = np.repeat(visual.to_color().face_colors, 3, axis=0) if visual.defined else None
+    if colors is not None:
+        colors = colors.astype(np.float32) / 255.0
+    return CornerColors(colors=colors, uv=uv, texture=texture, factor=factor)
+
+
+def _as_opaque_primitive(pyrender, part: trimesh.Trimesh):
+    """One unlit, double-sided pyrender primitive per part: vertex/face colours or a base-colour texture."""
+    positions = part.vertices[part.faces].reshape(-1, 3).astype(np.float32)
+    corners = corner_colors(part)
     material = pyrender.MetallicRoughnessMaterial(
-        baseColorFactor=factor, baseColorTexture=texture, alphaMode="OPAQUE", doubleSided=True
+        baseColorFactor=corners.factor, baseColorTexture=corners.texture, alphaMode="OPAQUE", doubleSided=True
     )
     return pyrender.Primitive(
-        positions=positions, color_0=color_0, texcoord_0=texcoord_0, material=material, mode=4
+        positions=positions, color_0=corners.colors, texcoord_0=corners.uv, material=material, mode=4
     )
 
 
-def _base_color_texture_mesh(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+def base_color_texture_mesh(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     """Textured meshes with a non-PBR material get a PBR copy so the base-colour texture is found."""
     if mesh.visual.kind == "texture" and not isinstance(mesh.visual.material, trimesh.visual.material.PBRMaterial):
         mesh = mesh.copy()
@@ -97,25 +116,21 @@ def _base_color_texture_mesh(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     return mesh
 
 
-class GroundTruthRenderer:
-    """Renders one mesh from c2w poses (OpenGL axes, PROTOCOL.md 1) with pixel-centre rays.
+def as_pose(c2w: Float[Tensor, "4 4"] | Float[np.ndarray, "4 4"]) -> Float[np.ndarray, "4 4"]:
+    """A c2w pose as a float64 numpy array."""
+    pose = c2w.detach().cpu().numpy() if isinstance(c2w, Tensor) else np.asarray(c2w)
+    return pose.astype(np.float64)
 
-    Keeps one offscreen context (recreated when the image size changes); call ``close()`` (or use it
-    as a context manager) to release it.
-    """
 
-    def __init__(self, mesh: trimesh.Trimesh, backend: str = "auto") -> None:
-        self.backend = resolve_backend(backend)
-        self._pyrender = _import_pyrender(self.backend)
-        import open3d as o3d  # after pyrender's platform is set; open3d-cpu is headless
+class MeshRays:
+    """Exact open3d ray casting on a mesh's triangles: face ids, visibility, occupancy, and the depth and
+    hit mask of a view. Both ground-truth backends (pyrender here, Blender in ``pipeline.scenes.blender``)
+    answer these from it, so geometry metrics, coverage and Vis. do not depend on the backend."""
+
+    def __init__(self, mesh: trimesh.Trimesh) -> None:
+        import open3d as o3d  # after pyrender's platform is set (GroundTruthRenderer); open3d-cpu is headless
 
         self.mesh = mesh
-        pr = self._pyrender
-        self._scene = pr.Scene(bg_color=np.zeros(4), ambient_light=np.ones(3))
-        self._scene.add(pr.Mesh([_as_opaque_primitive(pr, _base_color_texture_mesh(mesh))]))
-        self._camera_node = None
-        self._renderer = None
-        self._size: tuple[int, int] | None = None
         self._bounds = np.asarray(mesh.bounds, dtype=np.float64)
         self._raycaster = o3d.t.geometry.RaycastingScene()
         self._raycaster.add_triangles(
@@ -123,43 +138,6 @@ class GroundTruthRenderer:
             o3d.core.Tensor(np.ascontiguousarray(mesh.faces, dtype=np.uint32)),
         )
         self._o3d = o3d
-
-    def _clip_range(self, position: np.ndarray) -> tuple[float, float]:
-        """Near/far planes enclosing the mesh bounds from ``position``, near as far out as possible.
-
-        The depth buffer's resolution scales with ``near`` (error ~ z^2 / (near * 2^24)), so near is
-        95% of the distance to the bounds (at least 1e-3 of their diagonal when inside them).
-        """
-        lo, hi = self._bounds
-        corners = np.array(np.meshgrid(*self._bounds.T, indexing="ij")).reshape(3, -1).T
-        far = float(np.linalg.norm(corners - position, axis=1).max()) * 1.01
-        outside = float(np.linalg.norm(np.maximum(lo - position, 0.0) + np.maximum(position - hi, 0.0)))
-        near = max(1e-3 * float(np.linalg.norm(hi - lo)), 0.95 * outside)
-        return near, max(far, 2.0 * near)
-
-    def _offscreen(self, intr: Intrinsics):
-        """The offscreen context for this image size; a new size replaces it (pyrender binds meshes to one context)."""
-        size = (intr.width, intr.height)
-        if self._renderer is not None and self._size != size:
-            self.close()
-        if self._renderer is None:
-            self._renderer, self._size = self._pyrender.OffscreenRenderer(*size), size
-        return self._renderer
-
-    def render_rgb_depth(
-        self, c2w: Float[np.ndarray, "4 4"], intr: Intrinsics
-    ) -> tuple[Float[np.ndarray, "H W 3"], Float[np.ndarray, "H W"]]:
-        """Unlit RGB in [0, 1] (black background) and camera z-distance (0 = miss) from pyrender."""
-        pr = self._pyrender
-        znear, zfar = self._clip_range(c2w[:3, 3])
-        camera = pr.IntrinsicsCamera(
-            intr.focal, intr.focal, intr.width / 2.0, intr.height / 2.0, znear=znear, zfar=zfar
-        )
-        if self._camera_node is not None:
-            self._scene.remove_node(self._camera_node)
-        self._camera_node = self._scene.add(camera, pose=c2w.astype(np.float64))
-        color, depth = self._offscreen(intr).render(self._scene, flags=pr.RenderFlags.FLAT)
-        return (color[..., :3].astype(np.float32) / 255.0), depth.astype(np.float32)
 
     def cast_rays(
         self, origins: Float[np.ndarray, "N 3"], dirs: Float[np.ndarray, "N 3"]
@@ -206,12 +184,89 @@ class GroundTruthRenderer:
         origins, dirs = pixel_rays(torch.from_numpy(c2w.astype(np.float32)), intr)
         return self.cast_rays(origins.numpy(), dirs.numpy())[1].reshape(intr.height, intr.width)
 
+    def ray_cast_view(
+        self, c2w: Float[np.ndarray, "4 4"], intr: Intrinsics
+    ) -> tuple[Float[np.ndarray, "H W"], Bool[np.ndarray, "H W"], Int[np.ndarray, "H W"]]:
+        """Depth along the camera's -z axis (0 = miss), hit mask and face ids of the pixel-centre rays."""
+        origins, dirs = pixel_rays(torch.from_numpy(c2w.astype(np.float32)), intr)
+        t_hit, ids = self.cast_rays(origins.numpy(), dirs.numpy())
+        forward = -c2w[:3, 2].astype(np.float32)
+        hit = ids >= 0
+        depth = np.where(hit, t_hit * (dirs.numpy() @ forward), 0.0).astype(np.float32)
+        shape = (intr.height, intr.width)
+        return depth.reshape(shape), hit.reshape(shape), ids.reshape(shape)
+
+    def close(self) -> None:
+        """Release what the backend holds (nothing for ray casting alone)."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class GroundTruthRenderer(MeshRays):
+    """Renders one mesh from c2w poses (OpenGL axes, PROTOCOL.md 1) with pixel-centre rays: RGB and depth
+    from pyrender, face ids and visibility from ``MeshRays``.
+
+    Keeps one offscreen context (recreated when the image size changes); call ``close()`` (or use it
+    as a context manager) to release it.
+    """
+
+    def __init__(self, mesh: trimesh.Trimesh, backend: str = "auto") -> None:
+        self.backend = resolve_backend(backend)
+        self._pyrender = _import_pyrender(self.backend)
+        super().__init__(mesh)
+        pr = self._pyrender
+        self._scene = pr.Scene(bg_color=np.zeros(4), ambient_light=np.ones(3))
+        self._scene.add(pr.Mesh([_as_opaque_primitive(pr, base_color_texture_mesh(mesh))]))
+        self._camera_node = None
+        self._renderer = None
+        self._size: tuple[int, int] | None = None
+
+    def _clip_range(self, position: np.ndarray) -> tuple[float, float]:
+        """Near/far planes enclosing the mesh bounds from ``position``, near as far out as possible.
+
+        The depth buffer's resolution scales with ``near`` (error ~ z^2 / (near * 2^24)), so near is
+        95% of the distance to the bounds (at least 1e-3 of their diagonal when inside them).
+        """
+        lo, hi = self._bounds
+        corners = np.array(np.meshgrid(*self._bounds.T, indexing="ij")).reshape(3, -1).T
+        far = float(np.linalg.norm(corners - position, axis=1).max()) * 1.01
+        outside = float(np.linalg.norm(np.maximum(lo - position, 0.0) + np.maximum(position - hi, 0.0)))
+        near = max(1e-3 * float(np.linalg.norm(hi - lo)), 0.95 * outside)
+        return near, max(far, 2.0 * near)
+
+    def _offscreen(self, intr: Intrinsics):
+        """The offscreen context for this image size; a new size replaces it (pyrender binds meshes to one context)."""
+        size = (intr.width, intr.height)
+        if self._renderer is not None and self._size != size:
+            self.close()
+        if self._renderer is None:
+            self._renderer, self._size = self._pyrender.OffscreenRenderer(*size), size
+        return self._renderer
+
+    def render_rgb_depth(
+        self, c2w: Float[np.ndarray, "4 4"], intr: Intrinsics
+    ) -> tuple[Float[np.ndarray, "H W 3"], Float[np.ndarray, "H W"]]:
+        """Unlit RGB in [0, 1] (black background) and camera z-distance (0 = miss) from pyrender."""
+        pr = self._pyrender
+        znear, zfar = self._clip_range(c2w[:3, 3])
+        camera = pr.IntrinsicsCamera(
+            intr.focal, intr.focal, intr.width / 2.0, intr.height / 2.0, znear=znear, zfar=zfar
+        )
+        if self._camera_node is not None:
+            self._scene.remove_node(self._camera_node)
+        self._camera_node = self._scene.add(camera, pose=c2w.astype(np.float64))
+        color, depth = self._offscreen(intr).render(self._scene, flags=pr.RenderFlags.FLAT)
+        return (color[..., :3].astype(np.float32) / 255.0), depth.astype(np.float32)
+
     def _masked_view(
         self, c2w: Float[Tensor, "4 4"] | Float[np.ndarray, "4 4"], intr: Intrinsics
     ) -> tuple[Float[np.ndarray, "4 4"], Float[np.ndarray, "H W 3"], Float[np.ndarray, "H W"], Bool[np.ndarray, "H W"]]:
         """The float64 pose, RGB (black where nothing is hit), depth and hit mask of the view ``c2w``."""
-        pose = c2w.detach().cpu().numpy() if isinstance(c2w, Tensor) else np.asarray(c2w)
-        pose = pose.astype(np.float64)
+        pose = as_pose(c2w)
         rgb, depth = self.render_rgb_depth(pose, intr)
         mask = depth > 0
         return pose, np.where(mask[..., None], rgb, 0.0).astype(np.float32), depth, mask
@@ -240,9 +295,3 @@ class GroundTruthRenderer:
         if self._renderer is not None:
             self._renderer.delete()
             self._renderer, self._size = None, None
-
-    def __enter__(self) -> "GroundTruthRenderer":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()

@@ -1,6 +1,7 @@
-"""A picture of a scene before a long run: its initial and evaluation views rendered, and a top view
-with the boxes and the camera positions."""
+"""A picture of a scene before a long run: its initial and evaluation views rendered by a ground-truth
+renderer (either backend), and a top view with the boxes and the camera positions."""
 
+import io
 import math
 from pathlib import Path
 
@@ -41,21 +42,25 @@ def _top_view(scene: Scene, renderer, res: int) -> tuple[np.ndarray, list[float]
     return image.reshape(height, width, 3), [lo[0], hi[0], lo[1], hi[1]]
 
 
-def show(scene: Scene, out_dir: Path, res: int) -> Path:
-    """PNG grid of the initial and evaluation views plus a top view with boxes and camera positions."""
+def show(scene: Scene, renderer, out_dir: Path, res: int) -> Path:
+    """PNG grid of the initial and evaluation views (``renderer``: pyrender's or Blender's, see
+    ``pipeline.scenes.ground_truth``) plus a top view with boxes and camera positions, written atomically as
+    ``<scene>.png`` (pyrender) or ``<scene>_blender.png``."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.patches import Rectangle
 
-    from pipeline.scenes.render import GroundTruthRenderer
+    from pipeline.records.store import atomic_write_bytes
+    from pipeline.scenes.blender import BlenderRenderer
 
     intr = Intrinsics.from_fov(res, res)
-    with GroundTruthRenderer(scene.mesh) as renderer:
-        init = [renderer.render(p, intr).rgb for p in scene.init_poses]
-        evals = [renderer.render(p, intr).rgb for p in scene.eval_poses]
-        top, extent = _top_view(scene, renderer, res)
+    init = [renderer.render(p, intr).rgb for p in scene.init_poses]
+    evals = [renderer.render(p, intr).rgb for p in scene.eval_poses]
+    top, extent = _top_view(scene, renderer, res)
+    blender = isinstance(renderer, BlenderRenderer)
+    backend = f"Blender Cycles {renderer.samples} spp" if blender else "pyrender flat"
     cols, init_rows = 5, math.ceil(len(init) / 5)
     rows = init_rows + 4
     fig = plt.figure(figsize=(2.0 * cols + 6.5, 2.0 * rows + 0.4))
@@ -83,10 +88,11 @@ def show(scene: Scene, out_dir: Path, res: int) -> Path:
     ax.set_xlabel("x")
     ax.set_ylabel("y")
     ax.legend(fontsize=7, loc="upper right")
-    ax.set_title(f"{scene.name} ({scene.source}): top view, z-shaded", fontsize=9)
+    ax.set_title(f"{scene.name} ({scene.source}; views: {backend}): top view, z-shaded", fontsize=9)
     fig.tight_layout()
-    out_dir.mkdir(parents=True, exist_ok=True)
-    path = out_dir / f"{scene.name}.png"
-    fig.savefig(path, dpi=80)
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=80)
     plt.close(fig)
+    path = out_dir / f"{scene.name}{'_blender' if blender else ''}.png"
+    atomic_write_bytes(path, buffer.getvalue())
     return path

@@ -205,12 +205,19 @@ def _notes(selected: pd.DataFrame, done: pd.DataFrame, rows: pd.DataFrame, runs:
 def _header(done: pd.DataFrame, runs: Runs) -> tuple[str, ...]:
     budgets = ", ".join(sorted(set(done["budget"])))
     steps = ", ".join(str(s) for s in sorted(set(done["step"].astype(int))))
-    sources = done.groupby("scene")["scene_source"].agg(lambda s: "/".join(sorted(set(s))))
-    scenes = "; ".join(f"{scene} ({sources[scene]})" for scene in sorted(sources.index, key=lambda scene: runs.scene(scene).order))
+    by_scene = done.groupby("scene")
+    sources = {column: by_scene[column].agg(lambda s: "/".join(sorted(set(s) - {""}))) for column in
+               ("scene_source", "asset", "ground_truth")}  # fmt: skip
+    scenes = "; ".join(
+        f"{scene} ({' '.join(filter(None, (sources['scene_source'][scene], sources['asset'][scene])))}, "
+        f"ground truth {sources['ground_truth'][scene]})"
+        for scene in sorted(by_scene.groups, key=lambda scene: runs.scene(scene).order)
+    )
     return (
         f"Budget: {budgets}. Cells: mean ± population std over seeds at the last step (step {steps}), the mean alone "
         "from one seed; n = seeds.",
-        f"Scenes: {scenes}. Proxies and procedural scenes are stand-ins, not the paper's assets.",
+        f"Scenes: {scenes}. Proxies and procedural scenes are stand-ins, not the paper's assets; pyrender's ground "
+        "truth is flat (unlit), Blender Cycles' lit (docs/DEVIATIONS.md).",
     )
 
 

@@ -30,9 +30,22 @@ LONG_COLUMNS = (
     "scene", "scene_source", "method", "planner", "ablation", "budget", "seed", "step", "n_views", "metric", "value"
 )
 FINAL_COLUMNS = (
-    *IDENTITY_KEYS, "scene_source", "status", "failure_reason", "lpips_missing_reason", "directory", "step", "n_views"
+    *IDENTITY_KEYS, "scene_source", "asset", "ground_truth", "status", "failure_reason", "lpips_missing_reason",
+    "directory", "step", "n_views",
 )
 GROUP = ("budget", "scene", "method", "planner", "ablation")
+
+
+def ground_truth_label(info: dict) -> tuple[str, str]:
+    """The asset file (empty when the record does not say) and the ground-truth backend of a run record:
+    ``pyrender`` or ``Blender Cycles <n> spp``. Records from before the Blender backend are pyrender's."""
+    recorded = info.get("ground_truth") if isinstance(info.get("ground_truth"), dict) else {}
+    config = info.get("config") if isinstance(info.get("config"), dict) else {}
+    render = config.get("render") if isinstance(config.get("render"), dict) else {}
+    backend = recorded.get("backend", render.get("backend", "pyrender"))
+    if backend == "blender":
+        backend = f"Blender Cycles {recorded.get('samples', render.get('samples'))} spp"
+    return str(recorded.get("asset") or ""), str(backend)
 
 
 @dataclass(frozen=True)
@@ -140,10 +153,13 @@ def collect_runs(roots: list[Path]) -> Runs:
         scenes.setdefault(info["scene"], scene)
         keys["budget"] = named.budget_label(info)
         source = str(info.get("scene_source", "unknown"))
+        asset, ground_truth = ground_truth_label(info)
         last = max(rows, key=lambda r: r["step"]) if rows else {"metrics": {}}
         final = {
             **keys,
             "scene_source": source,
+            "asset": asset,
+            "ground_truth": ground_truth,
             "status": record["status"],
             "failure_reason": info.get("failure_reason"),
             "lpips_missing_reason": info.get("lpips_missing_reason") or last.get("lpips_missing_reason"),

@@ -9,7 +9,7 @@ import pandas as pd
 from pipeline.metrics.info import PAPER_METRICS
 from pipeline.records.store import atomic_write_text, record_status
 from pipeline.tables.labels import METRIC_KEYS
-from pipeline.tables.load import describe, load_run, metric_value
+from pipeline.tables.load import describe, ground_truth_label, load_run, metric_value
 from pipeline.tables.paper import paper_numbers
 
 
@@ -36,7 +36,9 @@ def summarize_run(run_dir: Path) -> Path:
         cells.append([f"paper ({ref['table']})", ""] + [f"{ref[m.name]:.{m.decimals}f}" for m in PAPER_METRICS] + [""])
     table = pd.DataFrame(cells, columns=columns).to_markdown(index=False, disable_numparse=True)
     source = info.get("scene_source", "unknown")
-    notes = [f"Status: {record_status(info, Path(run_dir))}. Scene source: {source}."]
+    asset, ground_truth = ground_truth_label(info)
+    source = f"{source} ({asset})" if asset else source
+    notes = [f"Status: {record_status(info, Path(run_dir))}. Scene source: {source}. Ground truth: {ground_truth}."]
     if info.get("lpips_missing_reason"):
         notes.append(f"LPIPS missing: {info['lpips_missing_reason']}.")
     title = f"# {info['scene']} / {label} / {info['budget']} budget / seed {info['seed']}"
