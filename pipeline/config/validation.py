@@ -13,9 +13,11 @@ from hydra.errors import HydraException
 from omegaconf import DictConfig, OmegaConf
 
 from nvf.config import STAGES
+from nvf.precision import PRECISIONS, unsupported_reason
 from nvf.training import AUX_LOSSES
 from nvf.uncertainty.scorers import METHODS
 from pipeline.config.named import changed_settings
+from pipeline.episode.settings import resolve_device
 from pipeline.repo import CONF
 from pipeline.config.schema import register_configs
 
@@ -43,6 +45,7 @@ _CHOICES: dict[str, tuple[Any, ...]] = {
     "train.schedule": ("paper", "reference"),
     "train.stage_order": ("var_first", "vis_first"),
     "train.var_loss_background": ("random", "black"),
+    "train.precision": PRECISIONS,
     "baseline.air_reduce": ("mean", "sum"),
     "baseline.air_view_score": ("pixel_mean", "topk"),
     "baseline.activenerf_variant": ("A", "B"),
@@ -122,6 +125,14 @@ def validate(cfg: DictConfig) -> None:
             "or null (the scene's value)"
         )
     _check_device(str(cfg.device))
+    _check_precision(str(cfg.train.precision), str(cfg.device))
+
+
+def _check_precision(precision: str, device: str) -> None:
+    """``train.precision`` runs natively on the run's device (``device=auto`` resolved)."""
+    reason = unsupported_reason(precision, resolve_device(device))
+    if reason is not None:
+        raise ConfigError(f"train.precision={precision}: {reason}")
 
 
 def _check_device(device: str) -> None:
