@@ -64,8 +64,8 @@ def lockstep(jobs: dict[str, Callable[[Turn], T]]) -> dict[str, T]:
 
 
 class IterationClock:
-    """Training progress callback: a job's own wall and CPU seconds and its model's kept samples after
-    each iteration. ``turn`` (from ``lockstep``) is called after the reading, and the time until it
+    """Training progress callback: a job's own wall and CPU seconds, its model's kept samples and the
+    stage after each iteration. ``turn`` (from ``lockstep``) is called after the reading, and the time until it
     returns (other jobs' turns) is not counted. ``counter()`` gives the cumulative samples (kept, marched)."""
 
     def __init__(self, counter: Callable[[], tuple[int, int]], total: int, desc: str, turn: Turn | None = None):
@@ -74,6 +74,7 @@ class IterationClock:
         self.cpu: list[float] = []
         self.samples: list[int] = []
         self.marched: list[int] = []
+        self.stages: list[str] = []
         self._elapsed = [0.0, 0.0]
         self._resumed = (time.perf_counter(), time.process_time())
         self.bar = tqdm(total=total, desc=desc, unit="it", leave=False, disable=not sys.stderr.isatty())
@@ -86,6 +87,7 @@ class IterationClock:
         self.cpu.append(self._elapsed[1])
         self.samples.append(kept)
         self.marched.append(marched)
+        self.stages.append(stage)
         self.bar.update(1)
         if self.turn is not None:
             self.turn()
@@ -106,6 +108,20 @@ class IterationClock:
             "train_samples_per_iter": samples / iters,
             "train_marched_per_iter": (self.marched[last] - self.marched[first - 1]) / iters,
         }
+
+    def stage_seconds(self) -> dict[str, float]:
+        """Own wall seconds per training stage (an iteration's time goes to the stage that reported it)."""
+        out: dict[str, float] = {}
+        for i, stage in enumerate(self.stages):
+            out[stage] = out.get(stage, 0.0) + self.wall[i] - (self.wall[i - 1] if i else 0.0)
+        return out
+
+    def stage_seconds(self) -> dict[str, float]:
+        """Own wall seconds per training stage (an iteration's time goes to the stage that reported it)."""
+        out: dict[str, float] = {}
+        for i, stage in enumerate(self.stages):
+            out[stage] = out.get(stage, 0.0) + self.wall[i] - (self.wall[i - 1] if i else 0.0)
+        return out
 
     def windows(self, first: int, count: int) -> list[tuple[int, int]]:
         """``count`` consecutive iteration ranges ``(first, last)`` covering ``first..end`` (fewer if

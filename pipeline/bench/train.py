@@ -1,12 +1,17 @@
-"""``python -m pipeline.bench train [--out PATH] [--repeats N] [overrides]``: end-to-end training and
-inference throughput of the scene model at a budget (default ``budget=cpu scene=default``).
+"""``python -m pipeline.bench train [--out PATH] [--repeats N] [--precisions fp32,bf16] [--windows W] [overrides]``:
+end-to-end training and inference throughput of the scene model at a budget (default ``budget=cpu
+scene=default``), for each training precision side by side.
 
-In one run, on the scene's 20 evaluation views rendered at ``budget.image_size`` as training views:
+In one run, on the scene's 20 evaluation views rendered at ``budget.image_size`` as training views, one
+model per ``train.precision`` in ``--precisions`` (the first is the reference), from the same initial
+weights and seed; the top-level figures below are the reference's:
 
 - stage 1 (``nvf.training.train_backbone`` at the budget: render with ``train=True``, loss,
   backward, Adam, occupancy-grid updates) timed per iteration, as kept samples/s over the
-  iterations after a warm-up;
-- inference: ``no_grad`` ``render_image`` of the 20 views with all heads and with rgb only;
+  iterations after a warm-up; the precisions' trainings run in lockstep, taking turns iteration by
+  iteration (``pipeline.bench._paired``), each timed over its own turns only;
+- inference: ``no_grad`` ``render_image`` of the 20 views with all heads and with rgb only, on the
+  reference model with its MLPs in each precision, alternating, ``--repeats`` rounds;
 - the ``[n, hidden_dim]`` matmul rate (``pipeline.bench.field``) with ``n`` the mean kept samples
   of a training batch, and the fractions of that limit (field.py's MLP FLOPs per sample);
   ``<key>_samples_per_s_at_limit`` is the rate if the MLPs ran at that matmul rate and nothing else
@@ -16,13 +21,21 @@ In one run, on the scene's 20 evaluation views rendered at ``budget.image_size``
   work (forward + backward on the kept samples, the skipping pass's density on the marched ones, the
   occupancy update over its period), timed apart after training, and the MLP floor, the same with only
   the MLPs' layers (no hash encoding); ``train_goal_within_field_floor``, ``train_goal_within_mlp_floor``;
+  both on the reference model, with its MLPs in each precision;
 - the PSNR of the trained backbone on 5 held-out views (the ring of tests/test_integration.py) and
   on the first 5 training views (fit vs. generalisation), also off the ground truth's edges.
   ``budget.gt_samples=K`` renders every ground-truth view (training and test) as the mean of ``K x K``
   sub-pixel samples, an anti-aliased ground truth like the paper's Blender renders (as in an episode).
 
+``precisions`` holds these figures per precision (held-out PSNR of each precision's own model, rendered
+in float32 as an episode renders it), ``ratios`` each other precision against the reference, paired:
+training samples/s and the per-iteration speed-up over ``--windows`` iteration windows, inference over
+the rounds (median, min, max), the floors' ratios, and the held-out PSNR difference (dB), checked
+against ``PRECISION_GOALS``. Per-iteration time and kept samples/s can disagree: the precisions' models
+train apart, and their occupancy grids keep and march different numbers of samples.
+
 Rates are given from wall time and (``*_cpu``) from process CPU time / threads, which is robust
-to other jobs on the cores. The model runs on the CPU. Writes ``results/bench/train.json``
+to other jobs on the cores. The models run on the CPU. Writes ``results/bench/train.json``
 (or ``--out``) and prints a table.
 """
 
@@ -109,6 +122,37 @@ def observations(
     return Observations(torch.from_numpy(images), poses.to(torch.float32), intr)
 
 
+def same_initial_models(
+    cfg: DictConfig, scene: Scene, s: EpisodeSettings, names: list[str], model_cls: type[CountingModel]
+) -> dict[str, CountingModel]:
+    """One fresh model per name, all with the initial weights of ``torch.manual_seed(cfg.seed)``."""
+    models = {}
+    for name in names:
+        torch.manual_seed(int(cfg.seed))
+        models[name] = model_cls(scene.object_aabb, s.field, s.sampler)
+    return models
+
+
+def train_in_lockstep(
+    models: dict[str, CountingModel], iterations: int, train: Callable[[str, CountingModel, IterationClock], None]
+) -> dict[str, IterationClock]:
+    """``train(name, model, progress)`` for every model side by side (``pipeline.bench._paired.lockstep``):
+    the trainings take turns iteration by iteration. Returns each one's clock (its own turns only)."""
+    clocks: dict[str, IterationClock] = {}
+
+    def job(name: str) -> Callable[[Turn], None]:
+        def run(turn: Turn) -> None:
+            model = models[name]
+            clocks[name] = IterationClock(lambda: (model.samples, model.marched), iterations, name, turn)
+            train(name, model, clocks[name])
+            clocks[name].bar.close()
+
+        return run
+
+    lockstep({name: job(name) for name in models})
+    return clocks
+
+
 @dataclass
 class InitialViewModel:
     """A full NVF model (all three stages, at the budget) trained on the scene's initial views: the
@@ -133,6 +177,30 @@ class InitialViewModel:
         model = model_cls(scene.object_aabb, s.field, s.sampler)
         stats = train_model(model, obs, s.train, STAGES, s.entropy, torch.Generator().manual_seed(int(cfg.seed)))
         return InitialViewModel(cfg, scene, s, renderer, obs, model, stats.seconds)
+
+    @staticmethod
+    def train_side_by_side(
+        cfg: DictConfig, precisions: list[str]
+    ) -> tuple[dict[str, "InitialViewModel"], dict[str, IterationClock]]:
+        """One ``CountingModel`` per ``train.precision``, from the same initial weights and seed, all three
+        stages trained in lockstep (``train_in_lockstep``)."""
+        scene = load(cfg)
+        s = EpisodeSettings.of(cfg, scene)
+        size = int(cfg.budget.image_size)
+        renderer = GroundTruthRenderer(scene.mesh)
+        obs = observations(renderer, scene.init_poses, Intrinsics.from_fov(size, size))
+        models = same_initial_models(cfg, scene, s, precisions, CountingModel)
+
+        def train(name: str, model: CountingModel, progress: IterationClock) -> None:
+            generator = torch.Generator().manual_seed(int(cfg.seed))
+            train_model(model, obs, dataclasses.replace(s.train, precision=name), STAGES, s.entropy, generator,
+                        progress=progress)  # fmt: skip
+
+        clocks = train_in_lockstep(models, sum(getattr(s.train, stage).iters for stage in STAGES), train)
+        setups = {
+            name: InitialViewModel(cfg, scene, s, renderer, obs, models[name], clocks[name].wall[-1]) for name in precisions
+        }
+        return setups, clocks
 
     def candidates(self, step: int) -> Float[Tensor, "m 7"]:
         """The candidate poses the planner would draw at ``step`` (METHOD 13, M28/M29 filters), from
@@ -399,25 +467,14 @@ def parse_precisions(value: str) -> list[str]:
 def train_side_by_side(
     cfg: DictConfig, s: EpisodeSettings, scene: Scene, obs: Observations, precisions: list[str]
 ) -> tuple[dict[str, CountingModel], dict[str, IterationClock]]:
-    """One model per precision, from the same initial weights and seed, trained (stage 1) in lockstep:
-    the trainings take turns iteration by iteration."""
-    models, clocks = {}, {}
-    for name in precisions:
-        torch.manual_seed(int(cfg.seed))
-        models[name] = CountingModel(scene.object_aabb, s.field, s.sampler)
+    """Stage 1 of one model per ``train.precision``, from the same initial weights and seed, in lockstep."""
+    models = same_initial_models(cfg, scene, s, precisions, CountingModel)
 
-    def job(name: str) -> Callable[[Turn], None]:
-        def run(turn: Turn) -> None:
-            model = models[name]
-            clocks[name] = IterationClock(lambda: (model.samples, model.marched), s.train.backbone.iters, name, turn)
-            train_cfg = dataclasses.replace(s.train, precision=name)
-            train_backbone(model, obs, train_cfg, torch.Generator().manual_seed(int(cfg.seed)), progress=clocks[name])
-            clocks[name].bar.close()
+    def train(name: str, model: CountingModel, progress: IterationClock) -> None:
+        generator = torch.Generator().manual_seed(int(cfg.seed))
+        train_backbone(model, obs, dataclasses.replace(s.train, precision=name), generator, progress=progress)
 
-        return run
-
-    lockstep({name: job(name) for name in precisions})
-    return models, clocks
+    return models, train_in_lockstep(models, s.train.backbone.iters, train)
 
 
 def main(argv: list[str]) -> None:
