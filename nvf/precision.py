@@ -53,6 +53,8 @@ def supported_precisions(device: torch.device) -> tuple[str, ...]:
 def unsupported_reason(precision: str, device: torch.device) -> str | None:
     """``None`` if ``device`` runs ``precision`` natively, else one line saying what it lacks and what
     it supports."""
+    if precision == "fp32":
+        return None
     available = supported_precisions(device)
     if precision in available:
         return None

@@ -285,8 +285,11 @@ class _Recorder:
 
 
 def _in_training_precision(stage: Callable[..., dict[str, float]]) -> Callable[..., dict[str, float]]:
-    """Run a stage ``stage(model, obs, cfg, ...)`` with the field's MLPs in ``cfg.precision``
-    (``RadianceField.mlp_precision``): float32 (unchanged) by default, bf16 or fp16 for mixed precision."""
+    """Run a stage ``stage(model, obs, cfg, ...)`` with the field's MLPs in ``cfg.precision`` where they
+    run with autograd (``RadianceField.mlp_precision``): float32 (unchanged) by default, bf16 or fp16 for
+    mixed precision. Their calls without autograd (the skipping pass, occupancy updates, visibility
+    labels) stay float32: bf16 measured no faster there (docs/BUDGETS.md), and the grid and the labels
+    see float32 densities."""
 
     @functools.wraps(stage)
     def run(model: SceneModel, obs: Observations, cfg: TrainConfig, *args, **kwargs) -> dict[str, float]:

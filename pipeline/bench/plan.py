@@ -176,7 +176,7 @@ def main(argv: list[str]) -> None:
 
     def in_precision(fn: Callable[[Tensor], object], name: str) -> Callable[[Tensor], object]:
         def run(p: Tensor) -> object:
-            with model.field.mlp_precision(precision_dtype(name)):
+            with model.field.mlp_precision(torch.float32, infer=precision_dtype(name)):
                 return fn(p)
 
         return run

@@ -255,7 +255,7 @@ def inference_rates(
 
     def render_all(name: str) -> tuple[float, float, int]:
         before, start, start_cpu = model.samples, time.perf_counter(), time.process_time()
-        with model.field.mlp_precision(precision_dtype(name)):
+        with model.field.mlp_precision(torch.float32, infer=precision_dtype(name)):
             for c2w in poses:
                 model.render_image(c2w, intr, heads=heads, chunk=RENDER_CHUNK)
         cpu = (time.process_time() - start_cpu) / torch.get_num_threads()
