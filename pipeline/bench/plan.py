@@ -152,7 +152,8 @@ def main(argv: list[str]) -> None:
     parser.add_argument("--out", type=Path, default=RESULTS / "bench" / "plan.json", help="JSON report path")
     parser.add_argument("--repeats", type=int, default=1, help="timed passes over all candidates")
     parser.add_argument("--blocks", type=int, default=8, help="candidate blocks per pass (ratio = median over blocks)")
-    parser.add_argument("--precisions", default="fp32,bf16", help="train.precision values compared (first: reference)")
+    parser.add_argument("--precisions", help="train.precision values compared, first the reference (default: fp32,bf16 "
+                        "where the CPU has bfloat16, else fp32)")  # fmt: skip
     args = parser.parse_intermixed_args(argv)
     if args.repeats < 1 or args.blocks < 1:
         parser.error("--repeats and --blocks must be >= 1")

@@ -64,7 +64,7 @@ from nvf.model import RenderResult, SceneModel
 from nvf.planning import candidate_poses
 from nvf.seeding import seeded_generator
 from nvf.rendering import Samples
-from nvf.precision import PRECISIONS, precision_dtype, unsupported_reason
+from nvf.precision import PRECISIONS, precision_dtype, supported_precisions, unsupported_reason
 from nvf.training import Observations, train_backbone, train_model
 from pipeline.bench._paired import IterationClock, Turn, lockstep, ratio_spread
 from pipeline.bench._report import write_report
@@ -447,9 +447,15 @@ def precision_ratios(
     return ratio
 
 
-def parse_precisions(value: str) -> list[str]:
-    """``fp32,bf16`` -> the precisions to compare (the first is the reference of the ratios); each must be
-    one the CPU runs natively (one line and exit status 2 otherwise)."""
+def default_precisions() -> str:
+    """``fp32,bf16`` where the CPU runs bfloat16 natively, else ``fp32``."""
+    return "fp32,bf16" if "bf16" in supported_precisions(torch.device("cpu")) else "fp32"
+
+
+def parse_precisions(value: str | None) -> list[str]:
+    """``fp32,bf16`` -> the precisions to compare (the first is the reference of the ratios; ``None``:
+    ``default_precisions()``); each must be one the CPU runs natively (one line and exit status 2 otherwise)."""
+    value = default_precisions() if value is None else value
     names = [name.strip() for name in value.split(",") if name.strip()]
     for name in names:
         reason = unsupported_reason(name, torch.device("cpu")) if name in PRECISIONS else (
@@ -482,7 +488,8 @@ def main(argv: list[str]) -> None:
     parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. budget=smoke")
     parser.add_argument("--out", type=Path, default=RESULTS / "bench" / "train.json", help="JSON report path")
     parser.add_argument("--repeats", type=int, default=3, help="timed inference passes (median)")
-    parser.add_argument("--precisions", default="fp32,bf16", help="train.precision values compared (first: reference)")
+    parser.add_argument("--precisions", help="train.precision values compared, first the reference (default: fp32,bf16 "
+                        "where the CPU has bfloat16, else fp32)")  # fmt: skip
     parser.add_argument("--windows", type=int, default=5, help="iteration windows of the paired training ratios")
     args = parser.parse_intermixed_args(argv)
     if args.repeats < 1 or args.windows < 1:
