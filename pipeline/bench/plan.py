@@ -184,7 +184,8 @@ def main(argv: list[str]) -> None:
 
     jobs = {(name, precision): in_precision(fn, precision) for precision in precisions for name, fn in work.items()}
     timings = time_in_blocks(jobs, poses, model, args.blocks, args.repeats)
-    per, ratios = precision_comparison(setups, clocks, timings[0], list(work), poses.shape[0] * args.repeats, args.blocks)
+    candidates = poses.shape[0] * args.repeats
+    per, ratios = precision_comparison(setups, clocks, timings[0], list(work), candidates, args.blocks)
     wall, cpu, kept = ({job: by_job[(job, base)] for job in work} for by_job in timings)  # the reference's
 
     m = poses.shape[0]

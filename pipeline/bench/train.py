@@ -198,7 +198,8 @@ class InitialViewModel:
 
         clocks = train_in_lockstep(models, sum(getattr(s.train, stage).iters for stage in STAGES), train)
         setups = {
-            name: InitialViewModel(cfg, scene, s, renderer, obs, models[name], clocks[name].wall[-1]) for name in precisions
+            name: InitialViewModel(cfg, scene, s, renderer, obs, models[name], clocks[name].wall[-1])
+            for name in precisions
         }
         return setups, clocks
 
@@ -369,6 +370,7 @@ def precision_goals_met(ratio: dict) -> dict[str, bool]:
 def print_report(report: dict, update_every: int) -> None:
     """The report as a few lines of text: rates against their limits, floors, and the precisions side by side."""
     r = report
+    rows, width = r["settings"]["matmul_rows"], r["settings"]["hidden_dim"]
     print(f"{'':14}{'samples/s':>12}{'(cpu)':>12}{'at limit':>12}{'frac. limit':>13}{'goal':>9}")
     for key, label in (("train", "train step"), ("infer", "infer all"), ("infer_rgb", "infer rgb")):
         goal = GOALS.get(f"{key}_samples_per_s")
@@ -377,7 +379,7 @@ def print_report(report: dict, update_every: int) -> None:
               f"{r[f'{key}_samples_per_s_at_limit']:>12.3e}{r[f'{key}_fraction_of_limit']:>13.3f}"
               f"{mark:>9}")  # fmt: skip
     print(
-        f"matmul [{r['settings']['matmul_rows']}x{r['settings']['hidden_dim']}]x[...]: {r['matmul_gflops']:.1f} GFLOP/s; "
+        f"matmul [{rows}x{width}]x[{width}x{width}]: {r['matmul_gflops']:.1f} GFLOP/s; "
         f"PSNR held-out {r['heldout_psnr']:.2f} dB ({r['heldout_psnr_off_edges']:.2f} off edges), "
         f"training views {r['train_view_psnr']:.2f} dB; "
         f"{r['settings']['train_samples_per_ray']:.1f} samples/ray (train); {r['seconds']:.0f} s"
@@ -413,7 +415,8 @@ def print_report(report: dict, update_every: int) -> None:
             f"(cpu {spread(ratio['train_samples_per_s_cpu'])}; per iteration {spread(ratio['train_iter_speedup'])}), "
             f"infer {spread(ratio['infer_samples_per_s'])}, infer rgb {spread(ratio['infer_rgb_samples_per_s'])}, "
             f"floors (same model): field {ratio['train_samples_per_s_field_floor']:.2f}, "
-            f"MLP {ratio['train_samples_per_s_mlp_floor']:.2f}; held-out PSNR {ratio['heldout_psnr_diff']:+.2f} dB; goals "
+            f"MLP {ratio['train_samples_per_s_mlp_floor']:.2f}; held-out PSNR {ratio['heldout_psnr_diff']:+.2f} dB; "
+            "goals "
             + ", ".join(f"{goal} {'met' if ok else 'not met'}" for goal, ok in met.items())
         )
 
@@ -530,12 +533,13 @@ def main(argv: list[str]) -> None:
         reference.grid.load_state_dict(grid)  # field_floor updates the grid once: each precision starts alike
         generator = torch.Generator().manual_seed(int(cfg.seed))
         with reference.field.mlp_precision(precision_dtype(name)):
-            per[name].update(
-                field_floor(reference, obs, s.train.backbone.batch, per_iter, s.sampler.update_every, generator, args.repeats)
+            floors = field_floor(
+                reference, obs, s.train.backbone.batch, per_iter, s.sampler.update_every, generator, args.repeats
             )
+        per[name].update(floors)
+    windows = clocks[base].windows(warmup, args.windows)
     ratios = {
-        f"{name}_over_{base}": precision_ratios(per, clocks, rounds, base, name, clocks[base].windows(warmup, args.windows))
-        for name in precisions[1:]
+        f"{name}_over_{base}": precision_ratios(per, clocks, rounds, base, name, windows) for name in precisions[1:]
     }
 
     r = dict(per[base])
