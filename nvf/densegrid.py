@@ -1,4 +1,4 @@
-"""DVGO-style dense feature grid: an alternative backbone to the hash grid (DESIGN.md, CPU budget).
+"""DVGO-style dense feature grid: an alternative backbone to the hash grid (METHOD.md section 3; not the paper's).
 
 A ``R^3`` lattice of ``C``-channel feature vectors over ``[0,1]^3`` (vertex ``i`` at ``u = i / (R-1)``),
 read by trilinear interpolation; the result equals ``F.grid_sample(..., align_corners=True)`` on the

@@ -208,6 +208,8 @@ class Selection:
     candidate_scores: ScoreSummary | None  # None for Random
     refined: bool = False  # -OPT: the pose is a refined one
     opt: OptTrace | None = None
+    candidates: Float[Tensor, "m 7"] | None = None  # every candidate pose, in draw order
+    scores: Float[Tensor, "m"] | None = None  # their full-image R(p); None for Random
 
 
 def argmax_first(scores: Float[Tensor, "m"]) -> int:
@@ -354,14 +356,16 @@ def select_next_view(
     if scorer is None:
         g = generators("random_pick")
         index = int(torch.randint(m, (1,), generator=g, device=g.device))
-        return Selection(candidates[index], index, None, m, None)
+        return Selection(candidates[index], index, None, m, None, candidates=candidates)
     if cfg.name not in ("argmax", "opt"):
         raise ValueError(f"unknown planner {cfg.name!r} (argmax | opt; Random is scorer=None)")
     scores = score_poses(model, scorer, candidates, intrinsics, cfg.score_chunk_rays)
     summary = ScoreSummary.of(scores)
     if cfg.name == "argmax":
         index = argmax_first(scores)
-        return Selection(candidates[index], index, scores[index].item(), m, summary)
+        return Selection(
+            candidates[index], index, scores[index].item(), m, summary, candidates=candidates, scores=scores
+        )
 
     top = top_k_first(scores, cfg.opt.top_k)
     refined, kept = refine_poses(model, scorer, candidates[top], camera_box, intrinsics, cfg.opt, generators)
@@ -371,4 +375,6 @@ def select_next_view(
     k = top.shape[0]
     origin = top[best] if best < k else top[kept[best - k]]
     trace = OptTrace(top, pool_scores[:k], refined, top[kept], pool_scores[k:])
-    return Selection(pool[best], int(origin), pool_scores[best].item(), m, summary, refined=best >= k, opt=trace)
+    return Selection(
+        pool[best], int(origin), pool_scores[best].item(), m, summary, best >= k, trace, candidates, scores
+    )

@@ -27,8 +27,8 @@ from nvf.uncertainty.mixture import mixture_log_density, ray_mixture
 from nvf.visibility import visibility_labels
 
 Progress = Callable[[str, int, int, float], None]
-
-AUX_LOSSES = ("none", "activenerf", "neurar")
+# (rendered ray variance V_r [R, 3], squared residual [R, 3]) -> loss (M25, M27)
+AuxLoss = Callable[[Float[Tensor, "R 3"], Float[Tensor, "R 3"]], Float[Tensor, ""]]
 REFERENCE_STEPS = {"variance": 3, "visibility": 5}  # D6, D7: Adam steps per iteration (schedule=reference)
 BACKBONE_ADAM_EPS = 1e-15
 LR_DECAY_BASE = 0.01  # backbone lr(k) = lr * 0.01 ** (k / horizon)
@@ -305,7 +305,7 @@ def train_backbone(
     obs: Observations,
     cfg: TrainConfig,
     generator: torch.Generator,
-    aux_loss: str = "none",
+    aux_loss: AuxLoss | None = None,
     progress: Progress | None = None,
 ) -> dict[str, float]:
     """Stage 1: hash grid, density MLP and colour head on (M20) with the random background (M4).
@@ -314,17 +314,15 @@ def train_backbone(
     Adam (eps 1e-15), ``lr(k) = lr * 0.01 ** (k / lr_decay_horizon)``; ``model.update_grid`` is
     called every iteration and refreshes the occupancy grid (M5) every ``update_every``; the cells of
     each batch's kept samples are marked observed (``grid.mark_observed``, read by M29's
-    ``planner.los_unobserved_free``). ``aux_loss`` ``activenerf`` (M25) or ``neurar`` (M27) also
-    trains the variance head, in the same Adam steps and with the same lr, on
+    ``planner.los_unobserved_free``). ``aux_loss`` (a method's, e.g. ActiveNeRF's M25 or NeurAR's M27)
+    also trains the variance head, in the same Adam steps and with the same lr, on
     ``V_r = sum_i sg(w_i) q_i`` and the detached squared residual, so the backbone is unaffected.
     """
     _require_images(obs)
-    if aux_loss not in AUX_LOSSES:
-        raise ValueError(f"aux_loss must be one of {AUX_LOSSES}, got {aux_loss!r}")
     groups = model.field.parameter_groups()
     param_groups = [{"params": groups["backbone"]}]
     heads = frozenset({"rgb"})
-    if aux_loss != "none":
+    if aux_loss is not None:
         param_groups.append({"params": groups["variance"]})
         heads = heads | {"variance"}
     optimizer = torch.optim.Adam(param_groups, lr=cfg.backbone.lr, eps=BACKBONE_ADAM_EPS, fused=True)
@@ -345,12 +343,11 @@ def train_backbone(
         gt = _ground_truth(rgba, background)
         loss = ((pred - gt) ** 2).mean()  # M20
         value = rec.check(loss, k)
-        if aux_loss != "none":
+        if aux_loss is not None:
             samples = result.samples
             ray_var = ray_sum(result.weights.detach()[:, None] * result.variance, samples.ray_idx, samples.n_rays)
             sq_residual = (gt - pred).detach() ** 2
-            aux_fn = activenerf_loss if aux_loss == "activenerf" else neurar_loss
-            aux = aux_fn(ray_var, sq_residual)
+            aux = aux_loss(ray_var, sq_residual)
             aux_losses.append(rec.check(aux, k))
             loss = loss + aux
         rec.step(optimizer, loss)
@@ -484,7 +481,7 @@ def train_model(
     stages: Collection[str],
     entropy_cfg: EntropyConfig,
     generator: torch.Generator,
-    aux_loss: str = "none",
+    aux_loss: AuxLoss | None = None,
     progress: Progress | None = None,
 ) -> TrainStats:
     """Run the requested ``stages`` (a subset of backbone, variance, visibility) in the order of

@@ -6,8 +6,8 @@ a one-sided "partial" training set (``partial_views``, drawn with seed 0) instea
 initial views. NVF's four ablations change only the score, so they are scored on NVF's model (unless
 ``train.ablation_affects_training``, which trains them on their own). On the scene's 20 evaluation
 views each entry's per-pixel score is correlated with the per-pixel error (patch- and view-level
-Pearson r, AUSE; ``pipeline.metrics.uncertainty_correlation``), next to the image and geometry
-metrics of its model (PROTOCOL 4). Writes ``results/uncertainty/<scene>_<budget>.{json,md,png}`` (or
+Pearson r, AUSE; ``pipeline.metrics.correlation.uncertainty_correlation``), next to the image and geometry
+metrics of its model (PROTOCOL 4). Writes ``${paths.results}/uncertainty/<scene>_<budget>.{json,md,png}`` (or
 ``--out DIR``; settings beyond the budget are appended to its name, as in the tables): the numbers, a
 table, and GT | prediction | error | every entry's score map of the evaluation view that looks most
 unlike every training view (``least_seen_view``). ``--entries nvf,nvf-wo_vis,wd`` runs a subset of
@@ -15,7 +15,7 @@ unlike every training view (``least_seen_view``). ``--entries nvf,nvf-wo_vis,wd`
 
 Every entry is trained and scored once per seed of ``--seeds`` (default ``SEEDS``, the tables' three):
 one model's correlations move by up to 0.2 (view r) with float-level differences alone (1 against 2
-torch threads, docs/BUDGETS.md), so a row is the mean ± population std over the seeds, and the JSON keeps
+torch threads, results/uncertainty/README.md), so a row is the mean ± population std over the seeds, and the JSON keeps
 every seed's numbers. Seeds other than ``SEEDS`` are appended to the file name. A killed run resumes at
 its first missing seed.
 """
@@ -39,8 +39,12 @@ from torch import Tensor
 from tqdm import tqdm
 
 from nvf.cameras import look_at
+from nvf.config import BaselineConfig, EntropyConfig
+from nvf.methods import load_method
 from nvf.model import SceneModel
 from nvf.training import Observations
+from pipeline.cli import description, fail
+from pipeline.config.catalog import ablation_configs, method_configs
 from pipeline.config.validation import compose_config
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings, resolve_device
@@ -48,18 +52,29 @@ from pipeline.episode.images import colorize, save_figure
 from pipeline.metrics.image import LpipsMetric
 from pipeline.config.named import GROUPS, NamedConfigs
 from pipeline.records.store import atomic_write_bytes, atomic_write_text, to_jsonable
-from pipeline.repo import CONF, RESULTS
-from pipeline.scenes.scene import S, Scene, SceneError, load_scene
+from pipeline.repo import CONF
+from pipeline.scenes.scene import Scene, SceneError, load_scene
 from pipeline.tables.aggregate import mean_std_valid
-from pipeline.tables.labels import method_label
+from pipeline.tables.labels import row_name
 
+S = 0.16665  # PROTOCOL 2.3: the reference's scale unit s (Hubble's partial views)
 PARTIAL_VIEWS = 20
 PARTIAL_SEED = 0
-# (method, ablation) scored, in the order of the table and the figure
-ENTRIES = (
-    ("nvf", "none"), ("nvf", "wo_vis"), ("nvf", "wo_var"), ("nvf", "ind_rays"), ("nvf", "loose"),
-    ("wd", "none"), ("activermap", "none"), ("air", "none"), ("activenerf", "none"), ("neurar", "none"),
-)  # fmt: skip
+
+
+def all_entries() -> tuple[tuple[str, str], ...]:
+    """Every (method, ablation) with a score, in the order of the table and the figure: each ablated method
+    (NVF), then its ablations in Table S2's order, then the other methods that score views, in table order
+    (``conf/method``, ``conf/ablation``; Random has no score)."""
+    ablations = [a for a in ablation_configs().values() if a["name"] != "none"]
+    ablated = {a["of"] for a in ablations}
+    entries = [(method, "none") for method in ablated] + [(a["of"], a["name"]) for a in ablations]
+    scoring = [name for name, m in method_configs().items() if load_method(m["implementation"]).scorer(
+        EntropyConfig(), BaselineConfig(), 1.0) is not None]  # fmt: skip
+    return (*entries, *((name, "none") for name in scoring if name not in ablated))
+
+
+ENTRIES = all_entries()
 SEEDS = (100, 101, 102)  # one model per entry and seed, as the tables' three seeds
 COLUMNS = (("patch_pearson", "patch r ↑"), ("view_pearson", "view r ↑"), ("ause", "AUSE ↓"), ("psnr", "PSNR ↑"))
 
@@ -167,12 +182,13 @@ def score_seed(
             obs = episode.observations()
             trained[key] = (episode, obs, episode.train(obs, 0)[0])
         episode, obs, model = trained[key]
-        scorer = EpisodeSettings.of(cfg, partial).scorer(method)
+        scorer = EpisodeSettings.of(cfg, partial).scorer(load_method(cfg.method.implementation))
         metrics, images, view_sums = episode.evaluator.evaluate(model, scorer, episode.face_ids, obs, 0, view)
-        results.append({"seed": seed, "trained_as": "/".join(key), **metrics} | view_sums)
+        label = row_name(OmegaConf.to_container(cfg, resolve=True)).label
+        results.append({"seed": seed, "label": label, "trained_as": "/".join(key), **metrics} | view_sums)
         arrays.setdefault("gt", images["gt"])
         arrays.setdefault("pred", images["pred"])
-        arrays[f"score:{method_label(method, 'argmax', ablation)}"] = images["score"]
+        arrays[f"score:{label}"] = images["score"]
     return results, arrays
 
 
@@ -204,7 +220,7 @@ def run(
         raise ArgumentError("a seed= override: the experiment's seeds are --seeds (default 100,101,102)")
     overrides = overrides if any(o.startswith("scene=") for o in overrides) else ["scene=hotdog", *overrides]
     base = compose_config(overrides)
-    scene = load_scene(base.scene.name, Path(base.paths.assets))
+    scene = load_scene(base.scene, Path(base.paths.assets))
     partial = dataclasses.replace(scene, init_poses=partial_views(scene, torch.Generator().manual_seed(PARTIAL_SEED)))
     view = least_seen_view(scene.eval_poses, partial.init_poses)
     label = budget_label(base)
@@ -213,7 +229,7 @@ def run(
         name += "+entries=" + ",".join(entry_name(*entry) for entry in entries)
     if seeds != SEEDS:
         name += "+seeds=" + ",".join(map(str, seeds))
-    out = RESULTS / "uncertainty" if out is None else out
+    out = Path(base.paths.results) / "uncertainty" if out is None else out
     finished = out / f".{name}.seeds"
     lpips, per_seed = LpipsMetric(), {}
     for seed in tqdm(seeds, desc="seeds", disable=not sys.stderr.isatty()):
@@ -224,7 +240,7 @@ def run(
             save_seed(path, results, arrays, time.perf_counter() - start)
         per_seed[seed] = load_seed(path)
     rows = [
-        {"label": method_label(method, "argmax", ablation), "method": method, "ablation": ablation,
+        {"label": per_seed[seeds[0]][0][i]["label"], "method": method, "ablation": ablation,
          "trained_as": per_seed[seeds[0]][0][i]["trained_as"], **summary([per_seed[s][0][i] for s in seeds])}
         for i, (method, ablation) in enumerate(entries)
     ]  # fmt: skip
@@ -248,7 +264,7 @@ def run(
 
 def budget_label(cfg: DictConfig) -> str:
     """The budget plus every setting beyond the named groups (``cpu+train.visibility.iters=500``), as the
-    tables label runs (``pipeline.overrides``), so another setting never overwrites the plain budget's files."""
+    tables label runs (``pipeline.config.named``), so another setting never overwrites the plain budget's files."""
     info = {group: cfg[group].name for group in GROUPS} | {"config": OmegaConf.to_container(cfg, resolve=True)}
     return NamedConfigs(CONF).budget_label(info)
 
@@ -300,9 +316,9 @@ def figure(shown: dict, maps: dict[str, np.ndarray]) -> Figure:
 
 
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.uncertainty", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m pipeline.uncertainty", description=description(__doc__))
     parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. scene=hubble budget=smoke")
-    parser.add_argument("--out", type=Path, default=None, help="output directory (default results/uncertainty)")
+    parser.add_argument("--out", type=Path, default=None, help="output directory (default ${paths.results}/uncertainty)")
     parser.add_argument("--entries", default=None, help="comma-separated subset, e.g. nvf,nvf-wo_vis,wd (default all)")
     parser.add_argument("--seeds", default=None, help="comma-separated training seeds (default 100,101,102)")
     args = parser.parse_intermixed_args(argv)
@@ -310,8 +326,7 @@ def main(argv: list[str]) -> int:
     try:
         written = run(args.overrides, args.out, select_entries(names), parse_seeds(args.seeds))
     except (SceneError, ArgumentError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
+        fail(str(err))
     print("pipeline.uncertainty: wrote " + ", ".join(map(str, written)))
     return 0
 

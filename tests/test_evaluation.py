@@ -1,4 +1,4 @@
-"""pipeline/evaluation.py: the step's reconstruction (PROTOCOL 4.2) equals the straightforward one."""
+"""pipeline/metrics/evaluation.py: the step's reconstruction (PROTOCOL 4.2) equals the straightforward one."""
 
 import math
 

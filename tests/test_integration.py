@@ -12,7 +12,7 @@ from nvf.cameras import Intrinsics, look_at, matrix_to_pose
 from nvf.model import SceneModel
 from nvf.planning import score_poses
 from nvf.training import train_model
-from nvf.uncertainty import make_scorer
+from nvf.methods import NVF
 from nvf.visibility import visibility_labels
 from pipeline.bench.train import held_out_poses, observations, view_psnr
 from pipeline.config.validation import compose_config
@@ -146,7 +146,7 @@ def seen_unseen_gap(setup, one_sided, entropy) -> float:
     unseen = torch.cat([ring(scene, 3, 30.0, azimuth + 160.0, radius)[:1], ring(scene, 3, 30.0, azimuth + 200.0, radius)[:1]])
     plan = Intrinsics.from_fov(int(cfg.planner.resolution), int(cfg.planner.resolution))
 
-    scorer = make_scorer("nvf", entropy, settings.baseline, float(entropy.d0))
+    scorer = NVF().scorer(entropy, settings.baseline, float(entropy.d0))
     s = score_poses(model, scorer, matrix_to_pose(seen), plan, 4096)
     u = score_poses(model, scorer, matrix_to_pose(unseen), plan, 4096)
     return float(u.mean() - s.mean())

@@ -1,4 +1,4 @@
-"""pipeline/metrics.py + pipeline/lpips_weights.py: PROTOCOL.md 4 metric definitions."""
+"""pipeline/metrics/image.py + pipeline/metrics/lpips_weights.py: PROTOCOL.md 4 metric definitions."""
 
 import math
 
@@ -17,7 +17,7 @@ from pipeline.metrics.coverage import seen_faces, visual_coverage
 from pipeline.metrics.geometry import geometry_metrics, points_from_rays
 from pipeline.metrics.image import LpipsMetric, image_metrics, psnr, psnr_from_mse, rgb_mse, ssim
 
-# Published LPIPS(alex, v0.1) of the IQA-PyTorch calibration pairs (../shared/calibration/lpips/README.md).
+# Published LPIPS(alex, v0.1) of the IQA-PyTorch calibration pairs (ResultsCalibra; files under NVF_CALIBRATION, README.md).
 CALIBRATION = {"I03": 0.7237, "I04": 0.2572, "I06": 0.0508, "I08": 0.0521, "I19": 0.4253}
 
 

@@ -1,4 +1,4 @@
-"""pipeline/overrides.py: the settings a run record holds beyond its named config groups."""
+"""pipeline/config/named.py: the settings a run record holds beyond its named config groups."""
 
 import copy
 

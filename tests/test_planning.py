@@ -29,7 +29,8 @@ from nvf.planning import (
 )
 from nvf.seeding import generator_factory, seeded_generator
 from nvf.rendering import Samples, alpha_from_density, expected_depth, ray_sum, weights_from_alpha
-from nvf.uncertainty import ViewScorer, make_scorer
+from nvf.methods import NVF, load_method
+from nvf.uncertainty import ViewScorer
 
 AABB = torch.tensor([[-2.0, -2.0, -2.0], [2.0, 2.0, 2.0]])
 BOX = torch.tensor([[-1.9, -1.9, -1.9], [1.9, 1.9, 1.9]])
@@ -380,16 +381,16 @@ def test_planner_config_is_used_not_redefined():
 @pytest.mark.parametrize(
     "method, entropy",
     [
-        ("nvf", EntropyConfig()),
-        ("nvf", EntropyConfig(depth_mode="chunk", chunk_rays=16)),
-        ("wd", EntropyConfig()),
-        ("air", EntropyConfig()),
-        ("activenerf", EntropyConfig()),
+        ("NVF", EntropyConfig()),
+        ("NVF", EntropyConfig(depth_mode="chunk", chunk_rays=16)),
+        ("WD", EntropyConfig()),
+        ("AIR", EntropyConfig()),
+        ("ActiveNeRF", EntropyConfig()),
     ],
 )
 def test_opt_with_the_real_scorers(method, entropy):
     model = blob_model()
-    scorer = make_scorer(method, entropy, BaselineConfig(), d0=1.0)
+    scorer = load_method(f"nvf.methods.{method}").scorer(entropy, BaselineConfig(), d0=1.0)
     assert isinstance(scorer, ViewScorer) and isinstance(AccScorer(), ViewScorer)
     c = cfg(n=8, name="opt", score_chunk_rays=32, opt=OptConfig(iters=3, lr=1e-2, chunk_rays=16))
     sel = select_next_view(model, scorer, c, BOX, None, INTR, 1e-4, False, gens())
@@ -410,7 +411,7 @@ def test_integration_with_the_scene_model():
     field_cfg = FieldConfig(num_levels=4, log2_hashmap_size=12, max_resolution=64, hidden_dim=16, backend="torch")
     model = SceneModel(aabb, field_cfg, SamplerConfig(grid_resolution=16, alpha_threshold=0.0))
     model.update_grid(0, torch.Generator().manual_seed(0))
-    scorer = make_scorer("nvf", EntropyConfig(), BaselineConfig(), d0=1.0)
+    scorer = NVF().scorer(EntropyConfig(), BaselineConfig(), d0=1.0)
     current = pose_looking([-1.8, 0.1, 0.2], [0.0, 0.0, 0.0])
     c = cfg(n=8, name="opt", score_chunk_rays=4096, opt=OptConfig(iters=2, lr=1e-2))
     tau = 1e-4

@@ -6,7 +6,7 @@ import torch
 import trimesh
 
 from nvf.cameras import Intrinsics, look_at
-from pipeline.scenes.procedural import PROXIES, build_proxy, default_object, fit_into_box
+from pipeline.scenes.procedural import PROXIES, default_object, fit_into_box
 
 
 @pytest.mark.parametrize("name", [*PROXIES, "default"])
@@ -33,7 +33,7 @@ def test_fit_into_box_is_uniform_centred_on_the_floor():
 
 def test_proxy_keeps_thin_structures():
     """Drums' cymbals and ficus' branches stay thin after fitting (what makes those scenes hard)."""
-    drums = build_proxy("drums", np.array([[-1.126, -0.746, -0.492], [1.122, 0.962, 0.938]]))
+    drums = fit_into_box(PROXIES["drums"](), np.array([[-1.126, -0.746, -0.492], [1.122, 0.962, 0.938]]))
     cymbal = drums.visual.face_colors[:, :3].tolist().count([205, 165, 60])
     assert cymbal > 100
     ficus = PROXIES["ficus"]()

@@ -1,4 +1,4 @@
-"""pipeline/records.py: run directories, atomic run.json / steps.jsonl, resume, DONE and FAILED markers."""
+"""pipeline/records/store.py: run directories, atomic run.json / steps.jsonl, resume, DONE and FAILED markers."""
 
 import json
 import math

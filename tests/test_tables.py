@@ -1,4 +1,4 @@
-"""pipeline/tables.py: long CSV, aggregation over seeds at the last step, paper-style tables, figures."""
+"""pipeline/tables/: long CSV, aggregation over seeds at the last step, paper-style tables, figures."""
 
 import subprocess
 import sys
@@ -8,14 +8,17 @@ import imageio.v3 as iio
 import numpy as np
 import pandas as pd
 
+from omegaconf import OmegaConf
+
 from pipeline.config.named import NamedConfigs
+from pipeline.config.validation import compose_config
 from pipeline.tables.paper import paper_numbers
 from pipeline.records.store import RunRecord, run_dir
 from pipeline.repo import CONF, REPO
 from pipeline.tables.__main__ import main
 from pipeline.tables.build import build_tables
 from pipeline.tables.figures import image_grid
-from pipeline.tables.labels import method_label
+from pipeline.tables.labels import row_name
 from pipeline.tables.load import LONG_COLUMNS
 from pipeline.tables.summary import summarize_run
 
@@ -50,11 +53,18 @@ def read(path: Path) -> str:
     return path.read_text(encoding="utf-8")
 
 
+def label(method: str, planner: str, ablation: str) -> str:
+    cfg = compose_config([f"method={method}", f"planner={planner}", f"ablation={ablation}"])
+    return row_name(OmegaConf.to_container(cfg)).label
+
+
 def test_method_labels():
-    assert method_label("activermap", "argmax", "none") == "ActiveRMAP"
-    assert method_label("neurar", "opt", "none") == "NeurAR-OPT"
-    assert method_label("nvf", "argmax", "ind_rays") == "Ind. Rays"
-    assert method_label("nvf", "argmax", "none") == "NVF"
+    """Labels come from the method and ablation yamls; -OPT from the planner's name."""
+    assert label("activermap", "argmax", "none") == "ActiveRMAP"
+    assert label("neurar", "opt", "none") == "NeurAR-OPT"
+    assert label("nvf", "argmax", "ind_rays") == "Ind. Rays"
+    assert label("nvf", "argmax", "none") == "NVF"
+    assert label("air", "argmax", "wo_vis") == "AIR w/o Vis."
 
 
 def test_long_csv_has_exactly_the_columns(tmp_path):

@@ -1,4 +1,4 @@
-"""nvf/uncertainty/correlation.py: uncertainty-error correlation (PROTOCOL 4.4): patch- and
+"""pipeline/metrics/correlation.py: uncertainty-error correlation (PROTOCOL 4.4): patch- and
 view-level Pearson r and AUSE (an addition), NaN when undefined."""
 
 import math

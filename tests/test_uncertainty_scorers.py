@@ -1,5 +1,5 @@
 """nvf/uncertainty scorers: NVF's per-pixel entropy (M7-M15) and its ablation switches (METHOD 11),
-the baselines (M22-M24, M26), degenerate rays and gradients (METHOD 15.5), and make_scorer."""
+the baselines (M22-M24, M26), degenerate rays and gradients (METHOD 15.5), and the method classes."""
 
 import math
 from dataclasses import replace
@@ -10,7 +10,8 @@ import torch
 from nvf.config import BaselineConfig, EntropyConfig
 from nvf.model import RenderResult
 from nvf.rendering import Samples, ray_sum, weights_from_alpha
-from nvf.uncertainty import H_MIN, ViewScorer, make_scorer, ray_mixture
+from nvf.methods import AIR, NVF, ActiveNeRF, ActiveRMAP, NeurAR, Random, WD, load_method
+from nvf.uncertainty import H_MIN, ViewScorer, ray_mixture
 from nvf.uncertainty.baselines import ActiveRMAPScorer, AIRScorer, RenderedVarianceScorer, WDScorer
 from nvf.uncertainty.entropy import (
     corrected_entropy,
@@ -284,12 +285,12 @@ def test_rendered_variance_hand_computed():
 # ---------------------------------------------------------------- all scorers
 
 
-ALL_METHODS = ("wd", "activermap", "air", "activenerf", "neurar", "nvf")
+SCORING = (WD, ActiveRMAP, AIR, ActiveNeRF, NeurAR, NVF)
 
 
 def scorers():
     baseline_variants = [BaselineConfig(), BaselineConfig(rmap_occlusion_weighted=True, air_reduce="sum")]
-    out = [make_scorer(m, CFG, b, 1.0) for m in ALL_METHODS for b in baseline_variants]
+    out = [m().scorer(CFG, b, 1.0) for m in SCORING for b in baseline_variants]
     out += [NVFEntropyScorer(replace(CFG, bound="moment_matched"), 1.0), NVFEntropyScorer(CFG, 0.0)]
     return out
 
@@ -333,28 +334,37 @@ def test_gradients_finite(scorer):
         assert leaf.grad is None or torch.isfinite(leaf.grad).all(), name
 
 
-def test_make_scorer_registry():
-    """Method names -> scorers (METHOD 12): Random has none; heads and sampler per method."""
+def test_method_classes():
+    """Each method class builds its scorer (METHOD 12): Random has none; heads and sampler per method; the
+    variance-head baselines carry their stage-1 loss (M25, M27), the others none."""
     base = BaselineConfig()
-    assert make_scorer("random", CFG, base, 1.0) is None
+    assert Random().scorer(CFG, base, 1.0) is None and Random.aux_loss is None
     heads = {
-        "wd": frozenset(),
-        "activermap": frozenset(),
-        "air": frozenset(),
-        "activenerf": frozenset({"variance"}),
-        "neurar": frozenset({"variance"}),
-        "nvf": frozenset({"variance", "visibility"}),
+        WD: ("wd", frozenset()),
+        ActiveRMAP: ("activermap", frozenset()),
+        AIR: ("air", frozenset()),
+        ActiveNeRF: ("activenerf", frozenset({"variance"})),
+        NeurAR: ("neurar", frozenset({"variance"})),
+        NVF: ("nvf", frozenset({"variance", "visibility"})),
     }
-    for method, want in heads.items():
-        scorer = make_scorer(method, CFG, base, 1.0)
-        assert isinstance(scorer, ViewScorer) and scorer.name == method
+    for cls, (name, want) in heads.items():
+        scorer = cls().scorer(CFG, base, 1.0)
+        assert isinstance(scorer, ViewScorer) and scorer.name == name
         assert scorer.heads == want and scorer.sampler == "occupancy"
-    assert make_scorer("nvf", replace(CFG, sampler="uniform"), base, 1.0).sampler == "uniform"
-    assert make_scorer("activermap", CFG, BaselineConfig(rmap_occlusion_weighted=True), 1.0).occlusion_weighted
-    assert make_scorer("air", CFG, BaselineConfig(air_reduce="sum"), 1.0).reduce == "sum"
-    with pytest.raises(ValueError):
-        make_scorer("nbv", CFG, base, 1.0)
+        assert (cls.aux_loss is not None) == (cls in (ActiveNeRF, NeurAR))
+    assert NVF().scorer(replace(CFG, sampler="uniform"), base, 1.0).sampler == "uniform"
+    assert ActiveRMAP().scorer(CFG, BaselineConfig(rmap_occlusion_weighted=True), 1.0).occlusion_weighted
+    assert AIR().scorer(CFG, BaselineConfig(air_reduce="sum"), 1.0).reduce == "sum"
     with pytest.raises(NotImplementedError):
-        make_scorer("air", CFG, BaselineConfig(air_view_score="topk"), 1.0)
+        AIR().scorer(CFG, BaselineConfig(air_view_score="topk"), 1.0)
     with pytest.raises(NotImplementedError):
-        make_scorer("activenerf", CFG, BaselineConfig(activenerf_variant="B"), 1.0)
+        ActiveNeRF().scorer(CFG, BaselineConfig(activenerf_variant="B"), 1.0)
+
+
+def test_load_method_by_import_path():
+    """``method.implementation`` names a Method subclass; anything else is one line."""
+    assert isinstance(load_method("nvf.methods.NVF"), NVF)
+    for bad in ("nvf.methods.nothing", "no_such_module.Method", "nvf.config.TrainConfig", "NVF"):
+        with pytest.raises(ValueError) as info:
+            load_method(bad)
+        assert "\n" not in str(info.value)

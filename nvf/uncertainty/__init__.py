@@ -2,14 +2,13 @@
 
 from nvf.uncertainty.entropy import H_MIN, gmm_entropy_upper_bound, moment_matched_entropy
 from nvf.uncertainty.mixture import RayMixture, mixture_log_density, ray_mixture
-from nvf.uncertainty.scorers import ViewScorer, make_scorer
+from nvf.uncertainty.scorers import ViewScorer
 
 __all__ = [
     "H_MIN",
     "RayMixture",
     "ViewScorer",
     "gmm_entropy_upper_bound",
-    "make_scorer",
     "mixture_log_density",
     "moment_matched_entropy",
     "ray_mixture",

@@ -21,9 +21,10 @@ Turn = Callable[[], None]
 
 
 def lockstep(jobs: dict[str, Callable[[Turn], T]]) -> dict[str, T]:
-    """Run ``jobs[name](turn)`` side by side, one at a time, in the order given: each job calls
-    ``turn()`` at the end of every iteration, which hands over to the next unfinished job (round robin)
-    and returns when it is this job's turn again. Returns each job's result; re-raises the first error."""
+    """Run the jobs side by side, one at a time, in the order given, each called with a ``turn`` callable:
+    a job calls ``turn()`` at the end of every iteration, which hands over to the next unfinished job
+    (round robin) and returns when it is this job's turn again. Returns each job's result; re-raises the
+    first error."""
     names = list(jobs)
     cond = threading.Condition()
     current = [0]

@@ -47,19 +47,19 @@ from nvf.cameras import Intrinsics, camera_directions, pose_to_matrix, rays_from
 from nvf.config import STAGES
 from nvf.field import INFERENCE_BLOCK, VIS_POSITION_WIDTH
 from nvf.planning import score_poses
-from nvf.uncertainty.scorers import METHODS
+from nvf.methods import load_method
 from pipeline.bench._report import write_report
 from pipeline.bench.field import matmul_gflops, mlp_flops
 from nvf.precision import precision_dtype
 from pipeline.bench._paired import IterationClock, ratio_spread
 from pipeline.bench.train import RGB, CountingModel, InitialViewModel, held_out_poses, parse_precisions, view_psnr
+from pipeline.config.catalog import method_configs
 from pipeline.config.validation import compose_config
 from pipeline.repo import RESULTS
 
 CANDIDATES = 512  # the paper's N; a later planner.num_candidates=... override wins
 WARMUP_CANDIDATES = 8
 GOAL_NVF_OVER_PLAIN = 1.3
-SCORED = tuple(m for m in METHODS if m != "random")
 
 
 @torch.no_grad()
@@ -170,7 +170,8 @@ def main(argv: list[str]) -> None:
     res = int(planner.resolution)
     intr = Intrinsics.from_fov(res, res)
     chunk = int(planner.score_chunk_rays)
-    scorers = {method: s.scorer(method) for method in SCORED}
+    methods = {name: load_method(m["implementation"]) for name, m in method_configs().items()}
+    scorers = {name: scorer for name, method in methods.items() if (scorer := s.scorer(method)) is not None}
     work: dict[str, Callable[[Tensor], object]] = {"plain_render": lambda p: plain_render(model, p, intr, chunk)}
     for method, scorer in scorers.items():
         work[method] = lambda p, scorer=scorer: score_poses(model, scorer, p, intr, chunk)
@@ -193,7 +194,7 @@ def main(argv: list[str]) -> None:
     for name in work:
         report[f"candidates_per_s_{name}"] = m * args.repeats / sum(wall[name])
         report[f"candidates_per_s_{name}_cpu"] = m * args.repeats / sum(cpu[name])
-    for method in SCORED:
+    for method in scorers:
         report[f"{method}_over_plain_render"] = statistics.median(
             w / p for w, p in zip(wall[method], wall["plain_render"], strict=True)
         )

@@ -107,7 +107,7 @@ class CountingModel(SceneModel):
 def load(cfg: DictConfig) -> Scene:
     """The configured scene; a missing mesh exits with one line (status 2)."""
     try:
-        return load_scene(cfg.scene.name, Path(cfg.paths.assets))
+        return load_scene(cfg.scene, Path(cfg.paths.assets))
     except SceneError as err:
         print(f"error: {err}", file=sys.stderr)
         raise SystemExit(2) from None
@@ -235,7 +235,7 @@ def view_psnr(
 ) -> tuple[float, float]:
     """PSNR of the model's renders of ``poses`` against the ground truth (``gt_samples^2`` samples per
     pixel; pooled over the views), over all pixels and off the ground truth's edges
-    (``pipeline.metrics.off_edge_psnr``)."""
+    (``pipeline.metrics.image.off_edge_psnr``)."""
     pred = np.stack([model.render_image(c2w, intr, chunk=RENDER_CHUNK)["rgb"].numpy() for c2w in poses])
     gt = np.stack([renderer.render_rgba(c2w, intr, gt_samples)[..., :3] for c2w in poses])
     return psnr(pred, gt), off_edge_psnr(pred, gt)

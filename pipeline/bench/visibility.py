@@ -35,7 +35,8 @@ from nvf.model import SceneModel
 from nvf.planning import score_poses
 from nvf.rendering import ray_sum
 from nvf.training import Observations
-from nvf.uncertainty import ViewScorer, make_scorer
+from nvf.methods import NVF
+from nvf.uncertainty import ViewScorer
 from nvf.visibility import visibility_labels
 from pipeline.bench._report import write_report
 from pipeline.bench.train import InitialViewModel
@@ -138,7 +139,7 @@ def main(argv: list[str]) -> None:
     intr = Intrinsics.from_fov(res, res)
     d0 = float(s.entropy.d0)
     blind = dataclasses.replace(s.entropy, use_visibility=False)
-    scorers = (make_scorer("nvf", s.entropy, s.baseline, d0), make_scorer("nvf", blind, s.baseline, d0))
+    scorers = (NVF().scorer(s.entropy, s.baseline, d0), NVF().scorer(blind, s.baseline, d0))
     sets = [{"set": k, **candidate_set_report(setup, setup.candidates(k), intr, scorers)} for k in range(args.sets)]
     report = {
         "head_auc_mean": _mean_of(sets, "head_auc"),

@@ -12,11 +12,13 @@ from hydra.core.global_hydra import GlobalHydra
 from hydra.errors import HydraException
 from omegaconf import OmegaConf
 
+from pipeline.records import compat
+from pipeline.records.compat import drop_retired
 from pipeline.records.store import to_jsonable
 from pipeline.config.schema import register_configs
 
 GROUPS = ("scene", "method", "planner", "ablation", "budget")
-NOT_SETTINGS = ("paths", "seed")  # where files live; the seed is an identity key
+NOT_SETTINGS = ("paths", "seed", *compat.NOT_SETTINGS)  # where files live; the seed is an identity key
 
 
 def changed_settings(recorded: Any, named: Any, prefix: str = "") -> list[tuple[str, Any]]:
@@ -66,5 +68,5 @@ class NamedConfigs:
         config = info.get("config")
         if named is None or not isinstance(config, Mapping):
             return ()
-        recorded = {k: v for k, v in to_jsonable(dict(config)).items() if k not in NOT_SETTINGS}
+        recorded = {k: v for k, v in drop_retired(to_jsonable(dict(config))).items() if k not in NOT_SETTINGS}
         return tuple(f"{key}={_text(value)}" for key, value in changed_settings(recorded, named))

@@ -6,6 +6,7 @@ imports nothing heavier than them: tables can compose configs without loading to
 
 import dataclasses
 from dataclasses import dataclass
+from typing import Any
 
 from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING
@@ -29,25 +30,63 @@ class PathsConfig:
 
 
 @dataclass
+class AssetFile:
+    """A development file name of a scene's mesh (tried after ``<name>/<name>.<ext>``) and its up axis."""
+
+    path: str = MISSING
+    up: str = "z"  # z | y (a Y-up file is rotated (x, y, z) -> (x, -z, y))
+
+
+@dataclass
 class SceneConfig:
-    name: str = "default"
+    """One scene, declared once in ``conf/scene/<name>.yaml`` (PROTOCOL.md 2; ``pipeline.scenes.scene`` builds
+    it): where its mesh comes from, its boxes (``[[min x, y, z], [max x, y, z]]``), constants and view rigs."""
+
+    name: str = MISSING
+    kind: str = "object"  # object | room
+    source: str = "mesh"  # mesh | proxy | procedural
+    recipe: str | None = None  # proxy / procedural: the builder in pipeline.scenes.procedural
+    paper_scene: str | None = None  # the paper scene it is or stands in for (tables set the paper's numbers beside it)
+    nerf_asset: bool = False  # one of the paper's eight NeRF-asset scenes: averaged into the object-scene mean
+    rank: int = 100  # order in tables
+    files: list[AssetFile] = dataclasses.field(default_factory=list)
+    fit_tight_box: bool = False  # scale the mesh uniformly into the tight box (Hubble)
+    object_aabb: list[list[float]] = MISSING  # normalises the field, bounds the occupancy grid and labels
+    camera_box: list[list[float]] = MISSING  # candidate positions and -OPT clipping
+    tight_box: list[list[float]] = MISSING  # the ground-truth mesh's bounds
+    density_threshold: float = 1e-4  # tau (M28)
+    d0: float = 1.0  # M13's correlation length
+    cr_threshold: float = 0.01  # C.R. distance (PROTOCOL 4.2)
+    collision_free: bool = False  # M29's collision-free candidate sampler (Room)
+    init_views: dict[str, Any] = dataclasses.field(default_factory=dict)  # a rig of pipeline.scenes.views
+    eval_views: dict[str, Any] = dataclasses.field(default_factory=dict)
 
 
 @dataclass
 class MethodConfig:
-    name: str = "nvf"
+    """One next-best-view method (``conf/method/<name>.yaml``): its class in ``nvf.methods`` (scorer and
+    stage-1 loss), the stages it trains, and how tables print and order it."""
+
+    name: str = MISSING
+    label: str = MISSING
+    rank: int = 100
+    implementation: str = MISSING  # import path of an nvf.methods.Method subclass
     stages: list[str] = dataclasses.field(default_factory=lambda: list(STAGES))
-    aux_loss: str = "none"
 
 
 @dataclass
 class AblationConfig:
+    """One NVF ablation (``conf/ablation/<name>.yaml``): the score switches it sets, its table label and order."""
+
     name: str = "none"
+    label: str = "NVF"
+    rank: int = 100
+    of: str = "nvf"  # the method it ablates
 
 
 @dataclass
 class BudgetConfig:
-    """What a budget scales besides training, planning and field sizes (DESIGN.md, budgets)."""
+    """What a budget scales besides training, planning and field sizes (docs/BUDGETS.md)."""
 
     name: str = "paper"
     image_size: int = 512  # ground truth and training images (square, 90 degree FoV)
@@ -62,6 +101,14 @@ class BudgetConfig:
 @dataclass
 class MetricsConfig:
     ssim_data_range: float | None = None  # None: inferred from the image stacks (PROTOCOL 4.1); or 1.0
+
+
+@dataclass
+class DiagnosticsConfig:
+    """Extra measurements recorded in each step's row; they never change a run's views or metrics, so they
+    are not settings (records made with and without them are the same run)."""
+
+    rank_against: str | None = None  # an ablation (conf/ablation) whose score ranks the same candidates too
 
 
 @dataclass
@@ -85,6 +132,7 @@ class RunConfig:
     nvf: NvfConfig = dataclasses.field(default_factory=NvfConfig)
     baseline: BaselineConfig = dataclasses.field(default_factory=BaselineConfig)
     metrics: MetricsConfig = dataclasses.field(default_factory=MetricsConfig)
+    diagnostics: DiagnosticsConfig = dataclasses.field(default_factory=DiagnosticsConfig)
     seed: int = 100
     device: str = "auto"  # auto | cpu | cuda | cuda:N
     save_images: bool = True

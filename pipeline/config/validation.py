@@ -1,4 +1,4 @@
-"""Validation of a run's configuration (the schema is ``pipeline.schema``): ``validate`` runs before any
+"""Validation of a run's configuration (the schema is ``pipeline.config.schema``): ``validate`` runs before any
 work and raises ``ConfigError`` with one line naming the key; ``compose_config`` composes and validates
 a config outside ``@hydra.main`` (benchmarks, experiments).
 """
@@ -13,9 +13,9 @@ from hydra.errors import HydraException
 from omegaconf import DictConfig, OmegaConf
 
 from nvf.config import STAGES
+from nvf.methods import load_method
 from nvf.precision import PRECISIONS, unsupported_reason
-from nvf.training import AUX_LOSSES
-from nvf.uncertainty.scorers import METHODS
+from pipeline.config.catalog import declared
 from pipeline.config.named import changed_settings
 from pipeline.episode.settings import resolve_device
 from pipeline.repo import CONF
@@ -29,8 +29,6 @@ class ConfigError(ValueError):
 
 
 _CHOICES: dict[str, tuple[Any, ...]] = {
-    "method.name": METHODS,
-    "method.aux_loss": AUX_LOSSES,
     "ablation.name": ABLATIONS,
     "planner.name": ("argmax", "opt"),
     "planner.opt.param": ("quat_raw", "se3"),
@@ -105,6 +103,10 @@ def validate(cfg: DictConfig) -> None:
         value = OmegaConf.select(cfg, key)
         if value is None or value <= 0:
             raise ConfigError(f"{key}={value!r} must be positive")
+    try:
+        load_method(cfg.method.implementation)
+    except ValueError as err:
+        raise ConfigError(f"method.implementation: {err} (conf/method/{cfg.method.name}.yaml)") from None
     stages = list(cfg.method.stages)
     if not stages or stages[0] != "backbone" or any(s not in STAGES for s in stages):
         raise ConfigError(f"method.stages={stages} must start with 'backbone' and use only {', '.join(STAGES)}")
@@ -124,6 +126,9 @@ def validate(cfg: DictConfig) -> None:
             f"nvf.entropy.d0={d0} must be a number >= 0 (0 = Ind. Rays), auto (0.25 x the object box's diagonal) "
             "or null (the scene's value)"
         )
+    rival = cfg.diagnostics.rank_against
+    if rival is not None and rival not in declared("ablation"):
+        raise ConfigError(f"diagnostics.rank_against={rival!r} is not one of {', '.join(declared('ablation'))}")
     _check_device(str(cfg.device))
     _check_precision(str(cfg.train.precision), str(cfg.device))
 

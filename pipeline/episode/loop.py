@@ -7,22 +7,27 @@ and, with the same seed, selects the same poses (every draw is seeded from (seed
 """
 
 import dataclasses
+import math
 import time
 from collections.abc import Callable
 
 import numpy as np
 import torch
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
+from scipy import stats
 
 from nvf.cameras import Intrinsics, matrix_to_pose, pose_to_matrix
+from nvf.methods import load_method
 from nvf.model import SceneModel
-from nvf.planning import select_next_view
+from nvf.planning import Selection, argmax_first, score_poses, select_next_view
 from nvf.seeding import generator_factory, seeded_generator
 from nvf.training import Observations, TrainStats, train_model
+from nvf.uncertainty import ViewScorer
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.evaluation import Evaluator
 from pipeline.metrics.image import LpipsMetric
 from pipeline.scenes.render import GroundTruthRenderer
+from pipeline.repo import CONF
 from pipeline.scenes.scene import Scene
 
 # (stage, iteration, total, loss) -> None: drives the inner progress bar
@@ -41,7 +46,9 @@ class Episode:
         size = cfg.budget.image_size
         self.intrinsics = Intrinsics.from_fov(size, size)
         self.plan_intrinsics = Intrinsics.from_fov(cfg.planner.resolution, cfg.planner.resolution)
-        self.scorer = self.settings.scorer(cfg.method.name)
+        self.method = load_method(cfg.method.implementation)
+        self.scorer = self.settings.scorer(self.method)
+        self.rival = self.rival_scorer(cfg.diagnostics.rank_against)
         self.evaluator = Evaluator(scene, self.renderer, cfg, device, lpips)
         self.poses: list[torch.Tensor] = []
         self.images: list[np.ndarray] = []  # RGBA [H, W, 4] training images, budget.gt_samples^2 per pixel
@@ -49,6 +56,14 @@ class Episode:
         for c2w in scene.init_poses:
             self.observe(c2w)
         self.previous_model: SceneModel | None = None
+
+    def rival_scorer(self, ablation: str | None) -> tuple[str, ViewScorer] | None:
+        """``(name, scorer)`` of ``ablation`` (its ``conf/ablation`` switches on this run's config) for
+        ``rank_agreement``; None when no ablation is named."""
+        if ablation is None:
+            return None
+        rival_cfg = OmegaConf.merge(self.cfg, OmegaConf.load(CONF / "ablation" / f"{ablation}.yaml"))
+        return ablation, EpisodeSettings.of(rival_cfg, self.scene).scorer(self.method)
 
     def observe(self, c2w: torch.Tensor) -> None:
         """Render the ground truth at ``c2w`` and add it to the observations."""
@@ -82,7 +97,7 @@ class Episode:
         model = self.new_model(step)
         stats = train_model(
             model, obs, s.train, list(cfg.method.stages), s.entropy,
-            seeded_generator(cfg.seed, step, "train", self.device), cfg.method.aux_loss, progress,
+            seeded_generator(cfg.seed, step, "train", self.device), self.method.aux_loss, progress,
         )  # fmt: skip
         return model, stats
 
@@ -122,7 +137,21 @@ class Episode:
                 "original_scores": selection.opt.original_scores.tolist(),
                 "refined_scores": selection.opt.refined_scores.tolist(),
             }
+        if self.rival is not None and selection.scores is not None:
+            row["rank_agreement"] = self.rank_agreement(model, selection)
         return row, images
+
+    def rank_agreement(self, model: SceneModel, selection: Selection) -> dict:
+        """How the ``diagnostics.rank_against`` ablation's score ranks the step's candidates against the run's
+        own: Spearman correlation and whether both pick the same candidate (no randomness: the run's
+        choices are unchanged)."""
+        name, scorer = self.rival
+        chunk = self.settings.planner.score_chunk_rays
+        rival = score_poses(model, scorer, selection.candidates, self.plan_intrinsics, chunk)
+        own = selection.scores.detach().cpu().numpy()
+        spearman = float(stats.spearmanr(own, rival.detach().cpu().numpy()).statistic) if len(own) > 1 else math.nan
+        same = argmax_first(rival) == argmax_first(selection.scores)
+        return {"against": name, "spearman": spearman, "same_choice": same}
 
     def observe_pose(self, pose: list[float]) -> None:
         """Observe a pose vector ``[qx, qy, qz, qw, x, y, z]`` (a selected view)."""

@@ -31,7 +31,7 @@ class StepFailed(RuntimeError):
 
 
 def torch_threads() -> int:
-    """Threads per job: the machine's cores divided among the launcher's parallel jobs (DESIGN.md:
+    """Threads per job: the machine's cores divided among the launcher's parallel jobs (measured:
     two 2-thread jobs on 2 cores ran 3.5x slower than two 1-thread jobs)."""
     cores = os.cpu_count() or 1
     jobs = 1
@@ -89,7 +89,7 @@ def run_episode(cfg: DictConfig) -> Path:
     torch.set_num_threads(torch_threads())
     torch.manual_seed(int(cfg.seed))
     np.random.seed(int(cfg.seed) % 2**32)
-    scene = load_scene(cfg.scene.name, Path(cfg.paths.assets))
+    scene = load_scene(cfg.scene, Path(cfg.paths.assets))
     device = resolve_device(cfg.device)
     lpips = LpipsMetric()
     episode = Episode(cfg, scene, device, lpips)

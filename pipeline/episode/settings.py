@@ -8,7 +8,8 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from nvf.config import BaselineConfig, EntropyConfig, FieldConfig, PlannerConfig, SamplerConfig, TrainConfig
-from nvf.uncertainty import ViewScorer, make_scorer
+from nvf.methods import Method
+from nvf.uncertainty import ViewScorer
 from pipeline.scenes.scene import Scene
 
 
@@ -47,9 +48,10 @@ class EpisodeSettings:
     tau: float
     collision_free: bool
 
-    def scorer(self, method: str) -> ViewScorer | None:
-        """``method``'s view scorer with these settings (NVF's resolved ``d0``); None for Random."""
-        return make_scorer(method, self.entropy, self.baseline, float(self.entropy.d0))
+    def scorer(self, method: Method) -> ViewScorer | None:
+        """``method``'s view scorer with these
+        settings (NVF's resolved ``d0``); None for a method without one (Random)."""
+        return method.scorer(self.entropy, self.baseline, float(self.entropy.d0))
 
     @staticmethod
     def of(cfg: DictConfig, scene: Scene) -> "EpisodeSettings":

@@ -102,7 +102,7 @@ LpipsFeatures = list[Tensor]  # per AlexNet layer, unit-normalised activations [
 class LpipsMetric:
     """LPIPS (AlexNet, v0.1), mean over images (4.1); holds the model or the reason it is missing.
 
-    ``sources`` as in ``pipeline.lpips_weights.load_lpips_alex`` (None: ``default_sources()``).
+    ``sources`` as in ``pipeline.metrics.lpips_weights.load_lpips_alex`` (None: ``default_sources()``).
     When no verified weights exist, ``missing`` holds the reason, a warning is issued once, and
     every call returns NaN: LPIPS is never computed with random weights. Images are batched
     (``LPIPS_CHUNK_PIXELS``); ``reference`` computes the GT side once for repeated comparisons.

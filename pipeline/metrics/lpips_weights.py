@@ -1,4 +1,4 @@
-"""Offline LPIPS (AlexNet, v0.1) with verified ImageNet trunk weights (PROTOCOL.md 4.1, DESIGN.md).
+"""Offline LPIPS (AlexNet, v0.1) with verified ImageNet trunk weights (PROTOCOL.md 4.1).
 
 ``lpips.LPIPS(net='alex')`` downloads torchvision's AlexNet; here the model is built with a random
 trunk (``pnet_rand=True``) and every weight is then overwritten from a local file, in this order:

@@ -23,6 +23,7 @@ from types import MappingProxyType
 from typing import Any
 
 from pipeline.metrics.info import METRICS
+from pipeline.records.compat import NOT_SETTINGS, drop_retired
 from pipeline.repo import REPO
 
 KEY_PATTERN = re.compile(r"[A-Za-z0-9_.-]+")
@@ -184,8 +185,16 @@ def _parse_row(line: str) -> dict | None:
 
 
 def _settings(config: Any) -> Any:
-    """A resolved config without its ``paths`` group (locations, not experiment settings)."""
-    return {k: v for k, v in config.items() if k != "paths"} if isinstance(config, Mapping) else config
+    """A resolved config without its ``paths`` group (locations, not experiment settings) and without the
+    keys the schema has retired (``pipeline.records.compat``)."""
+    return {k: v for k, v in drop_retired(config).items() if k != "paths"} if isinstance(config, Mapping) else config
+
+
+def _comparable(config: Any) -> Any:
+    """``_settings`` without the groups that are not settings (``compat.NOT_SETTINGS``: measurements that
+    never change a run's views or metrics)."""
+    settings = _settings(config)
+    return {k: v for k, v in settings.items() if k not in NOT_SETTINGS} if isinstance(settings, Mapping) else settings
 
 
 def first_difference(old: Any, new: Any, prefix: str = "") -> tuple[str, Any, Any] | None:
@@ -205,8 +214,8 @@ def run_difference(
     """How two run infos differ as runs: ``<key> (<old> <labels[0]>, <new> <labels[1]>)`` for the
     first differing identity key or setting (``config.<dotted key>``; ``paths`` are locations, not
     settings), or None when both describe the same run."""
-    old = {k: old_info.get(k) for k in IDENTITY_KEYS} | {"config": _settings(old_info.get("config"))}
-    new = {k: new_info.get(k) for k in IDENTITY_KEYS} | {"config": _settings(new_info.get("config"))}
+    old = {k: old_info.get(k) for k in IDENTITY_KEYS} | {"config": _comparable(old_info.get("config"))}
+    new = {k: new_info.get(k) for k in IDENTITY_KEYS} | {"config": _comparable(new_info.get("config"))}
     found = first_difference(to_jsonable(old), to_jsonable(new))
     if found is None:
         return None

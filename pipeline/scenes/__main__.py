@@ -5,7 +5,7 @@ import sys
 from pathlib import Path
 
 from pipeline.repo import RESULTS
-from pipeline.scenes.scene import SCENE_NAMES, SceneError, load_scene
+from pipeline.scenes.scene import SceneError, load_scene, scene_names
 from pipeline.scenes.show import show
 
 
@@ -14,7 +14,7 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m pipeline.scenes", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
     show_parser = sub.add_parser("show", help="write a PNG grid of a scene's views and a top view")
-    show_parser.add_argument("scene", help=f"one of: {', '.join(SCENE_NAMES)}")
+    show_parser.add_argument("scene", help=f"one of: {', '.join(scene_names())}")
     show_parser.add_argument("--assets", type=Path, default=None, help="assets directory (default: NVF_ASSETS)")
     show_parser.add_argument("--out", type=Path, default=RESULTS / "figures" / "scenes")
     show_parser.add_argument("--res", type=int, default=128, help="view resolution in pixels")

@@ -11,7 +11,7 @@ floor at z = 0 before fitting). Each proxy keeps what makes its paper scene hard
 - chair: an open frame (slatted back, stretchers) with a cavity under the seat;
 - materials: coloured spheres on a flat slab.
 
-``build_proxy`` fits a proxy uniformly into a tight box: centred in x and y, floor at ``z_min``.
+``fit_into_box`` fits a proxy uniformly into a tight box: centred in x and y, floor at ``z_min``.
 """
 
 import math
@@ -346,6 +346,4 @@ PROXIES: dict[str, Callable[[], trimesh.Trimesh]] = {
 }
 
 
-def build_proxy(name: str, tight_box: Float[np.ndarray, "2 3"]) -> trimesh.Trimesh:
-    """Procedural analogue of paper scene ``name`` fitted into its tight box (PROTOCOL.md 2.2)."""
-    return fit_into_box(PROXIES[name](), tight_box)
+RECIPES: dict[str, Callable[[], trimesh.Trimesh]] = {"default": default_object, **PROXIES}  # a scene's ``recipe``

@@ -4,25 +4,16 @@ table's header and footnotes (``SPECS`` says which runs a table takes)."""
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 from jaxtyping import Float
+from omegaconf import OmegaConf
 
 from pipeline.metrics.info import PAPER_METRICS
-from pipeline.tables.labels import (
-    ABLATION_NAMES,
-    METHOD_NAMES,
-    METRIC_KEYS,
-    OBJECT_MEAN,
-    OBJECT_SCENES,
-    PLANNERS,
-    ROOM_SCENES,
-    base_scene,
-    label_rank,
-    method_label,
-    scene_rank,
-)
+from pipeline.repo import CONF
+from pipeline.tables.labels import METRIC_KEYS, OBJECT_MEAN
 from pipeline.tables.load import GROUP, Runs
 
 
@@ -57,23 +48,23 @@ def aggregate(final: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def object_mean(final: pd.DataFrame) -> tuple[pd.DataFrame, tuple[str, ...]]:
+def object_mean(final: pd.DataFrame, runs: Runs) -> tuple[pd.DataFrame, tuple[str, ...]]:
     """Per seed, the mean over the object scenes of each method (a NaN stays NaN); then over seeds.
 
     Seeds lacking one of the method's scenes are left out. Returns the aggregated rows (scene =
     OBJECT_MEAN, ``scene_count`` = scenes averaged) and notes naming the scenes averaged and the seeds left out.
     """
-    objects = final[final["scene"].map(base_scene).isin(OBJECT_SCENES)]
+    objects = final[np.array([runs.scene(scene).nerf_asset for scene in final["scene"]], dtype=bool)]
     per_seed, coverage, counts = [], {}, {}
     for key, group in objects.groupby(["budget", "method", "planner", "ablation"], sort=False):
-        scenes = sorted(set(group["scene"]), key=scene_rank)
+        scenes = sorted(set(group["scene"]), key=lambda scene: runs.scene(scene).order)
         counts[key] = len(scenes)
         complete = group.groupby("seed").filter(lambda s: set(s["scene"]) == set(scenes))
         text = f"mean over {len(scenes)} scene{'' if len(scenes) == 1 else 's'} ({', '.join(scenes)})"
         dropped = sorted(set(group["seed"]) - set(complete["seed"]))
         if dropped:
             text += f", seeds {', '.join(map(str, dropped))} left out (missing scenes)"
-        coverage.setdefault(text, []).append(f"{method_label(*key[1:])} ({key[0]})")
+        coverage.setdefault(text, []).append(f"{runs.row(*key[1:]).label} ({key[0]})")
         for seed, seed_rows in complete.groupby("seed"):
             sources = ", ".join(sorted(set(seed_rows["scene_source"])))
             means = {m: float(seed_rows[m].to_numpy(float).mean()) for m in METRIC_KEYS}
@@ -108,9 +99,10 @@ def _mark_best(rows: pd.DataFrame) -> pd.DataFrame:
     return rows
 
 
-def order_rows(rows: pd.DataFrame) -> pd.DataFrame:
+def order_rows(rows: pd.DataFrame, runs: Runs) -> pd.DataFrame:
+    """Rows by budget, scene (``scene.rank``) and the paper's row order (``RowName.order``)."""
     keys = [
-        (budget, scene_rank(scene), label_rank(method, planner, ablation))
+        (budget, runs.scene(scene).order, runs.row(method, planner, ablation).order)
         for budget, scene, method, planner, ablation in rows[list(GROUP)].itertuples(index=False)
     ]
     return rows.iloc[sorted(range(len(keys)), key=keys.__getitem__)].reset_index(drop=True)
@@ -118,57 +110,53 @@ def order_rows(rows: pd.DataFrame) -> pd.DataFrame:
 
 @dataclass(frozen=True)
 class Spec:
-    """Which runs a table takes, and how it is laid out."""
+    """A table: the Hydra experiment whose sweep fills it (``conf/experiment/<name>.yaml``; the methods,
+    planners and ablations it sweeps are the ones the table takes; None: every run) and which scenes it
+    shows: ``all``, ``objects`` (the NeRF-asset scenes) or ``main`` (each paper scene that is not a NeRF
+    asset, plus the NeRF-asset mean)."""
 
     name: str
     title: str
-    methods: tuple[str, ...] | None  # None: any
-    planners: tuple[str, ...] | None
-    ablations: tuple[str, ...] | None
+    experiment: str | None
     scenes: str  # all | objects | main
     object_mean: bool
-    experiment: str | None  # the Hydra experiment that fills it
 
 
 SPECS = (
-    Spec("main", "Main table: Hubble, Room, NeRF-asset mean", None, ("argmax",), ("none",), "main", True, "main"),
-    Spec(
-        "table1_opt",
-        "Table S1: gradient-based view refinement (-OPT)",
-        ("air", "neurar", "nvf"),
-        PLANNERS,
-        ("none",),
-        "all",
-        True,
-        "table1_opt",
-    ),
-    Spec("table2_ablation", "Table S2: ablations", ("nvf",), ("argmax",), None, "all", True, "table2_ablation"),
-    Spec(
-        "table34_nerf_assets",
-        "Tables S3-S4: NeRF assets",
-        None,
-        ("argmax",),
-        ("none",),
-        "objects",
-        True,
-        "table34_nerf_assets",
-    ),
-    Spec("methods", "Every method per scene (argmax planner, no ablation)", None, ("argmax",), ("none",), "all", False,
-         "methods"),  # fmt: skip
-    Spec("all_runs", "All runs: every scene and method, per scene", None, None, None, "all", False, None),
+    Spec("main", "Main table: Hubble, Room, NeRF-asset mean", "main", "main", True),
+    Spec("table1_opt", "Table S1: gradient-based view refinement (-OPT)", "table1_opt", "all", True),
+    Spec("table2_ablation", "Table S2: ablations", "table2_ablation", "all", True),
+    Spec("table34_nerf_assets", "Tables S3-S4: NeRF assets", "table34_nerf_assets", "objects", True),
+    Spec("methods", "Every method per scene (argmax planner, no ablation)", "methods", "all", False),
+    Spec("all_runs", "All runs: every scene and method, per scene", None, "all", False),
 )
+SWEPT = ("method", "planner", "ablation")
 
 
-def _select(final: pd.DataFrame, spec: Spec) -> pd.DataFrame:
+def experiment_selection(experiment: str | None, conf_dir: Path = CONF) -> dict[str, tuple[str, ...] | None]:
+    """The options of each of ``SWEPT`` an experiment runs: the values its sweep lists, None (any) for
+    ``glob(*)``, and the default choice (``conf/config.yaml``) for a group it does not sweep."""
+    if experiment is None:
+        return dict.fromkeys(SWEPT)
+    listed = OmegaConf.to_container(OmegaConf.load(Path(conf_dir) / "config.yaml").defaults)
+    defaults = {k: v for d in listed if isinstance(d, dict) for k, v in d.items()}
+    params = OmegaConf.select(OmegaConf.load(Path(conf_dir) / "experiment" / f"{experiment}.yaml"), "hydra.sweeper.params") or {}
+    selection: dict[str, tuple[str, ...] | None] = {}
+    for key in SWEPT:
+        value = str(params.get(key, defaults[key]))
+        selection[key] = None if value.startswith("glob(") else tuple(v.strip() for v in value.split(","))
+    return selection
+
+
+def _select(final: pd.DataFrame, spec: Spec, runs: Runs) -> pd.DataFrame:
     keep = pd.Series(True, index=final.index)
-    for column, allowed in (("method", spec.methods), ("planner", spec.planners), ("ablation", spec.ablations)):
+    for column, allowed in experiment_selection(spec.experiment).items():
         if allowed is not None:
             keep &= final[column].isin(allowed)
-    bases = final["scene"].map(base_scene)
     if spec.scenes == "objects":
-        keep &= bases.isin(OBJECT_SCENES)
+        keep &= np.array([runs.scene(scene).nerf_asset for scene in final["scene"]], dtype=bool)
     elif spec.scenes == "main":
-        keep &= bases.isin((*ROOM_SCENES, *OBJECT_SCENES))
+        keep &= np.array([runs.scene(scene).paper_scene is not None for scene in final["scene"]], dtype=bool)
     return final[keep]
 
 
@@ -201,7 +189,7 @@ def _notes(selected: pd.DataFrame, done: pd.DataFrame, rows: pd.DataFrame, runs:
         parts = [f"{count} {status}" for status, count in counts.items()]
         notes.append(f"Excluded: {', '.join(parts)} run(s) (only runs marked done count).")
         for _, run in unfinished[unfinished["status"] == "failed"].iterrows():
-            label = method_label(run["method"], run["planner"], run["ablation"])
+            label = runs.row(run["method"], run["planner"], run["ablation"]).label
             reason = run["failure_reason"] or "no reason recorded"
             notes.append(f"Failed: {run['scene']} {label} seed {run['seed']} ({run['budget']}): {reason}.")
     if runs.skipped:
@@ -214,11 +202,11 @@ def _notes(selected: pd.DataFrame, done: pd.DataFrame, rows: pd.DataFrame, runs:
     return notes
 
 
-def _header(done: pd.DataFrame) -> tuple[str, ...]:
+def _header(done: pd.DataFrame, runs: Runs) -> tuple[str, ...]:
     budgets = ", ".join(sorted(set(done["budget"])))
     steps = ", ".join(str(s) for s in sorted(set(done["step"].astype(int))))
     sources = done.groupby("scene")["scene_source"].agg(lambda s: "/".join(sorted(set(s))))
-    scenes = "; ".join(f"{scene} ({sources[scene]})" for scene in sorted(sources.index, key=scene_rank))
+    scenes = "; ".join(f"{scene} ({sources[scene]})" for scene in sorted(sources.index, key=lambda scene: runs.scene(scene).order))
     return (
         f"Budget: {budgets}. Cells: mean ± population std over seeds at the last step (step {steps}), the mean alone "
         "from one seed; n = seeds.",
@@ -228,22 +216,20 @@ def _header(done: pd.DataFrame) -> tuple[str, ...]:
 
 def build_table(runs: Runs, spec: Spec) -> Table:
     """Aggregate the finished runs a spec selects into one Table (rows empty when there are none)."""
-    selected = _select(runs.final, spec)
+    selected = _select(runs.final, spec, runs)
     done = selected[selected["status"] == "done"]
-    if spec.scenes == "main":
-        per_scene = done[done["scene"].map(base_scene).isin(ROOM_SCENES)]
-    else:
-        per_scene = done
+    nerf_asset = pd.Series([runs.scene(scene).nerf_asset for scene in done["scene"]], index=done.index, dtype=bool)
+    per_scene = done[~nerf_asset] if spec.scenes == "main" else done
     parts = [aggregate(per_scene)] if not per_scene.empty else []
     mean_notes: tuple[str, ...] = ()
-    object_scenes = done.loc[done["scene"].map(base_scene).isin(OBJECT_SCENES), "scene"].nunique()
+    object_scenes = done.loc[nerf_asset, "scene"].nunique()
     if spec.object_mean and (object_scenes > 1 or (spec.scenes == "main" and object_scenes)):
-        mean_rows, mean_notes = object_mean(done)
+        mean_rows, mean_notes = object_mean(done, runs)
         parts.append(mean_rows)
     if not parts:
         notes = _notes(selected, done, pd.DataFrame(columns=["n"]), runs)
         return Table(spec.name, spec.title, pd.DataFrame(), (), tuple(notes))
-    rows = order_rows(_mark_best(pd.concat(parts, ignore_index=True)))
-    rows["label"] = [method_label(m, p, a) for m, p, a in zip(rows["method"], rows["planner"], rows["ablation"])]
+    rows = order_rows(_mark_best(pd.concat(parts, ignore_index=True)), runs)
+    rows["label"] = [runs.row(m, p, a).label for m, p, a in zip(rows["method"], rows["planner"], rows["ablation"])]
     notes = _notes(selected, done, rows, runs) + [f"{OBJECT_MEAN}: {n}." for n in mean_notes]
-    return Table(spec.name, spec.title, rows, _header(done), tuple(notes))
+    return Table(spec.name, spec.title, rows, _header(done, runs), tuple(notes))

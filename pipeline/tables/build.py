@@ -26,7 +26,7 @@ def build_tables(
     atomic_write_text(written[0], runs.long.to_csv(index=False))
     tables = {spec.name: build_table(runs, spec) for spec in SPECS}
     texts = {s.name: render(tables[s.name], LABEL_HEADERS.get(s.name, "Method"), s.experiment) for s in SPECS}
-    texts["paper_comparison"] = render(paper_comparison(tables), "Method", "table34_nerf_assets")
+    texts["paper_comparison"] = render(paper_comparison(tables, runs), "Method", "table34_nerf_assets")
     for name, flavors in texts.items():
         for flavor, text in flavors.items():
             path = results / "tables" / f"{name}.{flavor}"
@@ -34,7 +34,7 @@ def build_tables(
             written.append(path)
     if not figures:
         return written, (*runs.skipped, *runs.conflicts)
-    written += curves(runs.long, results / "figures")
+    written += curves(runs, results / "figures")
     done = runs.final[runs.final["status"] == "done"].sort_values("seed")
     for _, run in done.drop_duplicates(list(GROUP)).iterrows():  # one grid per method and scene: lowest seed
         group = f"{run['method']}-{run['planner']}-{run['ablation']}"

@@ -3,7 +3,8 @@
 import pandas as pd
 
 from pipeline.tables.aggregate import Table
-from pipeline.tables.labels import METRIC_KEYS, OBJECT_MEAN, OBJECT_SCENES, base_scene
+from pipeline.tables.labels import METRIC_KEYS, OBJECT_MEAN
+from pipeline.tables.load import Runs
 from pipeline.tables.paper import paper_numbers
 
 
@@ -15,9 +16,11 @@ COMPARISONS = (  # (our table, section, paper tables, our object-scene-mean rows
 )
 
 
-def paper_comparison(tables: dict[str, Table]) -> Table:
-    """Our rows next to the paper's (S3/S4 per scene, 8-scene mean, S1, S2): cells 'ours / paper'."""
+def paper_comparison(tables: dict[str, Table], runs: Runs) -> Table:
+    """Our rows next to the paper's (S3/S4 per scene, 8-scene mean, S1, S2): cells 'ours / paper'; a scene
+    is matched by the paper scene it is or stands in for (``scene.paper_scene``)."""
     paper = paper_numbers()
+    nerf_assets = paper.loc[paper["table"].isin(("S3", "S4")), "scene"].nunique()
     rows, coverage = [], []
     for name, section, sources, mean_only in COMPARISONS:
         ours = tables[name].rows
@@ -26,13 +29,13 @@ def paper_comparison(tables: dict[str, Table]) -> Table:
         for _, row in ours.iterrows():
             if (row["scene"] == OBJECT_MEAN) != mean_only:
                 continue
-            same_scene = reference["scene"] == base_scene(row["scene"])
+            same_scene = reference["scene"] == runs.scene(row["scene"]).paper_scene
             match = reference[(reference["method"] == row["label"]) & (mean_only | same_scene)]
             if not match.empty:
                 values = {f"{m}_paper": float(match.iloc[0][m]) for m in METRIC_KEYS}
                 ours_row = row.drop([f"{m}_best" for m in METRIC_KEYS]).to_dict()
                 if mean_only:  # how much of the paper's 8-scene mean ours covers, in the row itself
-                    ours_row["scene"] = f"{OBJECT_MEAN} ({int(row['scene_count'])} of {len(OBJECT_SCENES)})"
+                    ours_row["scene"] = f"{OBJECT_MEAN} ({int(row['scene_count'])} of {nerf_assets})"
                 rows.append({**ours_row, "section": section, **values})
     notes = (
         "Cells: ours (mean ± population std over seeds; the mean alone from one seed) / the paper's (supplement, "

@@ -11,22 +11,22 @@ from matplotlib.figure import Figure
 
 from pipeline.episode.images import save_figure
 from pipeline.metrics.info import PAPER_METRICS
-from pipeline.tables.labels import label_rank, method_label, rank
-
+from pipeline.tables.load import Runs
 
 IMAGE_NAME = re.compile(r"step_(\d+)_(.+)\.png")
 IMAGE_KINDS = (("gt", "GT"), ("pred", "prediction"), ("score", "score map"), ("entropy", "entropy"), ("depth", "depth"))
+KIND_ORDER = {kind: i for i, (kind, _) in enumerate(IMAGE_KINDS)}
 
 
-def curves(long: pd.DataFrame, figures: Path) -> list[Path]:
-    """Metric-vs-step curves per (scene, budget): mean ± population-std band over seeds, one line per
-    method (colour by position, dashed for ablations)."""
+def curves(runs: Runs, figures: Path) -> list[Path]:
+    """Metric-vs-step curves per (scene, budget) of the finished runs: mean ± population-std band over seeds,
+    one line per method in the paper's row order (colour by position, dashed for ablations)."""
     written = []
-    for (scene, budget), frame in long.groupby(["scene", "budget"]):
+    for (scene, budget), frame in runs.long.groupby(["scene", "budget"]):
         fig = Figure(figsize=(16, 7), dpi=80)
         fig.subplots_adjust(left=0.04, right=0.85, bottom=0.08, top=0.9, wspace=0.3, hspace=0.35)
         axes = fig.subplots(2, 4).ravel()
-        groups = sorted(frame.groupby(["method", "planner", "ablation"]), key=lambda kv: label_rank(*kv[0]))
+        groups = sorted(frame.groupby(["method", "planner", "ablation"]), key=lambda kv: runs.row(*kv[0]).order)
         for ax, m in zip(axes, PAPER_METRICS):
             for i, ((method, planner, ablation), group) in enumerate(groups):
                 series = group[group["metric"] == m.name].groupby("step")["value"]
@@ -34,7 +34,7 @@ def curves(long: pd.DataFrame, figures: Path) -> list[Path]:
                 if mean.notna().any():
                     color = f"C{i % 10}"  # the 10-colour cycle; ablations dashed, so no two lines look alike
                     style = "-" if ablation == "none" else "--"
-                    label = method_label(method, planner, ablation)
+                    label = runs.row(method, planner, ablation).label
                     ax.plot(mean.index, mean.to_numpy(), color=color, linestyle=style, label=label)
                     low, high = (mean - std).to_numpy(), (mean + std).to_numpy()
                     ax.fill_between(mean.index, low, high, alpha=0.2, color=color)
@@ -63,7 +63,7 @@ def image_grid(run_dir: Path, out_path: Path, max_rows: int = 5) -> Path | None:
         return None
     kinds = sorted(
         {kind for images in found.values() for kind in images},
-        key=lambda kind: (rank(IMAGE_KINDS, kind), kind),
+        key=lambda kind: (KIND_ORDER.get(kind, len(KIND_ORDER)), kind),
     )
     steps = sorted(found)
     steps = [steps[round(i)] for i in np.linspace(0, len(steps) - 1, min(max_rows, len(steps)))]

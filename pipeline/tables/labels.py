@@ -1,58 +1,55 @@
-"""How tables name and order things: method and ablation labels (Random ... NVF, w/o Vis. ...), '-OPT' for
-the refining planner, the paper's scene order, and which scenes form the object-scene mean."""
+"""How tables name and order runs and scenes, read from each run's own config (``conf/method``,
+``conf/ablation``, ``conf/scene`` as the run was made; a key a record predates is read from today's
+config of the same named groups): method and ablation labels, '-OPT' for the refining planner, the
+paper's row order, the scene order, and which scenes form the object-scene mean."""
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
 
 from pipeline.metrics.info import PAPER_METRICS
 
 METRIC_KEYS = tuple(m.name for m in PAPER_METRICS)
-METHOD_NAMES = (
-    ("random", "Random"),
-    ("wd", "WD"),
-    ("activermap", "ActiveRMAP"),
-    ("air", "AIR"),
-    ("activenerf", "ActiveNeRF"),
-    ("neurar", "NeurAR"),
-    ("nvf", "NVF"),
-)
-ABLATION_NAMES = (
-    ("wo_vis", "w/o Vis."),
-    ("wo_var", "w/o Var."),
-    ("ind_rays", "Ind. Rays"),
-    ("loose", "Loose"),
-    ("none", "NVF"),
-)
-PLANNERS = ("argmax", "opt")
-OBJECT_SCENES = ("chair", "drums", "ficus", "hotdog", "lego", "materials", "mic", "ship")
-ROOM_SCENES = ("hubble", "room")
 OBJECT_MEAN = "object-scene mean"
+LAST = 10**6  # order of the object-scene mean: after every scene
 
 
-def rank(names: tuple[tuple[str, str], ...], key: str) -> int:
-    keys = [k for k, _ in names]
-    return keys.index(key) if key in keys else len(keys)
+@dataclass(frozen=True)
+class RowName:
+    """A (method, planner, ablation) row: its label (``NVF``, ``w/o Vis.``, ``AIR-OPT``) and sort key
+    (plain before refined planners, ablations as in Table S2, methods as in Tables S3-S4)."""
+
+    label: str
+    order: tuple
 
 
-def method_label(method: str, planner: str, ablation: str) -> str:
-    """Display name: Random ... NVF, ablations as w/o Vis. etc., '-OPT' for planner=opt."""
-    label = dict(METHOD_NAMES).get(method, method)
-    if ablation != "none":
-        ablation_name = dict(ABLATION_NAMES).get(ablation, ablation)
-        label = ablation_name if method == "nvf" else f"{label} {ablation_name}"
-    if planner == "opt":
-        return f"{label}-OPT"
-    return label if planner == "argmax" else f"{label} ({planner})"
+@dataclass(frozen=True)
+class SceneName:
+    """A scene's sort key, the paper scene it is or stands in for (None for the embedded scene), and
+    whether it is one of the eight NeRF-asset scenes averaged into the object-scene mean."""
+
+    order: tuple
+    paper_scene: str | None
+    nerf_asset: bool
 
 
-def base_scene(scene: str) -> str:
-    """Paper scene a scene stands for: 'lego_proxy' -> 'lego'."""
-    return scene.removesuffix("_proxy")
+def row_name(config: Mapping[str, Any]) -> RowName:
+    """The row name of a run from its (effective) config."""
+    method, ablation, planner = config["method"], config["ablation"], config["planner"]["name"]
+    label = method.get("label", method["name"])
+    if ablation["name"] != "none":
+        ablated = ablation.get("label", ablation["name"])
+        label = ablated if method["name"] == ablation.get("of") else f"{label} {ablated}"
+    if planner != "argmax":
+        label = f"{label}-{planner.upper()}"
+    order = (planner != "argmax", planner, ablation.get("rank", LAST), method.get("rank", LAST), method["name"])
+    return RowName(label, order)
 
 
-def scene_rank(scene: str) -> tuple[int, str]:
-    order = (*ROOM_SCENES, *OBJECT_SCENES)
-    base = base_scene(scene)
-    return (order.index(base) if base in order else len(order) + (scene == OBJECT_MEAN), scene)
+def scene_name(config: Mapping[str, Any]) -> SceneName:
+    """The scene name of a run from its (effective) config."""
+    scene = config["scene"]
+    return SceneName((scene.get("rank", LAST - 1), scene["name"]), scene.get("paper_scene"), bool(scene.get("nerf_asset")))
 
 
-def label_rank(method: str, planner: str, ablation: str) -> tuple:
-    """Paper row order: plain before -OPT, ablations as in Table S2, methods as in Tables S3-S4."""
-    return (planner == "opt", rank(ABLATION_NAMES, ablation), rank(METHOD_NAMES, method), method, planner)
+MEAN_SCENE = SceneName((LAST, OBJECT_MEAN), None, False)

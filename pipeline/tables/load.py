@@ -2,14 +2,17 @@
 once), into a long frame (one row per run, step and metric) and a final frame (one row per run, its
 last step's metrics). Step rows store NaN as ``null`` (pipeline.records); it is read back as NaN."""
 
+import dataclasses
 import json
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 
-from pipeline.config.named import NamedConfigs
+from pipeline.config.named import GROUPS, NamedConfigs
 from pipeline.records.store import (
     IDENTITY_KEYS,
     RUN_JSON,
@@ -20,7 +23,7 @@ from pipeline.records.store import (
     run_difference,
 )
 from pipeline.repo import CONF
-from pipeline.tables.labels import METRIC_KEYS
+from pipeline.tables.labels import LAST, MEAN_SCENE, METRIC_KEYS, OBJECT_MEAN, RowName, SceneName, row_name, scene_name
 
 
 LONG_COLUMNS = (
@@ -42,6 +45,31 @@ class Runs:
     final: pd.DataFrame
     skipped: tuple[str, ...]
     conflicts: tuple[str, ...] = ()
+    rows: Mapping[tuple[str, str, str], RowName] = dataclasses.field(default_factory=dict)  # (method, planner, ablation)
+    scenes: Mapping[str, SceneName] = dataclasses.field(default_factory=dict)
+
+    def row(self, method: str, planner: str, ablation: str) -> RowName:
+        """How tables name and order a (method, planner, ablation); a row the records do not name gets its keys."""
+        return self.rows.get((method, planner, ablation), RowName(f"{method} {planner} {ablation}", (True, method)))
+
+    def scene(self, scene: str) -> SceneName:
+        """How tables order a scene (the object-scene mean last)."""
+        return MEAN_SCENE if scene == OBJECT_MEAN else self.scenes.get(scene, SceneName((LAST - 1, scene), None, False))
+
+
+def effective_config(recorded: Any, named: Any) -> Any:
+    """A record's config with every key it predates read from ``named`` (today's config of the same named
+    groups): what the run's labels and scene data were."""
+    if isinstance(recorded, Mapping) and isinstance(named, Mapping):
+        return {key: effective_config(recorded.get(key), named.get(key)) for key in recorded.keys() | named.keys()}
+    return named if recorded is None else recorded
+
+
+def describe(info: Mapping[str, Any], named: NamedConfigs | None = None) -> tuple[RowName, SceneName]:
+    """How tables name a record's row and scene, from its config (``effective_config``)."""
+    named = NamedConfigs(CONF) if named is None else named
+    config = effective_config(info.get("config") or {}, named.named(tuple(str(info[g]) for g in GROUPS)) or {})
+    return row_name(config), scene_name(config)
 
 
 def metric_value(value: object) -> float | None:
@@ -101,10 +129,15 @@ def collect_runs(roots: list[Path]) -> Runs:
                     continue
             records[key] = record
     long_rows, final_rows = [], []
+    names: dict[tuple[str, str, str], RowName] = {}
+    scenes: dict[str, SceneName] = {}
     named = NamedConfigs(CONF)
     for record in records.values():
         info, rows = record["info"], record["rows"]
         keys = {k: info[k] for k in IDENTITY_KEYS}
+        row, scene = describe(info, named)
+        names.setdefault((info["method"], info["planner"], info["ablation"]), row)
+        scenes.setdefault(info["scene"], scene)
         keys["budget"] = named.budget_label(info)
         source = str(info.get("scene_source", "unknown"))
         last = max(rows, key=lambda r: r["step"]) if rows else {"metrics": {}}
@@ -134,4 +167,4 @@ def collect_runs(roots: list[Path]) -> Runs:
     long = long.astype({"seed": "int64", "step": "int64", "n_views": "Int64", "value": "float64"})
     long = long.sort_values(list(LONG_COLUMNS[:8])).reset_index(drop=True)
     final_frame = pd.DataFrame(final_rows, columns=[*FINAL_COLUMNS, *METRIC_KEYS])
-    return Runs(long=long, final=final_frame, skipped=tuple(skipped), conflicts=tuple(conflicts))
+    return Runs(long, final_frame, tuple(skipped), tuple(conflicts), names, scenes)

@@ -8,8 +8,8 @@ import pandas as pd
 
 from pipeline.metrics.info import PAPER_METRICS
 from pipeline.records.store import atomic_write_text, record_status
-from pipeline.tables.labels import METRIC_KEYS, base_scene, method_label
-from pipeline.tables.load import load_run, metric_value
+from pipeline.tables.labels import METRIC_KEYS
+from pipeline.tables.load import describe, load_run, metric_value
 from pipeline.tables.paper import paper_numbers
 
 
@@ -17,7 +17,8 @@ def summarize_run(run_dir: Path) -> Path:
     """Per-step metrics of one run (and the paper's row for its scene and method, if any) as Markdown
     in ``<run_dir>/summary.md``; returns its path."""
     info, rows = load_run(Path(run_dir))
-    label = method_label(info["method"], info["planner"], info["ablation"])
+    row_name, scene_name = describe(info)
+    label = row_name.label
     columns = ["Step", "Views"] + [f"{m.label}{m.arrow}" for m in PAPER_METRICS] + ["Seconds"]
     cells = []
     for row in rows:
@@ -30,7 +31,7 @@ def summarize_run(run_dir: Path) -> Path:
         line += ["-" if v is None or math.isnan(v) else f"{v:.{m.decimals}f}" for v, m in zip(values, PAPER_METRICS)]
         cells.append(line + [f"{total:.1f}"])
     paper = paper_numbers()
-    match = paper[paper["table"].isin(["S3", "S4"]) & (paper["scene"] == base_scene(info["scene"]))]
+    match = paper[paper["table"].isin(["S3", "S4"]) & (paper["scene"] == scene_name.paper_scene)]
     for _, ref in match[match["method"] == label].iterrows():
         cells.append([f"paper ({ref['table']})", ""] + [f"{ref[m.name]:.{m.decimals}f}" for m in PAPER_METRICS] + [""])
     table = pd.DataFrame(cells, columns=columns).to_markdown(index=False, disable_numparse=True)

@@ -1,0 +1,234 @@
+"""``python -m pipeline.discriminate [overrides] [--scenes S,..] [--seeds N,..] [--jobs J] [--label NAME]``:
+does a budget tell the methods apart? The paired discrimination experiment of one budget.
+
+For each scene and seed it runs (through ``python -m pipeline.run -m``, one Hydra sweep per group of
+entries, ``hydra/launcher=joblib`` with ``J`` one-thread jobs; finished runs are skipped, so a killed
+experiment resumes) full NVF (recording, at every step, how w/o Vis.'s score ranks the same candidates:
+``diagnostics.rank_against=wo_vis``), its ablations w/o Vis. and Ind. Rays, and the baselines WD,
+ActiveNeRF and NeurAR. Then, per scene, the paired (same seed) differences of final PSNR and of PSNR
+averaged over the steps: NVF - w/o Vis., NVF - Ind. Rays and NVF - the best baseline (the baseline with
+the highest mean final PSNR on that scene), each with a 95% Student-t interval over the seeds, the
+Spearman correlation of NVF's and w/o Vis.'s candidate scores, and minutes per episode.
+
+Writes ``${paths.results}/pilots/discriminate/<label>/`` (``<label>``: the budget and every setting
+beyond it, as the tables label runs, unless ``--label``): ``runs/`` (the records, images off),
+``summary.csv`` (``scene, comparison, mean_diff, ci_low, ci_high, n, minutes_per_episode``; final PSNR in
+dB), ``details.csv`` (both PSNR measures, every seed's difference, which baseline), ``summary.md`` and
+``command.txt``. ``--summarize-only`` skips the runs (e.g. to summarise records made elsewhere with
+``paths.outputs=DIR``).
+"""
+
+import argparse
+import json
+import math
+import shlex
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from omegaconf import DictConfig, OmegaConf
+from scipy import stats
+
+from pipeline.cli import description, fail
+from pipeline.config.named import GROUPS, NamedConfigs
+from pipeline.config.validation import compose_config
+from pipeline.records.store import atomic_write_text
+from pipeline.repo import CONF, REPO
+from pipeline.tables.load import collect_runs
+
+SCENES = ("hotdog", "hubble", "default")
+SEEDS = (100, 101, 102)
+NVF, WO_VIS, IND_RAYS = ("nvf", "none"), ("nvf", "wo_vis"), ("nvf", "ind_rays")
+BASELINES = (("wd", "none"), ("activenerf", "none"), ("neurar", "none"))
+SWEEPS = (  # (method, ablation, extra override) per Hydra sweep
+    ("nvf", "none", "diagnostics.rank_against=wo_vis"),
+    ("nvf", "wo_vis,ind_rays", None),
+    ("wd,activenerf,neurar", "none", None),
+)
+COMPARISONS = (("nvf-wo_vis", WO_VIS), ("nvf-ind_rays", IND_RAYS), ("nvf-best_baseline", None))
+SUMMARY_COLUMNS = ("scene", "comparison", "mean_diff", "ci_low", "ci_high", "n", "minutes_per_episode")
+
+
+@dataclass(frozen=True)
+class Interval:
+    """Mean of paired differences with its two-sided 95% Student-t interval over ``n`` seeds."""
+
+    mean: float
+    low: float
+    high: float
+    n: int
+
+    @staticmethod
+    def of(diffs: np.ndarray) -> "Interval":
+        """NaN bounds below two seeds (no spread to estimate)."""
+        diffs = diffs[np.isfinite(diffs)]
+        n = len(diffs)
+        if n == 0:
+            return Interval(math.nan, math.nan, math.nan, 0)
+        mean = float(diffs.mean())
+        if n < 2:
+            return Interval(mean, math.nan, math.nan, n)
+        half = float(stats.t.ppf(0.975, n - 1) * diffs.std(ddof=1) / math.sqrt(n))
+        return Interval(mean, mean - half, mean + half, n)
+
+
+def budget_label(cfg: DictConfig) -> str:
+    """The budget and every setting beyond the named groups (``cpu+train.precision=bf16``), as the tables
+    label runs (the diagnostics and ``save_images`` are not settings)."""
+    info = {group: cfg[group].name for group in GROUPS} | {"config": OmegaConf.to_container(cfg, resolve=True)}
+    return NamedConfigs(CONF).budget_label(info)
+
+
+def sweep_commands(overrides: list[str], scenes: tuple[str, ...], seeds: tuple[int, ...], outputs: Path, jobs: int) -> list[list[str]]:
+    """One ``python -m pipeline.run -m`` per entry group (``SWEEPS``)."""
+    common = [
+        f"scene={','.join(scenes)}", f"seed={','.join(map(str, seeds))}", f"paths.outputs={outputs}",
+        "save_images=false", "hydra/launcher=joblib", f"hydra.launcher.n_jobs={jobs}", *overrides,
+    ]  # fmt: skip
+    commands = []
+    for method, ablation, extra in SWEEPS:
+        command = [sys.executable, "-m", "pipeline.run", "-m", f"method={method}", f"ablation={ablation}", *common]
+        commands.append(command + ([extra] if extra else []))
+    return commands
+
+
+def per_seed(outputs: Path, budget: str, planner: str, scenes: tuple[str, ...], seeds: tuple[int, ...]) -> pd.DataFrame:
+    """One row per finished run of the experiment (``budget`` label, ``planner``): scene, method, ablation, seed, final PSNR, PSNR averaged
+    over the steps, minutes (the steps' train + eval + plan seconds), mean Spearman and same-choice fraction."""
+    runs = collect_runs([outputs])
+    final = runs.final[
+        (runs.final["status"] == "done") & (runs.final["budget"] == budget) & (runs.final["planner"] == planner)
+    ]
+    entries = {NVF, WO_VIS, IND_RAYS, *BASELINES}
+    mine = np.array([(m, a) in entries for m, a in zip(final["method"], final["ablation"])], dtype=bool)
+    rows = []
+    for _, run in final[final["scene"].isin(scenes) & final["seed"].isin(seeds) & mine].iterrows():
+        steps = [json.loads(line) for line in (Path(run["directory"]) / "steps.jsonl").read_text().splitlines()]
+        agreement = [s["rank_agreement"] for s in steps if "rank_agreement" in s]
+        rows.append({
+            "scene": run["scene"], "method": run["method"], "ablation": run["ablation"], "seed": int(run["seed"]),
+            "final_psnr": run["psnr"], "mean_psnr": float(np.mean([s["metrics"]["psnr"] for s in steps])),
+            "minutes": sum(sum(s["seconds"].values()) for s in steps) / 60.0,
+            "spearman": float(np.nanmean([a["spearman"] for a in agreement])) if agreement else math.nan,
+            "same_choice": float(np.mean([a["same_choice"] for a in agreement])) if agreement else math.nan,
+        })  # fmt: skip
+    return pd.DataFrame(rows, columns=["scene", "method", "ablation", "seed", "final_psnr", "mean_psnr", "minutes",
+                                       "spearman", "same_choice"])  # fmt: skip
+
+
+def compare(runs: pd.DataFrame) -> pd.DataFrame:
+    """Per scene, comparison and PSNR measure: the paired differences, their interval and the minutes."""
+    rows = []
+    for scene, group in runs.groupby("scene", sort=False):
+        entry = {key: g.set_index("seed") for key, g in group.groupby(["method", "ablation"])}
+        if NVF not in entry:
+            continue
+        present = [b for b in BASELINES if b in entry]
+        best = max(present, key=lambda b: entry[b]["final_psnr"].mean()) if present else None
+        for name, other in COMPARISONS:
+            other = best if other is None else other
+            if other not in entry:
+                continue
+            seeds = entry[NVF].index.intersection(entry[other].index)
+            minutes = float(pd.concat([entry[NVF].loc[seeds, "minutes"], entry[other].loc[seeds, "minutes"]]).mean())
+            for measure in ("final_psnr", "mean_psnr"):
+                diffs = (entry[NVF].loc[seeds, measure] - entry[other].loc[seeds, measure]).to_numpy(float)
+                interval = Interval.of(diffs)
+                rows.append({
+                    "scene": scene, "comparison": name, "measure": measure, "against": "-".join(other),
+                    "mean_diff": interval.mean, "ci_low": interval.low, "ci_high": interval.high, "n": interval.n,
+                    "minutes_per_episode": minutes, "diffs": " ".join(f"{d:.3f}" for d in diffs),
+                    "seeds": " ".join(map(str, seeds)),
+                })  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+def markdown(label: str, details: pd.DataFrame, runs: pd.DataFrame) -> str:
+    """The experiment's table: every comparison with both PSNR measures, then the rank agreement."""
+    lines = [
+        f"# Discrimination experiment: {label}", "",
+        "Paired (same seed) differences in dB, mean [95% Student-t interval] over n seeds; a lead is "
+        "established where the interval lies above zero. Best baseline: the one of WD, ActiveNeRF, NeurAR with "
+        "the highest mean final PSNR on the scene.", "",
+        "| scene | comparison | against | final PSNR | PSNR over steps | n | min/episode |",
+        "|:--|:--|:--|--:|--:|--:|--:|",
+    ]  # fmt: skip
+    for (scene, name), group in details.groupby(["scene", "comparison"], sort=False):
+        cells = {row["measure"]: f"{row['mean_diff']:+.2f} [{row['ci_low']:+.2f}, {row['ci_high']:+.2f}]"
+                 for _, row in group.iterrows()}  # fmt: skip
+        first = group.iloc[0]
+        lines.append(f"| {scene} | {name} | {first['against']} | {cells.get('final_psnr', '-')} | "
+                     f"{cells.get('mean_psnr', '-')} | {first['n']} | {first['minutes_per_episode']:.1f} |")  # fmt: skip
+    nvf = runs[(runs["method"] == NVF[0]) & (runs["ablation"] == NVF[1])]
+    lines += ["", "NVF vs w/o Vis. on NVF's own candidates (mean over steps, then over seeds; '-': records made "
+              "without `diagnostics.rank_against=wo_vis`):", "",
+              "| scene | Spearman | same choice | seeds |", "|:--|--:|--:|--:|"]  # fmt: skip
+    for scene, group in nvf.groupby("scene", sort=False):
+        spearman, same = group["spearman"].dropna(), group["same_choice"].dropna()
+        cells = [f"{spearman.mean():.3f}" if len(spearman) else "-", f"{same.mean():.2f}" if len(same) else "-"]
+        lines.append(f"| {scene} | {cells[0]} | {cells[1]} | {len(spearman)} of {len(group)} |")
+    return "\n".join(lines) + "\n"
+
+
+def summarize(
+    outputs: Path, out: Path, label: str, budget: str, planner: str, scenes: tuple[str, ...], seeds: tuple[int, ...]
+) -> list[Path]:
+    """Write summary.csv, details.csv, per_seed.csv and summary.md for the runs under ``outputs``."""
+    runs = per_seed(outputs, budget, planner, scenes, seeds)
+    if runs.empty:
+        fail(f"no finished {budget} runs of scenes {', '.join(scenes)} under {outputs}; run without --summarize-only")
+    details = compare(runs)
+    summary = details[details["measure"] == "final_psnr"].loc[:, list(SUMMARY_COLUMNS)]
+    files = [out / "summary.csv", out / "details.csv", out / "per_seed.csv", out / "summary.md"]
+    atomic_write_text(files[0], summary.to_csv(index=False))
+    atomic_write_text(files[1], details.to_csv(index=False))
+    atomic_write_text(files[2], runs.to_csv(index=False))
+    atomic_write_text(files[3], markdown(label, details, runs))
+    return files
+
+
+def parse_list(text: str, cast, name: str) -> tuple:
+    try:
+        values = tuple(cast(part) for part in text.split(",") if part)
+    except ValueError:
+        values = ()
+    if not values:
+        fail(f"{name} {text!r}: give comma-separated values")
+    return values
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="python -m pipeline.discriminate", description=description(__doc__))
+    parser.add_argument("overrides", nargs="*", help="Hydra overrides of the budget, e.g. budget=cpu train.precision=bf16")
+    parser.add_argument("--scenes", default=",".join(SCENES), help=f"comma-separated (default {','.join(SCENES)})")
+    parser.add_argument("--seeds", default=",".join(map(str, SEEDS)), help="comma-separated (default 100,101,102)")
+    parser.add_argument("--jobs", type=int, default=2, help="parallel one-thread jobs (default 2)")
+    parser.add_argument("--label", default=None, help="the experiment's folder name (default: its budget label)")
+    parser.add_argument("--summarize-only", action="store_true", help="only summarise existing runs")
+    args = parser.parse_intermixed_args(argv)
+    scenes, seeds = parse_list(args.scenes, str, "--scenes"), parse_list(args.seeds, int, "--seeds")
+    if any(o.split("=")[0].lstrip("+~") in ("method", "ablation", "scene", "seed") for o in args.overrides):
+        fail("method, ablation, scene and seed are the experiment's own: use --scenes and --seeds")
+    if args.jobs < 1:
+        fail(f"--jobs {args.jobs} must be >= 1")
+    cfg = compose_config(args.overrides)
+    budget = budget_label(cfg)
+    label = args.label or budget
+    out = Path(cfg.paths.results) / "pilots" / "discriminate" / label
+    outputs = Path(cfg.paths.outputs) if args.summarize_only else out / "runs"
+    if not args.summarize_only:
+        out.mkdir(parents=True, exist_ok=True)
+        commands = sweep_commands(args.overrides, scenes, seeds, outputs.resolve(), args.jobs)
+        atomic_write_text(out / "command.txt", "".join(shlex.join(["python", *c[1:]]) + "\n" for c in commands))
+        for command in commands:
+            subprocess.run(command, cwd=REPO, check=False)  # a failed job is recorded; the summary counts seeds
+    files = summarize(outputs, out, label, budget, cfg.planner.name, scenes, seeds)
+    print("pipeline.discriminate: wrote " + ", ".join(map(str, files)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

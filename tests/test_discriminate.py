@@ -1,0 +1,68 @@
+"""The discrimination experiment (``pipeline.discriminate``): paired differences and their Student-t
+intervals, the best-baseline choice, the summary's columns, and bad input."""
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy import stats
+
+from pipeline import discriminate
+from pipeline.discriminate import SUMMARY_COLUMNS, Interval, compare
+
+
+def test_interval_is_the_paired_student_t_interval():
+    diffs = np.array([1.0, 2.0, 4.0])
+    interval = Interval.of(diffs)
+    half = stats.t.ppf(0.975, 2) * np.std(diffs, ddof=1) / math.sqrt(3)
+    assert interval.n == 3 and interval.mean == pytest.approx(7 / 3)
+    assert interval.low == pytest.approx(7 / 3 - half) and interval.high == pytest.approx(7 / 3 + half)
+    assert interval.low < 0 < interval.high  # 3 seeds: a spread this wide does not establish a lead
+    one = Interval.of(np.array([0.5, math.nan]))
+    assert one.n == 1 and one.mean == 0.5 and math.isnan(one.low) and math.isnan(one.high)
+
+
+def runs_frame() -> pd.DataFrame:
+    """Two scenes, three seeds; NVF 1 dB over w/o Vis. on every seed; NeurAR the better baseline on 'a'."""
+    rows = []
+    psnr = {("nvf", "none"): 20.0, ("nvf", "wo_vis"): 19.0, ("nvf", "ind_rays"): 19.5,
+            ("wd", "none"): 17.0, ("activenerf", "none"): 18.0, ("neurar", "none"): 18.5}  # fmt: skip
+    for scene in ("a", "b"):
+        for (method, ablation), value in psnr.items():
+            for seed, noise in zip((100, 101, 102), (0.0, 0.3, -0.3)):
+                rows.append({"scene": scene, "method": method, "ablation": ablation, "seed": seed,
+                             "final_psnr": value + noise * (method == "neurar"), "mean_psnr": value - 2.0,
+                             "minutes": 5.0 + (method == "nvf"), "spearman": math.nan, "same_choice": math.nan})  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+def test_compare_pairs_seeds_and_picks_the_best_baseline():
+    details = compare(runs_frame())
+    final = details[details["measure"] == "final_psnr"].set_index(["scene", "comparison"])
+    assert final.loc[("a", "nvf-wo_vis"), "mean_diff"] == pytest.approx(1.0)
+    assert final.loc[("a", "nvf-wo_vis"), "ci_low"] == pytest.approx(1.0)  # identical differences: no spread
+    assert final.loc[("a", "nvf-best_baseline"), "against"] == "neurar-none"
+    assert final.loc[("a", "nvf-best_baseline"), "mean_diff"] == pytest.approx(1.5)
+    assert (final["n"] == 3).all() and final.loc[("b", "nvf-best_baseline"), "minutes_per_episode"] == pytest.approx(5.5)
+    summary = details.loc[details["measure"] == "final_psnr", list(SUMMARY_COLUMNS)]
+    assert list(summary.columns) == ["scene", "comparison", "mean_diff", "ci_low", "ci_high", "n", "minutes_per_episode"]
+    assert set(summary["comparison"]) == {"nvf-wo_vis", "nvf-ind_rays", "nvf-best_baseline"}
+
+
+def test_a_missing_seed_is_left_out_of_the_pairing():
+    runs = runs_frame()
+    runs = runs[~((runs["method"] == "wd") | ((runs["ablation"] == "wo_vis") & (runs["seed"] == 101)))]
+    final = compare(runs).query("measure == 'final_psnr'").set_index(["scene", "comparison"])
+    assert final.loc[("a", "nvf-wo_vis"), "n"] == 2 and final.loc[("a", "nvf-ind_rays"), "n"] == 3
+
+
+@pytest.mark.parametrize(
+    "argv, says",
+    [(["method=wd"], "experiment's own"), (["--seeds", "x"], "--seeds"), (["--jobs", "0"], "--jobs")],
+)
+def test_bad_input_is_one_line_and_status_2(argv, says, capsys):
+    with pytest.raises(SystemExit) as info:
+        discriminate.main(argv)
+    err = capsys.readouterr().err
+    assert info.value.code == 2 and len(err.strip().splitlines()) == 1 and says in err
