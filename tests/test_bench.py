@@ -96,12 +96,12 @@ def test_plan_bench_writes_every_scorer_against_a_plain_render(tmp_path):
     assert list(report["precisions"]) == names and report["precision"] == "fp32"
     for name in names:
         per = report["precisions"][name]
-        assert set(per["candidates_per_s"]) == {"plain_render", *plan.SCORED}
+        assert set(per["candidates_per_s"]) == {"plain_render", *SCORING}
         assert sum(per["train_seconds_by_stage"].values()) == pytest.approx(per["train_seconds"])
     for name in names[1:]:
         ratio = report["ratios"][f"{name}_over_fp32"]
         assert 0 < ratio["train_speedup"]["min"] <= ratio["train_speedup"]["median"] <= ratio["train_speedup"]["max"]
-        assert set(ratio["scoring_speedup"]) == {"plain_render", *plan.SCORED}
+        assert set(ratio["scoring_speedup"]) == {"plain_render", *SCORING}
 
 
 def test_episode_bench_writes_phases_and_samples_per_ray(tmp_path):
