@@ -110,6 +110,7 @@ class TrainConfig:
     label_samples: int = 200  # M17: samples on each camera-to-point segment
     label_max_depth: float = 10.0
     warm_start: bool = False  # deviation: reuse the previous step's weights instead of retraining
+    precision: str = "fp32"  # fp32 | bf16 | fp16: the MLPs' layers in training (nvf.precision)
 
 
 @dataclass

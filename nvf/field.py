@@ -9,6 +9,8 @@ coordinate of ``u`` outside ``(0,1)``) ``sigma = 0`` and ``v = 1``. The detachme
 train only the variance head and stage 3 only the visibility head (METHOD section 10).
 """
 
+import contextlib
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import torch
@@ -29,6 +31,10 @@ MIN_VARIANCE = 1e-4  # q >= 1e-4 (METHOD section 3, section 15.4)
 # Rows per block of an MLP evaluated without autograd: a 2048 x 128 float activation is 1 MiB, the
 # two cores' L2 (measured: NVF scoring 1.15x faster than whole chunks).
 INFERENCE_BLOCK = 2048
+# A low-precision MLP on the CPU pads its rows to a multiple of LOW_PRECISION_ROWS and runs inference in
+# blocks of LOW_PRECISION_BLOCK rows (see MLP._forward_in).
+LOW_PRECISION_ROWS = 1024
+LOW_PRECISION_BLOCK = 16384
 
 
 @dataclass
@@ -100,6 +106,14 @@ class MLP(nn.Sequential):
     every hidden activation of a block stays in the cores' caches instead of streaming ``N x width``
     floats through memory at every layer. Each row's values are unchanged (a row's dot products do not
     depend on the other rows). With autograd, or on CUDA, the whole batch runs at once.
+
+    ``train_dtype`` and ``infer_dtype`` (float32 unless set, see ``RadianceField.mlp_precision``): the
+    precision of calls with and without autograd. A lower one (bfloat16, float16) runs every layer in it,
+    what autocast does to linear layers: the input and the float32 parameters are cast (with autograd
+    the parameters' gradients come back in float32), and the output is returned in float32, so what
+    follows (activations, rendering, losses) stays float32.
+    The parameters are cast at every call (once, not per block): a cast kept between calls could not
+    tell that fused Adam changed them, as it updates them without bumping their version counters.
     """
 
     def __init__(self, sizes: list[int], bias: bool):
@@ -109,11 +123,44 @@ class MLP(nn.Sequential):
             if i < len(sizes) - 2:
                 layers.append(nn.ReLU(inplace=True))
         super().__init__(*layers)
+        self.train_dtype = self.infer_dtype = torch.float32
 
     def forward(self, x: Float[Tensor, "N I"]) -> Float[Tensor, "N O"]:
+        dtype = self.train_dtype if torch.is_grad_enabled() else self.infer_dtype
+        if dtype != torch.float32:
+            return self._forward_in(dtype, x)
         if torch.is_grad_enabled() or x.device.type != "cpu" or x.shape[0] <= INFERENCE_BLOCK:
             return super().forward(x)
         return torch.cat([super(MLP, self).forward(block) for block in x.split(INFERENCE_BLOCK)])
+
+    def _forward_in(self, dtype: torch.dtype, x: Float[Tensor, "N I"]) -> Float[Tensor, "N O"]:
+        """The layers in ``dtype`` on ``x`` cast to it (with autograd, differentiable casts); the output
+        cast back to float32.
+
+        On the CPU the rows are zero-padded to a multiple of ``LOW_PRECISION_ROWS`` and, without
+        autograd, run in blocks of ``LOW_PRECISION_BLOCK`` rows: oneDNN builds a kernel for every new
+        matrix shape (about 0.5 ms, more than the product itself), so the shapes must repeat, and its
+        low-precision products pay a fixed cost per call that small blocks do not amortise. Padded rows
+        are dropped from the output; their gradients are zero, so they add nothing to the weights'.
+        """
+        params = [
+            (layer.weight.to(dtype), None if layer.bias is None else layer.bias.to(dtype))
+            for layer in self
+            if isinstance(layer, nn.Linear)
+        ]
+        n = x.shape[0]
+        h = x.to(dtype)
+        if x.device.type == "cpu":
+            h = F.pad(h, (0, 0, 0, -n % LOW_PRECISION_ROWS))
+        blocks = h.split(LOW_PRECISION_BLOCK) if not torch.is_grad_enabled() and x.device.type == "cpu" else (h,)
+        outputs = []
+        for block in blocks:
+            for i, (weight, bias) in enumerate(params):
+                block = F.linear(block, weight, bias)
+                if i < len(params) - 1:
+                    block = block.relu_()
+            outputs.append(block)
+        return (outputs[0] if len(outputs) == 1 else torch.cat(outputs))[:n].float()
 
 
 def make_encoding(cfg: FieldConfig) -> HashEncoding:
@@ -150,6 +197,21 @@ class RadianceField(nn.Module):
         self.variance_head = MLP([head_in, width, width, 3], cfg.mlp_bias)
         self.vis_position = MLP([3, VIS_POSITION_WIDTH, VIS_POSITION_WIDTH, VIS_POSITION_FEATURES], cfg.mlp_bias)
         self.vis_head = MLP([geo + VIS_POSITION_FEATURES, width, width, 1], cfg.mlp_bias)
+
+    @contextlib.contextmanager
+    def mlp_precision(self, train: torch.dtype, infer: torch.dtype = torch.float32) -> Iterator[None]:
+        """Inside the block every MLP of the field runs its layers in ``train`` when called with autograd
+        and in ``infer`` without (``MLP.train_dtype``, ``MLP.infer_dtype``; float32 changes nothing);
+        the encoding and everything after the MLPs stay float32."""
+        mlps = [module for module in self.modules() if isinstance(module, MLP)]
+        before = [(mlp.train_dtype, mlp.infer_dtype) for mlp in mlps]
+        for mlp in mlps:
+            mlp.train_dtype, mlp.infer_dtype = train, infer
+        try:
+            yield
+        finally:
+            for mlp, (previous_train, previous_infer) in zip(mlps, before):
+                mlp.train_dtype, mlp.infer_dtype = previous_train, previous_infer
 
     def normalize(self, x: Float[Tensor, "S 3"]) -> Float[Tensor, "S 3"]:
         """World points into ``[0,1]^3`` by the object AABB (no contraction)."""

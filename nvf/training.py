@@ -7,6 +7,7 @@ labels M17-M18). Nothing here prints; callers observe progress through the ``pro
 """
 
 import dataclasses
+import functools
 import math
 import time
 from collections.abc import Callable, Collection
@@ -20,6 +21,7 @@ from torch import Tensor
 from nvf.cameras import Intrinsics, camera_directions
 from nvf.config import STAGES, EntropyConfig, TrainConfig
 from nvf.model import SceneModel
+from nvf.precision import precision_dtype
 from nvf.rendering import Samples, ray_sum
 from nvf.uncertainty.mixture import mixture_log_density, ray_mixture
 from nvf.visibility import visibility_labels
@@ -203,12 +205,18 @@ def _require_images(obs: Observations) -> None:
 
 
 class _Recorder:
-    """Loss history, divergence check, timing and progress of one stage."""
+    """Loss history, divergence check, timing and progress of one stage.
 
-    def __init__(self, stage: str, total: int, progress: Progress | None):
+    ``precision="fp16"`` scales the loss (``torch.amp.GradScaler``): float16 gradients of the MLPs
+    would otherwise underflow. A step whose gradients overflow is skipped and the scale halved
+    (``skipped_steps``); a scale below 1, gradients that overflow float16 unscaled, is divergence.
+    """
+
+    def __init__(self, stage: str, total: int, progress: Progress | None, precision: str = "fp32", device: str = "cpu"):
         self.stage, self.total, self.progress = stage, total, progress
+        self.scaler = torch.amp.GradScaler(device) if precision == "fp16" else None
         self.losses: list[float] = []
-        self.steps = 0
+        self.steps = self.skipped = 0
         self.samples = self.rays = self.batches = 0
         self.start = time.perf_counter()
 
@@ -227,10 +235,26 @@ class _Recorder:
     def step(self, optimizer: torch.optim.Optimizer, loss: Float[Tensor, ""]) -> None:
         """Adam step on ``loss`` (skipped if nothing requires grad, e.g. a batch with no samples)."""
         optimizer.zero_grad(set_to_none=True)
-        if loss.requires_grad:
+        if not loss.requires_grad:
+            return
+        if self.scaler is None:
             loss.backward()
             optimizer.step()
             self.steps += 1
+            return
+        scale = self.scaler.get_scale()
+        self.scaler.scale(loss).backward()
+        self.scaler.step(optimizer)
+        self.scaler.update()
+        if self.scaler.get_scale() < scale:
+            self.skipped += 1
+        else:
+            self.steps += 1
+        if self.scaler.get_scale() < 1.0:
+            raise TrainingDiverged(
+                f"{self.stage} stage diverged after {self.steps + self.skipped} steps: float16 gradients "
+                f"overflow at loss scale {self.scaler.get_scale()}"
+            )
 
     def end_iteration(self, iteration: int, loss: float) -> None:
         self.losses.append(loss)
@@ -249,6 +273,8 @@ class _Recorder:
             "last_loss": self.losses[-1] if self.losses else nan,
             "seconds": time.perf_counter() - self.start,
         }
+        if self.scaler is not None:
+            summary["skipped_steps"] = float(self.skipped)
         if self.rays:
             summary["samples_per_ray"] = self.samples / self.rays
             summary["rays_per_batch"] = self.rays / self.batches
@@ -258,6 +284,22 @@ class _Recorder:
 # ----------------------------------------------------------------------------------------- stages
 
 
+def _in_training_precision(stage: Callable[..., dict[str, float]]) -> Callable[..., dict[str, float]]:
+    """Run a stage ``stage(model, obs, cfg, ...)`` with the field's MLPs in ``cfg.precision`` where they
+    run with autograd (``RadianceField.mlp_precision``): float32 (unchanged) by default, bf16 or fp16 for
+    mixed precision. Their calls without autograd (the skipping pass, occupancy updates, visibility
+    labels) stay float32: bf16 measured no faster there (docs/BUDGETS.md), and the grid and the labels
+    see float32 densities."""
+
+    @functools.wraps(stage)
+    def run(model: SceneModel, obs: Observations, cfg: TrainConfig, *args, **kwargs) -> dict[str, float]:
+        with model.field.mlp_precision(precision_dtype(cfg.precision)):
+            return stage(model, obs, cfg, *args, **kwargs)
+
+    return run
+
+
+@_in_training_precision
 def train_backbone(
     model: SceneModel,
     obs: Observations,
@@ -284,7 +326,7 @@ def train_backbone(
         param_groups.append({"params": groups["variance"]})
         heads = heads | {"variance"}
     optimizer = torch.optim.Adam(param_groups, lr=cfg.backbone.lr, eps=BACKBONE_ADAM_EPS, fused=True)
-    rec = _Recorder("backbone", cfg.backbone.iters, progress)
+    rec = _Recorder("backbone", cfg.backbone.iters, progress, cfg.precision, model.aabb.device.type)
     batch = RayBatch(cfg, cfg.backbone.batch, model.sampler_cfg.max_samples_per_ray)
     aux_losses: list[float] = []
     for k in range(cfg.backbone.iters):
@@ -334,6 +376,7 @@ def _variance_mixture_config(cfg: TrainConfig, entropy_cfg: EntropyConfig) -> En
     return full
 
 
+@_in_training_precision
 def train_variance_head(
     model: SceneModel,
     obs: Observations,
@@ -353,7 +396,7 @@ def train_variance_head(
     _require_images(obs)
     steps = _steps_per_iteration(cfg, "variance")
     mix_cfg = _variance_mixture_config(cfg, entropy_cfg)
-    rec = _Recorder("variance", cfg.variance.iters, progress)
+    rec = _Recorder("variance", cfg.variance.iters, progress, cfg.precision, model.aabb.device.type)
     if mix_cfg is None:
         return rec.summary()
     optimizer = torch.optim.Adam(model.field.parameter_groups()["variance"], lr=cfg.variance.lr, fused=True)
@@ -385,6 +428,7 @@ def train_variance_head(
     return rec.summary()
 
 
+@_in_training_precision
 def train_visibility_head(
     model: SceneModel,
     obs: Observations,
@@ -404,7 +448,7 @@ def train_visibility_head(
     aabb = model.aabb
     c2w = obs.c2w.to(aabb.device)
     optimizer = torch.optim.Adam(model.field.parameter_groups()["visibility"], lr=cfg.visibility.lr, fused=True)
-    rec = _Recorder("visibility", cfg.visibility.iters, progress)
+    rec = _Recorder("visibility", cfg.visibility.iters, progress, cfg.precision, aabb.device.type)
 
     for k in range(cfg.visibility.iters):
         u = torch.rand(cfg.visibility.batch, 3, generator=generator, device=generator.device).to(aabb)

@@ -50,6 +50,32 @@ def test_train_bench_writes_rates_fractions_and_psnr(tmp_path):
     mlp_floor = report["train_samples_per_s_mlp_floor"]  # the MLPs' layers alone (timed: no order asserted)
     assert mlp_floor > 0 and report["mlp_floor_fwd_bwd_ms"] > 0
     assert report["train_goal_within_mlp_floor"] == (mlp_floor >= train.GOALS["train_samples_per_s"])
+    names = train.parse_precisions(None)  # fp32, and bf16 where the CPU has it: side by side
+    assert report["settings"]["precisions"] == names == list(report["precisions"]) and report["precision"] == "fp32"
+    assert report["precisions"]["fp32"]["train_samples_per_s"] == report["train_samples_per_s"]
+    for name in names[1:]:
+        ratio = report["ratios"][f"{name}_over_fp32"]
+        for key in ("train_samples_per_s", "train_iter_speedup", "infer_samples_per_s", "infer_rgb_samples_per_s"):
+            assert 0 < ratio[key]["min"] <= ratio[key]["median"] <= ratio[key]["max"], key
+        assert ratio["train_samples_per_s"]["n"] == 5  # --windows
+        psnr_diff = report["precisions"][name]["heldout_psnr"] - report["heldout_psnr"]
+        assert ratio["heldout_psnr_diff"] == pytest.approx(psnr_diff)
+        met = report["precision_goals_met"][f"{name}_over_fp32"]
+        assert met["train_samples_per_s"] == (ratio["train_samples_per_s"]["median"] >= 1.5)
+        assert met["heldout_psnr_drop_db"] == (ratio["heldout_psnr_diff"] >= -0.2)
+
+
+def test_bench_precisions_the_cpu_lacks_are_one_line(monkeypatch, capsys):
+    import nvf.precision
+
+    monkeypatch.setattr(nvf.precision, "_cpu_bf16", lambda: False)
+    assert train.parse_precisions(None) == ["fp32"]
+    for value, needle in (("fp32,bf16", "AVX512_BF16"), ("fp32,fp64", "unknown precision"), ("fp32,fp32", "distinct")):
+        with pytest.raises(SystemExit) as exit_info:
+            train.parse_precisions(value)
+        assert exit_info.value.code == 2
+        err = capsys.readouterr().err
+        assert needle in err and err.count("\n") == 1 and err.startswith("error: --precisions")
 
 
 def test_plan_bench_writes_every_scorer_against_a_plain_render(tmp_path):
@@ -66,6 +92,16 @@ def test_plan_bench_writes_every_scorer_against_a_plain_render(tmp_path):
     assert report["nvf_over_plain_render_at_limit"] > 1.0  # the extra heads cost FLOPs
     assert report["goal_within_limit"] == (report["nvf_over_plain_render_at_limit"] <= plan.GOAL_NVF_OVER_PLAIN)
     assert report["settings"]["candidates"] <= 16
+    names = train.parse_precisions(None)
+    assert list(report["precisions"]) == names and report["precision"] == "fp32"
+    for name in names:
+        per = report["precisions"][name]
+        assert set(per["candidates_per_s"]) == {"plain_render", *SCORING}
+        assert sum(per["train_seconds_by_stage"].values()) == pytest.approx(per["train_seconds"])
+    for name in names[1:]:
+        ratio = report["ratios"][f"{name}_over_fp32"]
+        assert 0 < ratio["train_speedup"]["min"] <= ratio["train_speedup"]["median"] <= ratio["train_speedup"]["max"]
+        assert set(ratio["scoring_speedup"]) == {"plain_render", *SCORING}
 
 
 def test_episode_bench_writes_phases_and_samples_per_ray(tmp_path):

@@ -7,6 +7,7 @@ import torch
 from hydra import compose, initialize_config_dir
 from omegaconf import open_dict
 
+from pipeline.config.catalog import declared
 from pipeline.config.validation import ConfigError, validate
 from pipeline.repo import CONF
 from pipeline.config.schema import register_configs
@@ -72,9 +73,9 @@ def test_every_experiment_composes(composer, experiment):
     params = cfg.hydra.sweeper.params
     assert params, f"experiment {experiment} sweeps nothing"
     for group, values in params.items():
-        for value in str(values).split(","):
-            override = f"{group}={value}"
-            validate(composer(f"experiment={experiment}", override))
+        options = declared(group) if str(values).startswith("glob(") else str(values).split(",")  # glob(*): all
+        for value in options:
+            validate(composer(f"experiment={experiment}", f"{group}={value}"))
 
 
 def test_budgets_scale_only_sizes(composer):
@@ -99,6 +100,7 @@ def test_budgets_scale_only_sizes(composer):
         ("baseline.air_view_score", "topk", "not implemented"),
         ("baseline.neurar_loss", "nll", "not implemented"),
         ("baseline.neurar_detach", False, "baseline.neurar_detach"),
+        ("train.precision", "fp64", "train.precision"),
     ],
 )
 def test_validation_names_the_key(composer, key, value, needle):
@@ -121,6 +123,24 @@ def test_a_cuda_device_torch_cannot_see_is_one_line(composer, monkeypatch, devic
     assert "\n" not in str(err.value)
     monkeypatch.setattr(torch.cuda, "device_count", lambda: visible + 1)
     validate(cfg)
+
+
+@pytest.mark.parametrize(("precision", "needle"), [("bf16", "AVX512_BF16"), ("fp16", "AVX512_FP16")])
+def test_a_precision_the_cpu_lacks_is_one_line_naming_what_it_has(composer, monkeypatch, precision, needle):
+    """``train.precision`` must run natively on the run's device; otherwise one line says what is missing
+    and which precisions this device has (commands turn it into ``error: ...`` and exit status 2)."""
+    import nvf.precision
+
+    monkeypatch.setattr(nvf.precision, "_cpu_bf16", lambda: False)
+    monkeypatch.setattr(nvf.precision, "_cpu_fp16", lambda: False)
+    cfg = composer(f"train.precision={precision}", "device=cpu")
+    with pytest.raises(ConfigError, match=f"train.precision={precision}: .*{needle}.*available here: fp32$") as err:
+        validate(cfg)
+    assert "\n" not in str(err.value)
+    monkeypatch.setattr(nvf.precision, "_cpu_bf16", lambda: True)
+    monkeypatch.setattr(nvf.precision, "_cpu_fp16", lambda: True)
+    validate(cfg)
+    validate(composer("train.precision=fp32", "device=cpu"))  # float32 runs anywhere
 
 
 def _select(cfg, dotted):

@@ -1,7 +1,10 @@
-"""``python -m pipeline.bench plan [--out PATH] [--repeats N] [--blocks K] [overrides]``: view-scoring
-throughput of every scorer against a plain render (default ``budget=cpu scene=default``).
+"""``python -m pipeline.bench plan [--out PATH] [--repeats N] [--blocks K] [--precisions fp32,bf16] [overrides]``:
+view-scoring throughput of every scorer against a plain render (default ``budget=cpu scene=default``), and
+the training precisions side by side.
 
-Trains one full NVF model (all three stages, at the budget) on the scene's initial views, draws
+Trains one full NVF model (all three stages, at the budget) per ``train.precision`` in ``--precisions``
+on the scene's initial views, from the same initial weights and seed, in lockstep (the trainings take
+turns iteration by iteration, ``pipeline.bench._paired``). On the first (reference) precision's model it draws
 512 candidate poses (the paper's N unless ``planner.num_candidates`` is overridden;
 ``nvf.planning.candidate_poses`` with the scene's camera box and the M28/M29 filters) and times, on
 the same model and candidates at ``planner.resolution``: ``nvf.planning.score_poses`` with each
@@ -19,8 +22,13 @@ at the ``[2048, 128] x [128, 128]`` matmul rate measured in the same run (``matm
 visibility position MLP's hidden layer in one inference block) and its other extra work were free;
 ``nvf_extra_fraction_of_limit`` is that ideal time over NVF's measured extra time (summed NVF time minus
 summed plain time), or ``null`` when that difference is not positive (timing noise larger than the extra
-work, as with a few tiny candidates). The model runs on the CPU. Writes ``results/bench/plan.json`` (or
-``--out``) and prints a table.
+work, as with a few tiny candidates). Every job also runs with that model's MLPs in each other precision,
+in the same rotation. ``precisions`` gives per precision its model's training seconds (own turns; all
+stages and by stage), candidates/s with the MLPs in it, and its model's held-out PSNR (5 views at the
+image size, rendered in float32 as an episode renders); ``ratios`` the paired speed-ups over the
+reference (training: median [min, max] over ``K`` iteration windows; scoring: over blocks) and the PSNR
+difference. The top-level figures are the reference precision's. The models run on the CPU. Writes
+``results/bench/plan.json`` (or ``--out``) and prints a table.
 """
 
 import argparse
@@ -42,7 +50,9 @@ from nvf.planning import score_poses
 from nvf.methods import load_method
 from pipeline.bench._report import write_report
 from pipeline.bench.field import matmul_gflops, mlp_flops
-from pipeline.bench.train import RGB, CountingModel, InitialViewModel
+from nvf.precision import precision_dtype
+from pipeline.bench._paired import IterationClock, ratio_spread
+from pipeline.bench.train import RGB, CountingModel, InitialViewModel, held_out_poses, parse_precisions, view_psnr
 from pipeline.config.catalog import method_configs
 from pipeline.config.validation import compose_config
 from pipeline.repo import RESULTS
@@ -62,6 +72,73 @@ def plain_render(model: CountingModel, poses: Float[Tensor, "m 7"], intr: Intrin
             model.render(origins[start : start + chunk_rays], dirs[start : start + chunk_rays], heads=RGB)
 
 
+def time_in_blocks(
+    jobs: dict[tuple[str, str], Callable[[Tensor], object]],
+    poses: Float[Tensor, "m 7"],
+    model: CountingModel,
+    blocks: int,
+    repeats: int,
+) -> tuple[dict[tuple[str, str], list[float]], dict[tuple[str, str], list[float]], dict[tuple[str, str], int]]:
+    """After one warm-up on a few candidates, every job on each of ``blocks`` candidate blocks before the next
+    block (job order rotated per block), ``repeats`` passes: per job the wall and CPU seconds per block and
+    the kept samples."""
+    for job in jobs.values():
+        job(poses[:WARMUP_CANDIDATES])
+    wall: dict[tuple[str, str], list[float]] = {key: [] for key in jobs}
+    cpu: dict[tuple[str, str], list[float]] = {key: [] for key in jobs}
+    kept = dict.fromkeys(jobs, 0)
+    keys = list(jobs)
+    split = [b for b in torch.arange(poses.shape[0]).tensor_split(blocks) if b.numel() > 0] * repeats
+    for i, block in enumerate(tqdm(split, desc="blocks", leave=False, disable=not sys.stderr.isatty())):
+        for key in keys[i % len(keys) :] + keys[: i % len(keys)]:
+            before = model.samples
+            w, c = timed(lambda key=key: jobs[key](poses[block]))
+            kept[key] += model.samples - before
+            wall[key].append(w)
+            cpu[key].append(c)
+    return wall, cpu, kept
+
+
+def precision_comparison(
+    setups: dict[str, InitialViewModel],
+    clocks: dict[str, IterationClock],
+    wall: dict[tuple[str, str], list[float]],
+    work: list[str],
+    candidates: int,
+    windows: int,
+) -> tuple[dict[str, dict], dict[str, dict]]:
+    """Per precision (the first is the reference): its model's training seconds (all, by stage), its
+    candidates/s with the reference model's MLPs in it, and its model's held-out PSNR; per other precision,
+    the paired speed-ups over the reference (training by iteration window, scoring by block) and the PSNR
+    difference."""
+    names = list(setups)
+    base, reference = names[0], setups[names[0]]
+    held_out = held_out_poses(reference.scene)
+    size = int(reference.cfg.budget.image_size)
+    per = {
+        name: {
+            "train_seconds": setup.train_seconds,
+            "train_seconds_by_stage": clocks[name].stage_seconds(),
+            "candidates_per_s": {job: candidates / sum(wall[(job, name)]) for job in work},
+            "heldout_psnr": view_psnr(setup.model, reference.renderer, held_out, Intrinsics.from_fov(size, size), 1)[0],
+        }
+        for name, setup in setups.items()
+    }
+    spans = clocks[base].windows(1, windows)
+    ratios = {
+        f"{name}_over_{base}": {
+            "train_speedup": ratio_spread(
+                [clocks[base].rates(a, b)["train_ms_per_iter"] for a, b in spans],
+                [clocks[name].rates(a, b)["train_ms_per_iter"] for a, b in spans],
+            ),
+            "scoring_speedup": {job: ratio_spread(wall[(job, base)], wall[(job, name)]) for job in work},
+            "heldout_psnr_diff": per[name]["heldout_psnr"] - per[base]["heldout_psnr"],
+        }
+        for name in names[1:]
+    }
+    return per, ratios
+
+
 def timed(fn: Callable[[], object]) -> tuple[float, float]:
     """Wall and process-CPU-per-thread seconds of one call."""
     start, start_cpu = time.perf_counter(), time.process_time()
@@ -75,12 +152,17 @@ def main(argv: list[str]) -> None:
     parser.add_argument("--out", type=Path, default=RESULTS / "bench" / "plan.json", help="JSON report path")
     parser.add_argument("--repeats", type=int, default=1, help="timed passes over all candidates")
     parser.add_argument("--blocks", type=int, default=8, help="candidate blocks per pass (ratio = median over blocks)")
+    parser.add_argument("--precisions", help="train.precision values compared, first the reference (default: fp32,bf16 "
+                        "where the CPU has bfloat16, else fp32)")  # fmt: skip
     args = parser.parse_intermixed_args(argv)
     if args.repeats < 1 or args.blocks < 1:
         parser.error("--repeats and --blocks must be >= 1")
     start = time.perf_counter()
     cfg = compose_config([f"planner.num_candidates={CANDIDATES}", *args.overrides])
-    setup = InitialViewModel.train(cfg, CountingModel)
+    precisions = parse_precisions(args.precisions)
+    setups, clocks = InitialViewModel.train_side_by_side(cfg, precisions)
+    base = precisions[0]
+    setup = setups[base]  # scoring: the reference precision's model with its MLPs in each precision
     s, obs, model = setup.settings, setup.obs, setup.model
     size = int(cfg.budget.image_size)
     planner = s.planner
@@ -90,28 +172,26 @@ def main(argv: list[str]) -> None:
     chunk = int(planner.score_chunk_rays)
     methods = {name: load_method(m["implementation"]) for name, m in method_configs().items()}
     scorers = {name: scorer for name, method in methods.items() if (scorer := s.scorer(method)) is not None}
-    jobs: dict[str, Callable[[Tensor], object]] = {"plain_render": lambda p: plain_render(model, p, intr, chunk)}
+    work: dict[str, Callable[[Tensor], object]] = {"plain_render": lambda p: plain_render(model, p, intr, chunk)}
     for method, scorer in scorers.items():
-        jobs[method] = lambda p, scorer=scorer: score_poses(model, scorer, p, intr, chunk)
+        work[method] = lambda p, scorer=scorer: score_poses(model, scorer, p, intr, chunk)
 
-    for job in jobs.values():
-        job(poses[:WARMUP_CANDIDATES])
-    wall: dict[str, list[float]] = {name: [] for name in jobs}
-    cpu: dict[str, list[float]] = {name: [] for name in jobs}
-    kept = dict.fromkeys(jobs, 0)
-    names = list(jobs)
-    blocks = [b for b in torch.arange(poses.shape[0]).tensor_split(args.blocks) if b.numel() > 0] * args.repeats
-    for i, block in enumerate(tqdm(blocks, desc="blocks", leave=False, disable=not sys.stderr.isatty())):
-        for name in names[i % len(names) :] + names[: i % len(names)]:
-            before = model.samples
-            w, c = timed(lambda name=name: jobs[name](poses[block]))
-            kept[name] += model.samples - before
-            wall[name].append(w)
-            cpu[name].append(c)
+    def in_precision(fn: Callable[[Tensor], object], name: str) -> Callable[[Tensor], object]:
+        def run(p: Tensor) -> object:
+            with model.field.mlp_precision(torch.float32, infer=precision_dtype(name)):
+                return fn(p)
+
+        return run
+
+    jobs = {(name, precision): in_precision(fn, precision) for precision in precisions for name, fn in work.items()}
+    timings = time_in_blocks(jobs, poses, model, args.blocks, args.repeats)
+    candidates = poses.shape[0] * args.repeats
+    per, ratios = precision_comparison(setups, clocks, timings[0], list(work), candidates, args.blocks)
+    wall, cpu, kept = ({job: by_job[(job, base)] for job in work} for by_job in timings)  # the reference's
 
     m = poses.shape[0]
     report: dict = {}
-    for name in jobs:
+    for name in work:
         report[f"candidates_per_s_{name}"] = m * args.repeats / sum(wall[name])
         report[f"candidates_per_s_{name}_cpu"] = m * args.repeats / sum(cpu[name])
     for method in scorers:
@@ -135,7 +215,10 @@ def main(argv: list[str]) -> None:
         "goal_met": ratio <= GOAL_NVF_OVER_PLAIN,
         "goal_within_limit": report["nvf_over_plain_render_at_limit"] <= GOAL_NVF_OVER_PLAIN,
         "nvf_over_plain_mlp_flops": nvf_flops / plain_flops,
-        "seconds_per_block": {name: wall[name] for name in jobs},
+        "seconds_per_block": {name: wall[name] for name in work},
+        "precision": base,
+        "precisions": per,
+        "ratios": ratios,
         "settings": {
             "budget": cfg.budget.name, "scene": cfg.scene.name, "field_kind": s.field.kind,
             "field_backend": s.field.backend, "log2_hashmap_size": s.field.log2_hashmap_size,
@@ -147,13 +230,14 @@ def main(argv: list[str]) -> None:
             "samplers": {method: scorer.sampler for method, scorer in scorers.items()},
             "plain_render_samples_per_ray": kept["plain_render"] / (args.repeats * m * intr.num_pixels),
             "repeats": args.repeats, "blocks": args.blocks, "torch_threads": torch.get_num_threads(),
+            "precisions": precisions,
             "overrides": args.overrides,
         },
         "seconds": time.perf_counter() - start,
     })  # fmt: skip
     write_report(report, args.out)
     print(f"{'':14}{'cand/s':>10}{'(cpu)':>10}{'x plain':>9}")
-    for name in jobs:
+    for name in work:
         x = 1.0 if name == "plain_render" else report[f"{name}_over_plain_render"]
         rate, rate_cpu = report[f"candidates_per_s_{name}"], report[f"candidates_per_s_{name}_cpu"]
         print(f"{name:14}{rate:>10.1f}{rate_cpu:>10.1f}{x:>9.2f}")
@@ -166,4 +250,16 @@ def main(argv: list[str]) -> None:
         f"{'an unmeasurable fraction' if fraction is None else f'{fraction:.0%}'} of it); "
         f"{m} candidates at {res}x{res}; training {setup.train_seconds:.0f} s; {report['seconds']:.0f} s"
     )
+    for name in precisions[1:]:
+        ratio = ratios[f"{name}_over_{base}"]
+
+        def spread(x: dict) -> str:
+            return f"{x['median']:.2f} [{x['min']:.2f}-{x['max']:.2f}]"
+
+        print(
+            f"{name} over {base} (speed-ups, median [min-max], paired): training {spread(ratio['train_speedup'])} "
+            f"({per[base]['train_seconds']:.0f} s vs {per[name]['train_seconds']:.0f} s, all stages), held-out PSNR "
+            f"{ratio['heldout_psnr_diff']:+.2f} dB; scoring with the MLPs in {name}: "
+            + ", ".join(f"{job} {spread(x)}" for job, x in ratio["scoring_speedup"].items())
+        )
     print(f"wrote {args.out}")

@@ -1,12 +1,17 @@
-"""``python -m pipeline.bench train [--out PATH] [--repeats N] [overrides]``: end-to-end training and
-inference throughput of the scene model at a budget (default ``budget=cpu scene=default``).
+"""``python -m pipeline.bench train [--out PATH] [--repeats N] [--precisions fp32,bf16] [--windows W] [overrides]``:
+end-to-end training and inference throughput of the scene model at a budget (default ``budget=cpu
+scene=default``), for each training precision side by side.
 
-In one run, on the scene's 20 evaluation views rendered at ``budget.image_size`` as training views:
+In one run, on the scene's 20 evaluation views rendered at ``budget.image_size`` as training views, one
+model per ``train.precision`` in ``--precisions`` (the first is the reference), from the same initial
+weights and seed; the top-level figures below are the reference's:
 
 - stage 1 (``nvf.training.train_backbone`` at the budget: render with ``train=True``, loss,
   backward, Adam, occupancy-grid updates) timed per iteration, as kept samples/s over the
-  iterations after a warm-up;
-- inference: ``no_grad`` ``render_image`` of the 20 views with all heads and with rgb only;
+  iterations after a warm-up; the precisions' trainings run in lockstep, taking turns iteration by
+  iteration (``pipeline.bench._paired``), each timed over its own turns only;
+- inference: ``no_grad`` ``render_image`` of the 20 views with all heads and with rgb only, on the
+  reference model with its MLPs in each precision, alternating, ``--repeats`` rounds;
 - the ``[n, hidden_dim]`` matmul rate (``pipeline.bench.field``) with ``n`` the mean kept samples
   of a training batch, and the fractions of that limit (field.py's MLP FLOPs per sample);
   ``<key>_samples_per_s_at_limit`` is the rate if the MLPs ran at that matmul rate and nothing else
@@ -16,21 +21,32 @@ In one run, on the scene's 20 evaluation views rendered at ``budget.image_size``
   work (forward + backward on the kept samples, the skipping pass's density on the marched ones, the
   occupancy update over its period), timed apart after training, and the MLP floor, the same with only
   the MLPs' layers (no hash encoding); ``train_goal_within_field_floor``, ``train_goal_within_mlp_floor``;
+  both on the reference model, with its MLPs in each precision;
 - the PSNR of the trained backbone on 5 held-out views (the ring of tests/test_integration.py) and
   on the first 5 training views (fit vs. generalisation), also off the ground truth's edges.
   ``budget.gt_samples=K`` renders every ground-truth view (training and test) as the mean of ``K x K``
   sub-pixel samples, an anti-aliased ground truth like the paper's Blender renders (as in an episode);
   ``render.backend=blender`` takes the ground truth from Blender Cycles instead.
 
+``precisions`` holds these figures per precision (held-out PSNR of each precision's own model, rendered
+in float32 as an episode renders it), ``ratios`` each other precision against the reference, paired:
+training samples/s and the per-iteration speed-up over ``--windows`` iteration windows, inference over
+the rounds (median, min, max), the floors' ratios, and the held-out PSNR difference (dB), checked
+against ``PRECISION_GOALS``. Per-iteration time and kept samples/s can disagree: the precisions' models
+train apart, and their occupancy grids keep and march different numbers of samples.
+
 Rates are given from wall time and (``*_cpu``) from process CPU time / threads, which is robust
-to other jobs on the cores. The model runs on the CPU. Writes ``results/bench/train.json``
+to other jobs on the cores. The models run on the CPU. Writes ``results/bench/train.json``
 (or ``--out``) and prints a table.
 """
 
 import argparse
+import dataclasses
 import math
+import statistics
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -49,7 +65,9 @@ from nvf.model import RenderResult, SceneModel
 from nvf.planning import candidate_poses
 from nvf.seeding import seeded_generator
 from nvf.rendering import Samples
+from nvf.precision import PRECISIONS, precision_dtype, supported_precisions, unsupported_reason
 from nvf.training import Observations, train_backbone, train_model
+from pipeline.bench._paired import IterationClock, Turn, lockstep, ratio_spread
 from pipeline.bench._report import write_report
 from pipeline.bench.field import matmul_gflops, median_seconds, mlp_flops
 from pipeline.config.validation import compose_config
@@ -63,6 +81,9 @@ from pipeline.scenes.ground_truth import Renderer, ground_truth_info, open_rende
 from pipeline.scenes.scene import Scene, SceneError, load_scene
 
 GOALS = {"train_samples_per_s": 1e6, "infer_samples_per_s": 3e6}
+# A low precision against the reference (fp32), paired in one run: training throughput (median over
+# windows), held-out PSNR (at most this far below), inference (median over rounds) never slower.
+PRECISION_GOALS = {"train_samples_per_s": 1.5, "heldout_psnr_drop_db": 0.2, "infer_samples_per_s": 1.0}
 HELD_OUT_VIEWS = 5
 RGB = frozenset({"rgb"})
 
@@ -104,6 +125,37 @@ def observations(
     return Observations(torch.from_numpy(images), poses.to(torch.float32), intr)
 
 
+def same_initial_models(
+    cfg: DictConfig, scene: Scene, s: EpisodeSettings, names: list[str], model_cls: type[CountingModel]
+) -> dict[str, CountingModel]:
+    """One fresh model per name, all with the initial weights of ``torch.manual_seed(cfg.seed)``."""
+    models = {}
+    for name in names:
+        torch.manual_seed(int(cfg.seed))
+        models[name] = model_cls(scene.object_aabb, s.field, s.sampler)
+    return models
+
+
+def train_in_lockstep(
+    models: dict[str, CountingModel], iterations: int, train: Callable[[str, CountingModel, IterationClock], None]
+) -> dict[str, IterationClock]:
+    """``train(name, model, progress)`` for every model side by side (``pipeline.bench._paired.lockstep``):
+    the trainings take turns iteration by iteration. Returns each one's clock (its own turns only)."""
+    clocks: dict[str, IterationClock] = {}
+
+    def job(name: str) -> Callable[[Turn], None]:
+        def run(turn: Turn) -> None:
+            model = models[name]
+            clocks[name] = IterationClock(lambda: (model.samples, model.marched), iterations, name, turn)
+            train(name, model, clocks[name])
+            clocks[name].bar.close()
+
+        return run
+
+    lockstep({name: job(name) for name in models})
+    return clocks
+
+
 @dataclass
 class InitialViewModel:
     """A full NVF model (all three stages, at the budget) trained on the scene's initial views: the
@@ -128,6 +180,31 @@ class InitialViewModel:
         model = model_cls(scene.object_aabb, s.field, s.sampler)
         stats = train_model(model, obs, s.train, STAGES, s.entropy, torch.Generator().manual_seed(int(cfg.seed)))
         return InitialViewModel(cfg, scene, s, renderer, obs, model, stats.seconds)
+
+    @staticmethod
+    def train_side_by_side(
+        cfg: DictConfig, precisions: list[str]
+    ) -> tuple[dict[str, "InitialViewModel"], dict[str, IterationClock]]:
+        """One ``CountingModel`` per ``train.precision``, from the same initial weights and seed, all three
+        stages trained in lockstep (``train_in_lockstep``)."""
+        scene = load(cfg)
+        s = EpisodeSettings.of(cfg, scene)
+        size = int(cfg.budget.image_size)
+        renderer = GroundTruthRenderer(scene.mesh)
+        obs = observations(renderer, scene.init_poses, Intrinsics.from_fov(size, size))
+        models = same_initial_models(cfg, scene, s, precisions, CountingModel)
+
+        def train(name: str, model: CountingModel, progress: IterationClock) -> None:
+            generator = torch.Generator().manual_seed(int(cfg.seed))
+            train_model(model, obs, dataclasses.replace(s.train, precision=name), STAGES, s.entropy, generator,
+                        progress=progress)  # fmt: skip
+
+        clocks = train_in_lockstep(models, sum(getattr(s.train, stage).iters for stage in STAGES), train)
+        setups = {
+            name: InitialViewModel(cfg, scene, s, renderer, obs, models[name], clocks[name].wall[-1])
+            for name in precisions
+        }
+        return setups, clocks
 
     def candidates(self, step: int) -> Float[Tensor, "m 7"]:
         """The candidate poses the planner would draw at ``step`` (METHOD 13, M28/M29 filters), from
@@ -167,53 +244,40 @@ def view_psnr(
     return psnr(pred, gt), off_edge_psnr(pred, gt)
 
 
-class IterationClock:
-    """Training progress callback: wall time, CPU time and cumulative kept samples after each iteration."""
+def inference_rates(
+    model: CountingModel,
+    precisions: list[str],
+    poses: Float[Tensor, "n 4 4"],
+    intr: Intrinsics,
+    heads: frozenset[str],
+    repeats: int,
+) -> dict[str, dict[str, float | list[float]]]:
+    """Kept samples/s of ``render_image`` over ``poses`` with the model's MLPs in each precision, side by
+    side: one warm-up pass each, then ``repeats`` rounds, each timing every precision once (order rotated
+    per round). Per precision: median wall and CPU rates, kept samples per pass and the per-round wall
+    and CPU rates (for paired ratios)."""
 
-    def __init__(self, model: CountingModel, total: int):
-        self.model = model
-        self.wall: list[float] = []
-        self.cpu: list[float] = []
-        self.samples: list[int] = []
-        self.marched: list[int] = []
-        self.bar = tqdm(total=total, desc="backbone", unit="it", leave=False, disable=not sys.stderr.isatty())
+    def render_all(name: str) -> tuple[float, float, int]:
+        before, start, start_cpu = model.samples, time.perf_counter(), time.process_time()
+        with model.field.mlp_precision(torch.float32, infer=precision_dtype(name)):
+            for c2w in poses:
+                model.render_image(c2w, intr, heads=heads, chunk=RENDER_CHUNK)
+        cpu = (time.process_time() - start_cpu) / torch.get_num_threads()
+        return time.perf_counter() - start, cpu, model.samples - before
 
-    def __call__(self, stage: str, iteration: int, total: int, loss: float) -> None:
-        self.wall.append(time.perf_counter())
-        self.cpu.append(time.process_time())
-        self.samples.append(self.model.samples)
-        self.marched.append(self.model.marched)
-        self.bar.update(1)
-
-    def rates(self, warmup: int) -> dict[str, float]:
-        """Kept samples/s over iterations ``warmup..end`` (wall and CPU per thread), ms, kept and marched
-        samples per iteration."""
-        iters = len(self.wall) - warmup
-        samples = self.samples[-1] - self.samples[warmup - 1]
-        wall = self.wall[-1] - self.wall[warmup - 1]
-        cpu = (self.cpu[-1] - self.cpu[warmup - 1]) / torch.get_num_threads()
-        return {
-            "train_samples_per_s": samples / wall,
-            "train_samples_per_s_cpu": samples / cpu,
-            "train_ms_per_iter": 1e3 * wall / iters,
-            "train_samples_per_iter": samples / iters,
-            "train_marched_per_iter": (self.marched[-1] - self.marched[warmup - 1]) / iters,
-        }
-
-
-def inference_rate(
-    model: CountingModel, poses: Float[Tensor, "n 4 4"], intr: Intrinsics, heads: frozenset[str], repeats: int
-) -> tuple[float, float, float]:
-    """Kept samples/s (wall, CPU) of ``render_image`` over ``poses``: median of ``repeats`` after a warm-up."""
-
-    def render_all() -> None:
-        for c2w in poses:
-            model.render_image(c2w, intr, heads=heads, chunk=RENDER_CHUNK)
-
-    before = model.samples
-    wall, cpu = median_seconds(render_all, repeats)
-    per_pass = (model.samples - before) / (repeats + 1)
-    return per_pass / wall, per_pass / cpu, per_pass
+    for name in precisions:
+        render_all(name)
+    rounds: dict[str, list[tuple[float, float, int]]] = {name: [] for name in precisions}
+    for r in range(repeats):
+        for name in precisions[r % len(precisions) :] + precisions[: r % len(precisions)]:
+            rounds[name].append(render_all(name))
+    out: dict[str, dict[str, float | list[float]]] = {}
+    for name, timed in rounds.items():
+        wall = [n / w for w, _, n in timed]
+        cpu = [n / c for _, c, n in timed]
+        out[name] = {"wall": wall, "cpu": cpu, "samples_per_pass": timed[0][2],
+                     "samples_per_s": statistics.median(wall), "samples_per_s_cpu": statistics.median(cpu)}  # fmt: skip
+    return out
 
 
 def field_floor(
@@ -297,16 +361,148 @@ def field_floor(
     return r
 
 
+def precision_goals_met(ratio: dict) -> dict[str, bool]:
+    """``PRECISION_GOALS`` against one ``ratios`` entry of the report."""
+    return {
+        "train_samples_per_s": ratio["train_samples_per_s"]["median"] >= PRECISION_GOALS["train_samples_per_s"],
+        "heldout_psnr_drop_db": ratio["heldout_psnr_diff"] >= -PRECISION_GOALS["heldout_psnr_drop_db"],
+        "infer_samples_per_s": ratio["infer_samples_per_s"]["median"] >= PRECISION_GOALS["infer_samples_per_s"],
+    }
+
+
+def print_report(report: dict, update_every: int) -> None:
+    """The report as a few lines of text: rates against their limits, floors, and the precisions side by side."""
+    r = report
+    rows, width = r["settings"]["matmul_rows"], r["settings"]["hidden_dim"]
+    print(f"{'':14}{'samples/s':>12}{'(cpu)':>12}{'at limit':>12}{'frac. limit':>13}{'goal':>9}")
+    for key, label in (("train", "train step"), ("infer", "infer all"), ("infer_rgb", "infer rgb")):
+        goal = GOALS.get(f"{key}_samples_per_s")
+        mark = "" if goal is None else ("met" if r[f"{key}_samples_per_s"] >= goal else f"<{goal:.0e}")
+        print(f"{label:14}{r[f'{key}_samples_per_s']:>12.3e}{r[f'{key}_samples_per_s_cpu']:>12.3e}"
+              f"{r[f'{key}_samples_per_s_at_limit']:>12.3e}{r[f'{key}_fraction_of_limit']:>13.3f}"
+              f"{mark:>9}")  # fmt: skip
+    print(
+        f"matmul [{rows}x{width}]x[{width}x{width}]: {r['matmul_gflops']:.1f} GFLOP/s; "
+        f"PSNR held-out {r['heldout_psnr']:.2f} dB ({r['heldout_psnr_off_edges']:.2f} off edges), "
+        f"training views {r['train_view_psnr']:.2f} dB; "
+        f"{r['settings']['train_samples_per_ray']:.1f} samples/ray (train); {r['seconds']:.0f} s"
+    )
+    print(
+        f"field floor {r['train_samples_per_s_field_floor']:.3e} kept samples/s: forward+backward "
+        f"{r['field_floor_fwd_bwd_ms']:.1f} ms ({r['field_floor_kept_samples']} kept), skipping pass "
+        f"{r['field_floor_skip_density_ms']:.1f} ms ({r['field_floor_marched_samples']} marched; training's mean "
+        f"{r['train_samples_per_iter']:.0f} kept, {r['train_marched_per_iter']:.0f} marched), grid update "
+        f"{r['field_floor_grid_update_ms']:.0f} ms / {update_every}; training runs at "
+        f"{r['train_fraction_of_field_floor']:.2f} of it"
+    )
+    print(
+        f"MLP floor {r['train_samples_per_s_mlp_floor']:.3e} kept samples/s (the MLPs' layers alone on the same rows: "
+        f"forward+backward {r['mlp_floor_fwd_bwd_ms']:.1f} ms, skipping pass {r['mlp_floor_skip_density_ms']:.1f} ms, "
+        f"grid update {r['mlp_floor_grid_update_ms']:.0f} ms / {update_every})"
+    )
+    print(f"{'precision':10}{'train/s':>11}{'(cpu)':>11}{'ms/iter':>9}{'infer/s':>11}{'rgb/s':>11}{'held-out':>10}"
+          f"{'field floor':>13}{'MLP floor':>11}")  # fmt: skip
+    for name, p in r["precisions"].items():
+        print(f"{name:10}{p['train_samples_per_s']:>11.3e}{p['train_samples_per_s_cpu']:>11.3e}"
+              f"{p['train_ms_per_iter']:>9.1f}{p['infer_samples_per_s']:>11.3e}{p['infer_rgb_samples_per_s']:>11.3e}"
+              f"{p['heldout_psnr']:>10.2f}{p['train_samples_per_s_field_floor']:>13.3e}"
+              f"{p['train_samples_per_s_mlp_floor']:>11.3e}")  # fmt: skip
+
+    def spread(x: dict) -> str:
+        return f"{x['median']:.2f} [{x['min']:.2f}-{x['max']:.2f}]"
+
+    for key, ratio in r["ratios"].items():
+        met = r["precision_goals_met"][key]
+        print(
+            f"{key} (median [min-max], paired): train {spread(ratio['train_samples_per_s'])} "
+            f"(cpu {spread(ratio['train_samples_per_s_cpu'])}; per iteration {spread(ratio['train_iter_speedup'])}), "
+            f"infer {spread(ratio['infer_samples_per_s'])}, infer rgb {spread(ratio['infer_rgb_samples_per_s'])}, "
+            f"floors (same model): field {ratio['train_samples_per_s_field_floor']:.2f}, "
+            f"MLP {ratio['train_samples_per_s_mlp_floor']:.2f}; held-out PSNR {ratio['heldout_psnr_diff']:+.2f} dB; "
+            "goals "
+            + ", ".join(f"{goal} {'met' if ok else 'not met'}" for goal, ok in met.items())
+        )
+
+
+def precision_ratios(
+    per: dict[str, dict],
+    clocks: dict[str, IterationClock],
+    rounds: dict[str, dict[str, dict]],
+    base: str,
+    name: str,
+    windows: list[tuple[int, int]],
+) -> dict:
+    """``name`` against ``base``: training samples/s and the per-iteration speed-up paired by iteration
+    window (the trainings ran in lockstep), inference paired by round, the floors' ratios (same model and
+    batch), and the held-out PSNR difference (dB)."""
+    win = {p: [clocks[p].rates(first, last) for first, last in windows] for p in (base, name)}
+    ratio = {
+        key: ratio_spread([w[key] for w in win[name]], [w[key] for w in win[base]])
+        for key in ("train_samples_per_s", "train_samples_per_s_cpu")
+    }
+    ratio["train_iter_speedup"] = ratio_spread(
+        [w["train_ms_per_iter"] for w in win[base]], [w["train_ms_per_iter"] for w in win[name]]
+    )
+    for key, timed in rounds.items():
+        ratio[f"{key}_samples_per_s"] = ratio_spread(timed[name]["wall"], timed[base]["wall"])
+        ratio[f"{key}_samples_per_s_cpu"] = ratio_spread(timed[name]["cpu"], timed[base]["cpu"])
+    for floor in ("field", "mlp"):
+        key = f"train_samples_per_s_{floor}_floor"
+        ratio[key] = per[name][key] / per[base][key]
+    ratio["heldout_psnr_diff"] = per[name]["heldout_psnr"] - per[base]["heldout_psnr"]
+    return ratio
+
+
+def default_precisions() -> str:
+    """``fp32,bf16`` where the CPU runs bfloat16 natively, else ``fp32``."""
+    return "fp32,bf16" if "bf16" in supported_precisions(torch.device("cpu")) else "fp32"
+
+
+def parse_precisions(value: str | None) -> list[str]:
+    """``fp32,bf16`` -> the precisions to compare (the first is the reference of the ratios; ``None``:
+    ``default_precisions()``); each must be one the CPU runs natively (one line and exit status 2 otherwise)."""
+    value = default_precisions() if value is None else value
+    names = [name.strip() for name in value.split(",") if name.strip()]
+    for name in names:
+        reason = unsupported_reason(name, torch.device("cpu")) if name in PRECISIONS else (
+            f"unknown precision; choose from {', '.join(PRECISIONS)}"
+        )  # fmt: skip
+        if reason is not None:
+            print(f"error: --precisions {name}: {reason}", file=sys.stderr)
+            raise SystemExit(2)
+    if not names or len(set(names)) != len(names):
+        print(f"error: --precisions {value!r} must name distinct precisions, e.g. fp32,bf16", file=sys.stderr)
+        raise SystemExit(2)
+    return names
+
+
+def train_side_by_side(
+    cfg: DictConfig, s: EpisodeSettings, scene: Scene, obs: Observations, precisions: list[str]
+) -> tuple[dict[str, CountingModel], dict[str, IterationClock]]:
+    """Stage 1 of one model per ``train.precision``, from the same initial weights and seed, in lockstep."""
+    models = same_initial_models(cfg, scene, s, precisions, CountingModel)
+
+    def train(name: str, model: CountingModel, progress: IterationClock) -> None:
+        generator = torch.Generator().manual_seed(int(cfg.seed))
+        train_backbone(model, obs, dataclasses.replace(s.train, precision=name), generator, progress=progress)
+
+    return models, train_in_lockstep(models, s.train.backbone.iters, train)
+
+
 def main(argv: list[str]) -> None:
     parser = argparse.ArgumentParser(prog="python -m pipeline.bench train", description=__doc__.splitlines()[0])
     parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. budget=smoke")
     parser.add_argument("--out", type=Path, default=RESULTS / "bench" / "train.json", help="JSON report path")
     parser.add_argument("--repeats", type=int, default=3, help="timed inference passes (median)")
+    parser.add_argument("--precisions", help="train.precision values compared, first the reference (default: fp32,bf16 "
+                        "where the CPU has bfloat16, else fp32)")  # fmt: skip
+    parser.add_argument("--windows", type=int, default=5, help="iteration windows of the paired training ratios")
     args = parser.parse_intermixed_args(argv)
-    if args.repeats < 1:
-        parser.error("--repeats must be >= 1")
+    if args.repeats < 1 or args.windows < 1:
+        parser.error("--repeats and --windows must be >= 1")
     start = time.perf_counter()
     cfg = compose_config(args.overrides)
+    precisions = parse_precisions(args.precisions)
     scene = load(cfg)
     s = EpisodeSettings.of(cfg, scene)
     size = int(cfg.budget.image_size)
@@ -315,27 +511,50 @@ def main(argv: list[str]) -> None:
     gt_samples = int(cfg.budget.gt_samples)
     obs = observations(renderer, scene.eval_poses, intr, gt_samples)
 
-    torch.manual_seed(int(cfg.seed))
-    model = CountingModel(scene.object_aabb, s.field, s.sampler)
-    clock = IterationClock(model, s.train.backbone.iters)
-    train_backbone(model, obs, s.train, torch.Generator().manual_seed(int(cfg.seed)), progress=clock)
-    clock.bar.close()
+    models, clocks = train_side_by_side(cfg, s, scene, obs, precisions)
     warmup = max(1, min(10, s.train.backbone.iters // 10))
-    r: dict[str, float] = clock.rates(warmup)
+    per: dict[str, dict] = {name: clocks[name].rates(warmup) for name in precisions}
+    held_out = held_out_poses(scene)
+    for name, model in models.items():  # rendered as an episode renders them: MLPs in float32
+        r = per[name]
+        r["heldout_psnr"], r["heldout_psnr_off_edges"] = view_psnr(model, renderer, held_out, intr, gt_samples)
+        r["train_view_psnr"], r["train_view_psnr_off_edges"] = view_psnr(
+            model, renderer, obs.c2w[:HELD_OUT_VIEWS], intr, gt_samples
+        )
+    renderer.close()  # its ground truth is rendered (for Blender, this ends the worker process)
 
-    r["infer_samples_per_s"], r["infer_samples_per_s_cpu"], infer_samples = inference_rate(
-        model, obs.c2w, intr, HEADS, args.repeats
-    )
-    r["infer_rgb_samples_per_s"], r["infer_rgb_samples_per_s_cpu"], _ = inference_rate(
-        model, obs.c2w, intr, RGB, args.repeats
-    )
+    # The same work in each precision: inference and the floors on the reference precision's model.
+    base, reference = precisions[0], models[precisions[0]]
+    rounds = {}
+    for heads, key in ((HEADS, "infer"), (RGB, "infer_rgb")):
+        rounds[key] = inference_rates(reference, precisions, obs.c2w, intr, heads, args.repeats)
+        for name, rates in rounds[key].items():
+            per[name][f"{key}_samples_per_s"] = rates["samples_per_s"]
+            per[name][f"{key}_samples_per_s_cpu"] = rates["samples_per_s_cpu"]
+    per_iter = (per[base]["train_samples_per_iter"], per[base]["train_marched_per_iter"])
+    grid = {key: value.clone() for key, value in reference.grid.state_dict().items()}
+    for name in precisions:
+        reference.grid.load_state_dict(grid)  # field_floor updates the grid once: each precision starts alike
+        generator = torch.Generator().manual_seed(int(cfg.seed))
+        with reference.field.mlp_precision(precision_dtype(name)):
+            floors = field_floor(
+                reference, obs, s.train.backbone.batch, per_iter, s.sampler.update_every, generator, args.repeats
+            )
+        per[name].update(floors)
+    windows = clocks[base].windows(warmup, args.windows)
+    ratios = {
+        f"{name}_over_{base}": precision_ratios(per, clocks, rounds, base, name, windows) for name in precisions[1:]
+    }
+
+    r = dict(per[base])
+    r["train_fraction_of_field_floor"] = r["train_samples_per_s"] / r["train_samples_per_s_field_floor"]
     width = s.field.hidden_dim
     rows = max(1, round(r["train_samples_per_iter"]))
     r["matmul_gflops"], r["matmul_gflops_cpu"] = matmul_gflops(rows, width, args.repeats)
     flops = {
-        "train": mlp_flops(model.field, RGB, train=True),
-        "infer": mlp_flops(model.field, HEADS, train=False),
-        "infer_rgb": mlp_flops(model.field, RGB, train=False),
+        "train": mlp_flops(models[base].field, RGB, train=True),
+        "infer": mlp_flops(models[base].field, HEADS, train=False),
+        "infer_rgb": mlp_flops(models[base].field, RGB, train=False),
     }
     for key, value in flops.items():
         r[f"mlp_flops_{key}"] = value
@@ -343,19 +562,13 @@ def main(argv: list[str]) -> None:
         r[f"{key}_fraction_of_limit"] = r[f"{key}_samples_per_s"] / r[f"{key}_samples_per_s_at_limit"]
         r[f"{key}_fraction_of_limit_cpu"] = value * r[f"{key}_samples_per_s_cpu"] / (r["matmul_gflops_cpu"] * 1e9)
 
-    held_out = held_out_poses(scene)
-    r["heldout_psnr"], r["heldout_psnr_off_edges"] = view_psnr(model, renderer, held_out, intr, gt_samples)
-    r["train_view_psnr"], r["train_view_psnr_off_edges"] = view_psnr(
-        model, renderer, obs.c2w[:HELD_OUT_VIEWS], intr, gt_samples
-    )
-    renderer.close()
-    generator = torch.Generator().manual_seed(int(cfg.seed))
-    per_iter = (r["train_samples_per_iter"], r["train_marched_per_iter"])
-    r.update(field_floor(model, obs, s.train.backbone.batch, per_iter, s.sampler.update_every, generator, args.repeats))
-    r["train_fraction_of_field_floor"] = r["train_samples_per_s"] / r["train_samples_per_s_field_floor"]
-
     report = {
         **r,
+        "precision": base,
+        "precisions": per,
+        "ratios": ratios,
+        "precision_goals": PRECISION_GOALS,
+        "precision_goals_met": {key: precision_goals_met(ratio) for key, ratio in ratios.items()},
         "goals": GOALS,
         "goals_met": {key: r[key] >= goal for key, goal in GOALS.items()},
         "goals_within_limit": {key: r[f"{key}_at_limit"] >= goal for key, goal in GOALS.items()},
@@ -369,39 +582,13 @@ def main(argv: list[str]) -> None:
             "training_views": obs.num_images, "iterations": s.train.backbone.iters, "warmup_iterations": warmup,
             "rays_per_batch": s.train.backbone.batch, "torch_threads": torch.get_num_threads(),
             "train_samples_per_ray": r["train_samples_per_iter"] / s.train.backbone.batch,
-            "infer_samples_per_ray": infer_samples / (obs.num_images * intr.num_pixels),
-            "infer_chunk": RENDER_CHUNK, "matmul_rows": rows,
+            "infer_samples_per_ray": rounds["infer"][base]["samples_per_pass"] / (obs.num_images * intr.num_pixels),
+            "infer_chunk": RENDER_CHUNK, "matmul_rows": rows, "precisions": precisions, "ratio_windows": args.windows,
             "inference_repeats": args.repeats, "heldout_views": HELD_OUT_VIEWS, "gt_samples_per_side": gt_samples,
             "ground_truth": ground_truth_info(scene, renderer, Path(cfg.paths.assets)), "overrides": args.overrides,
         },
         "seconds": time.perf_counter() - start,
     }  # fmt: skip
     write_report(report, args.out)
-    print(f"{'':14}{'samples/s':>12}{'(cpu)':>12}{'at limit':>12}{'frac. limit':>13}{'goal':>9}")
-    for key, label in (("train", "train step"), ("infer", "infer all"), ("infer_rgb", "infer rgb")):
-        goal = GOALS.get(f"{key}_samples_per_s")
-        mark = "" if goal is None else ("met" if r[f"{key}_samples_per_s"] >= goal else f"<{goal:.0e}")
-        print(f"{label:14}{r[f'{key}_samples_per_s']:>12.3e}{r[f'{key}_samples_per_s_cpu']:>12.3e}"
-              f"{r[f'{key}_samples_per_s_at_limit']:>12.3e}{r[f'{key}_fraction_of_limit']:>13.3f}"
-              f"{mark:>9}")  # fmt: skip
-    print(
-        f"matmul [{rows}x{width}]x[{width}x{width}]: {r['matmul_gflops']:.1f} GFLOP/s; "
-        f"PSNR held-out {r['heldout_psnr']:.2f} dB ({r['heldout_psnr_off_edges']:.2f} off edges), "
-        f"training views {r['train_view_psnr']:.2f} dB; "
-        f"{report['settings']['train_samples_per_ray']:.1f} samples/ray "
-        f"(train); {report['seconds']:.0f} s"
-    )
-    print(
-        f"field floor {r['train_samples_per_s_field_floor']:.3e} kept samples/s: forward+backward "
-        f"{r['field_floor_fwd_bwd_ms']:.1f} ms ({r['field_floor_kept_samples']} kept), skipping pass "
-        f"{r['field_floor_skip_density_ms']:.1f} ms ({r['field_floor_marched_samples']} marched; training's mean "
-        f"{r['train_samples_per_iter']:.0f} kept, {r['train_marched_per_iter']:.0f} marched), grid update "
-        f"{r['field_floor_grid_update_ms']:.0f} ms / {s.sampler.update_every}; training runs at "
-        f"{r['train_fraction_of_field_floor']:.2f} of it"
-    )
-    print(
-        f"MLP floor {r['train_samples_per_s_mlp_floor']:.3e} kept samples/s (the MLPs' layers alone on the same rows: "
-        f"forward+backward {r['mlp_floor_fwd_bwd_ms']:.1f} ms, skipping pass {r['mlp_floor_skip_density_ms']:.1f} ms, "
-        f"grid update {r['mlp_floor_grid_update_ms']:.0f} ms / {s.sampler.update_every})"
-    )
+    print_report(report, s.sampler.update_every)
     print(f"wrote {args.out}")

@@ -14,8 +14,10 @@ from omegaconf import DictConfig, OmegaConf
 
 from nvf.config import STAGES
 from nvf.methods import load_method
+from nvf.precision import PRECISIONS, unsupported_reason
 from pipeline.config.catalog import declared
 from pipeline.config.named import changed_settings
+from pipeline.episode.settings import resolve_device
 from pipeline.repo import CONF
 from pipeline.config.schema import register_configs
 
@@ -41,6 +43,7 @@ _CHOICES: dict[str, tuple[Any, ...]] = {
     "train.schedule": ("paper", "reference"),
     "train.stage_order": ("var_first", "vis_first"),
     "train.var_loss_background": ("random", "black"),
+    "train.precision": PRECISIONS,
     "baseline.air_reduce": ("mean", "sum"),
     "baseline.air_view_score": ("pixel_mean", "topk"),
     "baseline.activenerf_variant": ("A", "B"),
@@ -129,6 +132,7 @@ def validate(cfg: DictConfig) -> None:
         raise ConfigError(f"diagnostics.rank_against={rival!r} is not one of {', '.join(declared('ablation'))}")
     _check_device(str(cfg.device))
     _check_render(cfg)
+    _check_precision(str(cfg.train.precision), str(cfg.device))
 
 
 def _check_render(cfg: DictConfig) -> None:
@@ -145,6 +149,13 @@ def _check_render(cfg: DictConfig) -> None:
     reason = missing_python(blender_python(cfg.paths.blender_python))
     if reason:
         raise ConfigError(f"render.backend=blender: {reason}")
+
+
+def _check_precision(precision: str, device: str) -> None:
+    """``train.precision`` runs natively on the run's device (``device=auto`` resolved)."""
+    reason = unsupported_reason(precision, resolve_device(device))
+    if reason is not None:
+        raise ConfigError(f"train.precision={precision}: {reason}")
 
 
 def _check_device(device: str) -> None:
