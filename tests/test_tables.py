@@ -20,17 +20,21 @@ from pipeline.tables.load import LONG_COLUMNS
 from pipeline.tables.summary import summarize_run
 
 METRICS = ("psnr", "ssim", "lpips", "rgb", "acc", "comp", "cr", "vis")
+POSE = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 2.0]
 
 
 def make_run(
     root: Path, scene="hubble", method="nvf", planner="argmax", ablation="none", seed=100, final=None,
-    status="done", lpips_reason=None, steps=2, config=None,
+    status="done", lpips_reason=None, steps=3, config=None,
 ) -> RunRecord:
-    """A synthetic run: `steps` step rows, the last one carrying `final` metric values (others 0)."""
+    """A synthetic run: `steps` step rows (smoke's horizon, 3), the last one carrying `final` metric values
+    (others 0); its config's horizon is `steps` unless `config` sets one."""
     record = RunRecord(run_dir(root, scene, method, planner, ablation, "smoke", seed))
     source = "proxy" if scene.endswith("_proxy") else "mesh"
     keys = {"scene": scene, "method": method, "planner": planner, "ablation": ablation, "budget": "smoke", "seed": seed}
-    info = {**keys, "scene_source": source, "field": "densegrid", "device": "cpu", "config": config or {}}
+    config = dict(config or {})
+    config["budget"] = {"horizon": steps, **config.get("budget", {})}
+    info = {**keys, "scene_source": source, "field": "densegrid", "device": "cpu", "config": config}
     info["lpips_missing_reason"] = lpips_reason
     record.start(info, repo=root)
     base = {m: 0.5 for m in METRICS}
@@ -38,7 +42,8 @@ def make_run(
         metrics = {**base, **(final or {})} if step == steps - 1 else {m: 0.0 for m in METRICS}
         if lpips_reason:
             metrics["lpips"] = None
-        record.append_step({"step": step, "n_views": 3 + step, "status": "ok", "metrics": {**metrics, "vis_area": 0.1}})
+        row = {"step": step, "n_views": 3 + step, "status": "ok", "metrics": {**metrics, "vis_area": 0.1}, "selected_pose": POSE}
+        record.append_step(row)
     if status == "done":
         record.mark_done()
     elif status == "failed":
@@ -65,7 +70,7 @@ def test_long_csv_has_exactly_the_columns(tmp_path):
     assert tuple(frame.columns) == LONG_COLUMNS
     assert set(frame["seed"]) == {100}
     assert set(frame["metric"]) == {*METRICS, "vis_area"}
-    assert sorted(set(frame["step"])) == [0, 1] and sorted(set(frame["n_views"])) == [3, 4]
+    assert sorted(set(frame["step"])) == [0, 1, 2] and sorted(set(frame["n_views"])) == [3, 4, 5]
     assert set(frame["scene_source"]) == {"mesh"}
 
 
@@ -82,7 +87,7 @@ def test_aggregation_mean_population_std_best_and_n(tmp_path):
     assert "**0.100 ± 0.000**" in md  # lower LPIPS wins
     assert "**0.0100 ± 0.0000**" in md  # lower RGB wins: Random
     assert "15.00 ± 0.00" in md and "**15.00" not in md
-    assert "Budget: smoke" in md and "hubble (mesh)" in md and "step 1" in md
+    assert "Budget: smoke." in md and "hubble (mesh)" in md and "step 2" in md
     csv = pd.read_csv(tmp_path / "res" / "tables" / "main.csv", comment="#")
     assert list(csv["Method"]) == ["Random", "NVF"] and list(csv["n"]) == [3, 3]
     assert list(csv.columns[2:10]) == ["PSNR↑", "SSIM↑", "LPIPS↓", "RGB↓", "Acc.↓", "Comp.↓", "C.R.↑", "Vis.↑"]
@@ -142,17 +147,25 @@ def test_unfinished_and_failed_runs_are_excluded_and_counted(tmp_path):
     assert "| 1 |" in md.replace("  ", " ").replace("  ", " ")  # n = 1
 
 
-def test_truncated_steps_and_bad_records_do_not_crash(tmp_path):
+def test_truncated_steps_and_bad_records_are_skipped_with_the_reason(tmp_path):
     out = tmp_path / "out"
-    record = make_run(out, seed=100)
-    before = read(record.steps_path) + '{"step": 2, "met'
-    record.steps_path.write_text(before)
+    running = make_run(out, seed=101, status="running")
+    partial = read(running.steps_path) + '{"step": 3, "met'  # a kill mid-write: the rows before it count
+    running.steps_path.write_text(partial)
+    finished = make_run(out, seed=100)
+    changed = read(finished.steps_path) + '{"step": 3, "met'  # a finished record does not grow
+    finished.steps_path.write_text(changed)
     (out / "junk").mkdir()
     (out / "junk" / "run.json").write_text("{not json")
     written, skipped = build_tables(out, [], tmp_path / "res", figures=False)
-    assert read(record.steps_path) == before  # tables never modify run records
-    assert len(skipped) == 1 and "junk" in skipped[0]
-    assert "1 unreadable run record(s) skipped" in read(tmp_path / "res" / "tables" / "main.md")
+    assert read(running.steps_path) == partial and read(finished.steps_path) == changed  # tables never modify records
+    assert len(skipped) == 2
+    assert "truncated last line" in skipped[0] and "of a finished run" in skipped[0] and "seed_100" in skipped[0]
+    assert "junk/run.json: not valid JSON" in skipped[1]
+    assert "2 run record(s) skipped: they fail a check" in read(tmp_path / "res" / "tables" / "main.md")
+    all_runs = read(tmp_path / "res" / "tables" / "all_runs.md")
+    assert all(f"- Skipped run record: {line.split(': ', 1)[1]}." in all_runs for line in skipped)
+    assert "Excluded: 1 unfinished run(s)" in all_runs
 
 
 def test_the_same_run_with_other_settings_is_left_out_and_listed(tmp_path):
@@ -229,7 +242,7 @@ def test_cli_says_when_the_outputs_directory_is_missing(tmp_path, capsys):
 
 
 def test_cli_rejects_unknown_arguments(capsys):
-    assert main(["paths.foo=1"]) == 1
+    assert main(["paths.foo=1"]) == 2
     assert "unknown argument 'paths.foo=1'" in capsys.readouterr().err
 
 

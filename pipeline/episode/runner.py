@@ -1,12 +1,14 @@
 """Run (or resume) one episode into its run record: validate the config, derive the run directory from the
-run's keys, skip a finished run (refusing one that finished with other settings), resume an unfinished
-one at its first missing step, and record every step atomically; a step that cannot complete marks
-the run failed with a one-line reason.
+run's keys, take the run's lock (one writer per run), verify what is recorded there, skip a finished run
+(refusing one that finished with other settings), repeat a failed run's reason, resume an unfinished one
+at its first missing step, and record every step atomically; a step that cannot complete marks the run
+failed with a one-line reason.
 """
 
 import os
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -22,12 +24,26 @@ from pipeline.episode.images import save_step_images
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import resolve_device
 from pipeline.metrics.image import LpipsMetric
+from pipeline.records.lock import RunLock
 from pipeline.records.store import RunRecord, run_dir
+from pipeline.records.verify import verified
 from pipeline.scenes.scene import load_scene
 
 
 class StepFailed(RuntimeError):
-    """A step could not complete; the run is recorded as failed with this one-line reason."""
+    """The run failed (now, or when it last ran); its record holds this one-line reason."""
+
+
+class RunRefused(ValueError):
+    """The run cannot start: its directory holds a record of another run (other settings)."""
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What ``run_episode`` did: ``done`` (ran to its horizon) or ``skipped`` (had finished before)."""
+
+    directory: Path
+    status: str
 
 
 def torch_threads() -> int:
@@ -61,31 +77,47 @@ def run_settings(cfg: DictConfig) -> dict:
     }
 
 
-def run_info(cfg: DictConfig, scene_source: str, device: torch.device, lpips_reason: str | None) -> dict:
+def run_info(cfg: DictConfig, episode: Episode, lpips_reason: str | None) -> dict:
     return {
         **run_settings(cfg),
-        "scene_source": scene_source,
+        "scene_source": episode.scene.source,
+        "collision_free": episode.settings.collision_free,  # M29's candidate sampler, as resolved for the scene
         "field": cfg.field.kind,
-        "device": str(device),
+        "device": str(episode.device),
         "torch_threads": torch.get_num_threads(),
         "lpips_missing_reason": lpips_reason,
     }
 
 
-def run_episode(cfg: DictConfig) -> Path:
-    """Run (or resume) one episode; returns its run directory."""
+def run_episode(cfg: DictConfig) -> Outcome:
+    """Run (or resume) one episode under its run's lock (``pipeline.records.lock``).
+
+    Raises ``ConfigError`` (a bad value), ``RunLocked`` (another process writes the run), ``RecordError``
+    (its record fails a check), ``RunRefused`` (a record of other settings), ``SceneError`` (the scene
+    cannot load): all before the record starts. ``StepFailed`` once the run failed (recorded as such).
+    """
     validate(cfg)
     directory = record_dir(cfg)
+    with RunLock(directory, root=Path(cfg.paths.outputs)):
+        return _run_locked(cfg, directory)
+
+
+def _run_locked(cfg: DictConfig, directory: Path) -> Outcome:
     record = RunRecord(directory)
-    if record.is_done():
-        changed = record.difference(run_settings(cfg))
-        if changed is not None:
-            raise ValueError(
-                f"run {directory} finished with a different {changed}; "
-                "pass paths.outputs=DIR to record this run elsewhere, or delete that run to replace it"
-            )
+    previous, _ = verified(record)
+    status = record.status()
+    changed = record.difference(run_settings(cfg)) if previous else None
+    if changed is not None:
+        verb = {"done": "finished", "failed": "failed"}.get(status, "was started")
+        raise RunRefused(
+            f"run {directory} {verb} with a different {changed}; "
+            "pass paths.outputs=DIR to record this run elsewhere, or delete that run to replace it"
+        )
+    if status == "done":
         print(f"skipping finished run {directory}")
-        return directory
+        return Outcome(directory, "skipped")
+    if status == "failed":
+        raise StepFailed(f"run {directory} failed: {record.failure()} (delete it to run it again)")
     torch.set_num_threads(torch_threads())
     torch.manual_seed(int(cfg.seed))
     np.random.seed(int(cfg.seed) % 2**32)
@@ -94,41 +126,47 @@ def run_episode(cfg: DictConfig) -> Path:
     lpips = LpipsMetric()
     episode = Episode(cfg, scene, device, lpips)
     done_rows = record.completed_steps()
-    record.start(run_info(cfg, scene.source, device, lpips.missing))
-    episode.replay(done_rows)
+    record.start(run_info(cfg, episode, lpips.missing))
     horizon = int(cfg.budget.horizon)
-    if done_rows:
-        print(f"resuming {directory} at step {len(done_rows)} of {horizon}")
-    interactive = sys.stderr.isatty()
-    steps = tqdm(range(len(done_rows), horizon), desc="steps", unit="step", disable=not interactive, initial=len(done_rows), total=horizon)
-    inner = tqdm(desc="train", unit="it", leave=False, disable=not interactive)
+    step = len(done_rows)
+    try:
+        episode.replay(done_rows)
+        if done_rows:
+            print(f"resuming {directory} at step {len(done_rows)} of {horizon}")
+        interactive = sys.stderr.isatty()
+        steps = tqdm(range(len(done_rows), horizon), desc="steps", unit="step", disable=not interactive, initial=len(done_rows), total=horizon)
+        inner = tqdm(desc="train", unit="it", leave=False, disable=not interactive)
 
-    def on_train(stage: str, iteration: int, total: int, loss: float) -> None:
-        if iteration == 0:
-            inner.reset(total=total)
-            inner.set_description(stage)
-        inner.update(1)
-        if iteration % 25 == 0:
-            inner.set_postfix(loss=f"{loss:.4g}")
+        def on_train(stage: str, iteration: int, total: int, loss: float) -> None:
+            if iteration == 0:
+                inner.reset(total=total)
+                inner.set_description(stage)
+            inner.update(1)
+            if iteration % 25 == 0:
+                inner.set_postfix(loss=f"{loss:.4g}")
 
-    for step in steps:
-        start = time.perf_counter()
-        try:
+        for step in steps:
+            start = time.perf_counter()
             row, images = episode.step(step, on_train)
-        except (TrainingDiverged, NoCandidatesError, FloatingPointError) as err:
-            reason = f"step {step}: {err}"
-            record.mark_failed(reason)
-            raise StepFailed(reason) from None
-        if cfg.save_images:
-            save_step_images(directory / "images", step, images)
-        record.append_step(row)
-        episode.observe_pose(row["selected_pose"])
-        psnr = row["metrics"]["psnr"]
-        message = f"step {step:2d}: {row['n_views']} views, PSNR {psnr:.2f} dB, {time.perf_counter() - start:.1f} s"
-        steps.set_postfix_str(message.split(": ", 1)[1])
-        if not interactive:
-            print(f"[{cfg.scene.name}/{cfg.method.name}] {message}", flush=True)
-    inner.close()
-    steps.close()
+            if cfg.save_images:
+                save_step_images(directory / "images", step, images)
+            record.append_step(row)
+            episode.observe_pose(row["selected_pose"])
+            psnr = row["metrics"]["psnr"]
+            message = f"step {step:2d}: {row['n_views']} views, PSNR {psnr:.2f} dB, {time.perf_counter() - start:.1f} s"
+            steps.set_postfix_str(message.split(": ", 1)[1])
+            if not interactive:
+                print(f"[{cfg.scene.name}/{cfg.method.name}] {message}", flush=True)
+        inner.close()
+        steps.close()
+    except (TrainingDiverged, NoCandidatesError, FloatingPointError) as err:
+        reason = f"step {step}: {err}"
+        record.mark_failed(reason)
+        raise StepFailed(reason) from None
+    except OSError:  # writing the record itself failed: left unfinished, to resume
+        raise
+    except Exception as err:  # an unexpected error: recorded, then raised with its traceback
+        record.mark_failed(f"step {step}: {type(err).__name__}: {' '.join(str(err).split())}")
+        raise
     record.mark_done()
-    return directory
+    return Outcome(directory, "done")
