@@ -265,7 +265,7 @@ class _Recorder:
         if len(window) == COLLAPSE_WINDOW and lowest is not None and lowest > 0 and mean > COLLAPSE_FACTOR * lowest:
             raise TrainingDiverged(
                 f"{self.stage} stage collapsed at iteration {iteration}: mean loss {mean:.4g} over the last "
-                f"{COLLAPSE_WINDOW} iterations, {mean / lowest:.1f} times its lowest earlier mean {lowest:.4g} "
+                f"{COLLAPSE_WINDOW} iterations, {mean / lowest:.3g} times its lowest earlier mean {lowest:.4g} "
                 f"(limit {COLLAPSE_FACTOR:g}x; a learning rate too high?)"
             )
         self.lowest_mean = mean if lowest is None else min(lowest, mean)

@@ -1,5 +1,8 @@
 """pipeline/tables.py: long CSV, aggregation over seeds at the last step, paper-style tables, figures."""
 
+import os
+import re
+import stat
 import subprocess
 import sys
 from pathlib import Path
@@ -14,7 +17,7 @@ from pipeline.records.store import RunRecord, run_dir
 from pipeline.repo import CONF, REPO
 from pipeline.tables.__main__ import main
 from pipeline.tables.build import build_tables
-from pipeline.tables.figures import image_grid
+from pipeline.tables.figures import image_grid, safe_name
 from pipeline.tables.labels import method_label
 from pipeline.tables.load import LONG_COLUMNS
 from pipeline.tables.summary import summarize_run
@@ -290,3 +293,69 @@ def test_paper_numbers_means_match_tables_s3_s4():
     assert len(per_scene) == 7
     assert set(paper.loc[paper["table"] == "S3", "scene"]) == {"chair", "drums", "ficus", "hotdog"}
     np.testing.assert_allclose(per_scene.loc[means.index].to_numpy(), means.to_numpy(), rtol=2e-3)
+
+
+def test_a_run_whose_run_json_was_deleted_is_listed_not_dropped(tmp_path):
+    record = make_run(tmp_path / "out", seed=100)
+    record.run_json.unlink()  # DONE and steps.jsonl kept
+    _, skipped = build_tables(tmp_path / "out", [], tmp_path / "res", figures=False)
+    assert skipped == (f"skipped run record: {record.directory}: steps.jsonl and DONE without run.json, so the "
+                       "settings they were made with are unknown; delete the directory",)  # fmt: skip
+
+
+def test_safe_name_keeps_plain_names_and_reduces_the_rest():
+    assert safe_name("cpu+planner.num_candidates=512") == "cpu+planner.num_candidates=512"
+    assert safe_name("lego_proxy") == "lego_proxy"
+    crafted = safe_name("smoke+planner.los_source=/../../x")
+    assert re.fullmatch(r"smoke\+planner\.los_source=_\.\._\.\._x-[0-9a-f]{8}", crafted)
+    assert safe_name("..") != safe_name("__") and "/" not in safe_name("a/b") and not safe_name(".x").startswith(".")
+    assert len(safe_name("k=" + "v" * 500)) == 80 + 9
+
+
+def test_a_crafted_record_cannot_write_outside_the_results_folder(tmp_path):
+    """Records travel (results/runs): a setting's text in a record becomes part of the budget label and
+    of figure names. Every file written stays under paths.results, whatever the record says."""
+    out, results = tmp_path / "a" / "b" / "out", tmp_path / "a" / "b" / "res"
+    named = NamedConfigs(CONF).named(("hubble", "nvf", "argmax", "none", "smoke"))
+    crafted = {**named, "planner": {**named["planner"], "los_source": "/../../x"}, "method": {"name": "nvf/../../y"}}
+    record = make_run(out, seed=100, config=crafted)
+    (record.directory / "images").mkdir()
+    iio.imwrite(record.directory / "images" / "step_00_gt.png", np.zeros((8, 8, 3), np.uint8))
+    before = {p for p in tmp_path.rglob("*")}
+    written, _ = build_tables(out, [], results)
+    created = {p for p in tmp_path.rglob("*")} - before
+    assert created and all(p == results or results in p.parents for p in created), sorted(map(str, created))
+    assert all(results in p.parents for p in written)
+    budgets = set(pd.read_csv(results / "runs.csv")["budget"])
+    assert len(budgets) == 1 and "los_source=/../../x" in budgets.pop()  # the label still says what the record holds
+    figures = sorted(p.name for p in (results / "figures").rglob("*.png"))
+    assert len(figures) == 2 and all("/" not in name and not name.startswith(".") for name in figures)
+
+
+def test_written_tables_and_figures_follow_the_umask(tmp_path):
+    make_run(tmp_path / "out", seed=100)
+    previous = os.umask(0o027)
+    try:
+        written, _ = build_tables(tmp_path / "out", [], tmp_path / "res")
+    finally:
+        os.umask(previous)
+    modes = {stat.S_IMODE(path.stat().st_mode) for path in written}
+    assert modes == {0o640}
+
+
+def test_rows_planned_with_the_mesh_line_of_sight_are_marked(tmp_path):
+    """``planner.los_source=mesh`` acts on the collision-free sampler (Room): an oracle the tables mark
+    (‡ and a footnote); on other scenes it has no effect and no mark."""
+    out = tmp_path / "out"
+    mesh = {"planner": {"los_source": "mesh", "collision_free": None}}
+    for seed in (100, 101):
+        make_run(out, scene="room", seed=seed, config=mesh)
+        make_run(out, scene="hubble", seed=seed, config=mesh)
+    make_run(out, scene="room", method="random", seed=100, config={"planner": {"los_source": "model"}})
+    build_tables(out, [], tmp_path / "res", figures=False)
+    md = read(tmp_path / "res" / "tables" / "main.md")
+    table = pd.read_csv(tmp_path / "res" / "tables" / "main.csv", comment="#")
+    assert set(zip(table["Scene"], table["Method"])) == {("room", "NVF‡"), ("hubble", "NVF"), ("room", "Random")}
+    assert md.count("‡") == 2 and "‡ Planned with an oracle: M29's line-of-sight filter used the scene mesh" in md
+    assert r"NVF$^\ddagger$" in read(tmp_path / "res" / "tables" / "main.tex")
+    assert "‡" not in read(tmp_path / "res" / "tables" / "table34_nerf_assets.md")
