@@ -125,7 +125,7 @@ def check_paths(cfg: DictConfig, keys: tuple[str, ...] = ("paths.outputs",)) -> 
 def _check_memory(cfg: DictConfig) -> None:
     """The largest allocation of each size key fits the memory it lives in (``pipeline.config.memory``)."""
     device = str(cfg.device)
-    cuda = device.startswith("cuda") or (device == "auto" and torch.cuda.is_available())
+    cuda = torch.cuda.is_available() and device != "cpu"
     host = host_memory()
     if cuda:
         index = int(device.partition(":")[2] or 0)
