@@ -43,7 +43,7 @@ def main(argv: list[str]) -> None:
         outputs = args.outputs.resolve() if args.outputs else Path(tmp)
         cfg = compose("config", overrides=[*args.overrides, f"paths.outputs={outputs}"])
         start = time.perf_counter()
-        directory = run_episode(cfg)
+        directory = run_episode(cfg).directory
         seconds = time.perf_counter() - start
         rows = RunRecord(directory).completed_steps()
     phases = {phase: sum(r["seconds"][phase] for r in rows) for phase in ("train", "eval", "plan")}
