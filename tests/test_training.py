@@ -204,14 +204,16 @@ def _feed(stage: str, losses: list[float]) -> None:
         recorder.end_iteration(iteration, loss)
 
 
-def test_collapse_rule_needs_a_full_window_above_four_times_the_lowest_mean():
-    """(documented in ``_Recorder``) The mean of the last 5 losses above 4x the lowest earlier mean."""
+def test_collapse_rule_needs_a_full_window_above_four_times_the_lowest_mean_and_the_first_loss():
+    """(documented in ``_Recorder``) The mean of the last 5 losses above 4x the lowest earlier mean and
+    above the first loss."""
     collapse = [0.01, 0.1, 0.1, 0.1, 0.1]  # lr=1e3 at the smoke budget: 6-16x from iteration 1 on
     with pytest.raises(TrainingDiverged, match=r"backbone stage collapsed at iteration 4: mean loss 0\.082 .* 8\.2 times"):
         _feed("backbone", collapse)
     _feed("backbone", [0.01, 0.1, 0.1, 0.1])  # no full window yet
     _feed("backbone", [0.01, 0.001, 0.002, 0.001, 0.003, 0.004, 0.002, 0.001, 0.001])  # noise at a low loss: 2.8x
     _feed("backbone", [0.01, 0.015, 0.02, 0.025, 0.03, 0.035])  # a slow rise: 2.5x, kept
+    _feed("backbone", [0.1, *[0.001] * 4, *[0.02] * 5])  # 4.2x over the lowest mean, but below the first loss
     _feed("variance", collapse)  # M21 is checked for non-finite values only
     with pytest.raises(TrainingDiverged, match="visibility stage collapsed"):
         _feed("visibility", [0.69, 50.0, 50.0, 50.0, 50.0])
