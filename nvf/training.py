@@ -218,8 +218,8 @@ class _Recorder:
     and the loss of the first iteration (the untrained model: training made it worse).
     Measured: ``train.backbone.lr=1e3`` at the smoke budget (default scene, steps 0-2) raises stage 1's
     loss from 0.008-0.015 at iteration 0 to 0.08-0.15, 6-16 times over, from iteration 1 on (caught at
-    iteration 4). Normal training (smoke steps 0-2; the cpu budget on the default scene, Room and Hubble
-    with their initial and their 20 evaluation views; heads at 30 and 500 iterations) reaches at most
+    iteration 4). Normal training (smoke steps 0-2; the cpu budget on the default scene, Room, Hubble and
+    hotdog with their initial and their 20 evaluation views; heads at 30, and 500 on the default scene) reaches at most
     1.7 times where it is above its first loss, and 2.95 times at all (Hubble's initial views, stage 1's
     loss noisy near 1e-4, far below its first). Variance NLL (M21, bounded above by its floor; it can
     be negative) and the auxiliary losses (M25 can be negative) are checked for non-finite values only.

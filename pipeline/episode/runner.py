@@ -127,46 +127,50 @@ def _run_locked(cfg: DictConfig, directory: Path) -> Outcome:
     episode = Episode(cfg, scene, device, lpips)
     done_rows = record.completed_steps()
     record.start(run_info(cfg, episode, lpips.missing))
-    horizon = int(cfg.budget.horizon)
-    step = len(done_rows)
     try:
         episode.replay(done_rows)
         if done_rows:
-            print(f"resuming {directory} at step {len(done_rows)} of {horizon}")
-        interactive = sys.stderr.isatty()
-        steps = tqdm(range(len(done_rows), horizon), desc="steps", unit="step", disable=not interactive, initial=len(done_rows), total=horizon)
-        inner = tqdm(desc="train", unit="it", leave=False, disable=not interactive)
-
-        def on_train(stage: str, iteration: int, total: int, loss: float) -> None:
-            if iteration == 0:
-                inner.reset(total=total)
-                inner.set_description(stage)
-            inner.update(1)
-            if iteration % 25 == 0:
-                inner.set_postfix(loss=f"{loss:.4g}")
-
-        for step in steps:
-            start = time.perf_counter()
-            row, images = episode.step(step, on_train)
-            if cfg.save_images:
-                save_step_images(directory / "images", step, images)
-            record.append_step(row)
-            episode.observe_pose(row["selected_pose"])
-            psnr = row["metrics"]["psnr"]
-            message = f"step {step:2d}: {row['n_views']} views, PSNR {psnr:.2f} dB, {time.perf_counter() - start:.1f} s"
-            steps.set_postfix_str(message.split(": ", 1)[1])
-            if not interactive:
-                print(f"[{cfg.scene.name}/{cfg.method.name}] {message}", flush=True)
-        inner.close()
-        steps.close()
+            print(f"resuming {directory} at step {len(done_rows)} of {int(cfg.budget.horizon)}")
+        _record_steps(cfg, directory, episode, record, len(done_rows))
     except (TrainingDiverged, NoCandidatesError, FloatingPointError) as err:
-        reason = f"step {step}: {err}"
+        reason = f"step {len(record.completed_steps())}: {err}"
         record.mark_failed(reason)
         raise StepFailed(reason) from None
     except OSError:  # writing the record itself failed: left unfinished, to resume
         raise
     except Exception as err:  # an unexpected error: recorded, then raised with its traceback
-        record.mark_failed(f"step {step}: {type(err).__name__}: {' '.join(str(err).split())}")
+        record.mark_failed(f"step {len(record.completed_steps())}: {type(err).__name__}: {' '.join(str(err).split())}")
         raise
     record.mark_done()
     return Outcome(directory, "done")
+
+
+def _record_steps(cfg: DictConfig, directory: Path, episode: Episode, record: RunRecord, first: int) -> None:
+    """Steps ``first`` .. horizon - 1, each row (and the step's images) written once the step is complete."""
+    horizon = int(cfg.budget.horizon)
+    interactive = sys.stderr.isatty()
+    steps = tqdm(range(first, horizon), desc="steps", unit="step", disable=not interactive, initial=first, total=horizon)
+    inner = tqdm(desc="train", unit="it", leave=False, disable=not interactive)
+
+    def on_train(stage: str, iteration: int, total: int, loss: float) -> None:
+        if iteration == 0:
+            inner.reset(total=total)
+            inner.set_description(stage)
+        inner.update(1)
+        if iteration % 25 == 0:
+            inner.set_postfix(loss=f"{loss:.4g}")
+
+    for step in steps:
+        start = time.perf_counter()
+        row, images = episode.step(step, on_train)
+        if cfg.save_images:
+            save_step_images(directory / "images", step, images)
+        record.append_step(row)
+        episode.observe_pose(row["selected_pose"])
+        psnr = row["metrics"]["psnr"]
+        message = f"step {step:2d}: {row['n_views']} views, PSNR {psnr:.2f} dB, {time.perf_counter() - start:.1f} s"
+        steps.set_postfix_str(message.split(": ", 1)[1])
+        if not interactive:
+            print(f"[{cfg.scene.name}/{cfg.method.name}] {message}", flush=True)
+    inner.close()
+    steps.close()
