@@ -291,14 +291,12 @@ CUDA = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device:
 @pytest.mark.parametrize("planner", ["argmax", "opt"])
 def test_a_smoke_episode_on_cuda(tmp_path, planner):
     """The GPU path end to end: training, evaluation, planning (and -OPT's gradients) with ``device=cuda``,
-    recorded as a CUDA run, with metrics in range; step 0 agrees with the CPU run's to a loose tolerance
-    (different kernels, same maths)."""
-    common = ("method=nvf", f"planner={planner}", "budget.horizon=2")
-    gpu = run_episode(_cfg(tmp_path / "gpu", *common, "device=cuda")).directory
-    cpu = run_episode(_cfg(tmp_path / "cpu", *common, "device=cpu")).directory
-    info, rows = verified(RunRecord(gpu))
+    recorded as a CUDA run that verifies, with every metric finite and in range. (Not compared with a
+    CPU run: the seeded generators live on the device, so the two draw different batches.)"""
+    directory = run_episode(_cfg(tmp_path, "method=nvf", f"planner={planner}", "budget.horizon=2", "device=cuda")).directory
+    info, rows = verified(RunRecord(directory))
     assert info["status"] == "done" and info["device"].startswith("cuda") and len(rows) == 2
     for row in rows:
         assert_metrics_in_range(row["metrics"])
-    _, cpu_rows = verified(RunRecord(cpu))
-    assert abs(rows[0]["metrics"]["psnr"] - cpu_rows[0]["metrics"]["psnr"]) < 1.0
+        assert all(math.isfinite(v) for v in row["selected_pose"])
+    assert all(("opt" in row) == (planner == "opt") for row in rows)  # -OPT recorded its refinement
