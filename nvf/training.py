@@ -269,8 +269,8 @@ class _Recorder:
         if full and mean > COLLAPSE_FACTOR * lowest and mean > self.losses[0]:
             raise TrainingDiverged(
                 f"{self.stage} stage collapsed at iteration {iteration}: mean loss {mean:.4g} over the last "
-                f"{COLLAPSE_WINDOW} iterations, {mean / lowest:.3g} times its lowest earlier mean {lowest:.4g} "
-                f"and above the first iteration's {self.losses[0]:.4g} (limit {COLLAPSE_FACTOR:g}x; a learning rate too high?)"
+                f"{COLLAPSE_WINDOW} iterations, {mean / lowest:.3g} times its lowest earlier mean {lowest:.4g} and above "
+                f"the first iteration's {self.losses[0]:.4g} (limit {COLLAPSE_FACTOR:g}x; a learning rate too high?)"
             )
         self.lowest_mean = mean if lowest is None else min(lowest, mean)
 

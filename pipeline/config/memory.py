@@ -72,6 +72,6 @@ def too_large(cfg: DictConfig, host_bytes: float, device_bytes: float, device_na
     _, worst = max(over, key=lambda pair: pair[0])
     limit, where = (device_bytes, device_name) if worst.on_device else (host_bytes, "this machine")
     return (
-        f"{worst.key}={OmegaConf.select(cfg, worst.key)}: {worst.what} needs {worst.nbytes / GIB:.1f} GiB, more than the {limit / GIB:.1f} GiB of memory "
-        f"of {where}; lower {worst.key}"
+        f"{worst.key}={OmegaConf.select(cfg, worst.key)}: {worst.what} needs {worst.nbytes / GIB:.1f} GiB, "
+        f"more than the {limit / GIB:.1f} GiB of memory of {where}; lower {worst.key}"
     )
