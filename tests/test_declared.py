@@ -16,7 +16,7 @@ from nvf.config import BaselineConfig, EntropyConfig
 from nvf.methods import Method
 from nvf.model import RenderResult
 from pipeline.config.validation import compose_config
-from pipeline.episode.runner import run_episode
+from pipeline.episode.runner import Outcome, run_episode
 from pipeline.tables.build import build_tables
 
 
@@ -61,7 +61,7 @@ eval_views: {rig: rule}
 """
 
 
-def smoke(conf: Path, outputs: Path, *overrides: str) -> Path:
+def smoke(conf: Path, outputs: Path, *overrides: str) -> Outcome:
     cfg = compose_config(
         [f"hydra.searchpath=[file://{conf}]", "budget=smoke", "budget.horizon=2", f"paths.outputs={outputs}", *overrides]
     )
@@ -72,7 +72,7 @@ def test_a_new_method_from_one_yaml_runs_and_reaches_the_tables(tmp_path):
     conf = tmp_path / "conf"
     (conf / "method").mkdir(parents=True)
     (conf / "method" / "toy.yaml").write_text(TOY_METHOD)
-    directory = smoke(conf, tmp_path / "outputs", "method=toy")
+    directory = smoke(conf, tmp_path / "outputs", "method=toy").directory
     assert (directory / "DONE").is_file() and "Toy method" in (directory / "run.json").read_text()
     build_tables(tmp_path / "outputs", [], tmp_path / "results", figures=False)
     table = (tmp_path / "results" / "tables" / "all_runs.md").read_text()
@@ -88,7 +88,7 @@ def test_a_new_scene_from_one_yaml_and_its_mesh_runs_and_reaches_the_tables(tmp_
     box.visual.face_colors = np.tile([200, 80, 40, 255], (len(box.faces), 1))
     (assets / "toy_box").mkdir(parents=True)
     box.export(assets / "toy_box" / "toy_box.ply")
-    directory = smoke(conf, tmp_path / "outputs", "scene=toy_box", "method=random", f"paths.assets={assets}")
+    directory = smoke(conf, tmp_path / "outputs", "scene=toy_box", "method=random", f"paths.assets={assets}").directory
     assert (directory / "DONE").is_file() and directory.parts[-4] == "toy_box"
     build_tables(tmp_path / "outputs", [], tmp_path / "results", figures=False)
     table = (tmp_path / "results" / "tables" / "all_runs.md").read_text()

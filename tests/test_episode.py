@@ -1,6 +1,7 @@
 """The episode harness end to end (PROTOCOL 3): records, resume after SIGKILL, bad input."""
 
 import json
+import math
 import os
 import signal
 import subprocess
@@ -13,58 +14,160 @@ import pytest
 import torch
 from hydra import compose, initialize_config_dir
 
+from pipeline.config.schema import register_configs
 from pipeline.episode.loop import Episode
+from pipeline.episode.runner import Outcome, RunRefused, StepFailed, run_episode
 from pipeline.metrics.image import LpipsMetric
-from pipeline.records.store import RunRecord
+from pipeline.records.lock import LOCK_FILE, RunLock
+from pipeline.records.store import RecordError, RunRecord
+from pipeline.records.verify import verified
 from pipeline.repo import CONF, REPO
-from pipeline.episode.runner import run_episode
 from pipeline.scenes.scene import load_scene
 
 SMOKE = ["budget=smoke", "scene=default"]
 
 
 def _cfg(tmp_path: Path, *overrides: str):
+    register_configs()
     with initialize_config_dir(str(CONF), version_base="1.3"):
         return compose("config", overrides=[*SMOKE, f"paths.outputs={tmp_path}", *overrides])
 
 
 def _cli(tmp_path: Path, *overrides: str, **kw) -> subprocess.Popen:
+    """``python -m pipeline.run`` at the smoke budget; ``-m`` among ``overrides`` makes it a sweep."""
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    flags = [arg for arg in overrides if arg == "-m"]
+    overrides = tuple(arg for arg in overrides if arg != "-m")
     return subprocess.Popen(
-        [sys.executable, "-m", "pipeline.run", *SMOKE, f"paths.outputs={tmp_path}", *overrides],
+        [sys.executable, "-m", "pipeline.run", *flags, *SMOKE, f"paths.outputs={tmp_path}", *overrides],
         cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kw,
     )  # fmt: skip
 
 
+def assert_metrics_in_range(metrics: dict) -> None:
+    """Every metric of a step row finite and within its range (NaN fails: ``isinstance(x, float)`` did not).
+    PSNR of [0, 1] images lies in (0, 100) here; SSIM in [-1, 1]; RGB (MSE) in [0, 1]; Vis., C.R. and
+    LPIPS in [0, 1]; Acc. and Comp. (distances) >= 0."""
+    bounds = {"psnr": (0.0, 100.0), "ssim": (-1.0, 1.0), "rgb": (0.0, 1.0), "vis": (0.0, 1.0), "cr": (0.0, 1.0),
+              "acc": (0.0, math.inf), "comp": (0.0, math.inf), "lpips": (0.0, 1.0)}  # fmt: skip
+    for metric, (low, high) in bounds.items():
+        value = metrics[metric]
+        if metric == "lpips" and value is None:
+            continue  # recorded as missing, with the reason in run.json
+        assert isinstance(value, float) and math.isfinite(value) and low <= value <= high, (metric, value)
+    assert metrics["psnr"] > 5.0  # a flat grey image scores about 6 dB on the default scene
+
+
 def test_smoke_episode_writes_complete_records(tmp_path):
-    directory = run_episode(_cfg(tmp_path, "method=random", "budget.horizon=2"))
+    outcome = run_episode(_cfg(tmp_path, "method=random", "budget.horizon=2"))
+    directory = outcome.directory
+    assert outcome.status == "done"
     record = RunRecord(directory)
     assert record.is_done()
     rows = record.completed_steps()
     assert [r["step"] for r in rows] == [0, 1]
     assert [r["n_views"] for r in rows] == [3, 4]  # n_init + step (PROTOCOL 3)
     for row in rows:
-        assert len(row["selected_pose"]) == 7
-        assert set(row["seconds"]) == {"train", "eval", "plan"}
-        for metric in ("psnr", "ssim", "rgb", "vis", "cr"):
-            assert isinstance(row["metrics"][metric], float)
+        assert len(row["selected_pose"]) == 7 and all(math.isfinite(v) for v in row["selected_pose"])
+        assert set(row["seconds"]) == {"train", "eval", "plan"} and all(v > 0 for v in row["seconds"].values())
+        assert_metrics_in_range(row["metrics"])
     info = json.loads((directory / "run.json").read_text())
     assert info["budget"] == "smoke" and info["field"] in ("hashgrid", "densegrid")
     assert info["git"]["commit"] is None or len(info["git"]["commit"]) == 40
+    assert info["collision_free"] is False and info["steps_digest"].startswith("sha256:")
+    assert verified(record)[1] == rows
     assert (directory / "images" / "step_01_pred.png").is_file()
+    assert not (directory / LOCK_FILE).exists()  # released
     # a finished run is skipped, not re-run; one finished with other settings is refused, untouched
-    assert run_episode(_cfg(tmp_path, "method=random", "budget.horizon=2")) == directory
+    assert run_episode(_cfg(tmp_path, "method=random", "budget.horizon=2")) == Outcome(directory, "skipped")
     assert len(RunRecord(directory).completed_steps()) == 2
     before = (directory / "run.json").read_text()
     changed = r"finished with a different config.planner.num_candidates \(8 in the record, 9 now\)"
-    with pytest.raises(ValueError, match=changed):
+    with pytest.raises(RunRefused, match=changed):
         run_episode(_cfg(tmp_path, "method=random", "budget.horizon=2", "planner.num_candidates=9"))
     assert (directory / "run.json").read_text() == before and RunRecord(directory).is_done()
+    # a finished record that lost its last row is not skipped as finished: one line, nothing run
+    steps = (directory / "steps.jsonl").read_text().splitlines(keepends=True)
+    (directory / "steps.jsonl").write_text(steps[0])
+    with pytest.raises(RecordError, match=r"steps.jsonl: 1 rows, but the run is marked done with a horizon of 2"):
+        run_episode(_cfg(tmp_path, "method=random", "budget.horizon=2"))
 
+
+def test_a_collapsed_run_is_recorded_as_failed_and_a_rerun_repeats_the_reason(tmp_path):
+    """``train.backbone.lr=1e3`` collapses stage 1 (loss 0.009 -> ~0.1): the run is recorded as failed
+    (it used to be recorded as done, PSNR 7.2); a rerun repeats the reason (one line, exit 1)."""
+    overrides = ("method=random", "budget.horizon=1", "train.backbone.lr=1e3")
+    with pytest.raises(StepFailed, match=r"^step 0: backbone stage collapsed at iteration 4: ") as err:
+        run_episode(_cfg(tmp_path, *overrides))
+    directory = next(tmp_path.glob("default/*/smoke/seed_100"))
+    record = RunRecord(directory)
+    assert record.status() == "failed" and record.failure() == str(err.value)
+    assert (directory / "FAILED").read_text() == f"{err.value}\n" and not (directory / "steps.jsonl").exists()
+    proc = _cli(tmp_path, *overrides)
+    _, stderr = proc.communicate(timeout=600)
+    lines = [line for line in stderr.splitlines() if line.strip() and "cpp_extension" not in line]
+    assert proc.returncode == 1 and lines == [f"error: run {directory} failed: {err.value} (delete it to run it again)"]
+
+
+def test_a_second_writer_of_a_run_is_one_line_and_exit_2(tmp_path):
+    """Two processes on one run directory: the second names the holder and leaves the record alone."""
+    directory = tmp_path / "default" / "random-argmax-none" / "smoke" / "seed_100"
+    with RunLock(directory, root=tmp_path):
+        (directory / "run.json").write_text("{}")  # what a live writer may have half done: untouched
+        proc = _cli(tmp_path, "method=random", "budget.horizon=1")
+        _, stderr = proc.communicate(timeout=600)
+        holder = (directory / LOCK_FILE).read_text().strip()
+    lines = [line for line in stderr.splitlines() if line.strip() and "cpp_extension" not in line]
+    assert proc.returncode == 2 and len(lines) == 1, stderr
+    assert lines[0].startswith(f"error: run {directory} is being written by {holder}")
+    assert (directory / "run.json").read_text() == "{}"
+
+
+def test_a_malformed_record_is_refused_before_any_work(tmp_path):
+    """Rows left without their run.json are never adopted by a new run (they could be another run's)."""
+    directory = tmp_path / "default" / "random-argmax-none" / "smoke" / "seed_100"
+    directory.mkdir(parents=True)
+    (directory / "steps.jsonl").write_text('{"step": 0, "status": "ok"}\n')
+    with pytest.raises(RecordError, match=r"seed_100: steps.jsonl without run.json, so the settings .* unknown"):
+        run_episode(_cfg(tmp_path, "method=random", "budget.horizon=1"))
+    assert sorted(p.name for p in directory.iterdir()) == ["steps.jsonl"]
+
+
+def _sweep_lines(stderr: str) -> list[str]:
+    return [line for line in stderr.splitlines() if line.startswith(("sweep: ", "failed: job "))]
+
+
+# random trains the backbone only; NVF's visibility head at lr 1e3 collapses (BCE 0.69 -> ~1e23)
+SWEEP = ("-m", "method=random,nvf", "budget.horizon=1", "train.visibility.lr=1e3")
+
+
+def _check_sweep(tmp_path: Path, proc: subprocess.Popen) -> None:
+    """Job 0 (random) finishes, job 1 (nvf) collapses: exit 1, the summary, a DONE and a FAILED record."""
+    out, err = proc.communicate(timeout=900)
+    assert proc.returncode == 1, err
+    lines = _sweep_lines(out + err)
+    assert lines[0] == "sweep: 2 jobs: 1 done, 0 skipped, 1 failed", out + err
+    assert len(lines) == 2 and lines[1].startswith("failed: job 1 (") and "method=nvf" in lines[1]
+    assert "): step 0: visibility stage collapsed at iteration 4: mean loss " in lines[1]
+    records = {d.parts[-3].split("-")[0]: RunRecord(d) for d in tmp_path.glob("*/*/*/seed_*")}
+    assert {method: r.status() for method, r in records.items()} == {"random": "done", "nvf": "failed"}
+    assert records["nvf"].failure() in lines[1]
+
+
+def test_a_sweep_with_a_failed_job_exits_nonzero_with_a_summary(tmp_path):
+    """The basic launcher: every job runs; the failure is recorded, listed with its reason, and the
+    sweep's exit status is 1 (it was 0 with 21 of 21 jobs failed)."""
+    _check_sweep(tmp_path, _cli(tmp_path, *SWEEP))
+
+
+@pytest.mark.slow
+def test_a_joblib_sweep_with_a_failed_job_exits_nonzero_with_a_summary(tmp_path):
+    """The same sweep with two joblib workers: the reports come back from other processes."""
+    _check_sweep(tmp_path, _cli(tmp_path, *SWEEP, "hydra/launcher=joblib", "hydra.launcher.n_jobs=2"))
 
 
 def test_an_episode_with_a_scorer_saves_its_score_map(tmp_path):
-    directory = run_episode(_cfg(tmp_path, "method=wd", "budget.horizon=1", "train.backbone.iters=2"))
+    directory = run_episode(_cfg(tmp_path, "method=wd", "budget.horizon=1", "train.backbone.iters=2")).directory
     assert RunRecord(directory).is_done()
     assert {"step_00_pred.png", "step_00_score.png"} <= {p.name for p in (directory / "images").iterdir()}
 
@@ -98,10 +201,10 @@ def test_sigkill_mid_step_resumes_with_the_same_poses(tmp_path):
 def test_missing_mesh_is_one_line_and_nonzero(tmp_path):
     proc = _cli(tmp_path, "scene=lego", f"paths.assets={tmp_path / 'nowhere'}")
     out, err = proc.communicate(timeout=300)
-    assert proc.returncode != 0
-    lines = [line for line in err.splitlines() if line.strip()]
+    assert proc.returncode == 2
+    lines = [line for line in err.splitlines() if line.strip() and "cpp_extension" not in line]
     assert len(lines) == 1 and "lego" in lines[0] and "Traceback" not in err
-    assert not any(tmp_path.glob("lego/*/*/seed_*/steps.jsonl"))
+    assert not (tmp_path / "lego").exists()  # refused before the record started: no run directory left
 
 
 @pytest.mark.parametrize(
@@ -116,7 +219,7 @@ def test_a_config_hydra_cannot_compose_is_one_line(tmp_path, override, expected)
     proc = _cli(tmp_path, override)
     _, err = proc.communicate(timeout=300)
     lines = [line for line in err.splitlines() if line.strip()]
-    assert proc.returncode == 1 and len(lines) == 1 and lines[0].startswith("error: "), err
+    assert proc.returncode == 2 and len(lines) == 1 and lines[0].startswith("error: "), err
     assert all(word in lines[0] for word in expected) and "search path" not in lines[0]
     assert not any(tmp_path.iterdir())
 
@@ -124,8 +227,19 @@ def test_a_config_hydra_cannot_compose_is_one_line(tmp_path, override, expected)
 def test_impossible_value_names_the_key(tmp_path):
     proc = _cli(tmp_path, "planner.num_candidates=-3")
     _, err = proc.communicate(timeout=300)
-    assert proc.returncode != 0
+    assert proc.returncode == 2
     assert "planner.num_candidates" in err and "Traceback" not in err
+
+
+def test_an_outputs_path_that_is_a_file_is_one_line_before_anything_is_written(tmp_path):
+    """Checked before Hydra creates its own directory under paths.outputs (a traceback before)."""
+    a_file = tmp_path / "outputs"
+    a_file.write_text("not a directory")
+    proc = _cli(tmp_path, f"paths.outputs={a_file}")
+    _, err = proc.communicate(timeout=300)
+    lines = [line for line in err.splitlines() if line.strip() and "cpp_extension" not in line]
+    assert proc.returncode == 2 and lines == [f"error: paths.outputs={a_file} is a file, not a directory; pass paths.outputs=DIR"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["outputs"] and a_file.read_text() == "not a directory"
 
 
 @pytest.mark.parametrize("samples", [1, 2])
@@ -147,3 +261,42 @@ def test_ground_truth_has_budget_gt_samples_per_pixel(tmp_path, samples):
     at_centres = np.stack([np.concatenate([v.rgb, v.mask[..., None].astype(np.float32)], -1) for v in centre])
     assert np.array_equal(images, at_centres) == (samples == 1)  # supersampling changes the edge pixels
     assert all(np.array_equal(ids, v.face_id) for ids, v in zip(episode.face_ids, centre, strict=True))  # Vis.
+
+
+@pytest.mark.slow
+def test_a_sweep_through_the_submitit_local_launcher(tmp_path):
+    """Hydra's submitit launcher on this machine (a real submitit executor, the code path of
+    submitit_slurm): two smoke jobs run as submitit jobs, report back and are summarised."""
+    proc = _cli(
+        tmp_path, "-m", "method=random,wd", "budget.horizon=1", "hydra/launcher=submitit_local",
+        f"hydra.launcher.submitit_folder={tmp_path / 'submitit'}", "hydra.launcher.timeout_min=20",
+    )  # fmt: skip
+    out, err = proc.communicate(timeout=1500)
+    assert proc.returncode == 0, err
+    assert _sweep_lines(out + err) == ["sweep: 2 jobs: 2 done, 0 skipped, 0 failed"]
+    directories = sorted(tmp_path.glob("default/*/smoke/seed_100"))
+    assert [d.parts[-3] for d in directories] == ["random-argmax-none", "wd-argmax-none"]
+    for directory in directories:
+        info, rows = verified(RunRecord(directory))
+        assert info["status"] == "done" and len(rows) == 1
+        assert_metrics_in_range(rows[0]["metrics"])
+    assert list((tmp_path / "submitit").rglob("*_result.pkl"))  # submitit's own job results
+
+
+CUDA = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device: torch.cuda.is_available() is False")
+
+
+@pytest.mark.cuda
+@CUDA
+@pytest.mark.parametrize("planner", ["argmax", "opt"])
+def test_a_smoke_episode_on_cuda(tmp_path, planner):
+    """The GPU path end to end: training, evaluation, planning (and -OPT's gradients) with ``device=cuda``,
+    recorded as a CUDA run that verifies, with every metric finite and in range. (Not compared with a
+    CPU run: the seeded generators live on the device, so the two draw different batches.)"""
+    directory = run_episode(_cfg(tmp_path, "method=nvf", f"planner={planner}", "budget.horizon=2", "device=cuda")).directory
+    info, rows = verified(RunRecord(directory))
+    assert info["status"] == "done" and info["device"].startswith("cuda") and len(rows) == 2
+    for row in rows:
+        assert_metrics_in_range(row["metrics"])
+        assert all(math.isfinite(v) for v in row["selected_pose"])
+    assert all(("opt" in row) == (planner == "opt") for row in rows)  # -OPT recorded its refinement

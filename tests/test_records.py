@@ -1,18 +1,43 @@
-"""pipeline/records/store.py: run directories, atomic run.json / steps.jsonl, resume, DONE and FAILED markers."""
+"""pipeline/records: run directories, atomic run.json / steps.jsonl, resume, DONE and FAILED markers, the
+writer lock, verification on read and the legacy defaults of keys added after records were written."""
 
+import hashlib
 import json
 import math
+import os
 import re
+import signal
+import stat
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from nvf.cameras import Intrinsics
-from pipeline.records.store import RunRecord, check_key, read_steps, run_dir, to_jsonable
-from pipeline.repo import REPO
+from pipeline.config.named import NamedConfigs
+from pipeline.config.schema import register_configs
+from pipeline.records.compat import LEGACY_DEFAULTS, with_legacy_defaults
+from pipeline.records.lock import LOCK_FILE, RunLock, RunLocked
+from pipeline.records.store import (
+    DIGEST_KEY,
+    IDENTITY_KEYS,
+    RecordError,
+    RunRecord,
+    atomic_write_text,
+    check_key,
+    read_steps,
+    run_dir,
+    run_difference,
+    temp_file,
+    to_jsonable,
+)
+from pipeline.records.verify import verified
+from pipeline.repo import CONF, REPO
 
 
 def _info(**overrides) -> dict:
@@ -33,7 +58,8 @@ def _info(**overrides) -> dict:
 
 
 def _row(step: int, psnr: float = 20.0) -> dict:
-    return {"step": step, "n_views": 3 + step, "status": "ok", "metrics": {"psnr": psnr, "lpips": None}}
+    metrics = {"psnr": psnr, "lpips": None}
+    return {"step": step, "n_views": 3 + step, "status": "ok", "metrics": metrics, "selected_pose": [0.0, 0, 0, 1, 0, 0, 2]}
 
 
 def _started(tmp_path: Path) -> RunRecord:
@@ -188,3 +214,219 @@ def test_failed_record(tmp_path):
 def test_finish_before_start_is_an_error(tmp_path):
     with pytest.raises(ValueError, match="call start"):
         RunRecord(tmp_path / "x").mark_done()
+
+
+# ------------------------------------------------------------------------- one writer per run
+
+
+def test_a_second_writer_is_refused_naming_the_holder(tmp_path):
+    directory = tmp_path / "out" / "lego_proxy" / "nvf-argmax-none" / "smoke" / "seed_100"
+    with RunLock(directory, root=tmp_path / "out"):
+        holder = (directory / LOCK_FILE).read_text()
+        assert re.fullmatch(rf"host \S+ pid {os.getpid()} started \S+\n", holder)
+        with pytest.raises(RunLocked, match=rf"run {directory} is being written by host \S+ pid {os.getpid()} started"):
+            with RunLock(directory, root=tmp_path / "out"):
+                pass
+    assert not (tmp_path / "out" / "lego_proxy").exists()  # nothing was written: no trace left
+    assert (tmp_path / "out").is_dir()
+    with RunLock(directory, root=tmp_path / "out"):  # released: the next writer gets it
+        (directory / "run.json").write_text("{}")
+    assert [p.name for p in directory.iterdir()] == ["run.json"]  # the lock file goes, the record stays
+
+
+def test_the_lock_dies_with_its_process(tmp_path):
+    """A writer killed with SIGKILL releases its lock (the kernel does): the run can be resumed."""
+    code = (
+        "import sys, time; from pathlib import Path; from pipeline.records.lock import RunLock\n"
+        f"with RunLock(Path({str(tmp_path)!r})):\n    print('locked', flush=True); time.sleep(600)\n"
+    )
+    holder = subprocess.Popen([sys.executable, "-c", code], cwd=REPO, stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        with pytest.raises(RunLocked, match=f"pid {holder.pid} "):
+            with RunLock(tmp_path):
+                pass
+    finally:
+        holder.send_signal(signal.SIGKILL)
+        holder.wait()
+    with RunLock(tmp_path):
+        assert f"pid {os.getpid()} " in (tmp_path / LOCK_FILE).read_text()
+
+
+def test_temp_files_are_per_writer_and_only_the_records_own_are_cleaned(tmp_path):
+    record = _started(tmp_path)
+    stale = record.directory / ".steps.jsonl.4242.deadbeef.tmp"  # a killed write of this run
+    other = record.directory / ".summary.md.4243.cafebabe.tmp"  # someone else's file in the directory
+    stale.write_text('{"step": 0')
+    other.write_text("# half a summary")
+    fd, tmp = temp_file(record.run_json)
+    os.close(fd)
+    assert tmp.name.startswith(f".run.json.{os.getpid()}.") and tmp.name.endswith(".tmp")
+    assert temp_file(record.run_json)[1] != tmp  # unique per call
+    record.start(_info(), repo=tmp_path)
+    assert not stale.exists() and other.exists()
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o027])
+def test_written_files_follow_the_umask(tmp_path, umask):
+    previous = os.umask(umask)
+    try:
+        atomic_write_text(tmp_path / "a.txt", "x")
+    finally:
+        os.umask(previous)
+    assert stat.S_IMODE((tmp_path / "a.txt").stat().st_mode) == 0o666 & ~umask
+
+
+# -------------------------------------------------------------------------------- verify on read
+
+HORIZON = 3
+
+
+def _finished(tmp_path: Path, rows: int = HORIZON) -> RunRecord:
+    record = RunRecord(run_dir(tmp_path, "lego_proxy", "nvf", "argmax", "none", "smoke", 100))
+    record.start(_info(config={"budget": {"horizon": HORIZON}, "seed": 100}), repo=tmp_path)
+    for step in range(rows):
+        record.append_step(_row(step))
+    record.mark_done()
+    return record
+
+
+def _lines(record: RunRecord) -> list[str]:
+    return record.steps_path.read_text().splitlines(keepends=True)
+
+
+def test_a_finished_record_verifies_and_carries_the_digest_of_its_rows(tmp_path):
+    record = _finished(tmp_path)
+    info, rows = verified(record)
+    assert info[DIGEST_KEY] == "sha256:" + hashlib.sha256(record.steps_path.read_bytes()).hexdigest()
+    assert [r["step"] for r in rows] == [0, 1, 2]
+    assert verified(RunRecord(tmp_path / "nothing")) == ({}, [])
+
+
+def _lost_last_line(record):
+    record.steps_path.write_text("".join(_lines(record)[:-1]))
+
+
+def _changed_value(record):
+    record.steps_path.write_text(record.steps_path.read_text().replace('"psnr":20.0', '"psnr":30.0', 1))
+
+
+def _run_json_deleted(record):
+    record.run_json.unlink()
+
+
+def _run_json_and_rows_deleted(record):
+    record.run_json.unlink()
+    record.steps_path.unlink()
+
+
+def _run_json_a_list(record):
+    record.run_json.write_text("[1, 2]")
+
+
+def _first_row_is_step_1_only(record):
+    record.steps_path.write_text('{"step": 1}\n' + "".join(_lines(record)[1:]))
+
+
+def _nan_pose(record):
+    record.steps_path.write_text(record.steps_path.read_text().replace('"selected_pose":[0.0', '"selected_pose":[null', 1))
+
+
+def _missing_middle_row(record):
+    lines = _lines(record)
+    record.steps_path.write_text(lines[0] + lines[2])
+
+
+def _seed_not_an_integer(record):
+    info = json.loads(record.run_json.read_text())
+    record.run_json.write_text(json.dumps({**info, "seed": "100"}))
+
+
+MALFORMED = [
+    (_lost_last_line, r"steps.jsonl: 2 rows, but the run is marked done with a horizon of 3 steps"),
+    (_changed_value, r"steps.jsonl: differs from the digest run.json took when the run finished"),
+    (_run_json_deleted, r"seed_100: steps.jsonl and DONE without run.json, so the settings .* are unknown"),
+    (_run_json_and_rows_deleted, r"seed_100: DONE without run.json"),
+    (_run_json_a_list, r"run.json: a JSON list, not an object"),
+    (_first_row_is_step_1_only, r"steps.jsonl: line 1 holds step 1, expected step 0"),
+    (_nan_pose, r"steps.jsonl: step 0 has selected_pose=\[None, .*\], not 7 finite numbers"),
+    (_missing_middle_row, r"steps.jsonl: line 2 holds step 2, expected step 1 \(a step is missing or repeated\)"),
+    (_seed_not_an_integer, r"run.json: seed '100' is not a non-negative integer"),
+]
+
+
+@pytest.mark.parametrize(("damage", "problem"), MALFORMED, ids=[d.__name__.strip("_") for d, _ in MALFORMED])
+def test_a_malformed_record_is_one_line_naming_the_file_and_the_problem(tmp_path, damage, problem):
+    """Each way a record went wrong in practice fails verification with one line (never a traceback,
+    never a silently shorter or mixed record)."""
+    record = _finished(tmp_path)
+    damage(record)
+    with pytest.raises(RecordError, match=problem) as err:
+        verified(record)
+    assert "\n" not in str(err.value) and str(record.directory) in str(err.value)
+
+
+def test_rows_without_run_json_are_never_adopted(tmp_path):
+    record = _finished(tmp_path)
+    for marker in ("DONE", "run.json"):
+        (record.directory / marker).unlink()
+    with pytest.raises(RecordError, match="rows without run.json"):
+        record.start(_info(config={"budget": {"horizon": 5}, "seed": 100}), repo=tmp_path)
+
+
+def test_an_unfinished_record_with_a_truncated_last_line_still_verifies(tmp_path):
+    """A kill mid-write is not damage: the complete rows count, and the resume repairs the file."""
+    record = _started(tmp_path)
+    record.append_step(_row(0))
+    with record.steps_path.open("a") as f:
+        f.write('{"step": 1, "n_vi')
+    info, rows = verified(record)
+    assert info["status"] == "running" and [r["step"] for r in rows] == [0]
+
+
+# ------------------------------------------------------------------------ keys added after records
+
+COMMITTED = REPO / "results" / "runs"
+
+
+def test_legacy_defaults_fill_only_keys_the_record_lacks_and_the_other_config_has():
+    now = {"budget": {"gt_samples": 2}, "planner": {"los_source": "mesh", "los_unobserved_free": True},
+           "scene": {"name": "room"}, "train": {"schedule": "paper", "target_samples": 16384}}  # fmt: skip
+    old = {"scene": {"name": "room"}, "train": {"schedule": "paper"}}
+    filled = with_legacy_defaults(old, now)
+    assert filled["budget"]["gt_samples"] == LEGACY_DEFAULTS["budget.gt_samples"] == 1  # made with 1, not 2
+    assert filled["planner"] == {"los_source": "model", "los_unobserved_free": False}  # Room's M29 acted
+    assert filled["train"]["target_samples"] == 16384  # inert with schedule=paper: the same run
+    assert "budget" not in old  # a copy
+    hotdog = with_legacy_defaults({"scene": {"name": "hotdog"}}, now)
+    assert hotdog["planner"] == now["planner"]  # no line-of-sight filter on hotdog: inert
+    assert with_legacy_defaults({"seed": 1}, {"seed": 1}) == {"seed": 1}  # nothing the other has: nothing added
+
+
+def _committed_and_today(relative: str, overrides: list[str]) -> tuple[dict, dict]:
+    run_json = COMMITTED / relative / "run.json"
+    if not run_json.is_file():
+        pytest.skip(f"{run_json} is not in this checkout")
+    info = json.loads(run_json.read_text())
+    register_configs()
+    with initialize_config_dir(str(CONF), version_base="1.3"):
+        cfg = compose("config", overrides=overrides)
+    today = {k: info[k] for k in IDENTITY_KEYS} | {"config": OmegaConf.to_container(cfg, resolve=True)}
+    return info, today
+
+
+def test_a_fresh_run_is_the_same_run_as_the_committed_default_scene_record():
+    """The committed default-scene records predate four keys (budget.gt_samples, planner.los_source,
+    planner.los_unobserved_free, train.target_samples): read as the values they were made with, a fresh
+    ``make run`` (default scene, NVF, cpu, seed 100) is the same run, not one with other settings."""
+    info, today = _committed_and_today("default/nvf-argmax-none/cpu/seed_100", ["scene=default", "budget=cpu"])
+    assert "gt_samples" not in info["config"]["budget"] and "los_source" not in info["config"]["planner"]
+    assert run_difference(info, today) is None
+    assert NamedConfigs(CONF).overrides(info) == ()
+
+
+def test_a_committed_room_record_made_before_los_source_reads_as_the_models_line_of_sight():
+    info, today = _committed_and_today("room/random-argmax-none/cpu/seed_100", ["scene=room", "method=random", "budget=cpu"])
+    assert "los_source" not in info["config"]["planner"]
+    assert run_difference(info, today) == 'config.planner.los_source ("model" in the record, "mesh" now)'
+    assert NamedConfigs(CONF).overrides(info) == ("planner.los_source=model",)  # its own budget label in the tables

@@ -1,5 +1,8 @@
 """pipeline/tables/: long CSV, aggregation over seeds at the last step, paper-style tables, figures."""
 
+import os
+import re
+import stat
 import subprocess
 import sys
 from pathlib import Path
@@ -17,23 +20,27 @@ from pipeline.records.store import RunRecord, run_dir
 from pipeline.repo import CONF, REPO
 from pipeline.tables.__main__ import main
 from pipeline.tables.build import build_tables
-from pipeline.tables.figures import image_grid
+from pipeline.tables.figures import image_grid, safe_name
 from pipeline.tables.labels import row_name
 from pipeline.tables.load import LONG_COLUMNS
 from pipeline.tables.summary import summarize_run
 
 METRICS = ("psnr", "ssim", "lpips", "rgb", "acc", "comp", "cr", "vis")
+POSE = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 2.0]
 
 
 def make_run(
     root: Path, scene="hubble", method="nvf", planner="argmax", ablation="none", seed=100, final=None,
-    status="done", lpips_reason=None, steps=2, config=None, source=None, ground_truth=None,
+    status="done", lpips_reason=None, steps=3, config=None, source=None, ground_truth=None,
 ) -> RunRecord:
-    """A synthetic run: `steps` step rows, the last one carrying `final` metric values (others 0)."""
+    """A synthetic run: `steps` step rows (smoke's horizon, 3), the last one carrying `final` metric values
+    (others 0); its config's horizon is `steps` unless `config` sets one."""
     record = RunRecord(run_dir(root, scene, method, planner, ablation, "smoke", seed))
     source = source or ("proxy" if scene.endswith("_proxy") else "mesh")
     keys = {"scene": scene, "method": method, "planner": planner, "ablation": ablation, "budget": "smoke", "seed": seed}
-    info = {**keys, "scene_source": source, "field": "densegrid", "device": "cpu", "config": config or {}}
+    config = dict(config or {})
+    config["budget"] = {"horizon": steps, **config.get("budget", {})}
+    info = {**keys, "scene_source": source, "field": "densegrid", "device": "cpu", "config": config}
     if ground_truth is not None:
         info["ground_truth"] = ground_truth
     info["lpips_missing_reason"] = lpips_reason
@@ -43,7 +50,8 @@ def make_run(
         metrics = {**base, **(final or {})} if step == steps - 1 else {m: 0.0 for m in METRICS}
         if lpips_reason:
             metrics["lpips"] = None
-        record.append_step({"step": step, "n_views": 3 + step, "status": "ok", "metrics": {**metrics, "vis_area": 0.1}})
+        row = {"step": step, "n_views": 3 + step, "status": "ok", "metrics": {**metrics, "vis_area": 0.1}, "selected_pose": POSE}
+        record.append_step(row)
     if status == "done":
         record.mark_done()
     elif status == "failed":
@@ -77,7 +85,7 @@ def test_long_csv_has_exactly_the_columns(tmp_path):
     assert tuple(frame.columns) == LONG_COLUMNS
     assert set(frame["seed"]) == {100}
     assert set(frame["metric"]) == {*METRICS, "vis_area"}
-    assert sorted(set(frame["step"])) == [0, 1] and sorted(set(frame["n_views"])) == [3, 4]
+    assert sorted(set(frame["step"])) == [0, 1, 2] and sorted(set(frame["n_views"])) == [3, 4, 5]
     assert set(frame["scene_source"]) == {"mesh"}
 
 
@@ -109,7 +117,7 @@ def test_aggregation_mean_population_std_best_and_n(tmp_path):
     assert "**0.100 ± 0.000**" in md  # lower LPIPS wins
     assert "**0.0100 ± 0.0000**" in md  # lower RGB wins: Random
     assert "15.00 ± 0.00" in md and "**15.00" not in md
-    assert "Budget: smoke" in md and "hubble (mesh, ground truth pyrender)" in md and "step 1" in md
+    assert "Budget: smoke." in md and "hubble (mesh, ground truth pyrender)" in md and "step 2" in md
     csv = pd.read_csv(tmp_path / "res" / "tables" / "main.csv", comment="#")
     assert list(csv["Method"]) == ["Random", "NVF"] and list(csv["n"]) == [3, 3]
     assert list(csv.columns[2:10]) == ["PSNR↑", "SSIM↑", "LPIPS↓", "RGB↓", "Acc.↓", "Comp.↓", "C.R.↑", "Vis.↑"]
@@ -169,17 +177,25 @@ def test_unfinished_and_failed_runs_are_excluded_and_counted(tmp_path):
     assert "| 1 |" in md.replace("  ", " ").replace("  ", " ")  # n = 1
 
 
-def test_truncated_steps_and_bad_records_do_not_crash(tmp_path):
+def test_truncated_steps_and_bad_records_are_skipped_with_the_reason(tmp_path):
     out = tmp_path / "out"
-    record = make_run(out, seed=100)
-    before = read(record.steps_path) + '{"step": 2, "met'
-    record.steps_path.write_text(before)
+    running = make_run(out, seed=101, status="running")
+    partial = read(running.steps_path) + '{"step": 3, "met'  # a kill mid-write: the rows before it count
+    running.steps_path.write_text(partial)
+    finished = make_run(out, seed=100)
+    changed = read(finished.steps_path) + '{"step": 3, "met'  # a finished record does not grow
+    finished.steps_path.write_text(changed)
     (out / "junk").mkdir()
     (out / "junk" / "run.json").write_text("{not json")
     written, skipped = build_tables(out, [], tmp_path / "res", figures=False)
-    assert read(record.steps_path) == before  # tables never modify run records
-    assert len(skipped) == 1 and "junk" in skipped[0]
-    assert "1 unreadable run record(s) skipped" in read(tmp_path / "res" / "tables" / "main.md")
+    assert read(running.steps_path) == partial and read(finished.steps_path) == changed  # tables never modify records
+    assert len(skipped) == 2
+    assert "truncated last line" in skipped[0] and "of a finished run" in skipped[0] and "seed_100" in skipped[0]
+    assert "junk/run.json: not valid JSON" in skipped[1]
+    assert "2 run record(s) skipped: they fail a check" in read(tmp_path / "res" / "tables" / "main.md")
+    all_runs = read(tmp_path / "res" / "tables" / "all_runs.md")
+    assert all(f"- Skipped run record: {line.split(': ', 1)[1]}." in all_runs for line in skipped)
+    assert "Excluded: 1 unfinished run(s)" in all_runs
 
 
 def test_the_same_run_with_other_settings_is_left_out_and_listed(tmp_path):
@@ -256,7 +272,7 @@ def test_cli_says_when_the_outputs_directory_is_missing(tmp_path, capsys):
 
 
 def test_cli_rejects_unknown_arguments(capsys):
-    assert main(["paths.foo=1"]) == 1
+    assert main(["paths.foo=1"]) == 2
     assert "unknown argument 'paths.foo=1'" in capsys.readouterr().err
 
 
@@ -304,3 +320,69 @@ def test_paper_numbers_means_match_tables_s3_s4():
     assert len(per_scene) == 7
     assert set(paper.loc[paper["table"] == "S3", "scene"]) == {"chair", "drums", "ficus", "hotdog"}
     np.testing.assert_allclose(per_scene.loc[means.index].to_numpy(), means.to_numpy(), rtol=2e-3)
+
+
+def test_a_run_whose_run_json_was_deleted_is_listed_not_dropped(tmp_path):
+    record = make_run(tmp_path / "out", seed=100)
+    record.run_json.unlink()  # DONE and steps.jsonl kept
+    _, skipped = build_tables(tmp_path / "out", [], tmp_path / "res", figures=False)
+    assert skipped == (f"skipped run record: {record.directory}: steps.jsonl and DONE without run.json, so the "
+                       "settings they were made with are unknown; delete the directory",)  # fmt: skip
+
+
+def test_safe_name_keeps_plain_names_and_reduces_the_rest():
+    assert safe_name("cpu+planner.num_candidates=512") == "cpu+planner.num_candidates=512"
+    assert safe_name("lego_proxy") == "lego_proxy"
+    crafted = safe_name("smoke+planner.los_source=/../../x")
+    assert re.fullmatch(r"smoke\+planner\.los_source=_\.\._\.\._x-[0-9a-f]{8}", crafted)
+    assert safe_name("..") != safe_name("__") and "/" not in safe_name("a/b") and not safe_name(".x").startswith(".")
+    assert len(safe_name("k=" + "v" * 500)) == 80 + 9
+
+
+def test_a_crafted_record_cannot_write_outside_the_results_folder(tmp_path):
+    """Records travel (results/runs): a setting's text in a record becomes part of the budget label and
+    of figure names. Every file written stays under paths.results, whatever the record says."""
+    out, results = tmp_path / "a" / "b" / "out", tmp_path / "a" / "b" / "res"
+    named = NamedConfigs(CONF).named(("hubble", "nvf", "argmax", "none", "smoke"))
+    crafted = {**named, "planner": {**named["planner"], "los_source": "/../../x"}, "method": {"name": "nvf/../../y"}}
+    record = make_run(out, seed=100, config=crafted)
+    (record.directory / "images").mkdir()
+    iio.imwrite(record.directory / "images" / "step_00_gt.png", np.zeros((8, 8, 3), np.uint8))
+    before = {p for p in tmp_path.rglob("*")}
+    written, _ = build_tables(out, [], results)
+    created = {p for p in tmp_path.rglob("*")} - before
+    assert created and all(p == results or results in p.parents for p in created), sorted(map(str, created))
+    assert all(results in p.parents for p in written)
+    budgets = set(pd.read_csv(results / "runs.csv")["budget"])
+    assert len(budgets) == 1 and "los_source=/../../x" in budgets.pop()  # the label still says what the record holds
+    figures = sorted(p.name for p in (results / "figures").rglob("*.png"))
+    assert len(figures) == 2 and all("/" not in name and not name.startswith(".") for name in figures)
+
+
+def test_written_tables_and_figures_follow_the_umask(tmp_path):
+    make_run(tmp_path / "out", seed=100)
+    previous = os.umask(0o027)
+    try:
+        written, _ = build_tables(tmp_path / "out", [], tmp_path / "res")
+    finally:
+        os.umask(previous)
+    modes = {stat.S_IMODE(path.stat().st_mode) for path in written}
+    assert modes == {0o640}
+
+
+def test_rows_planned_with_the_mesh_line_of_sight_are_marked(tmp_path):
+    """``planner.los_source=mesh`` acts on the collision-free sampler (Room): an oracle the tables mark
+    (‡ and a footnote); on other scenes it has no effect and no mark."""
+    out = tmp_path / "out"
+    mesh = {"planner": {"los_source": "mesh", "collision_free": None}}
+    for seed in (100, 101):
+        make_run(out, scene="room", seed=seed, config=mesh)
+        make_run(out, scene="hubble", seed=seed, config=mesh)
+    make_run(out, scene="room", method="random", seed=100, config={"planner": {"los_source": "model"}})
+    build_tables(out, [], tmp_path / "res", figures=False)
+    md = read(tmp_path / "res" / "tables" / "main.md")
+    table = pd.read_csv(tmp_path / "res" / "tables" / "main.csv", comment="#")
+    assert set(zip(table["Scene"], table["Method"])) == {("room", "NVF‡"), ("hubble", "NVF"), ("room", "Random")}
+    assert md.count("‡") == 2 and "‡ Planned with an oracle: M29's line-of-sight filter used the scene mesh" in md
+    assert r"NVF$^\ddagger$" in read(tmp_path / "res" / "tables" / "main.tex")
+    assert "‡" not in read(tmp_path / "res" / "tables" / "table34_nerf_assets.md")

@@ -198,6 +198,36 @@ def test_backbone_nan_raises_training_diverged():
         train_backbone(tiny_model(), obs, cfg, torch.Generator().manual_seed(0))
 
 
+def _feed(stage: str, losses: list[float]) -> None:
+    recorder = training._Recorder(stage, len(losses), None)
+    for iteration, loss in enumerate(losses):
+        recorder.end_iteration(iteration, loss)
+
+
+def test_collapse_rule_needs_a_full_window_above_four_times_the_lowest_mean_and_the_first_loss():
+    """(documented in ``_Recorder``) The mean of the last 5 losses above 4x the lowest earlier mean and
+    above the first loss."""
+    collapse = [0.01, 0.1, 0.1, 0.1, 0.1]  # lr=1e3 at the smoke budget: 6-16x from iteration 1 on
+    with pytest.raises(TrainingDiverged, match=r"backbone stage collapsed at iteration 4: mean loss 0\.082 .* 8\.2 times"):
+        _feed("backbone", collapse)
+    _feed("backbone", [0.01, 0.1, 0.1, 0.1])  # no full window yet
+    _feed("backbone", [0.01, 0.001, 0.002, 0.001, 0.003, 0.004, 0.002, 0.001, 0.001])  # noise at a low loss: 2.8x
+    _feed("backbone", [0.01, 0.015, 0.02, 0.025, 0.03, 0.035])  # a slow rise: 2.5x, kept
+    _feed("backbone", [0.1, *[0.001] * 4, *[0.02] * 5])  # 4.2x over the lowest mean, but below the first loss
+    _feed("variance", collapse)  # M21 is checked for non-finite values only
+    with pytest.raises(TrainingDiverged, match="visibility stage collapsed"):
+        _feed("visibility", [0.69, 50.0, 50.0, 50.0, 50.0])
+
+
+def test_visibility_stage_with_lr_1e3_collapses(trained):
+    """Stage 3 at lr 1e3: the balanced BCE jumps from 0.69 to ~1e23 at the second iteration; the
+    collapse rule stops the stage at iteration 4 (before: recorded as a finished stage)."""
+    model, obs = trained
+    cfg = tiny_config(visibility=StageBudget(30, 1024, 1e3))
+    with pytest.raises(TrainingDiverged, match=r"visibility stage collapsed at iteration 4: .* lowest earlier mean 0\.69"):
+        train_visibility_head(copy_model(model), obs, cfg, torch.Generator().manual_seed(2))
+
+
 def test_aux_loss_trains_variance_head_only():
     """M25/M27 share stage 1's steps but never change the backbone (stop-gradients)."""
     obs = ball_observations()

@@ -18,6 +18,7 @@ import torch
 from hydra import compose, initialize_config_dir
 
 from pipeline.bench._report import write_report
+from pipeline.config.schema import register_configs
 from pipeline.records.store import RunRecord
 from pipeline.repo import CONF, RESULTS
 from pipeline.episode.runner import run_episode
@@ -39,11 +40,12 @@ def main(argv: list[str]) -> None:
     parser.add_argument("--out", type=Path, default=RESULTS / "bench" / "episode.json", help="JSON report path")
     parser.add_argument("--outputs", type=Path, default=None, help="keep the run records here (default: a temporary directory)")
     args = parser.parse_intermixed_args(argv)
+    register_configs()
     with tempfile.TemporaryDirectory() as tmp, initialize_config_dir(str(CONF), version_base="1.3"):
         outputs = args.outputs.resolve() if args.outputs else Path(tmp)
         cfg = compose("config", overrides=[*args.overrides, f"paths.outputs={outputs}"])
         start = time.perf_counter()
-        directory = run_episode(cfg)
+        directory = run_episode(cfg).directory
         seconds = time.perf_counter() - start
         rows = RunRecord(directory).completed_steps()
     phases = {phase: sum(r["seconds"][phase] for r in rows) for phase in ("train", "eval", "plan")}

@@ -3,8 +3,10 @@ work and raises ``ConfigError`` with one line naming the key; ``compose_config``
 a config outside ``@hydra.main`` (benchmarks, experiments).
 """
 
+import math
 import re
 import sys
+from pathlib import Path
 from typing import Any
 
 import torch
@@ -16,7 +18,9 @@ from nvf.config import STAGES
 from nvf.methods import load_method
 from nvf.precision import PRECISIONS, unsupported_reason
 from pipeline.config.catalog import declared
+from pipeline.config.memory import host_memory, too_large
 from pipeline.config.named import changed_settings
+from pipeline.config.paths import unwritable
 from pipeline.episode.settings import resolve_device
 from pipeline.repo import CONF
 from pipeline.config.schema import register_configs
@@ -87,8 +91,58 @@ def _check_ablation(cfg: DictConfig) -> None:
         )
 
 
+def _non_finite(node: Any, prefix: str = "") -> tuple[str, float] | None:
+    """The first float of a resolved config (dotted key, value) that is NaN or infinite."""
+    if isinstance(node, dict):
+        for key, value in node.items():
+            found = _non_finite(value, f"{prefix}{key}.")
+            if found is not None:
+                return found
+    elif isinstance(node, list):
+        for index, value in enumerate(node):
+            found = _non_finite(value, f"{prefix}{index}.")
+            if found is not None:
+                return found
+    elif isinstance(node, float) and not math.isfinite(node):
+        return prefix.rstrip("."), node
+    return None
+
+
+def _check_finite(cfg: DictConfig) -> None:
+    """Every float of the config (all groups, not a list of keys) is finite."""
+    settings = {k: v for k, v in OmegaConf.to_container(cfg, resolve=True).items() if k != "hydra"}
+    found = _non_finite(settings)
+    if found is not None:
+        raise ConfigError(f"{found[0]}={found[1]} must be a finite number")
+
+
+def check_paths(cfg: DictConfig, keys: tuple[str, ...] = ("paths.outputs",)) -> None:
+    """Each of ``keys`` (directories the run writes in) is, or can be made, a writable directory."""
+    for key in keys:
+        problem = unwritable(key, Path(str(OmegaConf.select(cfg, key))))
+        if problem is not None:
+            raise ConfigError(problem)
+
+
+def _check_memory(cfg: DictConfig) -> None:
+    """The largest allocation of each size key fits the memory it lives in (``pipeline.config.memory``)."""
+    device = str(cfg.device)
+    cuda = torch.cuda.is_available() and device != "cpu"
+    host = host_memory()
+    if cuda:
+        index = int(device.partition(":")[2] or 0)
+        name = f"cuda:{index} ({torch.cuda.get_device_name(index)})"
+        problem = too_large(cfg, host, float(torch.cuda.get_device_properties(index).total_memory), name)
+    else:
+        problem = too_large(cfg, host, host, "this machine")
+    if problem is not None:
+        raise ConfigError(problem)
+
+
 def validate(cfg: DictConfig) -> None:
-    """Reject impossible values before any work starts (one line naming the key)."""
+    """Reject impossible values before any work starts (one line naming the key): choices, finite
+    floats, positive sizes, sizes that fit in memory, a device torch can see and a writable ``paths.outputs``."""
+    _check_finite(cfg)
     for key, choices in _CHOICES.items():
         value = OmegaConf.select(cfg, key)
         if value not in choices:
@@ -133,6 +187,8 @@ def validate(cfg: DictConfig) -> None:
     _check_device(str(cfg.device))
     _check_render(cfg)
     _check_precision(str(cfg.train.precision), str(cfg.device))
+    _check_memory(cfg)
+    check_paths(cfg)
 
 
 def _check_render(cfg: DictConfig) -> None:

@@ -2,7 +2,6 @@
 evaluation view 0), colourised maps, and matplotlib figures saved atomically."""
 
 import os
-import tempfile
 from pathlib import Path
 
 import imageio.v3 as iio
@@ -10,6 +9,8 @@ import matplotlib
 import numpy as np
 from jaxtyping import Float
 from matplotlib.figure import Figure
+
+from pipeline.records.store import temp_file
 
 
 def to_uint8(image: Float[np.ndarray, "H W 3"]) -> np.ndarray:
@@ -39,13 +40,12 @@ def save_step_images(directory: Path, step: int, images: dict[str, np.ndarray]) 
 
 
 def save_figure(fig: Figure, path: Path) -> None:
-    """Save a figure as PNG atomically (temp file + os.replace)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".png", dir=path.parent)
-    os.close(fd)
+    """Save a figure as PNG atomically (a temp file of this writer + os.replace; mode as the umask gives)."""
+    fd, tmp = temp_file(path)
     try:
-        fig.savefig(tmp, format="png")
+        with os.fdopen(fd, "wb") as f:
+            fig.savefig(f, format="png")
         os.replace(tmp, path)
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
         raise

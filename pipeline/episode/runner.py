@@ -1,12 +1,14 @@
 """Run (or resume) one episode into its run record: validate the config, derive the run directory from the
-run's keys, skip a finished run (refusing one that finished with other settings), resume an unfinished
-one at its first missing step, and record every step atomically; a step that cannot complete marks
-the run failed with a one-line reason.
+run's keys, take the run's lock (one writer per run), verify what is recorded there, skip a finished run
+(refusing one that finished with other settings), repeat a failed run's reason, resume an unfinished one
+at its first missing step, and record every step atomically; a step that cannot complete marks the run
+failed with a one-line reason.
 """
 
 import os
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -22,14 +24,28 @@ from pipeline.episode.images import save_step_images
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import resolve_device
 from pipeline.metrics.image import LpipsMetric
+from pipeline.records.lock import RunLock
 from pipeline.records.store import RunRecord, run_dir
+from pipeline.records.verify import verified
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.ground_truth import ground_truth_info
-from pipeline.scenes.scene import Scene, load_scene
+from pipeline.scenes.scene import load_scene
 
 
 class StepFailed(RuntimeError):
-    """A step could not complete; the run is recorded as failed with this one-line reason."""
+    """The run failed (now, or when it last ran); its record holds this one-line reason."""
+
+
+class RunRefused(ValueError):
+    """The run cannot start: its directory holds a record of another run (other settings)."""
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What ``run_episode`` did: ``done`` (ran to its horizon) or ``skipped`` (had finished before)."""
+
+    directory: Path
+    status: str
 
 
 def torch_threads() -> int:
@@ -63,36 +79,51 @@ def run_settings(cfg: DictConfig) -> dict:
     }
 
 
-def run_info(
-    cfg: DictConfig, scene_source: str, device: torch.device, lpips_reason: str | None, ground_truth: dict
-) -> dict:
+def run_info(cfg: DictConfig, episode: Episode, lpips_reason: str | None, ground_truth: dict) -> dict:
     """run.json's content: the run's settings, the scene's source, ``ground_truth`` (backend and asset file:
-    ``pipeline.scenes.ground_truth.ground_truth_info``), device, threads and why LPIPS is missing (if it is)."""
+    ``pipeline.scenes.ground_truth.ground_truth_info``), the resolved collision-free choice, device, threads
+    and why LPIPS is missing (if it is)."""
     return {
         **run_settings(cfg),
-        "scene_source": scene_source,
+        "scene_source": episode.scene.source,
         "ground_truth": ground_truth,
+        "collision_free": episode.settings.collision_free,  # M29's candidate sampler, as resolved for the scene
         "field": cfg.field.kind,
-        "device": str(device),
+        "device": str(episode.device),
         "torch_threads": torch.get_num_threads(),
         "lpips_missing_reason": lpips_reason,
     }
 
 
-def run_episode(cfg: DictConfig) -> Path:
-    """Run (or resume) one episode; returns its run directory."""
+def run_episode(cfg: DictConfig) -> Outcome:
+    """Run (or resume) one episode under its run's lock (``pipeline.records.lock``).
+
+    Raises ``ConfigError`` (a bad value), ``RunLocked`` (another process writes the run), ``RecordError``
+    (its record fails a check), ``RunRefused`` (a record of other settings), ``SceneError`` (the scene
+    cannot load): all before the record starts. ``StepFailed`` once the run failed (recorded as such).
+    """
     validate(cfg)
     directory = record_dir(cfg)
+    with RunLock(directory, root=Path(cfg.paths.outputs)):
+        return _run_locked(cfg, directory)
+
+
+def _run_locked(cfg: DictConfig, directory: Path) -> Outcome:
     record = RunRecord(directory)
-    if record.is_done():
-        changed = record.difference(run_settings(cfg))
-        if changed is not None:
-            raise ValueError(
-                f"run {directory} finished with a different {changed}; "
-                "pass paths.outputs=DIR to record this run elsewhere, or delete that run to replace it"
-            )
+    previous, _ = verified(record)
+    status = record.status()
+    changed = record.difference(run_settings(cfg)) if previous else None
+    if changed is not None:
+        verb = {"done": "finished", "failed": "failed"}.get(status, "was started")
+        raise RunRefused(
+            f"run {directory} {verb} with a different {changed}; "
+            "pass paths.outputs=DIR to record this run elsewhere, or delete that run to replace it"
+        )
+    if status == "done":
         print(f"skipping finished run {directory}")
-        return directory
+        return Outcome(directory, "skipped")
+    if status == "failed":
+        raise StepFailed(f"run {directory} failed: {record.failure()} (delete it to run it again)")
     torch.set_num_threads(torch_threads())
     torch.manual_seed(int(cfg.seed))
     np.random.seed(int(cfg.seed) % 2**32)
@@ -101,25 +132,39 @@ def run_episode(cfg: DictConfig) -> Path:
     lpips = LpipsMetric()
     episode = Episode(cfg, scene, device, lpips)
     try:
-        return _run_steps(cfg, directory, record, episode, scene, device, lpips)
+        return _run_steps(cfg, directory, record, episode, lpips)
     finally:
         episode.close()
 
 
-def _run_steps(
-    cfg: DictConfig, directory: Path, record: RunRecord, episode: Episode, scene: Scene, device: torch.device,
-    lpips: LpipsMetric,
-) -> Path:
-    """Record and run the steps of ``episode`` not yet in ``record``; returns the run directory."""
+def _run_steps(cfg: DictConfig, directory: Path, record: RunRecord, episode: Episode, lpips: LpipsMetric) -> Outcome:
+    """Record and run the steps of ``episode`` not yet in ``record``."""
     done_rows = record.completed_steps()
-    ground_truth = ground_truth_info(scene, episode.renderer, Path(cfg.paths.assets))
-    record.start(run_info(cfg, scene.source, device, lpips.missing, ground_truth))
-    episode.replay(done_rows)
+    ground_truth = ground_truth_info(episode.scene, episode.renderer, Path(cfg.paths.assets))
+    record.start(run_info(cfg, episode, lpips.missing, ground_truth))
+    try:
+        episode.replay(done_rows)
+        if done_rows:
+            print(f"resuming {directory} at step {len(done_rows)} of {int(cfg.budget.horizon)}")
+        _record_steps(cfg, directory, episode, record, len(done_rows))
+    except (TrainingDiverged, NoCandidatesError, FloatingPointError) as err:
+        reason = f"step {len(record.completed_steps())}: {err}"
+        record.mark_failed(reason)
+        raise StepFailed(reason) from None
+    except OSError:  # writing the record itself failed: left unfinished, to resume
+        raise
+    except Exception as err:  # an unexpected error: recorded, then raised with its traceback
+        record.mark_failed(f"step {len(record.completed_steps())}: {type(err).__name__}: {' '.join(str(err).split())}")
+        raise
+    record.mark_done()
+    return Outcome(directory, "done")
+
+
+def _record_steps(cfg: DictConfig, directory: Path, episode: Episode, record: RunRecord, first: int) -> None:
+    """Steps ``first`` .. horizon - 1, each row (and the step's images) written once the step is complete."""
     horizon = int(cfg.budget.horizon)
-    if done_rows:
-        print(f"resuming {directory} at step {len(done_rows)} of {horizon}")
     interactive = sys.stderr.isatty()
-    steps = tqdm(range(len(done_rows), horizon), desc="steps", unit="step", disable=not interactive, initial=len(done_rows), total=horizon)
+    steps = tqdm(range(first, horizon), desc="steps", unit="step", disable=not interactive, initial=first, total=horizon)
     inner = tqdm(desc="train", unit="it", leave=False, disable=not interactive)
 
     def on_train(stage: str, iteration: int, total: int, loss: float) -> None:
@@ -132,12 +177,7 @@ def _run_steps(
 
     for step in steps:
         start = time.perf_counter()
-        try:
-            row, images = episode.step(step, on_train)
-        except (TrainingDiverged, NoCandidatesError, FloatingPointError) as err:
-            reason = f"step {step}: {err}"
-            record.mark_failed(reason)
-            raise StepFailed(reason) from None
+        row, images = episode.step(step, on_train)
         if cfg.save_images:
             save_step_images(directory / "images", step, images)
         record.append_step(row)
@@ -149,5 +189,3 @@ def _run_steps(
             print(f"[{cfg.scene.name}/{cfg.method.name}] {message}", flush=True)
     inner.close()
     steps.close()
-    record.mark_done()
-    return directory

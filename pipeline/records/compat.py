@@ -1,18 +1,107 @@
-"""Reading records made by older code: config keys the schema no longer has, and what each stood for.
+"""Reading records made by older code: keys added to the config after them, keys the config no longer has,
+and the groups that are not settings at all.
 
-A retired key is dropped from a record's config before it is compared with today's settings (resume,
-tables), because its value is implied by keys that remain: it never makes an old record "a different run".
+A record written before a key was added to the config was made with the behaviour the key's default
+then reproduced. ``LEGACY_DEFAULTS`` holds that value for every such key (one place: the resume check,
+``pipeline.records.store.run_difference``, and the tables, ``pipeline.config.named``, both read it),
+so an old record is never "a different run" over a key it could not hold. Add a key here when adding
+it to the config changes what old records would be compared against.
+
+Some keys act only under other settings (``ACTS_WHEN``). Where a record lacks such a key and the key
+could not have acted in that run, the run is the same whatever its value: the record takes the value
+of the config it is compared with. The data of a named option (``DEFINED_BY_NAME``: a method's label and
+class, a scene's boxes and views) is what its name stood for: a record lacking such a key takes the
+other config's value when both name the same option.
+
+A retired key (``RETIRED_KEYS``) is dropped before records are compared: its value is implied by keys that
+remain. ``NOT_SETTINGS`` are config groups that never change a run's views or metrics.
 """
 
-from collections.abc import Mapping
+import copy
+from collections.abc import Callable, Mapping
 from typing import Any
 
-# what never changes a run's views or metrics (added measurements, whether images are saved): not part of its identity
-NOT_SETTINGS = ("diagnostics", "save_images")
+_MISSING = object()
 
+# Room was the only scene with the collision-free candidate sampler (M29) when the keys below were added.
+LEGACY_COLLISION_FREE_SCENES = ("room",)
+
+LEGACY_DEFAULTS: dict[str, Any] = {
+    "budget.gt_samples": 1,  # one ray through each pixel centre of the ground truth
+    "planner.los_source": "model",  # M29's line of sight from the model's density
+    "planner.los_unobserved_free": False,  # M29 read the density as rendered, trained or not
+    "train.target_samples": None,  # schedule=reference took a fixed batch then: no value reproduces it
+    "train.precision": "fp32",  # every MLP in float32
+    "render.backend": "pyrender",  # flat colours, budget.gt_samples^2 rays per pixel
+    "render.samples": None,  # Cycles' samples per pixel: no Cycles then
+}
+DEFINED_BY_NAME = ("method", "ablation", "scene")  # groups whose keys other than name describe the named option
 RETIRED_KEYS = {
     "method.aux_loss": "implied by method.name: a method's stage-1 loss belongs to its class (nvf.methods)",
 }
+# what never changes a run's views or metrics (added measurements, whether images are saved): not part of its identity
+NOT_SETTINGS = ("diagnostics", "save_images")
+
+
+def _get(config: Any, dotted: str) -> Any:
+    node = config
+    for part in dotted.split("."):
+        if not isinstance(node, Mapping) or part not in node:
+            return _MISSING
+        node = node[part]
+    return node
+
+
+def collision_free(info: Mapping) -> bool:
+    """Whether a run's candidates went through M29's line-of-sight filter (the collision-free sampler):
+    run.json's ``collision_free`` where recorded, else ``planner.collision_free``, else (null: the scene's
+    choice) whether the scene was one of ``LEGACY_COLLISION_FREE_SCENES``."""
+    if isinstance(info.get("collision_free"), bool):
+        return info["collision_free"]
+    config = info.get("config")
+    chosen = _get(config, "planner.collision_free")
+    if isinstance(chosen, bool):
+        return chosen
+    return str(info.get("scene", _get(config, "scene.name"))).removesuffix("_proxy") in LEGACY_COLLISION_FREE_SCENES
+
+
+def _config_collision_free(config: Mapping) -> bool:
+    return collision_free({"config": config})
+
+
+ACTS_WHEN: dict[str, Callable[[Mapping], bool]] = {
+    "planner.los_source": _config_collision_free,
+    "planner.los_unobserved_free": _config_collision_free,
+    "train.target_samples": lambda config: _get(config, "train.schedule") == "reference",
+    "render.samples": lambda config: _get(config, "render.backend") == "blender",
+}
+
+
+def with_legacy_defaults(recorded: Any, other: Any) -> Any:
+    """A copy of the ``recorded`` config with every ``LEGACY_DEFAULTS`` key it lacks and ``other`` has
+    filled in: the legacy value, or ``other``'s where the key could not act in the recorded run
+    (``ACTS_WHEN``). Anything but two mappings is returned unchanged."""
+    if not isinstance(recorded, Mapping) or not isinstance(other, Mapping):
+        return recorded
+    filled = copy.deepcopy(dict(recorded))
+    for key, legacy in LEGACY_DEFAULTS.items():
+        theirs = _get(other, key)
+        if theirs is _MISSING or _get(recorded, key) is not _MISSING:
+            continue
+        acts = ACTS_WHEN.get(key)
+        value = theirs if acts is not None and not acts(recorded) else legacy
+        *parents, leaf = key.split(".")
+        node = filled
+        for part in parents:
+            child = node.get(part)
+            node[part] = dict(child) if isinstance(child, Mapping) else {}
+            node = node[part]
+        node[leaf] = value
+    for group in DEFINED_BY_NAME:
+        mine, theirs = filled.get(group), other.get(group)
+        if isinstance(mine, dict) and isinstance(theirs, Mapping) and mine.get("name") == theirs.get("name"):
+            filled[group] = {**theirs, **mine}
+    return filled
 
 
 def drop_retired(config: Any) -> Any:

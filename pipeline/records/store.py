@@ -8,13 +8,14 @@ floats (NaN, inf) are written as ``null``; readers (``pipeline.tables``) read ``
 """
 
 import dataclasses
+import hashlib
 import importlib.metadata
 import json
 import math
 import os
 import re
+import secrets
 import subprocess
-import tempfile
 import warnings
 from collections.abc import Mapping, Sequence
 from datetime import datetime, timezone
@@ -23,7 +24,7 @@ from types import MappingProxyType
 from typing import Any
 
 from pipeline.metrics.info import METRICS
-from pipeline.records.compat import NOT_SETTINGS, drop_retired
+from pipeline.records.compat import NOT_SETTINGS, drop_retired, with_legacy_defaults
 from pipeline.repo import REPO
 
 KEY_PATTERN = re.compile(r"[A-Za-z0-9_.-]+")
@@ -32,6 +33,9 @@ RUN_JSON = "run.json"
 STEPS = "steps.jsonl"
 DONE = "DONE"
 FAILED = "FAILED"
+RECORD_FILES = (RUN_JSON, STEPS, DONE, FAILED)  # written only by the run's lock holder
+TEMP_SUFFIX = ".tmp"
+DIGEST_KEY = "steps_digest"  # run.json: file_digest of steps.jsonl, written when the run finishes
 
 # Distribution names to try per package (the first one installed wins).
 PACKAGES = (
@@ -46,6 +50,10 @@ PACKAGES = (
 )
 
 METRIC_DEFINITIONS = MappingProxyType({m.name: m.definition for m in METRICS.values()})
+
+
+class RecordError(ValueError):
+    """A run record that fails a check; the message is one line naming the file and the problem."""
 
 
 def check_key(name: str, value: object) -> str:
@@ -98,10 +106,24 @@ def atomic_write_text(path: Path, text: str) -> None:
     atomic_write_bytes(path, text.encode("utf-8"))
 
 
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` via a temp file in the same directory, fsync and ``os.replace``."""
+def temp_file(path: Path) -> tuple[int, Path]:
+    """A new, empty temp file beside ``path``, unique to this writer: ``.<name>.<pid>.<random>.tmp``.
+
+    Opened write-only with mode 0o666 less the umask, the mode any new file of this process gets
+    (``tempfile.mkstemp`` would make it 0600). Returns the descriptor and the path."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    while True:
+        tmp = path.parent / f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}{TEMP_SUFFIX}"
+        try:
+            return os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666), tmp
+        except FileExistsError:
+            continue
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` via a temp file of this writer in the same directory (``temp_file``),
+    fsync and ``os.replace``; the file's mode follows the umask."""
+    fd, tmp = temp_file(path)
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
@@ -109,13 +131,18 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
             os.fsync(f.fileno())
         os.replace(tmp, path)
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
         raise
     dir_fd = os.open(path.parent, os.O_RDONLY)
     try:
         os.fsync(dir_fd)
     finally:
         os.close(dir_fd)
+
+
+def file_digest(path: Path) -> str:
+    """``sha256:<hex>`` of a file's bytes."""
+    return "sha256:" + hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def dumps(value: Any) -> str:
@@ -154,11 +181,14 @@ def package_versions() -> dict[str, str | None]:
 def read_steps(path: Path) -> tuple[list[dict], str | None]:
     """Valid rows of a steps.jsonl (read-only) and a note on a dropped truncated/corrupt last line.
 
-    A bad line before the last one is not a kill artifact: ValueError.
+    A bad line before the last one is not a kill artifact: RecordError.
     """
     if not path.is_file():
         return [], None
-    text = path.read_text(encoding="utf-8")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as err:
+        raise RecordError(f"{path}: not UTF-8 text ({err.reason} at byte {err.start}); delete the run") from None
     lines = text.split("\n")
     complete, tail = lines[:-1], lines[-1]  # tail is "" when the file ends with a newline
     rows: list[dict] = []
@@ -166,7 +196,7 @@ def read_steps(path: Path) -> tuple[list[dict], str | None]:
         row = _parse_row(line)
         if row is None:
             if number < len(complete) or tail:
-                raise ValueError(f"{path}: line {number} is corrupt and not the last one; fix or delete the run")
+                raise RecordError(f"{path}: line {number} is corrupt and not the last one; fix or delete the run")
             return rows, f"{path}: dropped a corrupt last line (line {number})"
         rows.append(row)
     if tail:
@@ -213,9 +243,12 @@ def run_difference(
 ) -> str | None:
     """How two run infos differ as runs: ``<key> (<old> <labels[0]>, <new> <labels[1]>)`` for the
     first differing identity key or setting (``config.<dotted key>``; ``paths`` are locations, not
-    settings), or None when both describe the same run."""
-    old = {k: old_info.get(k) for k in IDENTITY_KEYS} | {"config": _comparable(old_info.get("config"))}
-    new = {k: new_info.get(k) for k in IDENTITY_KEYS} | {"config": _comparable(new_info.get("config"))}
+    settings), or None when both describe the same run. A key one config lacks and the other has is
+    read as the value its record was made with (``pipeline.records.compat``)."""
+    old_config, new_config = (to_jsonable(_comparable(info.get("config"))) for info in (old_info, new_info))
+    old_config, new_config = with_legacy_defaults(old_config, new_config), with_legacy_defaults(new_config, old_config)
+    old = {k: old_info.get(k) for k in IDENTITY_KEYS} | {"config": old_config}
+    new = {k: new_info.get(k) for k in IDENTITY_KEYS} | {"config": new_config}
     found = first_difference(to_jsonable(old), to_jsonable(new))
     if found is None:
         return None
@@ -241,13 +274,16 @@ class RunRecord:
         self.steps_path = self.directory / STEPS
 
     def info(self) -> dict:
-        """Contents of run.json ({} when the run has not started)."""
+        """Contents of run.json ({} when the run has not started); RecordError when it is not a JSON object."""
         if not self.run_json.is_file():
             return {}
         try:
-            return json.loads(self.run_json.read_text(encoding="utf-8"))
-        except json.JSONDecodeError as err:
-            raise ValueError(f"{self.run_json} is not valid JSON ({err.msg}); delete the run directory") from None
+            info = json.loads(self.run_json.read_text(encoding="utf-8"))
+        except (json.JSONDecodeError, UnicodeDecodeError) as err:
+            raise RecordError(f"{self.run_json}: not valid JSON ({getattr(err, 'msg', err)})") from None
+        if not isinstance(info, dict):
+            raise RecordError(f"{self.run_json}: a JSON {type(info).__name__}, not an object")
+        return info
 
     def start(self, info: dict, repo: Path | None = None) -> None:
         """Create the directory and write run.json: ``info`` plus git state, versions, definitions, timings.
@@ -255,7 +291,9 @@ class RunRecord:
         ``info`` holds at least the identity keys (scene, method, planner, ablation, budget, seed) and
         ``config``. The config is stored without its ``paths`` group (where files live on this machine,
         not a setting), so records are the same on every machine. Resuming keeps the first start time;
-        a different identity or config (apart from ``paths``) is refused, naming the first differing key.
+        a different identity or config (apart from ``paths``) is refused, naming the first differing key,
+        and so are rows without a run.json (their settings are unknown). The caller holds the run's lock
+        (``pipeline.records.lock``): only it removes the temp files of a killed write.
         """
         missing = [key for key in (*IDENTITY_KEYS, "config") if key not in info]
         if missing:
@@ -263,6 +301,8 @@ class RunRecord:
         if self.status() != "unfinished":
             raise ValueError(f"run {self.directory} is already {self.status()}; delete it to run it again")
         previous = self.info()
+        if not previous and self.steps_path.is_file():
+            raise RecordError(f"{self.steps_path}: rows without run.json (settings unknown); delete {self.directory}")
         now = utc_now()
         timings = {"started": now, "resumed": [], "ended": None}
         if previous:
@@ -272,8 +312,9 @@ class RunRecord:
                 raise ValueError(f"{message}; delete it or restore that setting")
             timings = {**previous.get("timings", timings), "ended": None}
             timings["resumed"] = [*timings.get("resumed", []), now]
-        for stale in self.directory.glob(".*.tmp"):  # temp files of a killed write
-            stale.unlink()
+        for name in RECORD_FILES:  # temp files of a killed write of this run (the caller holds its lock)
+            for stale in self.directory.glob(f".{name}.*{TEMP_SUFFIX}"):
+                stale.unlink(missing_ok=True)
         repo = REPO if repo is None else repo
         record = {
             **info,
@@ -325,8 +366,9 @@ class RunRecord:
 
     def mark_failed(self, reason: str) -> None:
         """Record the run as failed (e.g. a diverged step) with a one-line reason."""
+        reason = " ".join(reason.split())  # one line
         self._finish("failed", {"failure_reason": reason})
-        atomic_write_text(self.directory / FAILED, reason.strip() + "\n")
+        atomic_write_text(self.directory / FAILED, reason + "\n")
 
     def failure(self) -> str | None:
         """The failure reason, or None when the run has not failed."""
@@ -341,9 +383,11 @@ class RunRecord:
         return record_status(self.info(), self.directory)
 
     def _finish(self, status: str, extra: dict) -> None:
+        """run.json's status, end time and the digest of steps.jsonl (``DIGEST_KEY``, none without rows)."""
         info = self.info()
         if not info:
             raise ValueError(f"run {self.directory} has no run.json; call start() first")
         timings = {**info.get("timings", {}), "ended": utc_now()}
-        record = {**info, **extra, "status": status, "timings": timings}
+        digest = file_digest(self.steps_path) if self.steps_path.is_file() else None
+        record = {**info, **extra, "status": status, DIGEST_KEY: digest, "timings": timings}
         atomic_write_text(self.run_json, json.dumps(to_jsonable(record), indent=2, allow_nan=False) + "\n")

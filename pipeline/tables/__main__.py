@@ -9,11 +9,16 @@ over seeds at each run's last step (PROTOCOL.md 3). Step rows store NaN as ``nul
 (``pipeline.records``); it is read back as NaN and footnoted. A run whose recorded settings differ from what
 its named groups give today (``pipeline.config.named``) has them appended to its budget, e.g.
 ``cpu+planner.num_candidates=512``, so it is never averaged or labelled with plain ``cpu`` runs.
+Records are untrusted input: one that fails a check (``pipeline.records.verify``) is skipped and listed
+with the reason, and every record text that becomes part of a file name is reduced to a safe one.
+Rows planned with the scene mesh's line of sight (``planner.los_source=mesh`` on Room) are marked ‡.
+Exit status 2: a bad argument or an unusable ``paths.results`` (nothing written); 1: writing failed.
 """
 
 import sys
 from pathlib import Path
 
+from pipeline.config.paths import unwritable
 from pipeline.tables.build import build_tables
 
 
@@ -35,6 +40,14 @@ def main(argv: list[str]) -> int:
         return 0
     try:
         outputs, results = parse_overrides(argv)
+    except ValueError as err:
+        print(f"pipeline.tables: error: {err}", file=sys.stderr)
+        return 2
+    problem = unwritable("paths.results", results)
+    if problem is not None:
+        print(f"pipeline.tables: error: {problem}", file=sys.stderr)
+        return 2
+    try:
         written, skipped = build_tables(outputs, [results / "runs"], results)
     except (ValueError, OSError) as err:
         print(f"pipeline.tables: error: {str(err).splitlines()[0]}", file=sys.stderr)

@@ -2,6 +2,7 @@
 planner, ablation), the object-scene mean, best values marked, rows in the paper's order, and each
 table's header and footnotes (``SPECS`` says which runs a table takes)."""
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,6 +16,14 @@ from pipeline.metrics.info import PAPER_METRICS
 from pipeline.repo import CONF
 from pipeline.tables.labels import METRIC_KEYS, OBJECT_MEAN
 from pipeline.tables.load import GROUP, Runs
+
+
+MESH_LOS_MARK = "‡"
+MESH_LOS_NOTE = (
+    f"{MESH_LOS_MARK} Planned with an oracle: M29's line-of-sight filter used the scene mesh's exact segment test "
+    "(`planner.los_source=mesh`, the cpu budget's setting, acting on Room's collision-free sampler), not the "
+    "model's transmittance, so the planner knew the true free space (docs/DEVIATIONS.md)."
+)
 
 
 @dataclass(frozen=True)
@@ -41,6 +50,7 @@ def aggregate(final: pd.DataFrame) -> pd.DataFrame:
     rows = []
     for key, group in final.groupby(list(GROUP), sort=False):
         row = {**dict(zip(GROUP, key)), "scene_source": ", ".join(sorted(set(group["scene_source"]))), "n": len(group)}
+        row["mesh_los"] = bool(group["mesh_los"].any())
         for metric in METRIC_KEYS:
             stats = mean_std_valid(group[metric].to_numpy(float))
             row[f"{metric}_mean"], row[f"{metric}_std"], row[f"{metric}_valid"] = stats
@@ -69,7 +79,8 @@ def object_mean(final: pd.DataFrame, runs: Runs) -> tuple[pd.DataFrame, tuple[st
             sources = ", ".join(sorted(set(seed_rows["scene_source"])))
             means = {m: float(seed_rows[m].to_numpy(float).mean()) for m in METRIC_KEYS}
             keys = dict(zip(("budget", "method", "planner", "ablation"), key))
-            per_seed.append({**keys, "scene": OBJECT_MEAN, "seed": seed, "scene_source": sources, **means})
+            oracle = bool(seed_rows["mesh_los"].any())
+            per_seed.append({**keys, "scene": OBJECT_MEAN, "seed": seed, "scene_source": sources, "mesh_los": oracle, **means})
     if not per_seed:
         return pd.DataFrame(), ()
     rows = aggregate(pd.DataFrame(per_seed))
@@ -162,6 +173,8 @@ def _select(final: pd.DataFrame, spec: Spec, runs: Runs) -> pd.DataFrame:
 
 def _notes(selected: pd.DataFrame, done: pd.DataFrame, rows: pd.DataFrame, runs: Runs) -> list[str]:
     notes = []
+    if "mesh_los" in rows and rows["mesh_los"].any():
+        notes.append(MESH_LOS_NOTE)
     valid = rows[[f"{m}_valid" for m in METRIC_KEYS]].to_numpy() if not rows.empty else np.zeros((0, 1))
     if ((valid > 0) & (valid < rows[["n"]].to_numpy())).any():
         notes.append("† some seeds lack this value: the cell averages the others.")
@@ -193,7 +206,10 @@ def _notes(selected: pd.DataFrame, done: pd.DataFrame, rows: pd.DataFrame, runs:
             reason = run["failure_reason"] or "no reason recorded"
             notes.append(f"Failed: {run['scene']} {label} seed {run['seed']} ({run['budget']}): {reason}.")
     if runs.skipped:
-        notes.append(f"{len(runs.skipped)} unreadable run record(s) skipped (listed by `python -m pipeline.tables`).")
+        notes.append(
+            f"{len(runs.skipped)} run record(s) skipped: they fail a check (listed with the reason in all_runs and by "
+            "`python -m pipeline.tables`)."
+        )
     if runs.conflicts:
         notes.append(
             f"{len(runs.conflicts)} run record(s) left out: the same run as a kept record with other settings "
@@ -222,7 +238,15 @@ def _header(done: pd.DataFrame, runs: Runs) -> tuple[str, ...]:
 
 
 def build_table(runs: Runs, spec: Spec) -> Table:
-    """Aggregate the finished runs a spec selects into one Table (rows empty when there are none)."""
+    """Aggregate the finished runs a spec selects into one Table (rows empty when there are none);
+    ``all_runs`` also lists every skipped record with its reason."""
+    table = _build_table(runs, spec)
+    if spec.name != "all_runs" or not runs.skipped:
+        return table
+    return dataclasses.replace(table, notes=(*table.notes, *(f"{line[0].upper()}{line[1:]}." for line in runs.skipped)))
+
+
+def _build_table(runs: Runs, spec: Spec) -> Table:
     selected = _select(runs.final, spec, runs)
     done = selected[selected["status"] == "done"]
     nerf_asset = pd.Series([runs.scene(scene).nerf_asset for scene in done["scene"]], index=done.index, dtype=bool)

@@ -6,7 +6,7 @@ from pathlib import Path
 from pipeline.records.store import atomic_write_text
 from pipeline.tables.aggregate import GROUP, SPECS, build_table
 from pipeline.tables.compare import paper_comparison
-from pipeline.tables.figures import curves, image_grid
+from pipeline.tables.figures import curves, image_grid, safe_name
 from pipeline.tables.load import collect_runs
 from pipeline.tables.render import LABEL_HEADERS, render
 
@@ -37,8 +37,8 @@ def build_tables(
     written += curves(runs, results / "figures")
     done = runs.final[runs.final["status"] == "done"].sort_values("seed")
     for _, run in done.drop_duplicates(list(GROUP)).iterrows():  # one grid per method and scene: lowest seed
-        group = f"{run['method']}-{run['planner']}-{run['ablation']}"
-        name = f"grid_{run['scene']}_{group}_{run['budget']}_seed{run['seed']}.png"
+        group = "-".join(safe_name(run[key]) for key in ("method", "planner", "ablation"))
+        name = f"grid_{safe_name(run['scene'])}_{group}_{safe_name(run['budget'])}_seed{int(run['seed'])}.png"
         grid = image_grid(Path(run["directory"]), results / "figures" / "grids" / name)
         written += [grid] if grid is not None else []
     return written, (*runs.skipped, *runs.conflicts)

@@ -1,6 +1,7 @@
 """Figures from run records: metric-vs-step curves per scene and budget, and a run's image grid (steps x
 GT | prediction | score map | depth)."""
 
+import hashlib
 import re
 from pathlib import Path
 
@@ -14,8 +15,23 @@ from pipeline.metrics.info import PAPER_METRICS
 from pipeline.tables.load import Runs
 
 IMAGE_NAME = re.compile(r"step_(\d+)_(.+)\.png")
+UNSAFE = re.compile(r"[^A-Za-z0-9_.=+-]")
+MAX_NAME_PART = 80
 IMAGE_KINDS = (("gt", "GT"), ("pred", "prediction"), ("score", "score map"), ("entropy", "entropy"), ("depth", "depth"))
 KIND_ORDER = {kind: i for i, (kind, _) in enumerate(IMAGE_KINDS)}
+
+
+def safe_name(text: object) -> str:
+    """``text`` (a string from a run record: untrusted) as a piece of a file name that stays in its
+    directory: characters other than letters, digits and ``_.=+-`` become ``_``, a leading ``.`` too;
+    a changed or over-long text is cut and gets ``-`` and 8 hex digits of its SHA-1, so different
+    texts keep different names."""
+    text = str(text)
+    name = UNSAFE.sub("_", text)
+    name = "_" + name[1:] if name.startswith(".") else name
+    if name == text and len(name) <= MAX_NAME_PART:
+        return name
+    return f"{name[:MAX_NAME_PART]}-{hashlib.sha1(text.encode('utf-8')).hexdigest()[:8]}"
 
 
 def curves(runs: Runs, figures: Path) -> list[Path]:
@@ -44,7 +60,7 @@ def curves(runs: Runs, figures: Path) -> list[Path]:
         if handles:
             fig.legend(handles, labels, loc="upper right")
         fig.suptitle(f"{scene} ({budget} budget)")
-        path = figures / f"curves_{scene}_{budget}.png"
+        path = figures / f"curves_{safe_name(scene)}_{safe_name(budget)}.png"
         save_figure(fig, path)
         written.append(path)
     return written

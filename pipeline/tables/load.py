@@ -13,15 +13,9 @@ from typing import Any
 import pandas as pd
 
 from pipeline.config.named import GROUPS, NamedConfigs
-from pipeline.records.store import (
-    IDENTITY_KEYS,
-    RUN_JSON,
-    STEPS,
-    check_key,
-    read_steps,
-    record_status,
-    run_difference,
-)
+from pipeline.records.compat import collision_free
+from pipeline.records.store import IDENTITY_KEYS, RECORD_FILES, RecordError, RunRecord, run_difference
+from pipeline.records.verify import verified
 from pipeline.repo import CONF
 from pipeline.tables.labels import LAST, MEAN_SCENE, METRIC_KEYS, OBJECT_MEAN, RowName, SceneName, row_name, scene_name
 
@@ -31,7 +25,7 @@ LONG_COLUMNS = (
 )
 FINAL_COLUMNS = (
     *IDENTITY_KEYS, "scene_source", "asset", "ground_truth", "status", "failure_reason", "lpips_missing_reason",
-    "directory", "step", "n_views",
+    "mesh_los", "directory", "step", "n_views",
 )
 GROUP = ("budget", "scene", "method", "planner", "ablation")
 
@@ -51,8 +45,8 @@ def ground_truth_label(info: dict) -> tuple[str, str]:
 @dataclass(frozen=True)
 class Runs:
     """All run records: ``long`` (LONG_COLUMNS, finished runs), ``final`` (one row per run, last-step
-    metrics); ``skipped`` (unreadable records) and ``conflicts`` (records left out because a kept record
-    of the same run has other settings), one line each."""
+    metrics); ``skipped`` (records that fail a check, with the reason) and ``conflicts`` (records left
+    out because a kept record of the same run has other settings), one line each."""
 
     long: pd.DataFrame
     final: pd.DataFrame
@@ -95,41 +89,47 @@ def metric_value(value: object) -> float | None:
 
 
 def load_run(directory: Path) -> tuple[dict, list[dict]]:
-    info = json.loads((directory / RUN_JSON).read_text(encoding="utf-8"))
-    if not isinstance(info, dict):
-        raise ValueError("run.json is not an object")
-    missing = [key for key in IDENTITY_KEYS if key not in info]
-    if missing:
-        raise ValueError(f"run.json lacks {', '.join(missing)}")
-    for key in IDENTITY_KEYS[:-1]:
-        check_key(key, info[key])
-    if not isinstance(info["seed"], int):
-        raise ValueError(f"seed {info['seed']!r} is not an integer")
-    rows, _ = read_steps(directory / STEPS)  # a truncated last line is ignored, never repaired here
+    """run.json and the step rows of a record that passes ``pipeline.records.verify`` (read-only);
+    RecordError (one line naming the file and the problem) otherwise."""
+    info, rows = verified(RunRecord(directory))
+    if not info:
+        raise RecordError(f"{directory}: no run.json")
     return info, rows
 
 
+def used_mesh_line_of_sight(info: dict) -> bool:
+    """Whether the run's candidates were filtered by the scene mesh's exact line of sight (M29 with
+    ``planner.los_source=mesh`` and the collision-free sampler): an oracle, marked in the tables."""
+    config = info.get("config")
+    planner = config.get("planner") if isinstance(config, dict) else None
+    return isinstance(planner, dict) and planner.get("los_source") == "mesh" and collision_free(info)
+
+
+def record_directories(root: Path) -> list[Path]:
+    """Every directory under ``root`` holding a file of a run record (run.json, steps.jsonl, DONE, FAILED)."""
+    if not Path(root).is_dir():
+        return []
+    return sorted({path.parent for name in RECORD_FILES for path in Path(root).rglob(name) if path.is_file()})
+
+
 def collect_runs(roots: list[Path]) -> Runs:
-    """Read every run directory (holding run.json) under ``roots``; a run found twice counts once
+    """Read every run record under ``roots`` (``record_directories``); one that fails a check
+    (``pipeline.records.verify``) is listed in ``skipped`` with the reason. A run found twice counts once
     (a finished copy wins, then the first root). A copy left out with other settings (config) than the
     kept one is listed in ``conflicts``: a table never mixes them silently."""
     records: dict[tuple, dict] = {}
     skipped: list[str] = []
     conflicts: list[str] = []
     for root in roots:
-        for run_json in sorted(Path(root).rglob(RUN_JSON)) if Path(root).is_dir() else []:
-            directory = run_json.parent
+        for directory in record_directories(root):
             try:
                 info, rows = load_run(directory)
             except (ValueError, OSError) as err:
-                skipped.append(f"skipped unreadable run record {directory}: {str(err).splitlines()[0]}")
+                skipped.append(f"skipped run record: {str(err).splitlines()[0]}")
                 continue
             key = tuple(info[k] for k in IDENTITY_KEYS)
-            status = record_status(info, directory)
-            ok = [r for r in rows if r.get("status", "ok") == "ok" and isinstance(r.get("metrics"), dict)]
-            if status == "done" and not ok:
-                status = "empty"
-            record = {"info": info, "rows": ok, "status": status, "directory": directory}
+            status = RunRecord(directory).status()
+            record = {"info": info, "rows": rows, "status": status, "directory": directory}
             if key in records:
                 keep_first = records[key]["status"] == "done" or status != "done"
                 kept, left = (records[key], record) if keep_first else (record, records[key])
@@ -148,9 +148,9 @@ def collect_runs(roots: list[Path]) -> Runs:
     for record in records.values():
         info, rows = record["info"], record["rows"]
         keys = {k: info[k] for k in IDENTITY_KEYS}
-        row, scene = describe(info, named)
-        names.setdefault((info["method"], info["planner"], info["ablation"]), row)
-        scenes.setdefault(info["scene"], scene)
+        row_label, scene_label = describe(info, named)
+        names.setdefault((info["method"], info["planner"], info["ablation"]), row_label)
+        scenes.setdefault(info["scene"], scene_label)
         keys["budget"] = named.budget_label(info)
         source = str(info.get("scene_source", "unknown"))
         asset, ground_truth = ground_truth_label(info)
@@ -163,6 +163,7 @@ def collect_runs(roots: list[Path]) -> Runs:
             "status": record["status"],
             "failure_reason": info.get("failure_reason"),
             "lpips_missing_reason": info.get("lpips_missing_reason") or last.get("lpips_missing_reason"),
+            "mesh_los": used_mesh_line_of_sight(info),
             "directory": str(record["directory"]),
             "step": last.get("step"),
             "n_views": last.get("n_views"),

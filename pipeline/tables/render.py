@@ -1,10 +1,11 @@
 """A ``Table`` as Markdown, CSV and LaTeX texts: cells 'mean ± std' (bold for the best, † where some
-seeds lack the value), header lines and footnotes."""
+seeds lack the value), ‡ after the label of a row planned with the mesh's line of sight, header lines
+and footnotes."""
 
 import pandas as pd
 
 from pipeline.metrics.info import PAPER_METRICS
-from pipeline.tables.aggregate import Table
+from pipeline.tables.aggregate import MESH_LOS_MARK, Table
 
 
 def _cell(row: pd.Series, metric: str, decimals: int) -> str:
@@ -29,7 +30,8 @@ def _grid(table: Table, label_header: str) -> tuple[list[str], list[list[str]]]:
     columns += [f"{m.label}{m.arrow}" for m in PAPER_METRICS] + ["n"]
     cells = []
     for _, row in table.rows.iterrows():
-        line = [str(row[key]) for key in keys] + [row["scene"], row["label"]]
+        label = row["label"] + (MESH_LOS_MARK if row.get("mesh_los", False) else "")
+        line = [str(row[key]) for key in keys] + [row["scene"], label]
         line += [_cell(row, m.name, m.decimals) for m in PAPER_METRICS]
         cells.append(line + [str(int(row["n"]))])
     return columns, cells
@@ -38,7 +40,7 @@ def _grid(table: Table, label_header: str) -> tuple[list[str], list[list[str]]]:
 TEX_SPECIALS = (
     ("\\", r"\textbackslash{}"), ("&", r"\&"), ("%", r"\%"), ("$", r"\$"), ("#", r"\#"), ("_", r"\_"),
     ("{", r"\{"), ("}", r"\}"), ("~", r"\textasciitilde{}"), ("^", r"\textasciicircum{}"),
-    ("±", r"$\pm$"), ("↑", r"$\uparrow$"), ("↓", r"$\downarrow$"), ("†", r"$^\dagger$"),
+    ("±", r"$\pm$"), ("↑", r"$\uparrow$"), ("↓", r"$\downarrow$"), ("†", r"$^\dagger$"), ("‡", r"$^\ddagger$"),
 )
 
 
