@@ -88,6 +88,7 @@ def run_info(cfg: DictConfig, episode: Episode, lpips_reason: str | None, ground
         "scene_source": episode.scene.source,
         "ground_truth": ground_truth,
         "collision_free": episode.settings.collision_free,  # M29's candidate sampler, as resolved for the scene
+        "candidate_filters": episode.scorer is not None or episode.settings.planner.random_filters,  # M28, M29
         "field": cfg.field.kind,
         "device": str(episode.device),
         "torch_threads": torch.get_num_threads(),

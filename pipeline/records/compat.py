@@ -65,13 +65,25 @@ def collision_free(info: Mapping) -> bool:
     return str(info.get("scene", _get(config, "scene.name"))).removesuffix("_proxy") in LEGACY_COLLISION_FREE_SCENES
 
 
-def _config_collision_free(config: Mapping) -> bool:
-    return collision_free({"config": config})
+def line_of_sight_filtered(info: Mapping) -> bool:
+    """Whether M29's line-of-sight filter acted on a run's candidates: the collision-free sampler, and
+    candidates filtered at all: run.json's ``candidate_filters`` where recorded, else by name (Random, the
+    only method without a score before it was recorded, skips the filters unless ``planner.random_filters``,
+    METHOD 12)."""
+    filters = info.get("candidate_filters")
+    if not isinstance(filters, bool):
+        config = info.get("config")
+        filters = _get(config, "method.name") != "random" or _get(config, "planner.random_filters") is True
+    return filters and collision_free(info)
+
+
+def _line_of_sight_filtered(config: Mapping) -> bool:
+    return line_of_sight_filtered({"config": config})
 
 
 ACTS_WHEN: dict[str, Callable[[Mapping], bool]] = {
-    "planner.los_source": _config_collision_free,
-    "planner.los_unobserved_free": _config_collision_free,
+    "planner.los_source": _line_of_sight_filtered,
+    "planner.los_unobserved_free": _line_of_sight_filtered,
     "train.target_samples": lambda config: _get(config, "train.schedule") == "reference",
     "render.samples": lambda config: _get(config, "render.backend") == "blender",
 }

@@ -13,7 +13,7 @@ from typing import Any
 import pandas as pd
 
 from pipeline.config.named import GROUPS, NamedConfigs
-from pipeline.records.compat import collision_free
+from pipeline.records.compat import line_of_sight_filtered
 from pipeline.records.store import IDENTITY_KEYS, RECORD_FILES, RecordError, RunRecord, run_difference
 from pipeline.records.verify import verified
 from pipeline.repo import CONF
@@ -102,7 +102,7 @@ def used_mesh_line_of_sight(info: dict) -> bool:
     ``planner.los_source=mesh`` and the collision-free sampler): an oracle, marked in the tables."""
     config = info.get("config")
     planner = config.get("planner") if isinstance(config, dict) else None
-    return isinstance(planner, dict) and planner.get("los_source") == "mesh" and collision_free(info)
+    return isinstance(planner, dict) and planner.get("los_source") == "mesh" and line_of_sight_filtered(info)
 
 
 def record_directories(root: Path) -> list[Path]:
