@@ -426,7 +426,13 @@ def test_a_fresh_run_is_the_same_run_as_the_committed_default_scene_record():
 
 
 def test_a_committed_room_record_made_before_los_source_reads_as_the_models_line_of_sight():
-    info, today = _committed_and_today("room/random-argmax-none/cpu/seed_100", ["scene=room", "method=random", "budget=cpu"])
+    """WD's Room record made before ``planner.los_source`` existed used the model's line of sight (M29);
+    Random's, of the same time, filtered no candidate (METHOD 12), so the key could not act in it."""
+    relative = "../pilots/room_model_los/room/wd-argmax-none/cpu/seed_100"
+    info, today = _committed_and_today(relative, ["scene=room", "method=wd", "budget=cpu"])
     assert "los_source" not in info["config"]["planner"]
     assert run_difference(info, today) == 'config.planner.los_source ("model" in the record, "mesh" now)'
     assert NamedConfigs(CONF).overrides(info) == ("planner.los_source=model",)  # its own budget label in the tables
+    info, today = _committed_and_today("room/random-argmax-none/cpu/seed_100", ["scene=room", "method=random", "budget=cpu"])
+    assert "los_source" not in info["config"]["planner"]
+    assert run_difference(info, today) is None and NamedConfigs(CONF).overrides(info) == ()
