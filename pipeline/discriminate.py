@@ -1,8 +1,8 @@
 """``python -m pipeline.discriminate [overrides] [--scenes S,..] [--seeds N,..] [--jobs J] [--label NAME]``:
 does a budget tell the methods apart? The paired discrimination experiment of one budget.
 
-For each scene and seed it runs (through ``python -m pipeline.run -m``, one Hydra sweep per group of
-entries, ``hydra/launcher=joblib`` with ``J`` one-thread jobs; finished runs are skipped, so a killed
+For each scene and seed it runs (through ``python -m pipeline.run -m``, scene by scene, one Hydra sweep
+per group of entries, ``hydra/launcher=joblib`` with ``J`` one-thread jobs; finished runs are skipped, so a killed
 experiment resumes) full NVF (recording, at every step, how w/o Vis.'s score ranks the same candidates:
 ``diagnostics.rank_against=wo_vis``), its ablations w/o Vis. and Ind. Rays, and the baselines WD,
 ActiveNeRF and NeurAR. Then, per scene, the paired (same seed) differences of final PSNR and of PSNR
@@ -81,16 +81,21 @@ def budget_label(cfg: DictConfig) -> str:
     return NamedConfigs(CONF).budget_label(info)
 
 
-def sweep_commands(overrides: list[str], scenes: tuple[str, ...], seeds: tuple[int, ...], outputs: Path, jobs: int) -> list[list[str]]:
-    """One ``python -m pipeline.run -m`` per entry group (``SWEEPS``)."""
+def sweep_commands(
+    overrides: list[str], scenes: tuple[str, ...], seeds: tuple[int, ...], outputs: Path, jobs: int
+) -> list[list[str]]:
+    """One ``python -m pipeline.run -m`` per scene and entry group (``SWEEPS``), scene by scene, so that each
+    scene's comparisons are complete before the next scene starts."""
     common = [
-        f"scene={','.join(scenes)}", f"seed={','.join(map(str, seeds))}", f"paths.outputs={outputs}",
-        "save_images=false", "hydra/launcher=joblib", f"hydra.launcher.n_jobs={jobs}", *overrides,
+        f"seed={','.join(map(str, seeds))}", f"paths.outputs={outputs}", "save_images=false",
+        "hydra/launcher=joblib", f"hydra.launcher.n_jobs={jobs}", *overrides,
     ]  # fmt: skip
     commands = []
-    for method, ablation, extra in SWEEPS:
-        command = [sys.executable, "-m", "pipeline.run", "-m", f"method={method}", f"ablation={ablation}", *common]
-        commands.append(command + ([extra] if extra else []))
+    for scene in scenes:
+        for method, ablation, extra in SWEEPS:
+            command = [sys.executable, "-m", "pipeline.run", "-m", f"scene={scene}", f"method={method}",
+                       f"ablation={ablation}", *common]  # fmt: skip
+            commands.append(command + ([extra] if extra else []))
     return commands
 
 
