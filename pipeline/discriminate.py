@@ -87,7 +87,7 @@ def sweep_commands(
     """One ``python -m pipeline.run -m`` per scene and entry group (``SWEEPS``), scene by scene, so that each
     scene's comparisons are complete before the next scene starts."""
     common = [
-        f"seed={','.join(map(str, seeds))}", f"paths.outputs={outputs}", "save_images=false",
+        f"seed={','.join(map(str, seeds))}", f"paths.outputs='{outputs}'", "save_images=false",  # quoted: '=' in labels
         "hydra/launcher=joblib", f"hydra.launcher.n_jobs={jobs}", *overrides,
     ]  # fmt: skip
     commands = []
