@@ -36,6 +36,7 @@ from pipeline.config.named import GROUPS, NamedConfigs
 from pipeline.config.validation import compose_config
 from pipeline.records.store import atomic_write_text
 from pipeline.repo import CONF, REPO
+from pipeline.scenes.scene import SceneError, find_asset, scene_config
 from pipeline.tables.load import collect_runs
 
 SCENES = ("hotdog", "hubble", "default")
@@ -224,6 +225,13 @@ def main(argv: list[str]) -> int:
     out = Path(cfg.paths.results) / "pilots" / "discriminate" / label
     outputs = Path(cfg.paths.outputs) if args.summarize_only else out / "runs"
     if not args.summarize_only:
+        for scene in scenes:  # a missing scene or asset is one line now, not 18 failed jobs later
+            try:
+                cfg_scene = scene_config(scene)
+                if cfg_scene["source"] == "mesh":
+                    find_asset(cfg_scene, Path(cfg.paths.assets))
+            except SceneError as err:
+                fail(str(err))
         out.mkdir(parents=True, exist_ok=True)
         commands = sweep_commands(args.overrides, scenes, seeds, outputs.resolve(), args.jobs)
         atomic_write_text(out / "command.txt", "".join(shlex.join(["python", *c[1:]]) + "\n" for c in commands))
