@@ -23,13 +23,11 @@ import math
 import shlex
 import subprocess
 import sys
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 from omegaconf import DictConfig, OmegaConf
-from scipy import stats
 
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.named import GROUPS, NamedConfigs
@@ -38,6 +36,7 @@ from pipeline.records.store import atomic_write_text
 from pipeline.repo import CONF, REPO
 from pipeline.scenes.scene import SceneError, find_asset, scene_config
 from pipeline.tables.load import collect_runs
+from pipeline.tables.stats import Interval
 
 SCENES = ("hotdog", "hubble", "default")
 SEEDS = (100, 101, 102)
@@ -50,29 +49,6 @@ SWEEPS = (  # (method, ablation, extra override) per Hydra sweep
 )
 COMPARISONS = (("nvf-wo_vis", WO_VIS), ("nvf-ind_rays", IND_RAYS), ("nvf-best_baseline", None))
 SUMMARY_COLUMNS = ("scene", "comparison", "mean_diff", "ci_low", "ci_high", "n", "minutes_per_episode")
-
-
-@dataclass(frozen=True)
-class Interval:
-    """Mean of paired differences with its two-sided 95% Student-t interval over ``n`` seeds."""
-
-    mean: float
-    low: float
-    high: float
-    n: int
-
-    @staticmethod
-    def of(diffs: np.ndarray) -> "Interval":
-        """NaN bounds below two seeds (no spread to estimate)."""
-        diffs = diffs[np.isfinite(diffs)]
-        n = len(diffs)
-        if n == 0:
-            return Interval(math.nan, math.nan, math.nan, 0)
-        mean = float(diffs.mean())
-        if n < 2:
-            return Interval(mean, math.nan, math.nan, n)
-        half = float(stats.t.ppf(0.975, n - 1) * diffs.std(ddof=1) / math.sqrt(n))
-        return Interval(mean, mean - half, mean + half, n)
 
 
 def budget_label(cfg: DictConfig) -> str:

@@ -9,7 +9,8 @@ import pytest
 from scipy import stats
 
 from pipeline import discriminate
-from pipeline.discriminate import SUMMARY_COLUMNS, Interval, compare
+from pipeline.discriminate import SUMMARY_COLUMNS, compare
+from pipeline.tables.stats import Interval
 
 
 def test_interval_is_the_paired_student_t_interval():
