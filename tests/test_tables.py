@@ -126,18 +126,25 @@ def test_aggregation_mean_population_std_best_and_n(tmp_path):
     assert tmp_path / "res" / "figures" / "curves_hubble_smoke.png" in written
 
 
-def test_no_best_is_marked_where_rows_average_different_numbers_of_seeds(tmp_path):
+def test_a_best_is_bold_only_where_its_paired_interval_excludes_every_other_row(tmp_path):
+    """(Issue: significance in every table.) Hubble: NVF's 3 seeds against Random's one seed in common
+    establish nothing (a tie); hotdog: NVF ahead by 1.0, 1.5, 2.0 dB on three seeds (interval [0.26, 2.74])
+    is bold, and Random's PSNR difference to NVF is printed with its interval."""
     out = tmp_path / "out"
     for seed, psnr in zip((100, 101, 102), (20.0, 21.0, 23.0)):
         make_run(out, method="nvf", seed=seed, final={"psnr": psnr})
     make_run(out, method="random", seed=100, final={"psnr": 15.0})
-    make_run(out, method="random", seed=100, scene="hotdog", final={"psnr": 15.0})
-    make_run(out, method="nvf", seed=100, scene="hotdog", final={"psnr": 18.0})
+    for seed, gap in zip((100, 101, 102), (1.0, 1.5, 2.0)):
+        make_run(out, method="random", seed=seed, scene="hotdog", final={"psnr": 15.0})
+        make_run(out, method="nvf", seed=seed, scene="hotdog", final={"psnr": 15.0 + gap})
     build_tables(out, [], tmp_path / "res")
     md = read(tmp_path / "res" / "tables" / "all_runs.md")
-    assert "21.33 ± 1.25" in md and "**21.33" not in md  # hubble: 3 seeds against 1
-    assert "**18.00**" in md  # hotdog: one seed each, comparable
-    assert "No best is marked for hubble (smoke): its rows average different numbers of seeds (n)." in md
+    assert "21.33 ± 1.25≈" in md and "**21.33" not in md and "15.00≈" in md  # hubble: tied
+    assert "**16.50 ± 0.41**" in md  # hotdog: NVF's lead holds on every seed
+    assert "-1.50 [-2.74, -0.26]" in md and "| -5.00 " in md  # one pair: the mean, no interval
+    assert "ΔPSNR vs NVF" in md and "Bold: a scene's best mean" in md
+    tex = read(tmp_path / "res" / "tables" / "all_runs.tex")
+    assert r"$^\approx$" in tex and r"$\Delta$PSNR" in tex
 
 
 def test_every_table_written_and_no_runs_yet(tmp_path):

@@ -16,6 +16,7 @@ from pipeline.metrics.info import PAPER_METRICS
 from pipeline.repo import CONF
 from pipeline.tables.labels import METRIC_KEYS, OBJECT_MEAN
 from pipeline.tables.load import GROUP, Runs
+from pipeline.tables.stats import paired
 
 
 MESH_LOS_MARK = "‡"
@@ -45,6 +46,9 @@ def mean_std_valid(values: Float[np.ndarray, " n"]) -> tuple[float, float, int]:
     return float(valid.mean()), float(valid.std()), int(valid.size)  # population std (ddof 0)
 
 
+Samples = dict[tuple, pd.DataFrame]  # a row's GROUP key -> its metric values, one row per seed (or seed and scene)
+
+
 def aggregate(final: pd.DataFrame) -> pd.DataFrame:
     """Mean, population std and count of valid values per metric over the seeds of each GROUP."""
     rows = []
@@ -58,14 +62,20 @@ def aggregate(final: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def object_mean(final: pd.DataFrame, runs: Runs) -> tuple[pd.DataFrame, tuple[str, ...]]:
+def seed_samples(final: pd.DataFrame) -> Samples:
+    """Each GROUP's metric values indexed by seed: what a paired comparison pairs."""
+    return {key: group.set_index("seed")[list(METRIC_KEYS)] for key, group in final.groupby(list(GROUP), sort=False)}
+
+
+def object_mean(final: pd.DataFrame, runs: Runs) -> tuple[pd.DataFrame, tuple[str, ...], Samples]:
     """Per seed, the mean over the object scenes of each method (a NaN stays NaN); then over seeds.
 
     Seeds lacking one of the method's scenes are left out. Returns the aggregated rows (scene =
-    OBJECT_MEAN, ``scene_count`` = scenes averaged) and notes naming the scenes averaged and the seeds left out.
+    OBJECT_MEAN, ``scene_count`` = scenes averaged), notes naming the scenes averaged and the seeds left
+    out, and each row's samples indexed by (seed, scene): a mean over scenes is compared over those pairs.
     """
     objects = final[np.array([runs.scene(scene).nerf_asset for scene in final["scene"]], dtype=bool)]
-    per_seed, coverage, counts = [], {}, {}
+    per_seed, coverage, counts, samples = [], {}, {}, {}
     for key, group in objects.groupby(["budget", "method", "planner", "ablation"], sort=False):
         scenes = sorted(set(group["scene"]), key=lambda scene: runs.scene(scene).order)
         counts[key] = len(scenes)
@@ -75,6 +85,7 @@ def object_mean(final: pd.DataFrame, runs: Runs) -> tuple[pd.DataFrame, tuple[st
         if dropped:
             text += f", seeds {', '.join(map(str, dropped))} left out (missing scenes)"
         coverage.setdefault(text, []).append(f"{runs.row(*key[1:]).label} ({key[0]})")
+        samples[(key[0], OBJECT_MEAN, *key[1:])] = complete.set_index(["seed", "scene"])[list(METRIC_KEYS)]
         for seed, seed_rows in complete.groupby("seed"):
             sources = ", ".join(sorted(set(seed_rows["scene_source"])))
             means = {m: float(seed_rows[m].to_numpy(float).mean()) for m in METRIC_KEYS}
@@ -82,31 +93,59 @@ def object_mean(final: pd.DataFrame, runs: Runs) -> tuple[pd.DataFrame, tuple[st
             oracle = bool(seed_rows["mesh_los"].any())
             per_seed.append({**keys, "scene": OBJECT_MEAN, "seed": seed, "scene_source": sources, "mesh_los": oracle, **means})
     if not per_seed:
-        return pd.DataFrame(), ()
+        return pd.DataFrame(), (), {}
     rows = aggregate(pd.DataFrame(per_seed))
     keys = zip(rows["budget"], rows["method"], rows["planner"], rows["ablation"])
     rows["scene_count"] = [counts[key] for key in keys]
     if len(coverage) == 1:
-        return rows, (f"{next(iter(coverage))} for every row",)
-    return rows, tuple(f"{text}: {', '.join(labels)}" for text, labels in coverage.items())
+        return rows, (f"{next(iter(coverage))} for every row",), samples
+    return rows, tuple(f"{text}: {', '.join(labels)}" for text, labels in coverage.items()), samples
 
 
-def _mixed_seed_counts(rows: pd.DataFrame) -> pd.Series:
-    """Per row: True if its (budget, scene) block has rows over different numbers of seeds ``n``."""
-    return rows["n"].groupby([rows["budget"], rows["scene"]]).transform("nunique") > 1
+REFERENCE = ("nvf", "argmax", "none")  # the row every other row of its scene is compared with: NVF
+SIGNIFICANCE_NOTE = (
+    "Bold: a scene's best mean whose paired difference to every other row (same seeds; for the object-scene "
+    "mean, same seeds and scenes) has a 95% Student-t interval excluding zero; ≈: tied best, the best mean and "
+    "the rows whose interval to it includes zero (one seed in common establishes nothing). ΔPSNR vs NVF: the "
+    "row's paired PSNR difference to NVF in the same scene, mean [95% interval], over the n pairs shown where "
+    "they are fewer than the row's seeds."
+)
 
 
-def _mark_best(rows: pd.DataFrame) -> pd.DataFrame:
-    """Add ``<metric>_best``: the direction-aware best mean of each (budget, scene) block; none when all tie,
-    or when the block's rows average different numbers of seeds (a 3-seed mean is not comparable with one seed)."""
+def _mark_best(rows: pd.DataFrame, samples: Samples) -> pd.DataFrame:
+    """Add ``<metric>_best`` and ``<metric>_tie`` per (budget, scene) block (``SIGNIFICANCE_NOTE``), and the
+    paired PSNR difference of each row to the block's NVF row (``psnr_vs_nvf_{mean,low,high,n}``)."""
     rows = rows.copy()
-    comparable = ~_mixed_seed_counts(rows)
     for m in PAPER_METRICS:
-        means = rows[f"{m.name}_mean"]
-        block = means.groupby([rows["budget"], rows["scene"]])
-        best = block.transform("max" if m.higher_is_better else "min")
-        spread = block.transform("max") > block.transform("min")  # no bold when every row ties
-        rows[f"{m.name}_best"] = (means == best) & spread & comparable
+        rows[f"{m.name}_best"] = False
+        rows[f"{m.name}_tie"] = False
+    for name in ("mean", "low", "high", "n"):
+        rows[f"psnr_vs_nvf_{name}"] = math.nan
+    keys = [tuple(key) for key in rows[list(GROUP)].itertuples(index=False)]
+    for _, block in rows.groupby(["budget", "scene"], sort=False):
+        index = list(block.index)
+        if len(index) < 2:
+            continue
+        for m in PAPER_METRICS:
+            means = rows.loc[index, f"{m.name}_mean"]
+            if means.notna().sum() < 2 or means.max() == means.min():
+                continue  # nothing to compare, or every row ties exactly
+            best = means.idxmax() if m.higher_is_better else means.idxmin()
+            sign = 1.0 if m.higher_is_better else -1.0
+            tied = [
+                i for i in index
+                if i != best and pd.notna(means[i])
+                and not paired(sign * samples[keys[best]][m.name], sign * samples[keys[i]][m.name]).above_zero
+            ]  # fmt: skip
+            column = f"{m.name}_tie" if tied else f"{m.name}_best"
+            rows.loc[[best, *tied], column] = True
+        reference = [i for i in index if (keys[i][2], keys[i][3], keys[i][4]) == REFERENCE]
+        for i in index if reference else ():
+            if i != reference[0]:
+                interval = paired(samples[keys[i]]["psnr"], samples[keys[reference[0]]]["psnr"])
+                rows.loc[i, ["psnr_vs_nvf_mean", "psnr_vs_nvf_low", "psnr_vs_nvf_high", "psnr_vs_nvf_n"]] = (
+                    interval.mean, interval.low, interval.high, interval.n
+                )
     return rows
 
 
@@ -180,11 +219,8 @@ def _notes(selected: pd.DataFrame, done: pd.DataFrame, rows: pd.DataFrame, runs:
         notes.append("† some seeds lack this value: the cell averages the others.")
     if (valid == 0).any():
         notes.append("'-': no run has this value.")
-    if not rows.empty:
-        mixed = rows[_mixed_seed_counts(rows)].drop_duplicates(["budget", "scene"])
-        blocks = ", ".join(f"{scene} ({budget})" for budget, scene in zip(mixed["budget"], mixed["scene"]))
-        if blocks:
-            notes.append(f"No best is marked for {blocks}: its rows average different numbers of seeds (n).")
+    if not rows.empty and (rows["n"].groupby([rows["budget"], rows["scene"]]).size() > 1).any():
+        notes.append(SIGNIFICANCE_NOTE)
     for m in PAPER_METRICS:
         missing = done[done[m.name].isna()]
         if missing.empty:
@@ -252,15 +288,17 @@ def _build_table(runs: Runs, spec: Spec) -> Table:
     nerf_asset = pd.Series([runs.scene(scene).nerf_asset for scene in done["scene"]], index=done.index, dtype=bool)
     per_scene = done[~nerf_asset] if spec.scenes == "main" else done
     parts = [aggregate(per_scene)] if not per_scene.empty else []
+    samples = seed_samples(per_scene)
     mean_notes: tuple[str, ...] = ()
     object_scenes = done.loc[nerf_asset, "scene"].nunique()
     if spec.object_mean and (object_scenes > 1 or (spec.scenes == "main" and object_scenes)):
-        mean_rows, mean_notes = object_mean(done, runs)
+        mean_rows, mean_notes, mean_samples = object_mean(done, runs)
         parts.append(mean_rows)
+        samples |= mean_samples
     if not parts:
         notes = _notes(selected, done, pd.DataFrame(columns=["n"]), runs)
         return Table(spec.name, spec.title, pd.DataFrame(), (), tuple(notes))
-    rows = order_rows(_mark_best(pd.concat(parts, ignore_index=True)), runs)
+    rows = order_rows(_mark_best(pd.concat(parts, ignore_index=True), samples), runs)
     rows["label"] = [runs.row(m, p, a).label for m, p, a in zip(rows["method"], rows["planner"], rows["ablation"])]
     notes = _notes(selected, done, rows, runs) + [f"{OBJECT_MEAN}: {n}." for n in mean_notes]
     return Table(spec.name, spec.title, rows, _header(done, runs), tuple(notes))

@@ -8,31 +8,47 @@ from pipeline.metrics.info import PAPER_METRICS
 from pipeline.tables.aggregate import MESH_LOS_MARK, Table
 
 
+TIE_MARK = "≈"
+
+
 def _cell(row: pd.Series, metric: str, decimals: int) -> str:
-    """'mean ± std' ('mean' alone from one seed; bold if best, † if some seeds lack it, '-' if none has
-    it), then ' / paper' if any."""
+    """'mean ± std' ('mean' alone from one seed; bold if the significant best, ≈ if tied best, † if some
+    seeds lack it, '-' if none has it), then ' / paper' if any."""
     mean, std, valid = row[f"{metric}_mean"], row[f"{metric}_std"], row[f"{metric}_valid"]
     text = "-"
     if valid > 0:
         text = f"{mean:.{decimals}f}" + (f" ± {std:.{decimals}f}" if valid > 1 else "")
         if row.get(f"{metric}_best", False):
             text = f"**{text}**"
+        text += TIE_MARK if row.get(f"{metric}_tie", False) else ""
         text += "†" if valid < row["n"] else ""
     if f"{metric}_paper" in row:
         text += f" / {row[f'{metric}_paper']:.{decimals}f}"
     return text
 
 
+def _versus_nvf(row: pd.Series) -> str:
+    """'+0.52 [-0.31, +1.35]' (n pairs added where fewer than the row's seeds); '-' for NVF itself or none."""
+    n = row.get("psnr_vs_nvf_n")
+    if n is None or not n > 0:
+        return "-"
+    low, high = row["psnr_vs_nvf_low"], row["psnr_vs_nvf_high"]
+    text = f"{row['psnr_vs_nvf_mean']:+.2f}" + (f" [{low:+.2f}, {high:+.2f}]" if pd.notna(low) else "")
+    return text + (f" (n={int(n)})" if n < row["n"] else "")
+
+
 def _grid(table: Table, label_header: str) -> tuple[list[str], list[list[str]]]:
-    """Column names and Markdown cell texts (csv drops the bold marks, tex converts them)."""
+    """Column names and Markdown cell texts (csv drops the bold marks, tex converts them); the ΔPSNR column
+    where some row has an NVF row to be compared with."""
     keys = (["section"] if "section" in table.rows else []) + (["budget"] if table.rows["budget"].nunique() > 1 else [])
+    versus = "psnr_vs_nvf_n" in table.rows and (table.rows["psnr_vs_nvf_n"] > 0).any()
     columns = [key.capitalize() for key in keys] + ["Scene", label_header]
-    columns += [f"{m.label}{m.arrow}" for m in PAPER_METRICS] + ["n"]
+    columns += [f"{m.label}{m.arrow}" for m in PAPER_METRICS] + (["ΔPSNR vs NVF"] if versus else []) + ["n"]
     cells = []
     for _, row in table.rows.iterrows():
         label = row["label"] + (MESH_LOS_MARK if row.get("mesh_los", False) else "")
         line = [str(row[key]) for key in keys] + [row["scene"], label]
-        line += [_cell(row, m.name, m.decimals) for m in PAPER_METRICS]
+        line += [_cell(row, m.name, m.decimals) for m in PAPER_METRICS] + ([_versus_nvf(row)] if versus else [])
         cells.append(line + [str(int(row["n"]))])
     return columns, cells
 
@@ -41,6 +57,7 @@ TEX_SPECIALS = (
     ("\\", r"\textbackslash{}"), ("&", r"\&"), ("%", r"\%"), ("$", r"\$"), ("#", r"\#"), ("_", r"\_"),
     ("{", r"\{"), ("}", r"\}"), ("~", r"\textasciitilde{}"), ("^", r"\textasciicircum{}"),
     ("±", r"$\pm$"), ("↑", r"$\uparrow$"), ("↓", r"$\downarrow$"), ("†", r"$^\dagger$"), ("‡", r"$^\ddagger$"),
+    ("≈", r"$^\approx$"), ("Δ", r"$\Delta$"),
 )
 
 
@@ -73,7 +90,7 @@ def render(table: Table, label_header: str, experiment: str | None) -> dict[str,
     tex = [
         f"% {table.title}",
         *(f"% {line}" for line in table.header),
-        r"\begin{tabular}{" + "l" * (len(columns) - 9) + "c" * 8 + "r}",
+        r"\begin{tabular}{" + "l" * (columns.index("Scene") + 2) + "c" * (len(columns) - columns.index("Scene") - 3) + "r}",
         r"\toprule",
         " & ".join(map(tex_escape, columns)) + r" \\",
         r"\midrule",
