@@ -21,6 +21,7 @@ Two interchangeable backends compute the same function:
 
 import functools
 import hashlib
+import logging
 import math
 import os
 import sys
@@ -73,12 +74,24 @@ def _build_dir(cflags: list[str]) -> Path:
     return path
 
 
+def _quiet_import_load():
+    """``torch.utils.cpp_extension.load``, imported without its warning that a CUDA toolkit was found but no
+    CUDA runtime (true on a CPU machine with nvcc, and irrelevant to a CPU kernel)."""
+    logger = logging.getLogger("torch.utils.cpp_extension")
+    level = logger.level
+    logger.setLevel(logging.ERROR)
+    try:
+        from torch.utils.cpp_extension import load
+    finally:
+        logger.setLevel(level)
+    return load
+
+
 @functools.lru_cache(maxsize=None)
 def cpp_extension() -> ModuleType | None:
     """The compiled hash-grid kernels, built once per process; ``None`` if they cannot be built."""
     try:
-        from torch.utils.cpp_extension import load
-
+        load = _quiet_import_load()
         cflags = _cflags()
         return load(
             name="nvf_hashgrid",

@@ -9,6 +9,8 @@ import pkgutil
 import sys
 from pathlib import Path
 
+from pipeline.cli import fail
+
 
 def available() -> list[str]:
     """Names of the benchmark modules in this package."""
@@ -21,8 +23,7 @@ def main(argv: list[str]) -> None:
         print(f"usage: python -m pipeline.bench {{{','.join(names)}}} [args]", file=sys.stderr)
         raise SystemExit(0 if argv else 2)
     if argv[0] not in names:
-        print(f"error: unknown benchmark '{argv[0]}'; choose one of: {', '.join(names)}", file=sys.stderr)
-        raise SystemExit(2)
+        fail(f"unknown benchmark '{argv[0]}'; choose one of: {', '.join(names)}")
     importlib.import_module(f"pipeline.bench.{argv[0]}").main(argv[1:])
 
 

@@ -8,7 +8,6 @@ samples per ray. The run goes to a fresh temporary outputs directory unless ``--
 one to keep (an existing finished run there is resumed, not re-timed, so use an empty one).
 """
 
-import argparse
 import json
 import tempfile
 import time
@@ -17,10 +16,11 @@ from pathlib import Path
 import torch
 from hydra import compose, initialize_config_dir
 
-from pipeline.bench._report import write_report
+from pipeline.cli import ArgumentParser, description
+from pipeline.bench._report import report_path, write_report
 from pipeline.config.schema import register_configs
 from pipeline.records.store import RunRecord
-from pipeline.repo import CONF, RESULTS
+from pipeline.repo import CONF
 from pipeline.episode.runner import run_episode
 
 
@@ -35,13 +35,14 @@ def step_summary(row: dict) -> dict:
 
 
 def main(argv: list[str]) -> None:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.bench episode", description=__doc__.splitlines()[0])
+    parser = ArgumentParser(prog="python -m pipeline.bench episode", description=description(__doc__))
     parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. method=random")
-    parser.add_argument("--out", type=Path, default=RESULTS / "bench" / "episode.json", help="JSON report path")
+    parser.add_argument("--out", type=Path, default=None, help="JSON report path (default: ${paths.results}/bench/episode.json)")
     parser.add_argument("--outputs", type=Path, default=None, help="keep the run records here (default: a temporary directory)")
     args = parser.parse_intermixed_args(argv)
     register_configs()
     with tempfile.TemporaryDirectory() as tmp, initialize_config_dir(str(CONF), version_base="1.3"):
+        out = report_path(args.out, compose("config", overrides=args.overrides).paths.results, "episode")
         outputs = args.outputs.resolve() if args.outputs else Path(tmp)
         cfg = compose("config", overrides=[*args.overrides, f"paths.outputs={outputs}"])
         start = time.perf_counter()
@@ -59,5 +60,5 @@ def main(argv: list[str]) -> None:
         "torch_threads": torch.get_num_threads(), "overrides": args.overrides,
         "per_step": [step_summary(r) for r in rows],
     }  # fmt: skip
-    write_report(report, args.out)
+    write_report(report, out)
     print(json.dumps({k: v for k, v in report.items() if k != "per_step"}, indent=2))

@@ -15,7 +15,6 @@ time divided by the thread count, which is robust to other jobs sharing the core
 ``results/bench/field.json`` and prints a table.
 """
 
-import argparse
 import statistics
 import time
 from collections.abc import Callable
@@ -27,8 +26,9 @@ from torch import Tensor
 from nvf.config import FieldConfig
 from nvf.encoding import cpp_extension
 from nvf.field import HEADS, RadianceField, spherical_harmonics
-from pipeline.bench._report import write_report
-from pipeline.repo import RESULTS
+from pipeline.cli import ArgumentParser, description
+from pipeline.bench._report import report_path, write_report
+from pipeline.config.paths import configured_paths
 
 AABB = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 CPU_BUDGET_LOG2 = 15
@@ -173,14 +173,16 @@ def bench_variant(cfg: FieldConfig, rays: int, per_ray: int, chunk: int, iters: 
 
 
 def main(argv: list[str]) -> None:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.bench field", description=__doc__.splitlines()[0])
+    parser = ArgumentParser(prog="python -m pipeline.bench field", description=description(__doc__))
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--iters", type=int, default=3)
     parser.add_argument("--rays", type=int, default=1024)
     parser.add_argument("--samples-per-ray", type=int, default=25)
     parser.add_argument("--chunk", type=int, default=8192)
     parser.add_argument("--only", nargs="*", default=None, help="variant names to run (default: all)")
-    args = parser.parse_args(argv)
+    parser.add_argument("--out", type=Path, default=None, help="JSON report path (default: ${paths.results}/bench/field.json)")
+    parser.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="paths overrides, e.g. paths.results=results")
+    args = parser.parse_intermixed_args(argv)
     torch.set_num_threads(args.threads)
     cpp_available = cpp_extension() is not None
     results = {}
@@ -218,6 +220,6 @@ def main(argv: list[str]) -> None:
         "goals": {"train_samples_per_s": 1e6, "infer_samples_per_s": 3e6},
         "variants": results,
     }
-    out = RESULTS / "bench" / "field.json"
+    out = report_path(args.out, configured_paths(dict(o.split("=", 1) for o in args.overrides))["results"], "field")
     write_report(report, out)
     print(f"wrote {out}")

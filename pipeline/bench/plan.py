@@ -31,7 +31,6 @@ difference. The top-level figures are the reference precision's. The models run 
 ``results/bench/plan.json`` (or ``--out``) and prints a table.
 """
 
-import argparse
 import statistics
 import sys
 import time
@@ -48,14 +47,14 @@ from nvf.config import STAGES
 from nvf.field import INFERENCE_BLOCK, VIS_POSITION_WIDTH
 from nvf.planning import score_poses
 from nvf.methods import load_method
-from pipeline.bench._report import write_report
+from pipeline.cli import ArgumentParser, description
+from pipeline.bench._report import report_path, write_report
 from pipeline.bench.field import matmul_gflops, mlp_flops
 from nvf.precision import precision_dtype
 from pipeline.bench._paired import IterationClock, ratio_spread
 from pipeline.bench.train import RGB, CountingModel, InitialViewModel, held_out_poses, parse_precisions, view_psnr
 from pipeline.config.catalog import method_configs
 from pipeline.config.validation import compose_config
-from pipeline.repo import RESULTS
 
 CANDIDATES = 512  # the paper's N; a later planner.num_candidates=... override wins
 WARMUP_CANDIDATES = 8
@@ -147,9 +146,9 @@ def timed(fn: Callable[[], object]) -> tuple[float, float]:
 
 
 def main(argv: list[str]) -> None:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.bench plan", description=__doc__.splitlines()[0])
+    parser = ArgumentParser(prog="python -m pipeline.bench plan", description=description(__doc__))
     parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. budget=smoke")
-    parser.add_argument("--out", type=Path, default=RESULTS / "bench" / "plan.json", help="JSON report path")
+    parser.add_argument("--out", type=Path, default=None, help="JSON report path (default: ${paths.results}/bench/plan.json)")
     parser.add_argument("--repeats", type=int, default=1, help="timed passes over all candidates")
     parser.add_argument("--blocks", type=int, default=8, help="candidate blocks per pass (ratio = median over blocks)")
     parser.add_argument("--precisions", help="train.precision values compared, first the reference (default: fp32,bf16 "
@@ -235,6 +234,7 @@ def main(argv: list[str]) -> None:
         },
         "seconds": time.perf_counter() - start,
     })  # fmt: skip
+    args.out = report_path(args.out, cfg.paths.results, "plan")
     write_report(report, args.out)
     print(f"{'':14}{'cand/s':>10}{'(cpu)':>10}{'x plain':>9}")
     for name in work:

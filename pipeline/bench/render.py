@@ -11,7 +11,6 @@ warm-up). ``--backends pyrender`` leaves Blender out. The machine's load average
 recorded (other jobs on the cores slow both backends). Writes ``results/bench/render.json`` and prints a table.
 """
 
-import argparse
 import contextlib
 import os
 import platform
@@ -21,9 +20,10 @@ import time
 from pathlib import Path
 
 from nvf.cameras import Intrinsics
-from pipeline.bench._report import write_report
+from pipeline.cli import ArgumentParser, description
+from pipeline.bench._report import report_path, write_report
+from pipeline.config.validation import compose_config
 from pipeline.config.schema import RenderConfig
-from pipeline.repo import RESULTS
 from pipeline.scenes.blender import BlenderRenderer, blender_python
 from pipeline.scenes.render import GroundTruthRenderer
 from pipeline.scenes.scene import SceneError, load_scene
@@ -40,23 +40,24 @@ def _median_seconds(fn, poses) -> float:
 
 
 def main(argv: list[str]) -> None:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.bench render", description=__doc__.splitlines()[0])
+    parser = ArgumentParser(prog="python -m pipeline.bench render", description=description(__doc__))
     parser.add_argument("--res", type=int, nargs="+", default=[64, 128, 512], help="resolutions (pixels per side)")
     parser.add_argument("--views", type=int, default=4, help="evaluation views timed per scene and resolution")
     parser.add_argument("--samples", type=int, default=RenderConfig.samples, help="Cycles samples per pixel")
     parser.add_argument("--scenes", nargs="+", default=["default", "hotdog", "room"])
-    parser.add_argument("--assets", type=Path, default=None, help="assets directory (default: NVF_ASSETS)")
+    parser.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="config overrides, e.g. paths.assets=DIR")
     parser.add_argument("--backends", nargs="+", choices=["pyrender", "blender"], default=["pyrender", "blender"])
-    parser.add_argument("--out", type=Path, default=RESULTS / "bench" / "render.json")
+    parser.add_argument("--out", type=Path, default=None, help="JSON report path (default: ${paths.results}/bench/render.json)")
     args = parser.parse_args(argv)
     if min(args.res) < 8 or not 1 <= args.views <= 20 or args.samples < 1:
         print("error: --res must be >= 8, --views in 1..20 and --samples >= 1", file=sys.stderr)
         raise SystemExit(2)
-    python, threads = blender_python(), os.cpu_count() or 1
+    cfg = compose_config(args.overrides)
+    python, threads = blender_python(cfg.paths.blender_python), os.cpu_count() or 1
     use_blender, rows, version, load_start = "blender" in args.backends, [], None, os.getloadavg()
     try:
         for name in args.scenes:
-            scene = load_scene(name, args.assets, python)
+            scene = load_scene(name, Path(cfg.paths.assets), python)
             poses = [p.numpy().astype("float64") for p in scene.eval_poses[: args.views]]
             with contextlib.ExitStack() as stack:
                 flat = stack.enter_context(GroundTruthRenderer(scene.mesh))
@@ -84,6 +85,7 @@ def main(argv: list[str]) -> None:
               "processor": platform.processor(), "cores": threads, "cycles_samples": args.samples,
               "blender": version, "load_average_1_5_15_min": {"start": load_start, "end": os.getloadavg()},
               "rows": rows}
+    args.out = report_path(args.out, cfg.paths.results, "render")
     write_report(report, args.out)
     print(f"{'scene':<9}{'faces':>7}{'res':>5}{'pyrender ms':>13}{'Blender ms':>12}{'ratio':>8}{'ray cast ms':>13}"
           f"  (Cycles {args.samples} spp, {threads} threads)")

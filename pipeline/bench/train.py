@@ -40,7 +40,6 @@ to other jobs on the cores. The models run on the CPU. Writes ``results/bench/tr
 (or ``--out``) and prints a table.
 """
 
-import argparse
 import dataclasses
 import math
 import statistics
@@ -68,14 +67,14 @@ from nvf.rendering import Samples
 from nvf.precision import PRECISIONS, precision_dtype, supported_precisions, unsupported_reason
 from nvf.training import Observations, train_backbone, train_model
 from pipeline.bench._paired import IterationClock, Turn, lockstep, ratio_spread
-from pipeline.bench._report import write_report
+from pipeline.cli import ArgumentParser, description
+from pipeline.bench._report import report_path, write_report
 from pipeline.bench.field import matmul_gflops, median_seconds, mlp_flops
 from pipeline.config.validation import compose_config
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.evaluation import RENDER_CHUNK
 from pipeline.metrics.image import off_edge_psnr, psnr
 from pipeline.scenes.render import GroundTruthRenderer
-from pipeline.repo import RESULTS
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.ground_truth import Renderer, ground_truth_info, open_renderer
 from pipeline.scenes.scene import Scene, SceneError, load_scene
@@ -490,9 +489,9 @@ def train_side_by_side(
 
 
 def main(argv: list[str]) -> None:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.bench train", description=__doc__.splitlines()[0])
+    parser = ArgumentParser(prog="python -m pipeline.bench train", description=description(__doc__))
     parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. budget=smoke")
-    parser.add_argument("--out", type=Path, default=RESULTS / "bench" / "train.json", help="JSON report path")
+    parser.add_argument("--out", type=Path, default=None, help="JSON report path (default: ${paths.results}/bench/train.json)")
     parser.add_argument("--repeats", type=int, default=3, help="timed inference passes (median)")
     parser.add_argument("--precisions", help="train.precision values compared, first the reference (default: fp32,bf16 "
                         "where the CPU has bfloat16, else fp32)")  # fmt: skip
@@ -589,6 +588,7 @@ def main(argv: list[str]) -> None:
         },
         "seconds": time.perf_counter() - start,
     }  # fmt: skip
+    args.out = report_path(args.out, cfg.paths.results, "train")
     write_report(report, args.out)
     print_report(report, s.sampler.update_every)
     print(f"wrote {args.out}")

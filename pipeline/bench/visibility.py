@@ -17,7 +17,6 @@ ray cast hits the mesh and the model's accumulation ``A > 0.5``):
 An AUC of 0.5 is no separation. Writes ``results/bench/visibility.json`` (or ``--out``).
 """
 
-import argparse
 import dataclasses
 import statistics
 import time
@@ -38,10 +37,10 @@ from nvf.training import Observations
 from nvf.methods import NVF
 from nvf.uncertainty import ViewScorer
 from nvf.visibility import visibility_labels
-from pipeline.bench._report import write_report
+from pipeline.cli import ArgumentParser, description
+from pipeline.bench._report import report_path, write_report
 from pipeline.bench.train import InitialViewModel
 from pipeline.config.validation import compose_config
-from pipeline.repo import RESULTS
 
 SURFACE_OFFSET = 0.01  # scene units: the surface point moves this far towards the candidate camera
 MIN_ACCUMULATION = 0.5  # PROTOCOL 4.2's surface rule
@@ -123,10 +122,9 @@ def _mean_of(sets: list[dict], key: str) -> float | None:
 
 
 def main(argv: list[str]) -> None:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.bench visibility", description=__doc__.splitlines()[0])
+    parser = ArgumentParser(prog="python -m pipeline.bench visibility", description=description(__doc__))
     parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. train.visibility.iters=500")
-    default_out = RESULTS / "bench" / "visibility.json"
-    parser.add_argument("--out", type=Path, default=default_out, help="JSON report path")
+    parser.add_argument("--out", type=Path, default=None, help="JSON report path (default: ${paths.results}/bench/visibility.json)")
     parser.add_argument("--sets", type=int, default=3, help="candidate sets (the planner's draws at steps 0..N-1)")
     args = parser.parse_intermixed_args(argv)
     if args.sets < 1:
@@ -157,6 +155,7 @@ def main(argv: list[str]) -> None:
         },
         "seconds": time.perf_counter() - start,
     }  # fmt: skip
+    args.out = report_path(args.out, cfg.paths.results, "visibility")
     write_report(report, args.out)
     columns = (("set", 4), ("pixels", 8), ("seen", 7), ("head AUC", 10), ("label AUC", 11),
                ("rho(NVF, w/o Vis.)", 20), ("same argmax", 13))  # fmt: skip

@@ -2,7 +2,24 @@
 ``paths.results`` (tables). Imports nothing heavy (``pipeline.tables`` uses it without torch)."""
 
 import os
+from collections.abc import Mapping
 from pathlib import Path
+
+from omegaconf import OmegaConf
+
+from pipeline.repo import CONF
+
+
+def configured_paths(overrides: Mapping[str, str]) -> dict[str, Path]:
+    """``conf/paths/default.yaml`` with ``paths.<key>=value`` overrides applied and its interpolations
+    (``${paths.outputs}/results``, ``NVF_ASSETS``) resolved, without composing the whole config; a key the
+    group does not have is a ValueError naming the keys it has."""
+    node = OmegaConf.create({"paths": OmegaConf.load(Path(CONF) / "paths" / "default.yaml")})
+    for key, value in overrides.items():
+        if OmegaConf.select(node, key, default=None) is None and key.split(".", 1)[-1] not in node.paths:
+            raise ValueError(f"unknown key {key!r}: use {', '.join(f'paths.{k}=DIR' for k in node.paths)}")
+        OmegaConf.update(node, key, value)
+    return {key: Path(value) for key, value in OmegaConf.to_container(node.paths, resolve=True).items()}
 
 
 def unwritable(key: str, path: Path) -> str | None:

@@ -1,7 +1,9 @@
 """Run records -> long CSV -> paper-style tables (md, csv, tex), comparison with the paper, figures.
 
 ``python -m pipeline.tables [paths.outputs=DIR] [paths.results=DIR]`` reads every run under
-``paths.outputs`` and ``${paths.results}/runs`` (committed records: run.json + steps.jsonl) and writes
+``paths.outputs`` (default ``outputs``) and ``${paths.results}/runs`` (committed records: run.json +
+steps.jsonl) and writes into ``paths.results`` (default ``${paths.outputs}/results``, the user's own folder;
+``paths.results=results paths.outputs=results/runs`` regenerates the repository's published tables)
 ``${paths.results}/runs.csv`` (long format; NaN as an empty field), ``tables/{main, table1_opt,
 table2_ablation, table34_nerf_assets, all_runs, paper_comparison}.{md,csv,tex}`` and ``figures/``
 (metric-vs-step curves, image grids). Only finished runs count; a cell is the mean ± population std
@@ -18,19 +20,20 @@ Exit status 2: a bad argument or an unusable ``paths.results`` (nothing written)
 import sys
 from pathlib import Path
 
-from pipeline.config.paths import unwritable
+from pipeline.config.paths import configured_paths, unwritable
 from pipeline.tables.build import build_tables
 
 
 def parse_overrides(argv: list[str]) -> tuple[Path, Path]:
-    """(outputs, results) from ``paths.outputs=...`` / ``paths.results=...`` (defaults as conf/paths)."""
-    paths = {"paths.outputs": Path("outputs"), "paths.results": Path("results")}
+    """(outputs, results) from ``paths.outputs=...`` / ``paths.results=...`` (defaults: conf/paths)."""
+    overrides = {}
     for arg in argv:
         key, sep, value = arg.partition("=")
-        if not sep or key not in paths or not value:
+        if not sep or not value or key not in ("paths.outputs", "paths.results"):
             raise ValueError(f"unknown argument {arg!r}: use paths.outputs=DIR and/or paths.results=DIR")
-        paths[key] = Path(value)
-    return paths["paths.outputs"], paths["paths.results"]
+        overrides[key] = value
+    paths = configured_paths(overrides)
+    return paths["outputs"], paths["results"]
 
 
 def main(argv: list[str]) -> int:
