@@ -48,14 +48,12 @@ def main(cfg: DictConfig) -> dict:
             raise
         traceback.print_exc()  # an unexpected error: its traceback in the job's log, the sweep goes on
         return {"status": "failed", "reason": f"{type(err).__name__}: {' '.join(str(err).split())}"}
-    if multirun:
-        return {"status": outcome.status, "reason": None}
-    from pipeline.tables.summary import summarize_run
-
-    table = summarize_run(outcome.directory)
-    print(f"images:  {outcome.directory / 'images'}")
-    print(f"records: {outcome.directory / 'run.json'}, {outcome.directory / 'steps.jsonl'}")
-    print(f"table:   {table}")
+    if not multirun:
+        directory = outcome.directory
+        print(f"images:  {directory / 'images'} (every step), {directory / 'grid.png'} (labelled)")
+        print(f"curve:   {directory / 'psnr.png'}")
+        print(f"records: {directory / 'run.json'}, {directory / 'steps.jsonl'}")
+        print(f"table:   {directory / 'summary.md'}")
     return {"status": outcome.status, "reason": None}
 
 
@@ -69,6 +67,10 @@ def cli() -> None:
     except HydraException as err:
         print(error_line(err), file=sys.stderr)
         sys.exit(2)
+    except KeyboardInterrupt:
+        print("\ninterrupted: every finished step is recorded; run the same command again to resume at the first "
+              "missing step", file=sys.stderr)
+        sys.exit(130)
 
 
 if __name__ == "__main__":

@@ -30,6 +30,7 @@ from pipeline.records.verify import verified
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.ground_truth import ground_truth_info
 from pipeline.scenes.scene import load_scene
+from pipeline.tables.summary import run_pictures, summarize_run
 
 
 class StepFailed(RuntimeError):
@@ -158,6 +159,8 @@ def _run_steps(cfg: DictConfig, directory: Path, record: RunRecord, episode: Epi
         record.mark_failed(f"step {len(record.completed_steps())}: {type(err).__name__}: {' '.join(str(err).split())}")
         raise
     record.mark_done()
+    summarize_run(directory)
+    run_pictures(directory)
     return Outcome(directory, "done")
 
 
@@ -165,8 +168,16 @@ def _record_steps(cfg: DictConfig, directory: Path, episode: Episode, record: Ru
     """Steps ``first`` .. horizon - 1, each row (and the step's images) written once the step is complete."""
     horizon = int(cfg.budget.horizon)
     interactive = sys.stderr.isatty()
-    steps = tqdm(range(first, horizon), desc="steps", unit="step", disable=not interactive, initial=first, total=horizon)
-    inner = tqdm(desc="train", unit="it", leave=False, disable=not interactive)
+    with (
+        tqdm(range(first, horizon), desc="steps", unit="step", disable=not interactive, initial=first, total=horizon) as steps,
+        tqdm(desc="train", unit="it", leave=False, disable=not interactive) as inner,
+    ):
+        _step_loop(cfg, directory, episode, record, steps, inner, interactive)
+
+
+def _step_loop(cfg: DictConfig, directory: Path, episode: Episode, record: RunRecord, steps: tqdm, inner: tqdm,
+               interactive: bool) -> None:  # fmt: skip
+    """The loop of ``_record_steps`` (the progress bars close with it, also when it is interrupted)."""
 
     def on_train(stage: str, iteration: int, total: int, loss: float) -> None:
         if iteration == 0:
@@ -188,5 +199,3 @@ def _record_steps(cfg: DictConfig, directory: Path, episode: Episode, record: Ru
         steps.set_postfix_str(message.split(": ", 1)[1])
         if not interactive:
             print(f"[{cfg.scene.name}/{cfg.method.name}] {message}", flush=True)
-    inner.close()
-    steps.close()

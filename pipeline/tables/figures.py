@@ -2,6 +2,7 @@
 GT | prediction | score map | depth)."""
 
 import hashlib
+import math
 import re
 from pathlib import Path
 
@@ -96,5 +97,20 @@ def image_grid(run_dir: Path, out_path: Path, max_rows: int = 5) -> Path | None:
                 ax.set_title(dict(IMAGE_KINDS).get(kind, kind))
             if j == 0:
                 ax.text(-0.05, 0.5, f"step {step}", transform=ax.transAxes, rotation=90, ha="right", va="center")
+    save_figure(fig, Path(out_path))
+    return Path(out_path)
+
+
+def step_curve(rows: list[dict], title: str, out_path: Path) -> Path:
+    """PSNR per step of one run's rows (``steps.jsonl``), as a PNG at ``out_path``."""
+    steps = [row["step"] for row in rows]
+    psnr = [row["metrics"].get("psnr") for row in rows]
+    fig = Figure(figsize=(5, 3.2), dpi=100, layout="constrained")
+    ax = fig.subplots()
+    ax.plot(steps, [math.nan if v is None else v for v in psnr], marker="o", markersize=3)
+    ax.set_xlabel("step")
+    ax.set_ylabel("PSNR (dB)")
+    ax.set_title(title, fontsize=9)
+    ax.grid(alpha=0.3)
     save_figure(fig, Path(out_path))
     return Path(out_path)

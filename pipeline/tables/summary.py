@@ -1,5 +1,5 @@
 """One run's per-step metrics as Markdown (``<run_dir>/summary.md``), with the paper's row for its scene
-and method where the paper has one."""
+and method where the paper has one, and its pictures (``run_pictures``)."""
 
 import math
 from pathlib import Path
@@ -8,6 +8,7 @@ import pandas as pd
 
 from pipeline.metrics.info import PAPER_METRICS
 from pipeline.records.store import atomic_write_text, record_status
+from pipeline.tables.figures import image_grid, step_curve
 from pipeline.tables.labels import METRIC_KEYS
 from pipeline.tables.load import describe, ground_truth_label, load_run, metric_value
 from pipeline.tables.paper import paper_numbers
@@ -45,3 +46,12 @@ def summarize_run(run_dir: Path) -> Path:
     path = Path(run_dir) / "summary.md"
     atomic_write_text(path, "\n".join([title, "", table, "", *(f"- {n}" for n in notes)]) + "\n")
     return path
+
+
+def run_pictures(run_dir: Path) -> list[Path]:
+    """A finished run's labelled pictures beside its records: ``grid.png`` (steps x GT | prediction | score
+    map | depth; only when the run saved its images) and ``psnr.png`` (PSNR per step)."""
+    info, rows = load_run(Path(run_dir))
+    title = f"{info['scene']} / {describe(info)[0].label} / {info['budget']} / seed {info['seed']}"
+    grid = image_grid(Path(run_dir), Path(run_dir) / "grid.png")
+    return [*([grid] if grid is not None else []), step_curve(rows, title, Path(run_dir) / "psnr.png")]
