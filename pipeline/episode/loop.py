@@ -43,9 +43,9 @@ class Episode:
         self.scene = scene
         self.device = device
         self.settings = EpisodeSettings.of(cfg, scene)
-        size = cfg.budget.image_size
-        self.intrinsics = Intrinsics.from_fov(size, size)
-        self.plan_intrinsics = Intrinsics.from_fov(cfg.planner.resolution, cfg.planner.resolution)
+        s = self.settings
+        self.intrinsics = Intrinsics.from_fov(s.budget.image_size, s.budget.image_size)
+        self.plan_intrinsics = Intrinsics.from_fov(s.planner.resolution, s.planner.resolution)
         self.method = load_method(cfg.method.implementation)
         self.scorer = self.settings.scorer(self.method)
         self.rival = self.rival_scorer(cfg.diagnostics.rank_against)
@@ -54,7 +54,7 @@ class Episode:
         self.images: list[np.ndarray] = []  # RGBA [H, W, 4] training images, budget.gt_samples^2 per pixel
         self.face_ids: list[np.ndarray] = []  # [H, W] face hit by each pixel-centre ray, for Vis. (PROTOCOL 4.3)
         try:
-            self.evaluator = Evaluator(scene, self.renderer, cfg, device, lpips)
+            self.evaluator = Evaluator(scene, self.renderer, s.budget, s.metrics, s.seed, device, lpips)
             for c2w in scene.init_poses:
                 self.observe(c2w)
         except BaseException:
@@ -78,7 +78,7 @@ class Episode:
         """Render the ground truth at ``c2w`` and add it to the observations."""
         c2w = c2w.to(torch.float32).cpu()
         self.poses.append(c2w)
-        self.images.append(self.renderer.render_rgba(c2w, self.intrinsics, int(self.cfg.budget.gt_samples)))
+        self.images.append(self.renderer.render_rgba(c2w, self.intrinsics, self.settings.budget.gt_samples))
         self.face_ids.append(self.renderer.face_ids(c2w.numpy(), self.intrinsics))
 
     def observations(self) -> Observations:

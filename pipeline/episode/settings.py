@@ -10,6 +10,7 @@ from omegaconf import DictConfig, OmegaConf
 from nvf.config import BaselineConfig, EntropyConfig, FieldConfig, PlannerConfig, SamplerConfig, TrainConfig
 from nvf.methods import Method
 from nvf.uncertainty import ViewScorer
+from pipeline.config.schema import BudgetConfig, MetricsConfig
 from pipeline.scenes.scene import Scene
 
 
@@ -45,12 +46,15 @@ class EpisodeSettings:
     entropy: EntropyConfig
     baseline: BaselineConfig
     planner: PlannerConfig
+    budget: BudgetConfig
+    metrics: MetricsConfig
+    seed: int
     tau: float
     collision_free: bool
 
     def scorer(self, method: Method) -> ViewScorer | None:
-        """``method``'s view scorer with these
-        settings (NVF's resolved ``d0``); None for a method without one (Random)."""
+        """``method``'s view scorer with these settings (NVF's resolved ``d0``); None for a method without one
+        (Random)."""
         return method.scorer(self.entropy, self.baseline, float(self.entropy.d0))
 
     @staticmethod
@@ -67,6 +71,9 @@ class EpisodeSettings:
             entropy=entropy,
             baseline=typed(cfg.baseline, BaselineConfig),
             planner=planner,
+            budget=typed(cfg.budget, BudgetConfig),
+            metrics=typed(cfg.metrics, MetricsConfig),
+            seed=int(cfg.seed),
             tau=float(tau),
             collision_free=bool(collision_free),
         )

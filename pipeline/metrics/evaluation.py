@@ -7,13 +7,13 @@ import math
 import numpy as np
 import torch
 from jaxtyping import Float, Int
-from omegaconf import DictConfig
 from torch import Tensor
 
 from nvf.cameras import Intrinsics, pixel_rays
 from nvf.model import SceneModel
 from nvf.seeding import seeded_generator
 from nvf.training import Observations
+from pipeline.config.schema import BudgetConfig, MetricsConfig
 from pipeline.metrics.correlation import uncertainty_correlation
 from pipeline.metrics.coverage import seen_faces, visual_coverage
 from pipeline.metrics.geometry import geometry_metrics, points_from_rays
@@ -81,12 +81,14 @@ class Evaluator:
     computes a step's metrics (PROTOCOL 4)."""
 
     def __init__(
-        self, scene: Scene, renderer: Renderer, cfg: DictConfig, device: torch.device, lpips: LpipsMetric
-    ):
-        self.scene, self.cfg, self.device, self.lpips = scene, cfg, device, lpips
-        size = int(cfg.budget.eval_size)
+        self, scene: Scene, renderer: Renderer, budget: BudgetConfig, metrics: MetricsConfig, seed: int,
+        device: torch.device, lpips: LpipsMetric,
+    ):  # fmt: skip
+        self.scene, self.budget, self.metrics, self.seed = scene, budget, metrics, seed
+        self.device, self.lpips = device, lpips
+        size = budget.eval_size
         self.intrinsics = Intrinsics.from_fov(size, size)
-        k = int(cfg.budget.gt_samples)
+        k = budget.gt_samples
         self.gt = np.stack([renderer.render_rgba(c2w, self.intrinsics, k)[..., :3] for c2w in scene.eval_poses])
         self.gt_lpips = lpips.reference(self.gt)  # step-independent half of LPIPS (None without weights)
         self.patch = max(1, size // PATCHES_PER_SIDE)
@@ -103,19 +105,18 @@ class Evaluator:
         """Metrics of ``model`` after training on ``obs`` (step ``step``), images of evaluation view ``view``,
         and with a scorer ``view_error`` and ``view_score`` [V], the per-view sums the view r pairs (else
         empty). ``face_ids``: the face hit by each pixel-centre ray of every training view (Vis.)."""
-        cfg, scene = self.cfg, self.scene
+        budget, scene = self.budget, self.scene
         renders = [render_view(model, scorer, c2w.to(self.device), self.intrinsics) for c2w in scene.eval_poses]
         pred = np.stack([r["rgb"] for r in renders]).clip(0.0, 1.0)
-        images = image_metrics(pred, self.gt, self.lpips, cfg.metrics.ssim_data_range, self.gt_lpips)
-        seed = int(cfg.seed)
+        images = image_metrics(pred, self.gt, self.lpips, self.metrics.ssim_data_range, self.gt_lpips)
         points = reconstruct_points(
-            model, obs, int(cfg.budget.recon_points), int(cfg.budget.recon_batch),
-            seeded_generator(seed, step, "recon_points", self.device),
+            model, obs, budget.recon_points, budget.recon_batch,
+            seeded_generator(self.seed, step, "recon_points", self.device),
         )  # fmt: skip
         geometry = geometry_metrics(
             points, scene.mesh, scene.cr_threshold,
-            seed=int(seeded_generator(seed, step, "gt_points").initial_seed() % 2**32),
-            num_gt_samples=int(cfg.budget.gt_points),
+            seed=int(seeded_generator(self.seed, step, "gt_points").initial_seed() % 2**32),
+            num_gt_samples=budget.gt_points,
         )  # fmt: skip
         num_faces = len(scene.mesh.faces)
         seen = np.zeros(num_faces, dtype=bool)
