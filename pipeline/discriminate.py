@@ -34,7 +34,8 @@ from pipeline.config.named import GROUPS, NamedConfigs
 from pipeline.config.validation import compose_config
 from pipeline.records.store import atomic_write_text
 from pipeline.repo import CONF, REPO
-from pipeline.scenes.scene import SceneError, find_asset, scene_config
+from pipeline.scenes.scene import SceneError
+from pipeline.scenes.loading import find_asset, scene_config
 from pipeline.tables.load import collect_runs
 from pipeline.tables.stats import Interval
 

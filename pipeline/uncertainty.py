@@ -53,7 +53,8 @@ from pipeline.config.named import GROUPS, NamedConfigs
 from pipeline.records.store import atomic_write_bytes, atomic_write_text, to_jsonable
 from pipeline.repo import CONF
 from pipeline.scenes.blender import blender_python
-from pipeline.scenes.scene import Scene, SceneError, load_scene
+from pipeline.scenes.scene import Scene, SceneError
+from pipeline.scenes.loading import load_scene
 from pipeline.tables.aggregate import mean_std_valid
 from pipeline.tables.labels import row_name
 

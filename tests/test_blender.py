@@ -28,7 +28,8 @@ from pipeline.scenes.__main__ import main as scenes_main
 from pipeline.scenes.blender import BlenderError, BlenderRenderer, blender_python, missing_python
 from pipeline.scenes.blender_worker import linear_to_srgb
 from pipeline.scenes.render import GroundTruthRenderer
-from pipeline.scenes.scene import SceneError, load_scene, scene_config
+from pipeline.scenes.scene import SceneError
+from pipeline.scenes.loading import load_scene, scene_config
 
 PYTHON = blender_python()
 needs_blender = pytest.mark.skipif(missing_python(PYTHON) is not None, reason=str(missing_python(PYTHON)))
@@ -294,7 +295,7 @@ def test_a_smoke_episode_on_blender_ground_truth_records_it(tmp_path):
                  f"paths.assets={assets}", "render.backend=blender", "render.samples=4"]
     with initialize_config_dir(str(CONF), version_base="1.3"):
         cfg = compose("config", overrides=overrides)
-    directory = run_episode(cfg)
+    directory = run_episode(cfg).directory
     assert RunRecord(directory).is_done()
     info = json.loads((directory / "run.json").read_text())
     assert info["scene_source"] == "blend" and info["config"]["render"] == {"backend": "blender", "samples": 4}

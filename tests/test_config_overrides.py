@@ -6,7 +6,7 @@ import pytest
 from nvf.methods import NVF
 from pipeline.config.validation import compose_config
 from pipeline.episode.settings import EpisodeSettings
-from pipeline.scenes.scene import load_scene
+from pipeline.scenes.loading import load_scene
 
 
 @pytest.mark.parametrize(

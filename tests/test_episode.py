@@ -22,7 +22,7 @@ from pipeline.records.lock import LOCK_FILE, RunLock
 from pipeline.records.store import RecordError, RunRecord
 from pipeline.records.verify import verified
 from pipeline.repo import CONF, REPO
-from pipeline.scenes.scene import load_scene
+from pipeline.scenes.loading import load_scene
 
 SMOKE = ["budget=smoke", "scene=default"]
 

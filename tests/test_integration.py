@@ -19,7 +19,7 @@ from pipeline.config.validation import compose_config
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.image import edge_pixels, off_edge_psnr, psnr
 from pipeline.scenes.render import GroundTruthRenderer
-from pipeline.scenes.scene import load_scene
+from pipeline.scenes.loading import load_scene
 
 pytestmark = pytest.mark.slow
 HEAD_STAGES = ("variance", "visibility")

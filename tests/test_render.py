@@ -147,7 +147,7 @@ def test_resolve_backend(monkeypatch):
 
 def test_textured_mesh_renders_its_texture(assets_dir):
     """Hubble's five textured parts share one atlas: the render is grey/gold, not noise (PROTOCOL 2.2)."""
-    from pipeline.scenes.scene import load_scene
+    from pipeline.scenes.loading import load_scene
 
     scene = load_scene("hubble", assets_dir)
     with GroundTruthRenderer(scene.mesh) as renderer:

@@ -12,7 +12,8 @@ import trimesh
 
 from pipeline.repo import REPO
 from pipeline.scenes.blender import blender_python, missing_python
-from pipeline.scenes.scene import SceneError, find_asset, load_scene, scene_config, scene_names
+from pipeline.scenes.scene import SceneError
+from pipeline.scenes.loading import find_asset, load_scene, scene_config, scene_names
 from pipeline.scenes.views import rule_views
 
 PROXIES = [name for name in scene_names() if name.endswith("_proxy")]

@@ -12,7 +12,8 @@ import torch
 from nvf.cameras import look_at
 from pipeline import uncertainty
 from pipeline.uncertainty import S
-from pipeline.scenes.scene import SceneError, load_scene
+from pipeline.scenes.scene import SceneError
+from pipeline.scenes.loading import load_scene
 from pipeline.uncertainty import least_seen_view, main, partial_views
 
 

@@ -26,7 +26,8 @@ from pipeline.config.validation import compose_config
 from pipeline.config.schema import RenderConfig
 from pipeline.scenes.blender import BlenderRenderer, blender_python
 from pipeline.scenes.render import GroundTruthRenderer
-from pipeline.scenes.scene import SceneError, load_scene
+from pipeline.scenes.scene import SceneError
+from pipeline.scenes.loading import load_scene
 
 
 def _median_seconds(fn, poses) -> float:

@@ -77,7 +77,8 @@ from pipeline.metrics.image import off_edge_psnr, psnr
 from pipeline.scenes.render import GroundTruthRenderer
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.ground_truth import Renderer, ground_truth_info, open_renderer
-from pipeline.scenes.scene import Scene, SceneError, load_scene
+from pipeline.scenes.scene import Scene, SceneError
+from pipeline.scenes.loading import load_scene
 
 GOALS = {"train_samples_per_s": 1e6, "infer_samples_per_s": 3e6}
 # A low precision against the reference (fp32), paired in one run: training throughput (median over

@@ -29,7 +29,7 @@ from pipeline.records.store import RunRecord, run_dir
 from pipeline.records.verify import verified
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.ground_truth import ground_truth_info
-from pipeline.scenes.scene import load_scene
+from pipeline.scenes.loading import load_scene
 from pipeline.tables.summary import run_pictures, summarize_run
 
 

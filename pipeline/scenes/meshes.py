@@ -7,9 +7,7 @@ import numpy as np
 import trimesh
 from PIL import Image
 
-
-class SceneError(Exception):
-    """A scene cannot be built (unknown name, missing, unreadable or degenerate mesh); one-line message."""
+from pipeline.scenes.scene import SceneError
 
 
 def _one_line(text: object) -> str:
