@@ -50,7 +50,7 @@ class AssetFile:
 
 @dataclass
 class SceneConfig:
-    """One scene, declared once in ``conf/scene/<name>.yaml`` (PROTOCOL.md 2; ``pipeline.scenes.scene`` builds
+    """One scene, declared once in ``conf/scene/<name>.yaml`` (PROTOCOL.md 2; ``pipeline.scenes.loading`` builds
     it): where its mesh comes from, its boxes (``[[min x, y, z], [max x, y, z]]``), constants and view rigs."""
 
     name: str = MISSING

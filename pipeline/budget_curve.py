@@ -1,0 +1,156 @@
+"""``python -m pipeline.budget_curve [paths.results=DIR]``: the budget curve of the discrimination
+experiments and the budget the selection rule picks from it.
+
+Reads every ``${paths.results}/pilots/discriminate/<label>/summary.csv`` (``python -m pipeline.discriminate``)
+and writes beside them ``curve.csv`` (each label's rows with ``label`` added), ``curve.png`` (each lead
+with its 95% interval against minutes per episode, one panel per comparison) and ``choice.md``.
+
+The rule (docs/BUDGETS.md): among the settings measured on every scene of the experiment (hotdog, hubble,
+default), the cheapest one where NVF beats both w/o Vis. and the best baseline with the paired 95%
+interval above zero on at least two of the three scenes, within ``MAX_MINUTES`` per episode. Where none
+does, the one with the widest positive lead per minute (lead: the mean over scenes of NVF's smaller
+final-PSNR lead over the two); where no setting has a positive lead, the cheapest, saying so.
+"""
+
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import pandas as pd
+from matplotlib.figure import Figure
+
+from pipeline.cli import fail
+from pipeline.config.paths import configured_paths
+from pipeline.episode.images import save_figure
+from pipeline.records.store import atomic_write_text
+
+SCENES = ("hotdog", "hubble", "default")
+COMPARISONS = ("nvf-wo_vis", "nvf-ind_rays", "nvf-best_baseline")
+RULE_COMPARISONS = ("nvf-wo_vis", "nvf-best_baseline")
+MAX_MINUTES = 15.0
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One discrimination experiment's verdict under the rule."""
+
+    label: str
+    scenes: tuple[str, ...]
+    minutes: float  # mean minutes per episode over its summary rows
+    scenes_won: int  # scenes where every RULE_COMPARISONS interval lies above zero
+    lead: float  # mean over scenes of the smaller RULE_COMPARISONS mean difference, dB
+
+    @property
+    def complete(self) -> bool:
+        return set(SCENES) <= set(self.scenes)
+
+    @property
+    def meets_rule(self) -> bool:
+        return self.complete and self.scenes_won >= 2 and self.minutes <= MAX_MINUTES
+
+
+def read_curve(root: Path) -> pd.DataFrame:
+    """Every ``<label>/summary.csv`` under ``root``, with a ``label`` column."""
+    frames = [pd.read_csv(path).assign(label=path.parent.name) for path in sorted(root.glob("*/summary.csv"))]
+    if not frames:
+        fail(f"no {root}/<label>/summary.csv; run python -m pipeline.discriminate first")
+    return pd.concat(frames, ignore_index=True)
+
+
+def settings(curve: pd.DataFrame) -> list[Setting]:
+    out = []
+    for label, rows in curve.groupby("label", sort=True):
+        rule = rows[rows["comparison"].isin(RULE_COMPARISONS)]
+        per_scene = rule.groupby("scene")
+        won = sum(
+            len(g) == len(RULE_COMPARISONS) and bool((g["ci_low"] > 0).all()) for _, g in per_scene
+        )
+        leads = [g["mean_diff"].min() for _, g in per_scene if len(g) == len(RULE_COMPARISONS)]
+        out.append(Setting(
+            label=str(label), scenes=tuple(sorted(rows["scene"].unique())),
+            minutes=float(rows["minutes_per_episode"].mean()), scenes_won=won,
+            lead=float(sum(leads) / len(leads)) if leads else float("nan"),
+        ))  # fmt: skip
+    return out
+
+
+def choose(candidates: list[Setting]) -> tuple[Setting | None, str]:
+    """The rule's pick and why, in one sentence."""
+    complete = [s for s in candidates if s.complete]
+    if not complete:
+        return None, f"no setting is measured on all of {', '.join(SCENES)}, so the rule picks none"
+    meeting = [s for s in complete if s.meets_rule]
+    if meeting:
+        best = min(meeting, key=lambda s: s.minutes)
+        return best, "the cheapest setting that meets the rule"
+    positive = [s for s in complete if s.lead > 0]
+    if positive:
+        best = max(positive, key=lambda s: s.lead / s.minutes)
+        return best, "no setting meets the rule; this one has the widest positive lead per minute"
+    best = min(complete, key=lambda s: s.minutes)
+    return best, "no setting meets the rule and none has a positive lead over both w/o Vis. and the best baseline; this is the cheapest"
+
+
+def plot(curve: pd.DataFrame) -> Figure:
+    figure = Figure(figsize=(4.2 * len(COMPARISONS), 3.6))
+    axes = figure.subplots(1, len(COMPARISONS), sharey=True)
+    markers = dict(zip(SCENES, "osD"))
+    for ax, comparison in zip(axes, COMPARISONS):
+        rows = curve[curve["comparison"] == comparison]
+        for i, (label, group) in enumerate(rows.groupby("label", sort=True)):
+            for _, row in group.iterrows():
+                ax.errorbar(
+                    row["minutes_per_episode"], row["mean_diff"],
+                    yerr=[[row["mean_diff"] - row["ci_low"]], [row["ci_high"] - row["mean_diff"]]],
+                    fmt=markers.get(row["scene"], "^"), color=f"C{i}", capsize=3,
+                    label=f"{label} / {row['scene']}",
+                )  # fmt: skip
+        ax.axhline(0.0, color="grey", linewidth=0.8)
+        ax.set_title(comparison)
+        ax.set_xlabel("minutes per episode")
+    axes[0].set_ylabel("final PSNR difference, dB (95% CI)")
+    axes[-1].legend(fontsize=6, loc="best")
+    figure.tight_layout()
+    return figure
+
+
+def report(candidates: list[Setting], chosen: Setting | None, why: str) -> str:
+    lines = [
+        "# Budget curve", "",
+        f"Rule: among settings measured on {', '.join(SCENES)}, the cheapest where NVF beats w/o Vis. and the best "
+        f"baseline with the paired 95% interval above zero on at least two scenes, within {MAX_MINUTES:g} minutes per "
+        "episode; else the widest positive lead per minute.", "",
+        "| setting | scenes | min/episode | scenes won | lead (dB) | lead per minute |",
+        "|:--|:--|--:|--:|--:|--:|",
+    ]  # fmt: skip
+    for s in candidates:
+        lines.append(f"| {s.label} | {', '.join(s.scenes)} | {s.minutes:.1f} | {s.scenes_won} | {s.lead:+.2f} | "
+                     f"{s.lead / s.minutes:+.3f} |")  # fmt: skip
+    verdict = f"Chosen: **{chosen.label}** ({why})." if chosen else f"Chosen: none ({why})."
+    return "\n".join([*lines, "", verdict, ""])
+
+
+def main(argv: list[str]) -> int:
+    if any(arg in ("-h", "--help") for arg in argv):
+        print(__doc__.strip())
+        return 0
+    overrides = {}
+    for arg in argv:
+        key, sep, value = arg.partition("=")
+        if not sep or not value or key != "paths.results":
+            fail(f"unknown argument {arg!r}: use paths.results=DIR")
+        overrides[key] = value
+    root = configured_paths(overrides)["results"] / "pilots" / "discriminate"
+    curve = read_curve(root)
+    candidates = settings(curve)
+    chosen, why = choose(candidates)
+    atomic_write_text(root / "curve.csv", curve.to_csv(index=False))
+    save_figure(plot(curve), root / "curve.png")
+    atomic_write_text(root / "choice.md", report(candidates, chosen, why))
+    print(report(candidates, chosen, why), end="")
+    print(f"pipeline.budget_curve: wrote {root / 'curve.csv'}, {root / 'curve.png'}, {root / 'choice.md'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,70 @@
+"""The budget curve and the selection rule of docs/BUDGETS.md (pipeline.budget_curve)."""
+
+import pandas as pd
+import pytest
+
+from pipeline.budget_curve import main
+
+SCENES = ("hotdog", "hubble", "default")
+
+
+def write_summary(root, label, diffs, minutes, scenes=SCENES):
+    """One experiment's summary.csv: ``diffs[comparison] = (mean, ci_low)`` on every scene."""
+    rows = [
+        {"scene": scene, "comparison": comparison, "mean_diff": mean, "ci_low": low, "ci_high": mean + 1.0, "n": 3,
+         "minutes_per_episode": minutes}
+        for scene in scenes for comparison, (mean, low) in diffs.items()
+    ]  # fmt: skip
+    folder = root / "pilots" / "discriminate" / label
+    folder.mkdir(parents=True)
+    pd.DataFrame(rows).to_csv(folder / "summary.csv", index=False)
+
+
+WIN = {"nvf-wo_vis": (0.8, 0.2), "nvf-ind_rays": (0.5, -0.1), "nvf-best_baseline": (1.0, 0.3)}
+TIE = {"nvf-wo_vis": (0.3, -0.4), "nvf-ind_rays": (0.5, -0.1), "nvf-best_baseline": (0.6, -0.2)}
+LOSE = {"nvf-wo_vis": (-0.5, -1.0), "nvf-ind_rays": (0.5, -0.1), "nvf-best_baseline": (-0.2, -0.9)}
+
+
+def choice(tmp_path, capsys):
+    assert main([f"paths.results={tmp_path}"]) == 0
+    root = tmp_path / "pilots" / "discriminate"
+    assert (root / "curve.png").stat().st_size > 0 and len(pd.read_csv(root / "curve.csv")) > 0
+    return (root / "choice.md").read_text().splitlines()[-1]
+
+
+def test_the_cheapest_setting_that_meets_the_rule_is_chosen(tmp_path, capsys):
+    write_summary(tmp_path, "cpu", TIE, 5.0)
+    write_summary(tmp_path, "slow_win", WIN, 14.0)
+    write_summary(tmp_path, "fast_win", WIN, 9.0)
+    write_summary(tmp_path, "too_slow_win", WIN, 20.0)
+    assert choice(tmp_path, capsys) == "Chosen: **fast_win** (the cheapest setting that meets the rule)."
+
+
+def test_a_setting_measured_on_fewer_scenes_cannot_be_chosen(tmp_path, capsys):
+    write_summary(tmp_path, "cpu", LOSE, 10.0)
+    write_summary(tmp_path, "hotdog_only", WIN, 5.0, scenes=("hotdog",))
+    assert "**cpu**" in choice(tmp_path, capsys)
+
+
+def test_without_a_winner_the_widest_positive_lead_per_minute_is_chosen(tmp_path, capsys):
+    write_summary(tmp_path, "a", TIE, 10.0)  # lead 0.3 dB: 0.030 per minute
+    write_summary(tmp_path, "b", TIE | {"nvf-wo_vis": (0.5, -0.1)}, 12.0)  # lead 0.5: 0.042 per minute
+    assert choice(tmp_path, capsys) == (
+        "Chosen: **b** (no setting meets the rule; this one has the widest positive lead per minute)."
+    )
+
+
+def test_without_any_lead_the_cheapest_is_chosen_and_it_says_so(tmp_path, capsys):
+    write_summary(tmp_path, "expensive", LOSE, 12.0)
+    write_summary(tmp_path, "cheap", LOSE, 6.0)
+    line = choice(tmp_path, capsys)
+    assert "**cheap**" in line and "none has a positive lead" in line
+
+
+@pytest.mark.parametrize("argv", [["paths.outputs=x"], ["oops"]])
+def test_bad_arguments_and_a_missing_curve_are_one_line_and_status_2(tmp_path, capsys, argv):
+    for args in (argv, [f"paths.results={tmp_path}"]):
+        with pytest.raises(SystemExit) as exit_:
+            main(args)
+        assert exit_.value.code == 2
+        assert len(capsys.readouterr().err.strip().splitlines()) == 1
