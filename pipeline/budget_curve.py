@@ -21,7 +21,7 @@ from matplotlib.figure import Figure
 
 from pipeline.cli import fail
 from pipeline.config.paths import configured_paths
-from pipeline.episode.images import save_figure
+from pipeline.records.images import save_figure
 from pipeline.records.store import atomic_write_text
 
 SCENES = ("hotdog", "hubble", "default")

@@ -46,8 +46,9 @@ from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.catalog import ablation_configs, method_configs
 from pipeline.config.validation import compose_config
 from pipeline.episode.loop import Episode
-from pipeline.episode.settings import EpisodeSettings, resolve_device
-from pipeline.episode.images import colorize, save_figure
+from pipeline.config.validation import resolve_device
+from pipeline.episode.settings import EpisodeSettings
+from pipeline.records.images import colorize, save_figure
 from pipeline.metrics.image import LpipsMetric
 from pipeline.config.named import GROUPS, NamedConfigs
 from pipeline.records.store import atomic_write_bytes, atomic_write_text, to_jsonable

@@ -263,3 +263,8 @@ def _select(cfg, dotted):
     for part in dotted.split("."):
         node = node[part]
     return node
+
+
+def test_an_ablation_name_that_conf_does_not_declare_is_one_line(composer):
+    with pytest.raises(ConfigError, match=r"^ablation.name='no_such' is not one of .*wo_vis"):
+        validate(composer("ablation.name=no_such"))

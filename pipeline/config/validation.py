@@ -21,11 +21,8 @@ from pipeline.config.catalog import declared
 from pipeline.config.memory import host_memory, too_large
 from pipeline.config.named import changed_settings
 from pipeline.config.paths import unwritable
-from pipeline.episode.settings import resolve_device
 from pipeline.repo import CONF
 from pipeline.config.schema import register_configs
-
-ABLATIONS = ("none", "wo_vis", "wo_var", "ind_rays", "loose")
 
 
 class ConfigError(ValueError):
@@ -33,7 +30,6 @@ class ConfigError(ValueError):
 
 
 _CHOICES: dict[str, tuple[Any, ...]] = {
-    "ablation.name": ABLATIONS,
     "planner.name": ("argmax", "opt"),
     "planner.opt.param": ("quat_raw", "se3"),
     "planner.los_source": ("model", "mesh"),
@@ -76,6 +72,13 @@ _POSITIVE = (
     "sampler.uniform_samples", "sampler.uniform_far",
     "train.backbone.lr", "train.variance.lr", "train.visibility.lr", "planner.opt.lr", "train.label_max_depth",
 )  # fmt: skip
+
+
+def resolve_device(name: str) -> torch.device:
+    """``auto`` is CUDA when present, else CPU."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
 
 
 def _check_ablation(cfg: DictConfig) -> None:
@@ -147,6 +150,8 @@ def validate(cfg: DictConfig) -> None:
         value = OmegaConf.select(cfg, key)
         if value not in choices:
             raise ConfigError(f"{key}={value!r} is not one of {', '.join(map(str, choices))}")
+    if cfg.ablation.name not in declared("ablation"):
+        raise ConfigError(f"ablation.name={cfg.ablation.name!r} is not one of {', '.join(declared('ablation'))}")
     _check_ablation(cfg)
     for key, (alternative, recommended) in _NOT_IMPLEMENTED.items():
         if OmegaConf.select(cfg, key) == alternative:

@@ -20,9 +20,9 @@ from tqdm import tqdm
 from nvf.planning import NoCandidatesError
 from nvf.training import TrainingDiverged
 from pipeline.config.validation import validate
-from pipeline.episode.images import save_step_images
+from pipeline.records.images import save_step_images
 from pipeline.episode.loop import Episode
-from pipeline.episode.settings import resolve_device
+from pipeline.config.validation import resolve_device
 from pipeline.metrics.image import LpipsMetric
 from pipeline.records.lock import RunLock
 from pipeline.records.store import RunRecord, run_dir

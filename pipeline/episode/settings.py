@@ -14,13 +14,6 @@ from pipeline.config.schema import BudgetConfig, MetricsConfig
 from pipeline.scenes.scene import Scene
 
 
-def resolve_device(name: str) -> torch.device:
-    """``auto`` is CUDA when present, else CPU."""
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(name)
-
-
 def typed(cfg: DictConfig, cls: type):
     """A plain dataclass instance of ``cls`` from a config node (nvf/ never sees OmegaConf)."""
     return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(cls), cfg))

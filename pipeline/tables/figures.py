@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
-from pipeline.episode.images import save_figure
+from pipeline.records.images import save_figure
 from pipeline.metrics.info import PAPER_METRICS
 from pipeline.tables.load import Runs
 
