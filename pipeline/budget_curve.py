@@ -20,12 +20,11 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from pipeline.cli import fail
-from pipeline.config.paths import configured_paths
+from pipeline.config.paths import paths_from_args
 from pipeline.records.images import save_figure
 from pipeline.records.store import atomic_write_text
 
 SCENES = ("hotdog", "hubble", "default")
-COMPARISONS = ("nvf-wo_vis", "nvf-ind_rays", "nvf-best_baseline")
 RULE_COMPARISONS = ("nvf-wo_vis", "nvf-best_baseline")
 MAX_MINUTES = 15.0
 
@@ -92,10 +91,12 @@ def choose(candidates: list[Setting]) -> tuple[Setting | None, str]:
 
 
 def plot(curve: pd.DataFrame) -> Figure:
-    figure = Figure(figsize=(4.2 * len(COMPARISONS), 3.6))
-    axes = figure.subplots(1, len(COMPARISONS), sharey=True)
+    """One panel per comparison of the summaries (``pipeline.discriminate.COMPARISONS``), in their order."""
+    comparisons = list(dict.fromkeys(curve["comparison"]))
+    figure = Figure(figsize=(4.2 * len(comparisons), 3.6))
+    axes = figure.subplots(1, len(comparisons), sharey=True, squeeze=False)[0]
     markers = dict(zip(SCENES, "osD"))
-    for ax, comparison in zip(axes, COMPARISONS):
+    for ax, comparison in zip(axes, comparisons):
         rows = curve[curve["comparison"] == comparison]
         for i, (label, group) in enumerate(rows.groupby("label", sort=True)):
             for _, row in group.iterrows():
@@ -134,20 +135,17 @@ def main(argv: list[str]) -> int:
     if any(arg in ("-h", "--help") for arg in argv):
         print(__doc__.strip())
         return 0
-    overrides = {}
-    for arg in argv:
-        key, sep, value = arg.partition("=")
-        if not sep or not value or key != "paths.results":
-            fail(f"unknown argument {arg!r}: use paths.results=DIR")
-        overrides[key] = value
-    root = configured_paths(overrides)["results"] / "pilots" / "discriminate"
+    try:
+        root = paths_from_args(argv, ("paths.results",))["results"] / "pilots" / "discriminate"
+    except ValueError as err:
+        fail(str(err))
     curve = read_curve(root)
     candidates = settings(curve)
-    chosen, why = choose(candidates)
+    text = report(candidates, *choose(candidates))
     atomic_write_text(root / "curve.csv", curve.to_csv(index=False))
     save_figure(plot(curve), root / "curve.png")
-    atomic_write_text(root / "choice.md", report(candidates, chosen, why))
-    print(report(candidates, chosen, why), end="")
+    atomic_write_text(root / "choice.md", text)
+    print(text, end="")
     print(f"pipeline.budget_curve: wrote {root / 'curve.csv'}, {root / 'curve.png'}, {root / 'choice.md'}")
     return 0
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from pipeline.bench import __main__ as bench
-from pipeline.bench import episode, plan, train, visibility
+from pipeline.bench import episode, field, plan, train, visibility
 from pipeline.config.catalog import method_configs
 
 SCORING = [name for name in method_configs() if name != "random"]  # every method with a view score
@@ -26,6 +26,20 @@ def _assert_positive(path: Path, keys: list[str]) -> dict:
 
 def test_benchmarks_are_dispatched():
     assert {"train", "plan", "episode", "visibility"} <= set(bench.available())
+
+
+def test_field_bench_writes_its_variant_and_refuses_a_bad_argument_before_running(tmp_path, capsys):
+    out = tmp_path / "field.json"
+    args = ["--only", "hash2^15-torch", "--rays", "32", "--samples-per-ray", "4", "--chunk", "128", "--iters", "1"]
+    field.main([*args, "--out", str(out)])
+    variant = json.loads(out.read_text())["variants"]["hash2^15-torch"]
+    assert math.isfinite(variant["train_samples_per_s"]) and variant["train_samples_per_s"] > 0
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exit_:
+        field.main([*args, f"paths.results={tmp_path / 'r'}", "paths.outputs=x"])
+    assert exit_.value.code == 2
+    assert capsys.readouterr().err.strip() == "error: unknown argument 'paths.outputs=x': use paths.results=DIR"
+    assert not (tmp_path / "r").exists()
 
 
 def test_train_bench_writes_rates_fractions_and_psnr(tmp_path):

@@ -18,6 +18,7 @@ time divided by the thread count, which is robust to other jobs sharing the core
 import statistics
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import torch
 from jaxtyping import Float
@@ -26,9 +27,9 @@ from torch import Tensor
 from nvf.config import FieldConfig
 from nvf.encoding import cpp_extension
 from nvf.field import HEADS, RadianceField, spherical_harmonics
-from pipeline.cli import ArgumentParser, description
+from pipeline.cli import ArgumentParser, description, fail
 from pipeline.bench._report import report_path, write_report
-from pipeline.config.paths import configured_paths
+from pipeline.config.paths import paths_from_args
 
 AABB = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 CPU_BUDGET_LOG2 = 15
@@ -183,6 +184,10 @@ def main(argv: list[str]) -> None:
     parser.add_argument("--out", type=Path, default=None, help="JSON report path (default: ${paths.results}/bench/field.json)")
     parser.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="paths overrides, e.g. paths.results=results")
     args = parser.parse_intermixed_args(argv)
+    try:  # bad input is one line before the benchmark runs, not after
+        out = report_path(args.out, paths_from_args(args.overrides, ("paths.results",))["results"], "field")
+    except ValueError as err:
+        fail(str(err))
     torch.set_num_threads(args.threads)
     cpp_available = cpp_extension() is not None
     results = {}
@@ -220,6 +225,5 @@ def main(argv: list[str]) -> None:
         "goals": {"train_samples_per_s": 1e6, "infer_samples_per_s": 3e6},
         "variants": results,
     }
-    out = report_path(args.out, configured_paths(dict(o.split("=", 1) for o in args.overrides))["results"], "field")
     write_report(report, out)
     print(f"wrote {out}")

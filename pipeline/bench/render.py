@@ -15,12 +15,11 @@ import contextlib
 import os
 import platform
 import statistics
-import sys
 import time
 from pathlib import Path
 
 from nvf.cameras import Intrinsics
-from pipeline.cli import ArgumentParser, description
+from pipeline.cli import ArgumentParser, description, fail
 from pipeline.bench._report import report_path, write_report
 from pipeline.config.validation import compose_config
 from pipeline.config.schema import RenderConfig
@@ -51,8 +50,7 @@ def main(argv: list[str]) -> None:
     parser.add_argument("--out", type=Path, default=None, help="JSON report path (default: ${paths.results}/bench/render.json)")
     args = parser.parse_args(argv)
     if min(args.res) < 8 or not 1 <= args.views <= 20 or args.samples < 1:
-        print("error: --res must be >= 8, --views in 1..20 and --samples >= 1", file=sys.stderr)
-        raise SystemExit(2)
+        fail("--res must be >= 8, --views in 1..20 and --samples >= 1")
     cfg = compose_config(args.overrides)
     python, threads = blender_python(cfg.paths.blender_python), os.cpu_count() or 1
     use_blender, rows, version, load_start = "blender" in args.backends, [], None, os.getloadavg()
@@ -80,8 +78,7 @@ def main(argv: list[str]) -> None:
                     row["ray_cast_ms"] = 1e3 * _median_seconds(lambda p: flat.ray_cast_view(p, intr), poses)
                     rows.append(row)
     except SceneError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        raise SystemExit(2) from None
+        fail(str(exc))
     report = {"benchmark": "render", "statistic": "median ms per view", "machine": platform.platform(),
               "processor": platform.processor(), "cores": threads, "cycles_samples": args.samples,
               "blender": version, "load_average_1_5_15_min": {"start": load_start, "end": os.getloadavg()},

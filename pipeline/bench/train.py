@@ -43,7 +43,6 @@ to other jobs on the cores. The models run on the CPU. Writes ``results/bench/tr
 import dataclasses
 import math
 import statistics
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -54,7 +53,6 @@ import torch
 from jaxtyping import Float
 from omegaconf import DictConfig
 from torch import Tensor
-from tqdm import tqdm
 
 from nvf.cameras import Intrinsics, look_at, matrix_to_pose
 from nvf.config import STAGES
@@ -67,7 +65,7 @@ from nvf.rendering import Samples
 from nvf.precision import PRECISIONS, precision_dtype, supported_precisions, unsupported_reason
 from nvf.training import Observations, train_backbone, train_model
 from pipeline.bench._paired import IterationClock, Turn, lockstep, ratio_spread
-from pipeline.cli import ArgumentParser, description
+from pipeline.cli import ArgumentParser, description, fail
 from pipeline.bench._report import report_path, write_report
 from pipeline.bench.field import matmul_gflops, median_seconds, mlp_flops
 from pipeline.config.validation import compose_config
@@ -112,8 +110,7 @@ def load(cfg: DictConfig) -> Scene:
     try:
         return load_scene(cfg.scene, Path(cfg.paths.assets), blender_python(cfg.paths.blender_python))
     except SceneError as err:
-        print(f"error: {err}", file=sys.stderr)
-        raise SystemExit(2) from None
+        fail(str(err))
 
 
 def observations(
@@ -468,11 +465,9 @@ def parse_precisions(value: str | None) -> list[str]:
             f"unknown precision; choose from {', '.join(PRECISIONS)}"
         )  # fmt: skip
         if reason is not None:
-            print(f"error: --precisions {name}: {reason}", file=sys.stderr)
-            raise SystemExit(2)
+            fail(f"--precisions {name}: {reason}")
     if not names or len(set(names)) != len(names):
-        print(f"error: --precisions {value!r} must name distinct precisions, e.g. fp32,bf16", file=sys.stderr)
-        raise SystemExit(2)
+        fail(f"--precisions {value!r} must name distinct precisions, e.g. fp32,bf16")
     return names
 
 

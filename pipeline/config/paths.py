@@ -2,7 +2,7 @@
 ``paths.results`` (tables). Imports nothing heavy (``pipeline.tables`` uses it without torch)."""
 
 import os
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from omegaconf import OmegaConf
@@ -20,6 +20,18 @@ def configured_paths(overrides: Mapping[str, str]) -> dict[str, Path]:
             raise ValueError(f"unknown key {key!r}: use {', '.join(f'paths.{k}=DIR' for k in node.paths)}")
         OmegaConf.update(node, key, value)
     return {key: Path(value) for key, value in OmegaConf.to_container(node.paths, resolve=True).items()}
+
+
+def paths_from_args(args: Sequence[str], keys: Sequence[str]) -> dict[str, Path]:
+    """``configured_paths`` of a command's ``key=value`` arguments, each key one of ``keys``; a ValueError
+    naming the arguments the command takes otherwise."""
+    overrides = {}
+    for arg in args:
+        key, sep, value = arg.partition("=")
+        if not sep or not value or key not in keys:
+            raise ValueError(f"unknown argument {arg!r}: use {' and/or '.join(f'{k}=DIR' for k in keys)}")
+        overrides[key] = value
+    return configured_paths(overrides)
 
 
 def unwritable(key: str, path: Path) -> str | None:

@@ -1,7 +1,7 @@
 """Images written by the pipeline: per-step PNGs of a run (GT | prediction | score map | depth of
 evaluation view 0), colourised maps, and matplotlib figures saved atomically."""
 
-import os
+import io
 from pathlib import Path
 
 import imageio.v3 as iio
@@ -10,7 +10,7 @@ import numpy as np
 from jaxtyping import Float
 from matplotlib.figure import Figure
 
-from pipeline.records.store import temp_file
+from pipeline.records.store import atomic_write_bytes
 
 
 def to_uint8(image: Float[np.ndarray, "H W 3"]) -> np.ndarray:
@@ -40,12 +40,7 @@ def save_step_images(directory: Path, step: int, images: dict[str, np.ndarray]) 
 
 
 def save_figure(fig: Figure, path: Path) -> None:
-    """Save a figure as PNG atomically (a temp file of this writer + os.replace; mode as the umask gives)."""
-    fd, tmp = temp_file(path)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            fig.savefig(f, format="png")
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    """Save a figure as PNG atomically (``atomic_write_bytes``)."""
+    png = io.BytesIO()
+    fig.savefig(png, format="png")
+    atomic_write_bytes(path, png.getvalue())

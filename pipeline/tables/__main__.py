@@ -20,19 +20,13 @@ Exit status 2: a bad argument or an unusable ``paths.results`` (nothing written)
 import sys
 from pathlib import Path
 
-from pipeline.config.paths import configured_paths, unwritable
+from pipeline.config.paths import paths_from_args, unwritable
 from pipeline.tables.build import build_tables
 
 
 def parse_overrides(argv: list[str]) -> tuple[Path, Path]:
     """(outputs, results) from ``paths.outputs=...`` / ``paths.results=...`` (defaults: conf/paths)."""
-    overrides = {}
-    for arg in argv:
-        key, sep, value = arg.partition("=")
-        if not sep or not value or key not in ("paths.outputs", "paths.results"):
-            raise ValueError(f"unknown argument {arg!r}: use paths.outputs=DIR and/or paths.results=DIR")
-        overrides[key] = value
-    paths = configured_paths(overrides)
+    paths = paths_from_args(argv, ("paths.outputs", "paths.results"))
     return paths["outputs"], paths["results"]
 
 
