@@ -7,8 +7,10 @@ Blender skip, saying how to install it, where ``paths.blender_python`` does not 
 
 import dataclasses
 import json
+import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -22,10 +24,18 @@ from scipy.ndimage import binary_erosion
 from nvf.cameras import Intrinsics, look_at
 from pipeline.config.validation import ConfigError, validate
 from pipeline.episode.runner import run_episode
+from pipeline.records.lock import RunLock
 from pipeline.records.store import RunRecord
-from pipeline.repo import CONF
+from pipeline.repo import CONF, REPO
 from pipeline.scenes.__main__ import main as scenes_main
-from pipeline.scenes.blender import BlenderError, BlenderRenderer, blender_python, missing_python
+from pipeline.scenes.blender import (
+    BlenderError,
+    BlenderProcess,
+    BlenderRenderer,
+    BlenderTimeout,
+    blender_python,
+    missing_python,
+)
 from pipeline.scenes.blender_worker import linear_to_srgb
 from pipeline.scenes.render import GroundTruthRenderer
 from pipeline.scenes.scene import SceneError
@@ -301,3 +311,78 @@ def test_a_smoke_episode_on_blender_ground_truth_records_it(tmp_path):
     assert info["scene_source"] == "blend" and info["config"]["render"] == {"backend": "blender", "samples": 4}
     assert info["ground_truth"]["backend"] == "blender" and info["ground_truth"]["asset"] == f"{SCENE}/{SCENE}.blend"
     assert info["ground_truth"]["samples"] == 4 and info["ground_truth"]["device"]
+
+
+# A stand-in for Blender's Python that talks the worker's protocol and then stops answering (no bpy needed):
+# ``silent`` never greets; ``hangs_on_render`` greets, opens any scene and never answers a render.
+FAKE_WORKER = """#!{python}
+import os, sys, time
+sys.path.insert(0, {repo!r})
+from pipeline.scenes.blender_worker import read_message, write_message
+with open({pid_file!r}, "w") as f:
+    f.write(str(os.getpid()))
+out = sys.stdout.buffer
+if {mode!r} == "hangs_on_render":
+    write_message(out, {{"ok": True, "blender": "fake"}})
+    while True:
+        header, _ = read_message(sys.stdin.buffer)
+        if header["cmd"] == "render":
+            break
+        write_message(out, {{"ok": True, "device": "CPU"}})
+time.sleep(600)
+"""
+
+
+def _fake_worker(tmp_path: Path, mode: str) -> tuple[Path, Path]:
+    """An executable stand-in for ``paths.blender_python`` and the file it writes its process id to."""
+    script, pid_file = tmp_path / f"fake-{mode}", tmp_path / f"fake-{mode}.pid"
+    script.write_text(FAKE_WORKER.format(python=sys.executable, repo=str(REPO), pid_file=str(pid_file), mode=mode))
+    script.chmod(0o755)
+    return script, pid_file
+
+
+def _gone(pid_file: Path) -> bool:
+    """Whether the process whose id ``pid_file`` holds no longer exists (killed and reaped)."""
+    try:
+        os.kill(int(pid_file.read_text()), 0)
+    except ProcessLookupError:
+        return True
+    return False
+
+
+def test_case_7_a_worker_that_never_answers_is_stopped_after_the_timeout(tmp_path):
+    """Issue 30, case 7: a Blender worker that never answered hung the run forever. Each request now waits at
+    most ``timeout`` seconds; then the worker is killed and the request fails with one line."""
+    silent, silent_pid = _fake_worker(tmp_path, "silent")
+    start = time.monotonic()
+    with pytest.raises(BlenderTimeout, match=r"^Blender's worker did not answer within 1 s \(render.timeout\)") as info:
+        BlenderProcess(silent, timeout=1.0)
+    assert time.monotonic() - start < 30 and "\n" not in str(info.value) and _gone(silent_pid)
+    hangs, hangs_pid = _fake_worker(tmp_path, "hangs_on_render")
+    scene = load_scene("default", tmp_path)
+    renderer = BlenderRenderer(scene, 1, hangs, timeout=1.0)
+    with pytest.raises(BlenderTimeout, match="did not answer within 1 s"):
+        renderer.render_rgba(scene.eval_poses[0], INTR)
+    assert _gone(hangs_pid)
+    with pytest.raises(BlenderTimeout):  # and stays stopped
+        renderer.render_rgba(scene.eval_poses[0], INTR)
+    renderer.close()
+
+
+def test_case_7_a_run_whose_worker_hangs_fails_in_one_line_leaving_no_lock_or_process(tmp_path):
+    """Issue 30, case 7, end to end: ``python -m pipeline.run`` with a worker that stops answering exits 1 with
+    one ``error:`` line naming the timeout; the worker is gone, the run's lock free, the run left to resume."""
+    hangs, pid_file = _fake_worker(tmp_path, "hangs_on_render")
+    out = tmp_path / "out"
+    overrides = ["budget=smoke", "method=random", "budget.horizon=1", "render.backend=blender", "render.timeout=2",
+                 f"paths.blender_python={hangs}", f"paths.outputs={out}"]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    proc = subprocess.run([sys.executable, "-m", "pipeline.run", *overrides], cwd=REPO, env=env, capture_output=True,
+                          text=True, timeout=600)
+    lines = [line for line in proc.stderr.splitlines() if line.strip() and "cpp_extension" not in line]
+    assert proc.returncode == 1 and len(lines) == 1, proc.stderr
+    assert lines[0].startswith(f"error: run {out / 'default' / 'random-argmax-none' / 'smoke' / 'seed_100'} stopped")
+    assert "Blender's worker did not answer within 2 s (render.timeout)" in lines[0] and "to resume" in lines[0]
+    assert _gone(pid_file)
+    with RunLock(out / "default" / "random-argmax-none" / "smoke" / "seed_100", out):
+        pass  # free

@@ -12,7 +12,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf, open_dict
 
 from pipeline.config import validation
-from pipeline.config.memory import allocations
+from pipeline.config.memory import SIZE_KEYS_BOUNDED, allocations, too_large
 from pipeline.config.catalog import declared
 from pipeline.config.validation import ConfigError, validate
 from pipeline.repo import CONF
@@ -160,6 +160,50 @@ def test_sizes_that_do_not_fit_in_memory_are_refused_with_the_number(composer, m
     assert "more than the 64.0 GiB of memory of this machine" in str(err.value)
     for budget in ("paper", "cpu", "smoke"):  # every budget fits on a 64 GiB machine
         validate(composer(f"budget={budget}"))
+
+
+# (key, value, overrides that make the allocation happen): each size key set far beyond any memory
+SCALED = [
+    ("budget.image_size", 10**5, ()),
+    ("budget.eval_size", 10**5, ()),
+    ("budget.horizon", 10**6, ()),
+    ("planner.resolution", 10**5, ()),
+    ("planner.num_candidates", 10**9, ()),
+    ("sampler.grid_resolution", 10**4, ()),
+    ("budget.gt_points", 10**9, ()),
+    ("budget.recon_points", 10**9, ()),
+    ("budget.recon_batch", 10**9, ()),
+    ("field.dense_resolution", 10**4, ("field.kind=densegrid",)),
+    ("field.log2_hashmap_size", 40, ("field.max_resolution=100000",)),
+    ("field.num_levels", 10**7, ()),
+    ("field.hidden_dim", 10**6, ()),
+    ("train.backbone.batch", 10**9, ()),
+    ("train.variance.batch", 10**9, ()),
+    ("train.visibility.batch", 10**9, ()),
+    ("train.label_samples", 10**9, ()),
+    ("train.target_samples", 10**12, ("train.schedule=reference",)),
+    ("planner.los_samples", 10**9, ("planner.collision_free=true", "planner.los_source=model")),
+    ("sampler.uniform_samples", 10**9, ("nvf.entropy.sampler=uniform",)),
+]
+
+
+def test_every_positive_size_key_has_an_allocation_or_a_reason_it_has_none():
+    """The memory estimate covers every per-batch allocation a size key scales: each validated positive key is
+    either in SCALED (an allocation of its own) or in SIZE_KEYS_BOUNDED (time, a rate, a cap, or bounded by
+    another key's allocation), never neither."""
+    scaled = {key for key, _, _ in SCALED}
+    assert set(validation._POSITIVE) == scaled | set(SIZE_KEYS_BOUNDED) and not scaled & set(SIZE_KEYS_BOUNDED)
+
+
+@pytest.mark.parametrize(("key", "value", "overrides"), SCALED, ids=[key for key, _, _ in SCALED])
+def test_case_6_every_size_key_beyond_memory_is_refused_naming_it(composer, key, value, overrides):
+    """Issue 30, case 6: ``train.label_samples=1000000000`` allocated ~8.9 GB and died with an allocator traceback
+    after 26 s; ``budget.horizon=1000000000`` ran until killed. Every size key now has its allocation in the
+    estimate (here against 1 GiB), so a value far beyond memory is refused before the run, naming the key."""
+    cfg = composer(*overrides, f"{key}={value}")
+    problem = too_large(cfg, float(2**30), float(2**30), "a 1 GiB device")
+    assert problem is not None and problem.startswith(f"{key}={value}: "), problem
+    assert too_large(composer(*overrides), float(2**30), float(2**30), "a 1 GiB device") is None
 
 
 def test_largest_allocations_are_lower_bounds_of_real_arrays(composer):

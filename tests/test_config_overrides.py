@@ -30,6 +30,30 @@ def test_compose_config_exits_with_one_line_on_any_bad_override(override, needle
     assert len(err) == 1 and err[0].startswith("error: ") and needle in err[0]
 
 
+HOSTILE_VALUES = [
+    ("case_5_negative_seed", "seed=-1", "error: seed=-1 must be an integer from 0 to 2^63-1"),
+    ("case_5_seed_beyond_int64", "seed=99999999999999999999", "error: seed=99999999999999999999 must be an integer from 0"),
+    ("case_6_horizon_of_a_billion_steps", "budget.horizon=1000000000", "error: budget.horizon=1000000000 is more than 1000 steps"),
+    ("case_6_a_billion_label_samples", "train.label_samples=1000000000",
+     "error: train.label_samples=1000000000 is more than 65536 samples per segment"),
+    ("case_9_unknown_plus_key", "+no_such_key=1", "error: unknown key 'no_such_key' (added with +no_such_key=...)"),
+    ("case_9_unknown_plus_key_in_a_group", "+train.backbone.momentum=0.9", "error: unknown key 'train.backbone.momentum'"),
+    ("a_name_too_long_for_a_run_directory", "budget.name=" + "b" * 65, "has 65 characters, more than 64"),
+    ("a_blender_timeout_of_zero", "render.timeout=0", "error: render.timeout=0.0 must be positive"),
+]
+
+
+@pytest.mark.parametrize(("override", "needle"), [h[1:] for h in HOSTILE_VALUES], ids=[h[0] for h in HOSTILE_VALUES])
+def test_case_5_6_9_bad_values_are_one_error_line_before_anything_runs(override, needle, capsys):
+    """Issue 30: a negative or out-of-int64 seed was a traceback (case 5), a billion label samples or steps were
+    accepted (case 6), ``+no_such_key=1`` was stored silently (case 9). Each is now one ``error:`` line, status 2."""
+    with pytest.raises(SystemExit) as exit_info:
+        compose_config([override])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and needle in err[0], err
+
+
 def test_overrides_that_agree_with_the_ablation_compose():
     assert compose_config(["ablation=ind_rays", "nvf.entropy.d0=0"]).nvf.entropy.d0 == 0.0
     assert compose_config(["ablation=none", "nvf.entropy.d0=auto"]).nvf.entropy.d0 == "auto"  # no ablation to undo

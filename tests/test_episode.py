@@ -18,7 +18,7 @@ from pipeline.config.schema import register_configs
 from pipeline.episode.loop import Episode
 from pipeline.episode.runner import Outcome, RunRefused, StepFailed, run_episode
 from pipeline.metrics.image import LpipsMetric
-from pipeline.records.lock import LOCK_FILE, RunLock
+from pipeline.records.lock import RunLock
 from pipeline.records.store import RecordError, RunRecord
 from pipeline.records.verify import verified
 from pipeline.repo import CONF, REPO
@@ -74,12 +74,12 @@ def test_smoke_episode_writes_complete_records(tmp_path):
     info = json.loads((directory / "run.json").read_text())
     assert info["budget"] == "smoke" and info["field"] in ("hashgrid", "densegrid")
     assert info["git"]["commit"] is None or len(info["git"]["commit"]) == 40
-    assert info["collision_free"] is False and info["steps_digest"].startswith("sha256:")
+    assert info["collision_free"] is False and info["record_digest"].startswith("sha256:")
     assert verified(record)[1] == rows
     assert (directory / "images" / "step_01_pred.png").is_file()
     # the run's own labelled pictures and table, beside its records
     assert all((directory / name).stat().st_size > 0 for name in ("grid.png", "psnr.png", "summary.md"))
-    assert not (directory / LOCK_FILE).exists()  # released
+    assert RunLock(directory, tmp_path).path.read_text() == ""  # released
     # a finished run is skipped, not re-run; one finished with other settings is refused, untouched
     assert run_episode(_cfg(tmp_path, "method=random", "budget.horizon=2")) == Outcome(directory, "skipped")
     assert len(RunRecord(directory).completed_steps()) == 2
@@ -114,15 +114,34 @@ def test_a_collapsed_run_is_recorded_as_failed_and_a_rerun_repeats_the_reason(tm
 def test_a_second_writer_of_a_run_is_one_line_and_exit_2(tmp_path):
     """Two processes on one run directory: the second names the holder and leaves the record alone."""
     directory = tmp_path / "default" / "random-argmax-none" / "smoke" / "seed_100"
-    with RunLock(directory, root=tmp_path):
+    with RunLock(directory, root=tmp_path) as lock:
+        directory.mkdir(parents=True)
         (directory / "run.json").write_text("{}")  # what a live writer may have half done: untouched
         proc = _cli(tmp_path, "method=random", "budget.horizon=1")
         _, stderr = proc.communicate(timeout=600)
-        holder = (directory / LOCK_FILE).read_text().strip()
+        holder = lock.path.read_text().strip()
     lines = [line for line in stderr.splitlines() if line.strip() and "cpp_extension" not in line]
     assert proc.returncode == 2 and len(lines) == 1, stderr
     assert lines[0].startswith(f"error: run {directory} is being written by {holder}")
     assert (directory / "run.json").read_text() == "{}"
+
+
+def test_case_5_a_bad_seed_is_one_line_alone_and_inside_a_sweep(tmp_path):
+    """Issue 30, case 5: ``seed=-1`` was a ValueError traceback from records/store.py (also inside sweeps), and
+    ``seed=99999999999999999999`` an overflow in torch. Alone: one ``error:`` line, exit 2; in a sweep, each job
+    fails with that line as its reason, no traceback."""
+    proc = _cli(tmp_path, "seed=-1")
+    _, err = proc.communicate(timeout=300)
+    lines = [line for line in err.splitlines() if line.strip() and "cpp_extension" not in line]
+    assert proc.returncode == 2 and lines == ["error: seed=-1 must be an integer from 0 to 2^63-1 (it seeds every "
+                                              "generator of the run)"], err
+    proc = _cli(tmp_path, "-m", "seed=-1,99999999999999999999")
+    out, err = proc.communicate(timeout=300)
+    assert proc.returncode == 1 and "Traceback" not in err
+    lines = _sweep_lines(out + err)
+    assert lines[0] == "sweep: 2 jobs: 0 done, 0 skipped, 2 failed"
+    assert lines[2].endswith("): seed=99999999999999999999 must be an integer from 0 to 2^63-1 (it seeds every generator of the run)")
+    assert not any(p.name != ".hydra" for p in tmp_path.iterdir())  # nothing of a run written
 
 
 def test_a_malformed_record_is_refused_before_any_work(tmp_path):

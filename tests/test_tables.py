@@ -1,7 +1,9 @@
 """pipeline/tables/: long CSV, aggregation over seeds at the last step, paper-style tables, figures."""
 
+import json
 import os
 import re
+import shutil
 import stat
 import subprocess
 import sys
@@ -10,13 +12,14 @@ from pathlib import Path
 import imageio.v3 as iio
 import numpy as np
 import pandas as pd
+import pytest
 
 from omegaconf import OmegaConf
 
 from pipeline.config.named import NamedConfigs
 from pipeline.config.validation import compose_config
 from pipeline.tables.paper import paper_numbers
-from pipeline.records.store import RunRecord, run_dir
+from pipeline.records.store import DIGEST_KEY, RunRecord, record_digest, run_dir
 from pipeline.repo import CONF, REPO
 from pipeline.tables.__main__ import main
 from pipeline.tables.build import build_tables
@@ -206,19 +209,48 @@ def test_truncated_steps_and_bad_records_are_skipped_with_the_reason(tmp_path):
 
 
 def test_the_same_run_with_other_settings_is_left_out_and_listed(tmp_path):
+    """Finished copies of one run with other settings are both named and neither counts; identical copies
+    count once; an unfinished copy with other settings than the finished one is left out, named."""
     first, second = tmp_path / "out", tmp_path / "res" / "runs"
     make_run(first, seed=100, final={"psnr": 30.0}, config={"planner": {"num_candidates": 512}})
     make_run(second, seed=100, final={"psnr": 10.0}, config={"planner": {"num_candidates": 128}})
     make_run(first, seed=101, final={"psnr": 20.0}, config={"planner": {"num_candidates": 512}})
     make_run(second, seed=101, final={"psnr": 20.0}, config={"planner": {"num_candidates": 512}})  # no conflict
+    make_run(first, seed=102, status="running", config={"planner": {"num_candidates": 128}})
+    make_run(second, seed=102, final={"psnr": 30.0}, config={"planner": {"num_candidates": 512}})
     written, lines = build_tables(first, [second], tmp_path / "res", figures=False)
-    assert len(lines) == 1
-    assert lines[0].startswith(f"left out {second / 'hubble'}")
-    assert "the same run as" in lines[0] and "config.planner.num_candidates (128 here, 512 there)" in lines[0]
+    assert len(lines) == 2
+    both = f"{first / 'hubble'}/nvf-argmax-none/smoke/seed_100 and {second / 'hubble'}/nvf-argmax-none/smoke/seed_100"
+    assert lines[0] == (f"left out every copy of one run: {both} are finished copies that differ "
+                        "(config.planner.num_candidates (512 in the first, 128 in the second)); remove the ones that are wrong")
+    assert lines[1].startswith(f"left out {first / 'hubble'}") and "seed_102: the same run as" in lines[1]
+    assert "config.planner.num_candidates (128 here, 512 there)" in lines[1]
     md = read(tmp_path / "res" / "tables" / "main.md")
     assert "Budget: smoke+planner.num_candidates=512." in md  # 512 is not smoke's own value (8)
-    assert "1 run record(s) left out: the same run as a kept record with other settings" in md
-    assert "25.00 ± 5.00" in md  # seeds 100 (the first root's 30 dB, not 10) and 101 (20 dB)
+    assert "2 conflict(s) between copies of a run left records out" in md
+    assert "25.00 ± 5.00" in md  # seeds 101 and 102 (the finished copy); seed 100 in neither root's version
+
+
+def test_two_finished_copies_with_different_rows_are_both_named_and_neither_tabulated(tmp_path):
+    """Case 2 of issue 30: a copy of a finished run under another folder with its final PSNR set to 99 and its
+    digest recomputed replaced the real run without a word. Now both are named in one line and neither counts
+    until one is removed; then the other counts."""
+    real = make_run(tmp_path / "out", seed=100, final={"psnr": 20.0})
+    forged = tmp_path / "res" / "runs" / real.directory.relative_to(tmp_path / "out")
+    shutil.copytree(real.directory, forged)
+    lines = (forged / "steps.jsonl").read_text().splitlines()
+    lines[-1] = lines[-1].replace('"psnr":20.0', '"psnr":99.0')
+    (forged / "steps.jsonl").write_text("\n".join(lines) + "\n")
+    info = json.loads((forged / "run.json").read_text())
+    info[DIGEST_KEY] = record_digest(info, (forged / "steps.jsonl").read_bytes())  # a consistent forgery
+    (forged / "run.json").write_text(json.dumps(info))
+    written, lines = build_tables(tmp_path / "out", [tmp_path / "res" / "runs"], tmp_path / "res", figures=False)
+    assert list(lines) == [f"left out every copy of one run: {real.directory} and {forged} are finished copies that differ "
+                     "(step 2 metrics.psnr (20.0 in the first, 99.0 in the second)); remove the ones that are wrong"]
+    assert "No runs yet" in read(tmp_path / "res" / "tables" / "all_runs.md")
+    shutil.rmtree(forged)
+    written, lines = build_tables(tmp_path / "out", [tmp_path / "res" / "runs"], tmp_path / "res", figures=False)
+    assert not lines and "| 20.00 " in read(tmp_path / "res" / "tables" / "all_runs.md")
 
 
 def test_runs_with_settings_beyond_their_budget_get_their_own_budget_label(tmp_path):
@@ -393,3 +425,125 @@ def test_rows_planned_with_the_mesh_line_of_sight_are_marked(tmp_path):
     assert md.count("‡") == 2 and "‡ Planned with an oracle: M29's line-of-sight filter used the scene mesh" in md
     assert r"NVF$^\ddagger$" in read(tmp_path / "res" / "tables" / "main.tex")
     assert "‡" not in read(tmp_path / "res" / "tables" / "table34_nerf_assets.md")
+
+
+# ----------------------------------------------------------------------------- hostile records (issue 30)
+
+
+def test_case_1_a_results_folder_linked_outside_is_refused_before_anything_is_written(tmp_path, capsys):
+    """Issue 30, case 1: a ``tables/`` link under paths.results made pipeline.tables write 23 files outside it.
+    Now a link out of paths.results is one ``error:`` line, exit 2, and nothing is written anywhere."""
+    make_run(tmp_path / "out", seed=100)
+    results, elsewhere = tmp_path / "res", tmp_path / "elsewhere"
+    for linked in ("tables", "figures"):
+        results.mkdir(exist_ok=True)
+        elsewhere.mkdir(exist_ok=True)
+        (results / linked).symlink_to(elsewhere)
+        assert main([f"paths.outputs={tmp_path / 'out'}", f"paths.results={results}"]) == 2
+        err = capsys.readouterr().err.splitlines()
+        assert err == [f"error: paths.results: {results / linked} is a symbolic link to {elsewhere}, outside {results}; "
+                       f"records and results are never read or written through such a link: remove it (or point it "
+                       f"inside {results})"]
+        assert not list(elsewhere.iterdir()) and sorted(p.name for p in results.iterdir()) == [linked]
+        (results / linked).unlink()
+
+
+def test_case_1_records_behind_a_link_leaving_their_root_are_skipped(tmp_path):
+    """A run folder reached through a link out of paths.outputs is one skip line, never read."""
+    make_run(tmp_path / "elsewhere", scene="room", seed=100)
+    make_run(tmp_path / "out", seed=100)
+    (tmp_path / "out" / "room").symlink_to(tmp_path / "elsewhere" / "room")
+    _, lines = build_tables(tmp_path / "out", [], tmp_path / "res", figures=False)
+    assert list(lines) == [f"skipped run records under {tmp_path / 'out' / 'room'}: a symbolic link to "
+                           f"{tmp_path / 'elsewhere' / 'room'}, outside {tmp_path / 'out'}"]
+    assert set(pd.read_csv(tmp_path / "res" / "runs.csv")["scene"]) == {"hubble"}
+
+
+def _rewrite(record: RunRecord, info_changes: dict | None = None, last_row: tuple[str, str] | None = None) -> None:
+    """Edit a finished record as an attacker would, recomputing its digest so that only the value is at fault."""
+    if last_row is not None:
+        lines = record.steps_path.read_text().splitlines(keepends=True)
+        lines[-1] = lines[-1].replace(*last_row, 1)
+        record.steps_path.write_text("".join(lines))
+    info = {**json.loads(record.run_json.read_text()), **(info_changes or {})}
+    info[DIGEST_KEY] = record_digest(info, record.steps_path.read_bytes())
+    record.run_json.write_text(json.dumps(info))
+
+
+CRAFTED = [
+    ("seed_of_301_digits", {"seed": 10**300}, None, "run.json: holds seed: an integer of 301 digits, beyond int64"),
+    ("metric_of_401_digits", None, ('"psnr":0.5', f'"psnr":{10**400}'), "holds metrics.psnr: an integer of 401 digits"),
+    ("steps_line_of_100000_nested_brackets", None, ('"metrics"', '"x":' + "[" * 100_000 + "]" * 100_000 + ',"metrics"'),
+     "dropped a corrupt last line (line 3) of a finished run"),
+    ("names_of_200_characters", {key: key[0] * 200 for key in ("scene", "method", "planner", "ablation", "budget")}, None,
+     "has 200 characters, more than 64"),
+    ("rank_that_is_text", {"config": {"budget": {"horizon": 3}, "method": {"name": "nvf", "rank": "first"}}}, None,
+     "config.method.rank is 'first', not int"),
+]
+
+
+@pytest.mark.parametrize(("case", "info", "row", "problem"), CRAFTED, ids=[c[0] for c in CRAFTED])
+def test_case_3_one_crafted_record_is_one_skip_line_and_the_tables_go_on(tmp_path, capsys, case, info, row, problem):
+    """Issue 30, case 3: one crafted record stopped pipeline.tables (exit 1, a traceback: OverflowError,
+    RecursionError, File name too long after runs.csv was written). Now it is one skip line, the other
+    records are tabulated, and the command exits 0."""
+    make_run(tmp_path / "out", seed=101, final={"psnr": 21.0})
+    crafted = make_run(tmp_path / "out", seed=100)
+    (crafted.directory / "images").mkdir()
+    iio.imwrite(crafted.directory / "images" / "step_00_gt.png", np.zeros((8, 8, 3), np.uint8))
+    _rewrite(crafted, info, row)
+    assert main([f"paths.outputs={tmp_path / 'out'}", f"paths.results={tmp_path / 'res'}"]) == 0
+    err = [line for line in capsys.readouterr().err.splitlines() if "is not a directory" not in line]
+    assert len(err) == 1 and err[0].startswith(f"pipeline.tables: skipped run record: {crafted.directory}") and problem in err[0]
+    assert set(pd.read_csv(tmp_path / "res" / "runs.csv")["seed"]) == {101}
+    assert "| 21.00 " in read(tmp_path / "res" / "tables" / "all_runs.md")
+
+
+def test_case_3_long_names_are_shortened_before_any_file_is_written(tmp_path):
+    """Names of the longest allowed length (64 characters each) still give figure names a file system takes
+    (at most 200 characters, cut with a hash), decided before runs.csv is written."""
+    names = {"scene": "s" * 64, "method": "m" * 64, "planner": "p" * 64, "ablation": "a" * 64}
+    record = make_run(tmp_path / "out", seed=100, **names)
+    _rewrite(record, {"budget": "b" * 64})
+    (record.directory / "images").mkdir()
+    iio.imwrite(record.directory / "images" / "step_00_gt.png", np.zeros((8, 8, 3), np.uint8))
+    written, lines = build_tables(tmp_path / "out", [], tmp_path / "res")
+    assert not lines
+    grids = [p for p in written if p.parent.name == "grids"]
+    assert len(grids) == 1 and len(grids[0].name) == 200  # grid_<scene>_<method-planner-ablation>_<budget label>_seed100
+    assert re.fullmatch(r"grid_s{64}_m{64}-p{15}-[0-9a-f]{8}_b+-[0-9a-f]{8}\.png", grids[0].name)
+    assert all(len(p.name) <= 200 for p in written)
+
+
+def test_case_4_record_text_is_escaped_in_markdown_latex_and_csv(tmp_path):
+    """Issue 30, case 4: a config value ``a|b\\n| injected | row |\\n\\input{...}`` put a live ``\\input`` line in
+    all_runs.tex and an extra row in the .md tables. A value with line breaks is refused (one skip line); one
+    without is escaped: no extra cell, row or line, no live LaTeX command."""
+    named = NamedConfigs(CONF).named(("hubble", "nvf", "argmax", "none", "smoke"))
+    hostile = r"a|b | injected | row | \input{/etc/passwd} <script>"
+    config = {**named, "method": {**named["method"], "label": hostile}, "planner": {**named["planner"], "los_source": hostile}}
+    make_run(tmp_path / "out", seed=100, config=config)
+    broken = make_run(tmp_path / "out", seed=101)
+    _rewrite(broken, {"config": {**config, "planner": {"los_source": "a|b\n| injected | row |\n\\input{/etc/passwd}"}}})
+    _, lines = build_tables(tmp_path / "out", [], tmp_path / "res", figures=False)
+    assert len(lines) == 1 and "holds config.planner.los_source: a text with a control character" in lines[0]
+    md, tex = (read(tmp_path / "res" / "tables" / f"all_runs.{flavor}") for flavor in ("md", "tex"))
+    rows = [line for line in md.splitlines() if line.startswith("|")]
+    cells = {len(re.findall(r"(?<!\\)\|", line)) for line in rows}
+    assert len(rows) == 3 and len(cells) == 1  # header, rule, one run; every row has the same cells
+    assert r"a\|b \| injected \| row \| \\input{/etc/passwd} &lt;script>" in md
+    assert not any(line.lstrip().startswith("\\input") for line in tex.splitlines())
+    assert r"\textbackslash{}input\{/etc/passwd\}" in tex  # in the cells and notes; in the header's comment lines
+    assert all("\\input{" not in line for line in tex.splitlines() if not line.startswith("% "))  # it stays inert
+    frame = pd.read_csv(tmp_path / "res" / "tables" / "all_runs.csv", comment="#")
+    assert len(frame) == 1 and hostile in frame.iloc[0]["Method"]
+
+
+def test_case_9_every_tables_error_line_starts_with_error(tmp_path, capsys):
+    """Issue 30, case 9: pipeline.tables' errors began ``pipeline.tables: error:``, unlike every other command."""
+    a_file = tmp_path / "file"
+    a_file.write_text("x")
+    for args in (["paths.foo=1"], [f"paths.results={a_file}"]):
+        assert main(args) == 2
+        err = capsys.readouterr().err.splitlines()
+        assert len(err) == 1 and err[0].startswith("error: "), err

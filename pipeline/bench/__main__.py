@@ -1,7 +1,7 @@
 """``python -m pipeline.bench NAME [args]``: run the benchmark module ``pipeline/bench/NAME.py``.
 
 Each benchmark is a module of this package exposing ``main(argv: list[str]) -> None``; adding a
-benchmark is adding a module. Unknown names are one line on stderr and exit status 2.
+benchmark is adding a module. A missing or unknown name is one ``error:`` line on stderr and exit status 2.
 """
 
 import importlib
@@ -19,9 +19,12 @@ def available() -> list[str]:
 
 def main(argv: list[str]) -> None:
     names = available()
-    if not argv or argv[0] in ("-h", "--help"):
-        print(f"usage: python -m pipeline.bench {{{','.join(names)}}} [args]", file=sys.stderr)
-        raise SystemExit(0 if argv else 2)
+    usage = f"python -m pipeline.bench {{{','.join(names)}}} [args]"
+    if not argv:
+        fail(f"name a benchmark: {usage}")
+    if argv[0] in ("-h", "--help"):
+        print(f"usage: {usage}")
+        raise SystemExit(0)
     if argv[0] not in names:
         fail(f"unknown benchmark '{argv[0]}'; choose one of: {', '.join(names)}")
     importlib.import_module(f"pipeline.bench.{argv[0]}").main(argv[1:])

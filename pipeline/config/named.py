@@ -12,13 +12,12 @@ from hydra.core.global_hydra import GlobalHydra
 from hydra.errors import HydraException
 from omegaconf import OmegaConf
 
-from pipeline.records import compat
-from pipeline.records.compat import drop_retired, with_legacy_defaults
+from pipeline.records.compat import drop_not_settings, drop_retired, with_legacy_defaults
 from pipeline.records.store import to_jsonable
 from pipeline.config.schema import register_configs
 
 GROUPS = ("scene", "method", "planner", "ablation", "budget")
-NOT_SETTINGS = ("paths", "seed", *compat.NOT_SETTINGS)  # where files live; the seed is an identity key
+LOCATIONS = ("paths", "seed")  # where files live; the seed is an identity key
 
 
 def changed_settings(recorded: Any, named: Any, prefix: str = "") -> list[tuple[str, Any]]:
@@ -69,6 +68,6 @@ class NamedConfigs:
         config = info.get("config")
         if named is None or not isinstance(config, Mapping):
             return ()
-        recorded = {k: v for k, v in drop_retired(to_jsonable(dict(config))).items() if k not in NOT_SETTINGS}
+        recorded = {k: v for k, v in drop_not_settings(drop_retired(to_jsonable(dict(config)))).items() if k not in LOCATIONS}
         recorded = with_legacy_defaults(recorded, named)  # keys added since the run: the value it was made with
         return tuple(f"{key}={_text(value)}" for key, value in changed_settings(recorded, named))

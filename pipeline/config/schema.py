@@ -38,6 +38,9 @@ class RenderConfig:
 
     backend: str = "pyrender"
     samples: int = 64  # Cycles samples per pixel (blender only)
+    # seconds Blender's worker may take to answer one request (a view, opening a scene; blender only) before the
+    # run stops, left to resume: a 512-px view takes 24-75 s at 64 samples on a 2-core CPU (docs/BUDGETS.md)
+    timeout: float = 1800.0
 
 
 @dataclass

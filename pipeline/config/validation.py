@@ -3,6 +3,7 @@ work and raises ``ConfigError`` with one line naming the key; ``compose_config``
 a config outside ``@hydra.main`` (benchmarks, experiments).
 """
 
+import dataclasses
 import math
 import re
 import sys
@@ -21,8 +22,10 @@ from pipeline.config.catalog import declared
 from pipeline.config.memory import host_memory, too_large
 from pipeline.config.named import changed_settings
 from pipeline.config.paths import unwritable
+from pipeline.records.store import MAX_SEED, run_dir
+from pipeline.records.verify import MAX_HORIZON, record_value_problem
 from pipeline.repo import CONF
-from pipeline.config.schema import register_configs
+from pipeline.config.schema import RunConfig, register_configs
 
 
 class ConfigError(ValueError):
@@ -71,7 +74,13 @@ _POSITIVE = (
     "sampler.grid_resolution", "sampler.step_size", "sampler.update_every", "sampler.max_samples_per_ray",
     "sampler.uniform_samples", "sampler.uniform_far",
     "train.backbone.lr", "train.variance.lr", "train.visibility.lr", "planner.opt.lr", "train.label_max_depth",
+    "render.timeout",
 )  # fmt: skip
+
+
+# samples per camera-to-point segment (M17's train.label_samples, M29's planner.los_samples): the paper takes 200;
+# every sample is a density query per point and camera, so 65536 (300x) already makes one step take hours
+MAX_SEGMENT_SAMPLES = 65536
 
 
 def resolve_device(name: str) -> torch.device:
@@ -112,11 +121,55 @@ def _non_finite(node: Any, prefix: str = "") -> tuple[str, float] | None:
 
 
 def _check_finite(cfg: DictConfig) -> None:
-    """Every float of the config (all groups, not a list of keys) is finite."""
+    """Every float of the config (all groups, not a list of keys) is finite, and every value is one a run
+    record can hold (``pipeline.records.verify.record_value_problem``: text without control characters, ...)."""
     settings = {k: v for k, v in OmegaConf.to_container(cfg, resolve=True).items() if k != "hydra"}
     found = _non_finite(settings)
     if found is not None:
         raise ConfigError(f"{found[0]}={found[1]} must be a finite number")
+    problem = record_value_problem(settings)
+    if problem is not None:
+        raise ConfigError(f"{problem}: a run record could not hold it; give a plain value")
+
+
+def _unknown_keys(node: DictConfig, schema: type, prefix: str = "") -> list[str]:
+    """Dotted keys of ``node`` that its schema dataclass does not declare (added with ``+key=value``);
+    free-form mappings of the schema (``dict[str, Any]``) take any key."""
+    declared_fields = {f.name: f for f in dataclasses.fields(schema)}
+    found = []
+    for key in node:
+        name = f"{prefix}{key}"
+        if key not in declared_fields:
+            found.append(name)
+            continue
+        child, kind = node._get_node(key), OmegaConf.get_type(node, key)
+        if isinstance(child, DictConfig) and dataclasses.is_dataclass(kind):
+            found += _unknown_keys(child, kind, f"{name}.")
+    return found
+
+
+def _check_known_keys(cfg: DictConfig) -> None:
+    """Every key is one the schema (``RunConfig``) declares: ``+no_such_key=1`` is refused as
+    ``no_such_key=1`` is, instead of being stored and ignored."""
+    unknown = [key for key in _unknown_keys(cfg, RunConfig) if key != "hydra"]
+    if unknown:
+        raise ConfigError(
+            f"unknown key {unknown[0]!r} (added with +{unknown[0]}=...): the config has no such setting; "
+            "drop it (python -m pipeline.run --help lists every key)"
+        )
+
+
+def _check_run_keys(cfg: DictConfig) -> None:
+    """The seed and the names that make the run's directory (``pipeline.records.store.run_dir``)."""
+    seed = cfg.seed
+    if not isinstance(seed, int) or isinstance(seed, bool) or not 0 <= seed <= MAX_SEED:
+        shown = seed if not isinstance(seed, int) or abs(seed) < 10**30 else f"an integer of {len(str(seed))} digits"
+        raise ConfigError(f"seed={shown} must be an integer from 0 to 2^63-1 (it seeds every generator of the run)")
+    names = (cfg.scene.name, cfg.method.name, cfg.planner.name, cfg.ablation.name, cfg.budget.name)
+    try:
+        run_dir(Path(str(cfg.paths.outputs)), *names, seed)
+    except ValueError as err:
+        raise ConfigError(f"{err} (it names the run's directory)") from None
 
 
 def check_paths(cfg: DictConfig, keys: tuple[str, ...] = ("paths.outputs",)) -> None:
@@ -145,6 +198,8 @@ def _check_memory(cfg: DictConfig) -> None:
 def validate(cfg: DictConfig) -> None:
     """Reject impossible values before any work starts (one line naming the key): choices, finite
     floats, positive sizes, sizes that fit in memory, a device torch can see and a writable ``paths.outputs``."""
+    _check_known_keys(cfg)
+    _check_run_keys(cfg)
     _check_finite(cfg)
     for key, choices in _CHOICES.items():
         value = OmegaConf.select(cfg, key)
@@ -163,6 +218,17 @@ def validate(cfg: DictConfig) -> None:
         value = OmegaConf.select(cfg, key)
         if value is None or value <= 0:
             raise ConfigError(f"{key}={value!r} must be positive")
+    for key in ("train.label_samples", "planner.los_samples"):
+        if OmegaConf.select(cfg, key) > MAX_SEGMENT_SAMPLES:
+            raise ConfigError(
+                f"{key}={OmegaConf.select(cfg, key)} is more than {MAX_SEGMENT_SAMPLES} samples per segment (the paper "
+                f"takes 200; each is a density query per point and camera); lower {key}"
+            )
+    if cfg.budget.horizon > MAX_HORIZON:
+        raise ConfigError(
+            f"budget.horizon={cfg.budget.horizon} is more than {MAX_HORIZON} steps (every step rewrites the run's "
+            f"steps.jsonl, and records of more steps are refused when read); lower budget.horizon"
+        )
     try:
         load_method(cfg.method.implementation)
     except ValueError as err:

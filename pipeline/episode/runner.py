@@ -2,7 +2,8 @@
 run's keys, take the run's lock (one writer per run), verify what is recorded there, skip a finished run
 (refusing one that finished with other settings), repeat a failed run's reason, resume an unfinished one
 at its first missing step, and record every step atomically; a step that cannot complete marks the run
-failed with a one-line reason.
+failed with a one-line reason. A Blender worker that does not answer in time (``render.timeout``) stops
+the run with a one-line reason and leaves it to resume.
 """
 
 import os
@@ -27,14 +28,15 @@ from pipeline.metrics.image import LpipsMetric
 from pipeline.records.lock import RunLock
 from pipeline.records.store import RunRecord, run_dir
 from pipeline.records.verify import verified
-from pipeline.scenes.blender import blender_python
+from pipeline.scenes.blender import BlenderTimeout, blender_python
 from pipeline.scenes.ground_truth import ground_truth_info
 from pipeline.scenes.loading import load_scene
 from pipeline.tables.summary import run_pictures, summarize_run
 
 
 class StepFailed(RuntimeError):
-    """The run failed (now, or when it last ran); its record holds this one-line reason."""
+    """The run failed (now, or when it last ran; its record holds this one-line reason), or stopped for a
+    reason outside its settings and is left unfinished, to resume (a Blender worker that did not answer)."""
 
 
 class RunRefused(ValueError):
@@ -102,7 +104,8 @@ def run_episode(cfg: DictConfig) -> Outcome:
 
     Raises ``ConfigError`` (a bad value), ``RunLocked`` (another process writes the run), ``RecordError``
     (its record fails a check), ``RunRefused`` (a record of other settings), ``SceneError`` (the scene
-    cannot load): all before the record starts. ``StepFailed`` once the run failed (recorded as such).
+    cannot load): all before the record starts. ``StepFailed`` once the run failed (recorded as such) or
+    stopped (``BlenderTimeout``: left unfinished).
     """
     validate(cfg)
     directory = record_dir(cfg)
@@ -132,11 +135,17 @@ def _run_locked(cfg: DictConfig, directory: Path) -> Outcome:
     scene = load_scene(cfg.scene, Path(cfg.paths.assets), blender_python(cfg.paths.blender_python))
     device = resolve_device(cfg.device)
     lpips = LpipsMetric()
-    episode = Episode(cfg, scene, device, lpips)
     try:
-        return _run_steps(cfg, directory, record, episode, lpips)
-    finally:
-        episode.close()
+        episode = Episode(cfg, scene, device, lpips)
+        try:
+            return _run_steps(cfg, directory, record, episode, lpips)
+        finally:
+            episode.close()
+    except BlenderTimeout as err:
+        raise StepFailed(
+            f"run {directory} stopped at step {len(record.completed_steps())}: {err}; every finished step is "
+            "recorded: run the same command again to resume"
+        ) from None
 
 
 def _run_steps(cfg: DictConfig, directory: Path, record: RunRecord, episode: Episode, lpips: LpipsMetric) -> Outcome:
@@ -153,7 +162,7 @@ def _run_steps(cfg: DictConfig, directory: Path, record: RunRecord, episode: Epi
         reason = f"step {len(record.completed_steps())}: {err}"
         record.mark_failed(reason)
         raise StepFailed(reason) from None
-    except OSError:  # writing the record itself failed: left unfinished, to resume
+    except (OSError, BlenderTimeout):  # writing the record failed, or Blender hung: left unfinished, to resume
         raise
     except Exception as err:  # an unexpected error: recorded, then raised with its traceback
         record.mark_failed(f"step {len(record.completed_steps())}: {type(err).__name__}: {' '.join(str(err).split())}")

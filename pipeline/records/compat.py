@@ -14,11 +14,11 @@ class, a scene's boxes and views) is what its name stood for: a record lacking s
 other config's value when both name the same option.
 
 A retired key (``RETIRED_KEYS``) is dropped before records are compared: its value is implied by keys that
-remain. ``NOT_SETTINGS`` are config groups that never change a run's views or metrics.
+remain. ``NOT_SETTINGS`` are config groups and keys that never change a run's views or metrics.
 """
 
 import copy
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Collection, Mapping
 from typing import Any
 
 _MISSING = object()
@@ -39,8 +39,9 @@ DEFINED_BY_NAME = ("method", "ablation", "scene")  # groups whose keys other tha
 RETIRED_KEYS = {
     "method.aux_loss": "implied by method.name: a method's stage-1 loss belongs to its class (nvf.methods)",
 }
-# what never changes a run's views or metrics (added measurements, whether images are saved): not part of its identity
-NOT_SETTINGS = ("diagnostics", "save_images")
+# what never changes a run's views or metrics (added measurements, whether images are saved, how long Blender may
+# take for a view): not part of its identity; groups or dotted keys
+NOT_SETTINGS = ("diagnostics", "save_images", "render.timeout")
 
 
 def _get(config: Any, dotted: str) -> Any:
@@ -116,13 +117,25 @@ def with_legacy_defaults(recorded: Any, other: Any) -> Any:
     return filled
 
 
-def drop_retired(config: Any) -> Any:
-    """``config`` (a run's resolved config, as recorded) without the ``RETIRED_KEYS``."""
+def _without(config: Any, dotted_keys: Collection[str]) -> Any:
+    """A copy of ``config`` (a mapping) without the top-level keys and ``group.key`` keys named."""
     if not isinstance(config, Mapping):
         return config
     out = {key: dict(value) if isinstance(value, Mapping) else value for key, value in config.items()}
-    for dotted in RETIRED_KEYS:
+    for dotted in dotted_keys:
         group, _, key = dotted.partition(".")
-        if isinstance(out.get(group), dict):
+        if not key:
+            out.pop(group, None)
+        elif isinstance(out.get(group), dict):
             out[group].pop(key, None)
     return out
+
+
+def drop_retired(config: Any) -> Any:
+    """``config`` (a run's resolved config, as recorded) without the ``RETIRED_KEYS``."""
+    return _without(config, RETIRED_KEYS)
+
+
+def drop_not_settings(config: Any) -> Any:
+    """``config`` without ``NOT_SETTINGS``: what two records of the same run may differ in."""
+    return _without(config, NOT_SETTINGS)

@@ -30,13 +30,12 @@ def colorize(values: Float[np.ndarray, "H W"], cmap: str) -> np.ndarray:
 
 
 def save_step_images(directory: Path, step: int, images: dict[str, np.ndarray]) -> None:
-    """Write ``step_XX_{gt,pred,score,depth}.png`` (maps colourised) under ``directory``."""
-    directory.mkdir(parents=True, exist_ok=True)
+    """Write ``step_XX_{gt,pred,score,depth}.png`` (maps colourised) under ``directory``, each atomically
+    (``atomic_write_bytes``: never through a link planted at its name)."""
     for name, image in images.items():
         rgb = image if image.ndim == 3 else colorize(image, "magma" if name == "score" else "viridis")
-        tmp = directory / f".step_{step:02d}_{name}.png.tmp"
-        iio.imwrite(tmp, to_uint8(rgb), extension=".png")
-        tmp.replace(directory / f"step_{step:02d}_{name}.png")
+        png = iio.imwrite("<bytes>", to_uint8(rgb), extension=".png")
+        atomic_write_bytes(directory / f"step_{step:02d}_{name}.png", png)
 
 
 def save_figure(fig: Figure, path: Path) -> None:

@@ -24,10 +24,14 @@ from types import MappingProxyType
 from typing import Any
 
 from pipeline.metrics.info import METRICS
-from pipeline.records.compat import NOT_SETTINGS, drop_retired, with_legacy_defaults
+from pipeline.records.compat import drop_not_settings, drop_retired, with_legacy_defaults
+from pipeline.records.files import RecordError, is_plain_file, read_plain_file
 from pipeline.repo import REPO
 
+CONTROL = re.compile(r"[\x00-\x1f\x7f]")  # control characters: never part of a record's text
 KEY_PATTERN = re.compile(r"[A-Za-z0-9_.-]+")
+KEY_MAX_LENGTH = 64  # a run key is one path component and part of figure names: 64 characters at most
+MAX_SEED = 2**63 - 1  # seeds are int64 (torch.manual_seed, the run generators)
 IDENTITY_KEYS = ("scene", "method", "planner", "ablation", "budget", "seed")
 RUN_JSON = "run.json"
 STEPS = "steps.jsonl"
@@ -35,7 +39,9 @@ DONE = "DONE"
 FAILED = "FAILED"
 RECORD_FILES = (RUN_JSON, STEPS, DONE, FAILED)  # written only by the run's lock holder
 TEMP_SUFFIX = ".tmp"
-DIGEST_KEY = "steps_digest"  # run.json: file_digest of steps.jsonl, written when the run finishes
+DIGEST_KEY = "record_digest"  # run.json: record_digest of run.json and steps.jsonl, written when the run finishes
+LEGACY_DIGEST_KEY = "steps_digest"  # run.json of records finished before DIGEST_KEY: file_digest of steps.jsonl alone
+MAX_RECORD_BYTES = 16 << 20  # run.json, steps.jsonl, DONE, FAILED: a 1000-step record holds about 2 MB
 
 # Distribution names to try per package (the first one installed wins).
 PACKAGES = (
@@ -52,15 +58,23 @@ PACKAGES = (
 METRIC_DEFINITIONS = MappingProxyType({m.name: m.definition for m in METRICS.values()})
 
 
-class RecordError(ValueError):
-    """A run record that fails a check; the message is one line naming the file and the problem."""
-
-
 def check_key(name: str, value: object) -> str:
-    """Return ``value`` if it is a safe single path component, else raise ValueError naming the key."""
+    """Return ``value`` if it is a safe single path component of at most ``KEY_MAX_LENGTH`` characters,
+    else raise ValueError naming the key."""
     if not isinstance(value, str) or not KEY_PATTERN.fullmatch(value) or value in (".", ".."):
-        raise ValueError(f"run key {name}={value!r} is not a plain name: use letters, digits, '_', '.', '-'")
+        shown = value if not isinstance(value, str) or len(value) <= KEY_MAX_LENGTH else f"{value[:KEY_MAX_LENGTH]}..."
+        raise ValueError(f"run key {name}={shown!r} is not a plain name: use letters, digits, '_', '.', '-'")
+    if len(value) > KEY_MAX_LENGTH:
+        raise ValueError(f"run key {name}={value[:KEY_MAX_LENGTH]!r}... has {len(value)} characters, more than {KEY_MAX_LENGTH}")
     return value
+
+
+def check_seed(seed: object) -> int:
+    """Return ``seed`` if it is an integer in ``[0, MAX_SEED]``, else raise ValueError."""
+    if not isinstance(seed, int) or isinstance(seed, bool) or not 0 <= seed <= MAX_SEED:
+        shown = seed if not isinstance(seed, int) or abs(seed) < 10**30 else f"an integer of {len(str(seed))} digits"
+        raise ValueError(f"seed {shown!r} is not an integer from 0 to 2^63-1")
+    return seed
 
 
 def run_dir(outputs: Path, scene: str, method: str, planner: str, ablation: str, budget: str, seed: int) -> Path:
@@ -68,8 +82,7 @@ def run_dir(outputs: Path, scene: str, method: str, planner: str, ablation: str,
     for name, value in (("method", method), ("planner", planner), ("ablation", ablation)):
         if "-" in check_key(name, value):
             raise ValueError(f"run key {name}={value!r} must not contain '-' (it separates method-planner-ablation)")
-    if isinstance(seed, bool) or seed < 0:
-        raise ValueError(f"run key seed={seed!r} must be a non-negative integer")
+    check_seed(seed)
     group = f"{method}-{planner}-{ablation}"
     return Path(outputs) / check_key("scene", scene) / group / check_key("budget", budget) / f"seed_{seed}"
 
@@ -140,9 +153,17 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
         os.close(dir_fd)
 
 
-def file_digest(path: Path) -> str:
-    """``sha256:<hex>`` of a file's bytes."""
-    return "sha256:" + hashlib.sha256(path.read_bytes()).hexdigest()
+def file_digest(data: bytes) -> str:
+    """``sha256:<hex>`` of a file's bytes (``LEGACY_DIGEST_KEY``)."""
+    return "sha256:" + hashlib.sha256(data).hexdigest()
+
+
+def record_digest(info: Mapping, steps: bytes) -> str:
+    """``sha256:<hex>`` of run.json's content (every key but the digests, as canonical JSON) and the bytes of
+    steps.jsonl: editing either after the run finished (its config, its method, a row) breaks it."""
+    content = {k: v for k, v in to_jsonable(info).items() if k not in (DIGEST_KEY, LEGACY_DIGEST_KEY)}
+    canonical = json.dumps(content, sort_keys=True, ensure_ascii=True, separators=(",", ":"), allow_nan=False)
+    return "sha256:" + hashlib.sha256(canonical.encode("ascii") + b"\n" + steps).hexdigest()
 
 
 def dumps(value: Any) -> str:
@@ -183,10 +204,11 @@ def read_steps(path: Path) -> tuple[list[dict], str | None]:
 
     A bad line before the last one is not a kill artifact: RecordError.
     """
-    if not path.is_file():
+    data = read_plain_file(path, MAX_RECORD_BYTES)
+    if data is None:
         return [], None
     try:
-        text = path.read_text(encoding="utf-8")
+        text = data.decode("utf-8")
     except UnicodeDecodeError as err:
         raise RecordError(f"{path}: not UTF-8 text ({err.reason} at byte {err.start}); delete the run") from None
     lines = text.split("\n")
@@ -207,7 +229,7 @@ def read_steps(path: Path) -> tuple[list[dict], str | None]:
 def _parse_row(line: str) -> dict | None:
     try:
         row = json.loads(line)
-    except json.JSONDecodeError:
+    except (json.JSONDecodeError, RecursionError):  # RecursionError: nested deeper than the parser goes
         return None
     if not isinstance(row, dict) or not isinstance(row.get("step"), int) or isinstance(row.get("step"), bool):
         return None
@@ -223,8 +245,7 @@ def _settings(config: Any) -> Any:
 def _comparable(config: Any) -> Any:
     """``_settings`` without the groups that are not settings (``compat.NOT_SETTINGS``: measurements that
     never change a run's views or metrics)."""
-    settings = _settings(config)
-    return {k: v for k, v in settings.items() if k not in NOT_SETTINGS} if isinstance(settings, Mapping) else settings
+    return drop_not_settings(_settings(config))
 
 
 def first_difference(old: Any, new: Any, prefix: str = "") -> tuple[str, Any, Any] | None:
@@ -258,9 +279,9 @@ def run_difference(
 
 def record_status(info: dict, directory: Path) -> str:
     """``done``, ``failed`` or ``unfinished`` from the markers or from run.json (committed records)."""
-    if (directory / DONE).is_file() or info.get("status") == "done":
+    if is_plain_file(directory / DONE) or info.get("status") == "done":
         return "done"
-    if (directory / FAILED).is_file() or info.get("status") == "failed":
+    if is_plain_file(directory / FAILED) or info.get("status") == "failed":
         return "failed"
     return "unfinished"
 
@@ -275,12 +296,15 @@ class RunRecord:
 
     def info(self) -> dict:
         """Contents of run.json ({} when the run has not started); RecordError when it is not a JSON object."""
-        if not self.run_json.is_file():
+        data = read_plain_file(self.run_json, MAX_RECORD_BYTES)
+        if data is None:
             return {}
         try:
-            info = json.loads(self.run_json.read_text(encoding="utf-8"))
+            info = json.loads(data.decode("utf-8"))
         except (json.JSONDecodeError, UnicodeDecodeError) as err:
             raise RecordError(f"{self.run_json}: not valid JSON ({getattr(err, 'msg', err)})") from None
+        except RecursionError:
+            raise RecordError(f"{self.run_json}: not valid JSON (nested deeper than a record may be)") from None
         if not isinstance(info, dict):
             raise RecordError(f"{self.run_json}: a JSON {type(info).__name__}, not an object")
         return info
@@ -301,7 +325,7 @@ class RunRecord:
         if self.status() != "unfinished":
             raise ValueError(f"run {self.directory} is already {self.status()}; delete it to run it again")
         previous = self.info()
-        if not previous and self.steps_path.is_file():
+        if not previous and os.path.lexists(self.steps_path):
             raise RecordError(f"{self.steps_path}: rows without run.json (settings unknown); delete {self.directory}")
         now = utc_now()
         timings = {"started": now, "resumed": [], "ended": None}
@@ -366,7 +390,7 @@ class RunRecord:
 
     def mark_failed(self, reason: str) -> None:
         """Record the run as failed (e.g. a diverged step) with a one-line reason."""
-        reason = " ".join(reason.split())  # one line
+        reason = " ".join(CONTROL.sub(" ", reason).split())  # one line of printable text
         self._finish("failed", {"failure_reason": reason})
         atomic_write_text(self.directory / FAILED, reason + "\n")
 
@@ -374,8 +398,8 @@ class RunRecord:
         """The failure reason, or None when the run has not failed."""
         if self.status() != "failed":
             return None
-        marker = self.directory / FAILED
-        fallback = marker.read_text(encoding="utf-8").strip() if marker.is_file() else "unknown"
+        marker = read_plain_file(self.directory / FAILED, MAX_RECORD_BYTES)
+        fallback = marker.decode("utf-8", "replace").strip() if marker is not None else "unknown"
         return self.info().get("failure_reason") or fallback
 
     def status(self) -> str:
@@ -383,11 +407,11 @@ class RunRecord:
         return record_status(self.info(), self.directory)
 
     def _finish(self, status: str, extra: dict) -> None:
-        """run.json's status, end time and the digest of steps.jsonl (``DIGEST_KEY``, none without rows)."""
+        """run.json's status, end time and the digest of run.json's content and steps.jsonl (``DIGEST_KEY``)."""
         info = self.info()
         if not info:
             raise ValueError(f"run {self.directory} has no run.json; call start() first")
         timings = {**info.get("timings", {}), "ended": utc_now()}
-        digest = file_digest(self.steps_path) if self.steps_path.is_file() else None
-        record = {**info, **extra, "status": status, DIGEST_KEY: digest, "timings": timings}
-        atomic_write_text(self.run_json, json.dumps(to_jsonable(record), indent=2, allow_nan=False) + "\n")
+        record = to_jsonable({**info, **extra, "status": status, "timings": timings})
+        record[DIGEST_KEY] = record_digest(record, read_plain_file(self.steps_path, MAX_RECORD_BYTES) or b"")
+        atomic_write_text(self.run_json, json.dumps(record, indent=2, allow_nan=False) + "\n")

@@ -1,49 +1,174 @@
 """Verify a run record on read: ``pipeline.run`` (before it skips, repeats or resumes a run) and
-``pipeline.tables`` (before a record counts) use a record only when its files agree.
+``pipeline.tables`` (before a record counts) use a record only when its files agree and every value in
+them is one the code can use. Records are untrusted input (copied between machines, edited by hand).
 
-- run.json is a JSON object with the identity keys and a ``config`` object; rows are never adopted
-  without it (steps.jsonl, DONE or FAILED alone: the settings they were made with are unknown).
-- steps.jsonl holds steps 0, 1, ... in order, each row ``ok`` with its ``metrics`` object, ``n_views``
-  and a ``selected_pose`` of 7 finite numbers (what a resumed run replays).
+- Every value of run.json and of each row: nested at most ``MAX_DEPTH`` deep, text of at most
+  ``MAX_TEXT`` characters without control characters, integers within int64, finite numbers
+  (``record_value_problem``); the record files are regular files (never read through a symbolic link)
+  of at most ``MAX_RECORD_BYTES``.
+- run.json is a JSON object with the identity keys (plain names of at most 64 characters, a seed from 0
+  to 2^63-1) and a ``config`` object; the keys the tables and the runner read have their types
+  (``TYPED``: labels are text, ranks integers, the horizon at most ``MAX_HORIZON`` steps). Rows are
+  never adopted without a run.json (steps.jsonl, DONE or FAILED alone: the settings they were made
+  with are unknown).
+- steps.jsonl holds steps 0, 1, ... in order, each row ``ok`` with its ``metrics`` object (names to
+  numbers or null), ``n_views`` and a ``selected_pose`` of 7 finite numbers (what a resumed run replays).
 - A finished run (``done``) has one row per step of its horizon (``config.budget.horizon``), and a
-  finished record's steps.jsonl still has the digest run.json took when it finished
-  (``DIGEST_KEY``; records written before digests have structure checks only).
+  finished or failed record still has the digest run.json took when it ended: ``record_digest`` of
+  run.json's content and steps.jsonl. Records that ended before it hold ``steps_digest``, the digest of
+  steps.jsonl alone, and are checked against that; records older still have the checks above only.
 
 A record that fails a check raises ``RecordError``: one line naming the file and the problem.
 """
 
 import math
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
+from pipeline.records.files import is_plain_file, read_plain_file
 from pipeline.records.store import (
+    CONTROL,
     DIGEST_KEY,
     DONE,
     FAILED,
     IDENTITY_KEYS,
+    LEGACY_DIGEST_KEY,
+    MAX_RECORD_BYTES,
     STEPS,
     RecordError,
     RunRecord,
     check_key,
+    check_seed,
     file_digest,
     read_steps,
+    record_digest,
 )
 
 POSE_SIZE = 7  # [qx, qy, qz, qw, x, y, z]
+MAX_DEPTH = 32  # JSON nesting of run.json or a row (the committed records nest 8 deep)
+MAX_TEXT = 4096  # characters of one text value or key (the committed records' longest text has 109)
+MAX_HORIZON = 1000  # steps of a run: every step rewrites steps.jsonl whole; the paper's horizon is 20
+MAX_VIEWS = 1_000_000  # n_views of a row
+INT64 = 2**63 - 1
+
+NUMBER = (int, float)
+TEXT = (str,)
+OPTIONAL_TEXT = (str, type(None))
+# run.json keys (dotted) that the tables and the runner read, and the types each may have where present
+TYPED: dict[str, tuple[type, ...]] = {
+    "scene_source": TEXT,
+    "failure_reason": OPTIONAL_TEXT,
+    "lpips_missing_reason": OPTIONAL_TEXT,
+    "collision_free": (bool, type(None)),
+    "candidate_filters": (bool, type(None)),
+    "ground_truth": (dict, type(None)),
+    "ground_truth.asset": OPTIONAL_TEXT,
+    "ground_truth.backend": TEXT,
+    "ground_truth.samples": (int, type(None)),
+    "config.budget": (dict,),
+    "config.budget.horizon": (int,),
+    "config.method": (dict,),
+    "config.method.name": TEXT,
+    "config.method.label": TEXT,
+    "config.method.rank": (int,),
+    "config.ablation": (dict,),
+    "config.ablation.name": TEXT,
+    "config.ablation.label": TEXT,
+    "config.ablation.rank": (int,),
+    "config.ablation.of": TEXT,
+    "config.planner": (dict,),
+    "config.planner.name": TEXT,
+    "config.planner.los_source": TEXT,
+    "config.planner.collision_free": (bool, type(None)),
+    "config.planner.random_filters": (bool,),
+    "config.scene": (dict,),
+    "config.scene.name": TEXT,
+    "config.scene.rank": (int,),
+    "config.scene.paper_scene": OPTIONAL_TEXT,
+    "config.scene.nerf_asset": (bool,),
+    "config.render": (dict,),
+    "config.render.backend": TEXT,
+    "config.render.samples": (int, type(None)),
+}
+
+
+def record_value_problem(value: Any) -> str | None:
+    """What makes a JSON value unusable in a record (``where: problem``), or None: nesting deeper than
+    ``MAX_DEPTH``, a text or key longer than ``MAX_TEXT`` or holding a control character, an integer beyond
+    int64, a number that is not finite. Walks without recursion, so any depth is answered."""
+    stack: list[tuple[str, Any, int]] = [("", value, 1)]
+    while stack:
+        where, node, depth = stack.pop()
+        if depth > MAX_DEPTH:
+            return f"{where or 'the value'}: nested more than {MAX_DEPTH} levels deep"
+        if isinstance(node, Mapping):
+            for key, child in node.items():
+                if not isinstance(key, str) or len(key) > MAX_TEXT or CONTROL.search(key):
+                    return f"{where or 'the value'}: a key that is not a short line of text"
+                stack.append((f"{where}.{key}" if where else key, child, depth + 1))
+        elif isinstance(node, list):
+            stack.extend((f"{where}.{i}" if where else str(i), child, depth + 1) for i, child in enumerate(node))
+        elif isinstance(node, str):
+            if len(node) > MAX_TEXT:
+                return f"{where}: a text of {len(node)} characters, more than {MAX_TEXT}"
+            if CONTROL.search(node):
+                return f"{where}: a text with a control character (a line break, a tab, ...)"
+        elif isinstance(node, bool) or node is None:
+            continue
+        elif isinstance(node, int):
+            if abs(node) > INT64:
+                return f"{where}: an integer of {len(str(abs(node)))} digits, beyond int64"
+        elif isinstance(node, float):
+            if not math.isfinite(node):
+                return f"{where}: {node}, not a finite number"
+        else:
+            return f"{where}: a {type(node).__name__}, not a JSON value"
+    return None
+
+
+def _lookup(info: Mapping, dotted: str) -> tuple[bool, Any]:
+    node: Any = info
+    for part in dotted.split("."):
+        if not isinstance(node, Mapping) or part not in node:
+            return False, None
+        node = node[part]
+    return True, node
+
+
+def typed_problem(info: Mapping) -> str | None:
+    """The first ``TYPED`` key of run.json whose value has another type (booleans are not integers)."""
+    for key, types in TYPED.items():
+        present, value = _lookup(info, key)
+        if present and (not isinstance(value, types) or (isinstance(value, bool) and bool not in types)):
+            names = " or ".join("null" if t is type(None) else {"str": "text", "dict": "an object"}.get(t.__name__, t.__name__) for t in types)
+            shown = repr(value) if len(repr(value)) <= 40 else f"a {type(value).__name__}"
+            return f"{key} is {shown}, not {names}"
+    return None
 
 
 def row_problem(row: dict) -> str | None:
     """What makes a step row unusable, or None."""
     if row.get("status") != "ok":
-        return f"has status {row.get('status')!r}, not 'ok'"
-    if not isinstance(row.get("metrics"), dict):
+        return f"has status {str(row.get('status'))[:40]!r}, not 'ok'"
+    problem = record_value_problem(row)
+    if problem is not None:
+        return f"holds {problem}"
+    metrics = row.get("metrics")
+    if not isinstance(metrics, dict):
         return "has no metrics object"
+    bad = [name for name, value in metrics.items() if not (value is None or isinstance(value, NUMBER)) or isinstance(value, bool)]
+    if bad:
+        return f"has metric {bad[0][:40]!r} = {str(metrics[bad[0]])[:40]!r}, not a number or null"
     views = row.get("n_views")
-    if not isinstance(views, int) or isinstance(views, bool) or views < 1:
-        return f"has n_views={views!r}, not a positive integer"
+    if not isinstance(views, int) or isinstance(views, bool) or not 1 <= views <= MAX_VIEWS:
+        return f"has n_views={str(views)[:40]}, not an integer from 1 to {MAX_VIEWS}"
     pose = row.get("selected_pose")
-    numbers = isinstance(pose, list) and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in pose)
-    if not numbers or len(pose) != POSE_SIZE or not all(math.isfinite(v) for v in pose):
-        return f"has selected_pose={pose!r}, not {POSE_SIZE} finite numbers"
+    numbers = isinstance(pose, list) and all(isinstance(v, NUMBER) and not isinstance(v, bool) for v in pose)
+    if not numbers or len(pose) != POSE_SIZE:
+        return f"has selected_pose={str(pose)[:80]}, not {POSE_SIZE} finite numbers"
+    if not isinstance(row.get("lpips_missing_reason"), OPTIONAL_TEXT):
+        return "has an lpips_missing_reason that is not text"
     return None
 
 
@@ -51,27 +176,53 @@ def check_rows(path: Path, rows: list[dict]) -> None:
     """Steps 0, 1, ... in order, every row usable (``row_problem``); RecordError naming the line."""
     for index, row in enumerate(rows):
         if row["step"] != index:
-            raise RecordError(f"{path}: line {index + 1} holds step {row['step']}, expected step {index} (a step is missing or repeated)")
+            step = row["step"] if abs(row["step"]) < 10**9 else "a huge number"
+            raise RecordError(f"{path}: line {index + 1} holds step {step}, expected step {index} (a step is missing or repeated)")
         problem = row_problem(row)
         if problem is not None:
             raise RecordError(f"{path}: step {index} {problem}")
 
 
 def check_info(record: RunRecord, info: dict) -> None:
-    """run.json's identity keys (plain names, an integer seed) and its config object."""
+    """run.json's values (``record_value_problem``), identity keys (plain names, a seed in range), its config
+    object and the types of the keys that are read (``TYPED``)."""
+    problem = record_value_problem(info)
+    if problem is not None:
+        raise RecordError(f"{record.run_json}: holds {problem}")
     missing = [key for key in (*IDENTITY_KEYS, "config") if key not in info]
     if missing:
         raise RecordError(f"{record.run_json}: lacks {', '.join(missing)}")
     try:
         for key in IDENTITY_KEYS[:-1]:
             check_key(key, info[key])
+        check_seed(info["seed"])
     except ValueError as err:
         raise RecordError(f"{record.run_json}: {err}") from None
-    seed = info["seed"]
-    if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
-        raise RecordError(f"{record.run_json}: seed {seed!r} is not a non-negative integer")
     if not isinstance(info["config"], dict):
         raise RecordError(f"{record.run_json}: config is not an object")
+    problem = typed_problem(info)
+    if problem is not None:
+        raise RecordError(f"{record.run_json}: {problem}")
+    present, horizon = _lookup(info, "config.budget.horizon")
+    if present and not 1 <= horizon <= MAX_HORIZON:
+        raise RecordError(f"{record.run_json}: config.budget.horizon is {horizon}, not from 1 to {MAX_HORIZON}")
+
+
+def _check_digest(record: RunRecord, info: dict) -> None:
+    """run.json and steps.jsonl as they were when the run ended (``DIGEST_KEY``, or ``LEGACY_DIGEST_KEY``)."""
+    steps = read_plain_file(record.steps_path, MAX_RECORD_BYTES)
+    if DIGEST_KEY in info:
+        if record_digest(info, steps or b"") != info[DIGEST_KEY]:
+            raise RecordError(
+                f"{record.directory}: run.json or steps.jsonl differs from the digest run.json took when the run ended "
+                f"({DIGEST_KEY}); the record was changed afterwards"
+            )
+    elif LEGACY_DIGEST_KEY in info:
+        if (file_digest(steps) if steps is not None else None) != info[LEGACY_DIGEST_KEY]:
+            raise RecordError(
+                f"{record.directory / STEPS}: differs from the digest run.json took when the run finished "
+                f"({LEGACY_DIGEST_KEY}); the rows were changed afterwards"
+            )
 
 
 def verified(record: RunRecord) -> tuple[dict, list[dict]]:
@@ -79,7 +230,8 @@ def verified(record: RunRecord) -> tuple[dict, list[dict]]:
     has not started); read-only: a truncated last line of an unfinished run is left out, not repaired."""
     info = record.info()
     if not info:
-        orphans = [p.name for p in (record.steps_path, record.directory / DONE, record.directory / FAILED) if p.is_file()]
+        candidates = (record.steps_path, record.directory / DONE, record.directory / FAILED)
+        orphans = [p.name for p in candidates if is_plain_file(p) or p.is_symlink()]
         if orphans:
             raise RecordError(
                 f"{record.directory}: {' and '.join(orphans)} without run.json, so the settings they were made with "
@@ -90,20 +242,16 @@ def verified(record: RunRecord) -> tuple[dict, list[dict]]:
     rows, dropped = read_steps(record.steps_path)
     check_rows(record.steps_path, rows)
     status = record.status()
+    present, horizon = _lookup(info, "config.budget.horizon")
     if status == "done":
         if dropped is not None:
             raise RecordError(f"{dropped} of a finished run")
-        budget = info["config"].get("budget")
-        horizon = budget.get("horizon") if isinstance(budget, dict) else None
-        if not isinstance(horizon, int) or isinstance(horizon, bool):
-            raise RecordError(f"{record.run_json}: config.budget.horizon is {horizon!r}, not an integer")
+        if not present:
+            raise RecordError(f"{record.run_json}: config.budget.horizon is missing, so the run's length is unknown")
         if len(rows) != horizon:
             raise RecordError(f"{record.steps_path}: {len(rows)} rows, but the run is marked done with a horizon of {horizon} steps")
-    if status != "unfinished" and DIGEST_KEY in info:
-        digest = file_digest(record.steps_path) if record.steps_path.is_file() else None
-        if digest != info[DIGEST_KEY]:
-            raise RecordError(
-                f"{record.directory / STEPS}: differs from the digest run.json took when the run finished "
-                f"({DIGEST_KEY}); the rows were changed afterwards"
-            )
+    elif present and len(rows) > horizon:
+        raise RecordError(f"{record.steps_path}: {len(rows)} rows, more than the run's horizon of {horizon} steps")
+    if status != "unfinished":
+        _check_digest(record, info)
     return info, rows

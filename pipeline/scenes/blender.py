@@ -2,7 +2,9 @@
 renders its ground truth, in a worker process (``pipeline.scenes.blender_worker``) run by Blender's own
 Python (``paths.blender_python``; scripts/setup.sh creates ``.venv-blender`` with the ``bpy`` wheel).
 
-One ``BlenderRenderer`` is one worker process; an episode keeps one for all its views. A scene with a
+One ``BlenderRenderer`` is one worker process; an episode keeps one for all its views. Each request (a
+view, opening a scene) must be answered within ``render.timeout`` seconds: a worker that does not answer is
+killed and the request fails with ``BlenderTimeout`` (one line), so a hung Blender never hangs a run. A scene with a
 ``.blend`` asset is rendered from that file (its materials, lights, world and colour management);
 every other scene (meshes, proxies, the procedural default) from its triangles and base colours under
 the worker's fixed ``LIGHT_RIG``. Depth, hit mask and face ids come from the same open3d ray cast as the
@@ -15,6 +17,7 @@ Importing this module loads neither bpy nor Blender; only starting a worker does
 import os
 import subprocess
 import tempfile
+import threading
 import weakref
 from pathlib import Path
 
@@ -24,17 +27,24 @@ from jaxtyping import Float
 from torch import Tensor
 
 from nvf.cameras import Intrinsics
+from pipeline.config.schema import RenderConfig
 from pipeline.repo import REPO
 from pipeline.scenes.blender_worker import one_line, read_message, write_message
 from pipeline.scenes.render import GTView, MeshRays, as_pose, base_color_texture_mesh, corner_colors
 from pipeline.scenes.scene import Scene, SceneError
 
 DEFAULT_PYTHON = ".venv-blender/bin/python"
+DEFAULT_TIMEOUT = RenderConfig.timeout  # seconds per request
 INSTALL = "install it with scripts/setup.sh (it creates .venv-blender with bpy==5.0.1)"
 
 
 class BlenderError(SceneError):
     """Blender is missing, or its worker failed (a file it cannot open, Cycles failing); one-line message."""
+
+
+class BlenderTimeout(RuntimeError):
+    """Blender's worker did not answer a request in time and was killed; one-line message. Not a ``SceneError``:
+    the scene and its settings may be fine (a loaded machine), so a run that meets it is left to resume."""
 
 
 def blender_python(path: str | Path | None = None) -> Path:
@@ -65,13 +75,16 @@ def _stop(process: subprocess.Popen, log) -> None:
 
 
 class BlenderProcess:
-    """One worker process: ``request`` sends a command and returns its reply; ``close`` ends it (also at
-    garbage collection or interpreter exit)."""
+    """One worker process: ``request`` sends a command and returns its reply within ``timeout`` seconds
+    (else the worker is killed: ``BlenderTimeout``); ``close`` ends it (also at garbage collection or
+    interpreter exit)."""
 
-    def __init__(self, python: Path):
+    def __init__(self, python: Path, timeout: float = DEFAULT_TIMEOUT):
         reason = missing_python(python)
         if reason:
             raise BlenderError(reason)
+        self.timeout = float(timeout)
+        self._timed_out = threading.Event()
         self._log = tempfile.TemporaryFile()
         env = {**os.environ, "PYTHONPATH": str(REPO)}
         self._process = subprocess.Popen(
@@ -79,11 +92,21 @@ class BlenderProcess:
             stderr=self._log, env=env, cwd=REPO,
         )  # fmt: skip
         self._finalizer = weakref.finalize(self, _stop, self._process, self._log)
-        hello, _ = self._reply()
+        hello, _ = self._exchange(None, None)
         self.version = str(hello["blender"])
 
-    def _died(self) -> BlenderError:
+    def _kill(self) -> None:
+        """The watchdog's action: the worker took longer than ``timeout``."""
+        self._timed_out.set()
+        self._process.kill()
+
+    def _died(self) -> BlenderError | BlenderTimeout:
         code = self._process.wait()
+        if self._timed_out.is_set():
+            return BlenderTimeout(
+                f"Blender's worker did not answer within {self.timeout:g} s (render.timeout) and was stopped; "
+                "raise render.timeout if the machine renders that slowly"
+            )
         self._log.seek(0)
         lines = [line for line in self._log.read().decode(errors="replace").splitlines() if line.strip()]
         last = one_line(lines[-1]) if lines else "no output"
@@ -99,14 +122,28 @@ class BlenderProcess:
         return header, arrays
 
     def request(self, header: dict, arrays: dict[str, np.ndarray] | None = None) -> tuple[dict, dict[str, np.ndarray]]:
-        """Send one command; its reply's header and arrays, or ``BlenderError`` with the worker's one line."""
+        """Send one command; its reply's header and arrays, or ``BlenderError`` with the worker's one line
+        (``BlenderTimeout`` when no reply came within ``timeout`` seconds)."""
         if not self._finalizer.alive:
             raise BlenderError("Blender's worker was already closed")
+        if self._timed_out.is_set():
+            raise self._died()
+        return self._exchange(header, arrays)
+
+    def _exchange(self, header: dict | None, arrays: dict[str, np.ndarray] | None) -> tuple[dict, dict[str, np.ndarray]]:
+        """Write ``header`` (none: only read the greeting) and read the reply, both under the watchdog."""
+        watchdog = threading.Timer(self.timeout, self._kill)
+        watchdog.daemon = True
+        watchdog.start()
         try:
-            write_message(self._process.stdin, header, arrays)
-        except (BrokenPipeError, OSError):
-            raise self._died() from None
-        return self._reply()
+            if header is not None:
+                try:
+                    write_message(self._process.stdin, header, arrays)
+                except (BrokenPipeError, OSError):
+                    raise self._died() from None
+            return self._reply()
+        finally:
+            watchdog.cancel()
 
     def close(self) -> None:
         if self._finalizer.alive:
@@ -117,10 +154,10 @@ class BlenderProcess:
             self._finalizer()
 
 
-def export_blend(path: Path, python: Path) -> trimesh.Trimesh:
+def export_blend(path: Path, python: Path, timeout: float = DEFAULT_TIMEOUT) -> trimesh.Trimesh:
     """The render-visible triangles of ``path`` in its own frame, each face coloured with its material's
     base colour (``SceneError`` when it holds none, ``BlenderError`` when Blender cannot read it)."""
-    process = BlenderProcess(python)
+    process = BlenderProcess(python, timeout)
     try:
         process.request({"cmd": "open_blend", "path": str(path), "samples": 1})
         reply, arrays = process.request({"cmd": "export"})
@@ -151,11 +188,14 @@ def _mesh_arrays(mesh: trimesh.Trimesh) -> dict[str, np.ndarray]:
 class BlenderRenderer(MeshRays):
     """The ground-truth renderer's interface (``render_rgba``, ``render``, ``face_ids``, ``cast_rays``,
     ``unoccluded``, ``line_of_sight``, ``inside``, ``close``) with RGB from Cycles at ``samples`` samples
-    per pixel in one Blender worker; the rest from ``MeshRays`` on ``scene.mesh``."""
+    per pixel in one Blender worker that answers each request within ``timeout`` seconds; the rest from
+    ``MeshRays`` on ``scene.mesh``."""
 
-    def __init__(self, scene: Scene, samples: int, python: Path, threads: int | None = None):
+    def __init__(
+        self, scene: Scene, samples: int, python: Path, threads: int | None = None, timeout: float = DEFAULT_TIMEOUT
+    ):
         super().__init__(scene.mesh)
-        self._process = BlenderProcess(python)
+        self._process = BlenderProcess(python, timeout)
         settings = {"samples": int(samples), "threads": threads}
         try:
             if scene.asset is not None and scene.asset.suffix == ".blend":
@@ -164,7 +204,7 @@ class BlenderRenderer(MeshRays):
             else:
                 reply, _ = self._process.request({"cmd": "open_mesh", **settings}, _mesh_arrays(scene.mesh))
                 to_scene = np.eye(4)
-        except BlenderError:
+        except (BlenderError, BlenderTimeout):
             self._process.close()
             raise
         self.samples = int(samples)

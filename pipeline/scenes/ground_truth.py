@@ -15,11 +15,12 @@ Renderer = GroundTruthRenderer | BlenderRenderer
 
 def open_renderer(scene: Scene, cfg: DictConfig, threads: int | None = None) -> Renderer:
     """pyrender's ``GroundTruthRenderer`` or a ``BlenderRenderer`` (one Blender worker, ``render.samples``
-    samples per pixel, ``threads`` render threads, default torch's thread count); close it when done."""
+    samples per pixel, ``threads`` render threads, default torch's thread count, ``render.timeout`` seconds
+    per view); close it when done."""
     if cfg.render.backend == "blender":
         python = blender_python(cfg.paths.blender_python)
         threads = threads or torch.get_num_threads()
-        return BlenderRenderer(scene, int(cfg.render.samples), python, threads=threads)
+        return BlenderRenderer(scene, int(cfg.render.samples), python, threads=threads, timeout=float(cfg.render.timeout))
     return GroundTruthRenderer(scene.mesh)
 
 

@@ -248,8 +248,8 @@ def _notes(selected: pd.DataFrame, done: pd.DataFrame, rows: pd.DataFrame, runs:
         )
     if runs.conflicts:
         notes.append(
-            f"{len(runs.conflicts)} run record(s) left out: the same run as a kept record with other settings "
-            "(listed by `python -m pipeline.tables`)."
+            f"{len(runs.conflicts)} conflict(s) between copies of a run left records out: a copy with other settings than "
+            "the kept one, or finished copies that differ, none of which counts (listed by `python -m pipeline.tables`)."
         )
     return notes
 

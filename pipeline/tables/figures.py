@@ -13,11 +13,13 @@ from matplotlib.figure import Figure
 
 from pipeline.records.images import save_figure
 from pipeline.metrics.info import PAPER_METRICS
+from pipeline.tables.escape import plot_text
 from pipeline.tables.load import Runs
 
 IMAGE_NAME = re.compile(r"step_(\d+)_(.+)\.png")
 UNSAFE = re.compile(r"[^A-Za-z0-9_.=+-]")
 MAX_NAME_PART = 80
+MAX_FILE_NAME = 200  # characters of a whole file name: its atomic write's temp name adds 22, within NAME_MAX (255)
 IMAGE_KINDS = (("gt", "GT"), ("pred", "prediction"), ("score", "score map"), ("entropy", "entropy"), ("depth", "depth"))
 KIND_ORDER = {kind: i for i, (kind, _) in enumerate(IMAGE_KINDS)}
 
@@ -33,6 +35,16 @@ def safe_name(text: object) -> str:
     if name == text and len(name) <= MAX_NAME_PART:
         return name
     return f"{name[:MAX_NAME_PART]}-{hashlib.sha1(text.encode('utf-8')).hexdigest()[:8]}"
+
+
+def file_name(parts: list[object], separator: str, suffix: str) -> str:
+    """A file name from record texts: each part ``safe_name``, joined with ``separator``; a name longer than
+    ``MAX_FILE_NAME`` is cut and gets 8 hex digits of its SHA-1, so it can always be written."""
+    stem = separator.join(safe_name(part) for part in parts)
+    if len(stem) + len(suffix) <= MAX_FILE_NAME:
+        return stem + suffix
+    digest = hashlib.sha1(stem.encode("utf-8")).hexdigest()[:8]
+    return f"{stem[: MAX_FILE_NAME - len(suffix) - 9]}-{digest}{suffix}"
 
 
 def curves(runs: Runs, figures: Path) -> list[Path]:
@@ -51,7 +63,7 @@ def curves(runs: Runs, figures: Path) -> list[Path]:
                 if mean.notna().any():
                     color = f"C{i % 10}"  # the 10-colour cycle; ablations dashed, so no two lines look alike
                     style = "-" if ablation == "none" else "--"
-                    label = runs.row(method, planner, ablation).label
+                    label = plot_text(runs.row(method, planner, ablation).label)
                     ax.plot(mean.index, mean.to_numpy(), color=color, linestyle=style, label=label)
                     low, high = (mean - std).to_numpy(), (mean + std).to_numpy()
                     ax.fill_between(mean.index, low, high, alpha=0.2, color=color)
@@ -60,8 +72,8 @@ def curves(runs: Runs, figures: Path) -> list[Path]:
         handles, labels = axes[0].get_legend_handles_labels()
         if handles:
             fig.legend(handles, labels, loc="upper right")
-        fig.suptitle(f"{scene} ({budget} budget)")
-        path = figures / f"curves_{safe_name(scene)}_{safe_name(budget)}.png"
+        fig.suptitle(plot_text(f"{scene} ({budget} budget)"))
+        path = figures / file_name(["curves", scene, budget], "_", ".png")
         save_figure(fig, path)
         written.append(path)
     return written
@@ -110,7 +122,7 @@ def step_curve(rows: list[dict], title: str, out_path: Path) -> Path:
     ax.plot(steps, [math.nan if v is None else v for v in psnr], marker="o", markersize=3)
     ax.set_xlabel("step")
     ax.set_ylabel("PSNR (dB)")
-    ax.set_title(title, fontsize=9)
+    ax.set_title(plot_text(title), fontsize=9)
     ax.grid(alpha=0.3)
     save_figure(fig, Path(out_path))
     return Path(out_path)

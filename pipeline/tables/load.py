@@ -1,10 +1,12 @@
-"""Run records -> data frames: every run directory under some roots read once (a run found twice counts
-once), into a long frame (one row per run, step and metric) and a final frame (one row per run, its
-last step's metrics). Step rows store NaN as ``null`` (pipeline.records); it is read back as NaN."""
+"""Run records -> data frames: every run directory under some roots read once (identical copies of a run
+count once; finished copies that differ are named and none of them counts), into a long frame (one row per
+run, step and metric) and a final frame (one row per run, its last step's metrics). Step rows store NaN as
+``null`` (pipeline.records); it is read back as NaN."""
 
 import dataclasses
 import json
 import math
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -14,7 +16,8 @@ import pandas as pd
 
 from pipeline.config.named import GROUPS, NamedConfigs
 from pipeline.records.compat import line_of_sight_filtered
-from pipeline.records.store import IDENTITY_KEYS, RECORD_FILES, RecordError, RunRecord, run_difference
+from pipeline.records.files import escaping_link
+from pipeline.records.store import IDENTITY_KEYS, RECORD_FILES, RecordError, RunRecord, first_difference, run_difference
 from pipeline.records.verify import verified
 from pipeline.repo import CONF
 from pipeline.tables.labels import LAST, MEAN_SCENE, METRIC_KEYS, OBJECT_MEAN, RowName, SceneName, row_name, scene_name
@@ -28,6 +31,8 @@ FINAL_COLUMNS = (
     "mesh_los", "directory", "step", "n_views",
 )
 GROUP = ("budget", "scene", "method", "planner", "ablation")
+# run.json keys besides the settings that reach a table (``collect_runs``'s final frame)
+TABULATED = ("scene_source", "ground_truth", "failure_reason", "lpips_missing_reason", "collision_free", "candidate_filters")
 
 
 def ground_truth_label(info: dict) -> tuple[str, str]:
@@ -46,7 +51,8 @@ def ground_truth_label(info: dict) -> tuple[str, str]:
 class Runs:
     """All run records: ``long`` (LONG_COLUMNS, finished runs), ``final`` (one row per run, last-step
     metrics); ``skipped`` (records that fail a check, with the reason) and ``conflicts`` (records left
-    out because a kept record of the same run has other settings), one line each."""
+    out because a kept record of the same run has other settings, and finished copies of one run that
+    differ, none of which is kept), one line each."""
 
     long: pd.DataFrame
     final: pd.DataFrame
@@ -76,6 +82,8 @@ def describe(info: Mapping[str, Any], named: NamedConfigs | None = None) -> tupl
     """How tables name a record's row and scene, from its config (``effective_config``)."""
     named = NamedConfigs(CONF) if named is None else named
     config = effective_config(info.get("config") or {}, named.named(tuple(str(info[g]) for g in GROUPS)) or {})
+    names = {group: {"name": info[group]} for group in ("scene", "method", "ablation", "planner")}
+    config = effective_config(config, names)  # groups conf/ no longer has and the record lacks: their names
     return row_name(config), scene_name(config)
 
 
@@ -105,47 +113,97 @@ def used_mesh_line_of_sight(info: dict) -> bool:
     return isinstance(planner, dict) and planner.get("los_source") == "mesh" and line_of_sight_filtered(info)
 
 
-def record_directories(root: Path) -> list[Path]:
-    """Every directory under ``root`` holding a file of a run record (run.json, steps.jsonl, DONE, FAILED)."""
+def record_directories(root: Path) -> tuple[list[Path], list[str]]:
+    """Every directory under ``root`` holding an entry named as a file of a run record (run.json, steps.jsonl,
+    DONE, FAILED), whatever it is (a link there fails verification, in one line), and one skip line for each
+    directory link leaving ``root`` (never followed)."""
     if not Path(root).is_dir():
-        return []
-    return sorted({path.parent for name in RECORD_FILES for path in Path(root).rglob(name) if path.is_file()})
+        return [], []
+    found, links = set(), []
+    for folder, subfolders, files in os.walk(root):  # links to folders are listed, never entered
+        if any(name in RECORD_FILES for name in (*files, *subfolders)):
+            found.add(Path(folder))
+        for name in subfolders:
+            link = escaping_link(Path(root), Path(folder) / name)
+            if link is not None:
+                links.append(f"skipped run records under {link[0]}: a symbolic link to {link[1]}, outside {root}")
+    return sorted(found), sorted(links)
+
+
+def _short(value: Any) -> str:
+    text = json.dumps(value)
+    return text if len(text) <= 40 else f"{text[:37]}..."
+
+
+def copy_difference(one: dict, other: dict) -> str | None:
+    """How two copies of a run differ in what the tables read: their settings, else the first row and key,
+    else the first of run.json's ``TABULATED`` keys; None when the tables would show either alike (times
+    and provenance may differ: two copies written at other moments)."""
+    changed = run_difference(one["info"], other["info"], labels=("in the first", "in the second"))
+    if changed is not None:
+        return changed
+    pairs = [(f"step {index} ", mine, theirs) for index, (mine, theirs) in enumerate(zip(one["rows"], other["rows"]))]
+    tabulated = [{key: copy["info"].get(key) for key in TABULATED} for copy in (one, other)]
+    for prefix, mine, theirs in [*pairs, ("run.json ", *tabulated)]:
+        found = first_difference(mine, theirs, prefix)
+        if found is not None:
+            key, was, now = found
+            return f"{key} ({_short(was)} in the first, {_short(now)} in the second)"
+    if len(one["rows"]) != len(other["rows"]):
+        return f"{len(one['rows'])} rows in the first, {len(other['rows'])} in the second"
+    return None
+
+
+def _choose(copies: list[dict], conflicts: list[str]) -> dict | None:
+    """The copy of one run that counts, appending a line to ``conflicts`` for every copy left out: identical
+    copies count once; finished copies that differ are all named in one line and none counts; otherwise the
+    finished copy, else the first, and a copy with other settings than it is named."""
+    finished = [copy for copy in copies if copy["status"] == "done"]
+    distinct = [copy for i, copy in enumerate(finished) if all(copy_difference(copy, f) for f in finished[:i])]
+    if len(distinct) > 1:
+        named = " and ".join(str(copy["directory"]) for copy in distinct)
+        conflicts.append(
+            f"left out every copy of one run: {named} are finished copies that differ "
+            f"({copy_difference(distinct[0], distinct[1])}); remove the ones that are wrong"
+        )
+        return None
+    kept = finished[0] if finished else copies[0]
+    for copy in copies:
+        changed = None if copy is kept else run_difference(copy["info"], kept["info"], labels=("here", "there"))
+        if changed is not None:
+            conflicts.append(f"left out {copy['directory']}: the same run as {kept['directory']} but a different {changed}")
+    return kept
 
 
 def collect_runs(roots: list[Path]) -> Runs:
     """Read every run record under ``roots`` (``record_directories``); one that fails a check
-    (``pipeline.records.verify``) is listed in ``skipped`` with the reason. A run found twice counts once
-    (a finished copy wins, then the first root). A copy left out with other settings (config) than the
-    kept one is listed in ``conflicts``: a table never mixes them silently."""
-    records: dict[tuple, dict] = {}
+    (``pipeline.records.verify``) is listed in ``skipped`` with the reason, and so is every link to a folder
+    outside its root (never followed). Copies of one run (same identity keys) are resolved by ``_choose``, every copy left out
+    listed in ``conflicts``: a table never mixes runs, or picks between differing copies, silently."""
+    copies: dict[tuple, list[dict]] = {}
+    seen: set[Path] = set()
     skipped: list[str] = []
     conflicts: list[str] = []
     for root in roots:
-        for directory in record_directories(root):
+        directories, links = record_directories(root)
+        skipped += links
+        for directory in directories:
+            if directory.resolve() in seen:  # the same directory reached from two roots
+                continue
+            seen.add(directory.resolve())
             try:
                 info, rows = load_run(directory)
             except (ValueError, OSError) as err:
                 skipped.append(f"skipped run record: {str(err).splitlines()[0]}")
                 continue
-            key = tuple(info[k] for k in IDENTITY_KEYS)
-            status = RunRecord(directory).status()
-            record = {"info": info, "rows": rows, "status": status, "directory": directory}
-            if key in records:
-                keep_first = records[key]["status"] == "done" or status != "done"
-                kept, left = (records[key], record) if keep_first else (record, records[key])
-                changed = run_difference(left["info"], kept["info"], labels=("here", "there"))
-                if changed is not None:
-                    conflicts.append(
-                        f"left out {left['directory']}: the same run as {kept['directory']} but a different {changed}"
-                    )
-                if keep_first:
-                    continue
-            records[key] = record
+            record = {"info": info, "rows": rows, "status": RunRecord(directory).status(), "directory": directory}
+            copies.setdefault(tuple(info[k] for k in IDENTITY_KEYS), []).append(record)
+    records = [kept for group in copies.values() if (kept := _choose(group, conflicts)) is not None]
     long_rows, final_rows = [], []
     names: dict[tuple[str, str, str], RowName] = {}
     scenes: dict[str, SceneName] = {}
     named = NamedConfigs(CONF)
-    for record in records.values():
+    for record in records:
         info, rows = record["info"], record["rows"]
         keys = {k: info[k] for k in IDENTITY_KEYS}
         row_label, scene_label = describe(info, named)

@@ -1,11 +1,13 @@
 """A ``Table`` as Markdown, CSV and LaTeX texts: cells 'mean ± std' (bold for the best, † where some
 seeds lack the value), ‡ after the label of a row planned with the mesh's line of sight, header lines
-and footnotes."""
+and footnotes. Every cell, header line and footnote is escaped for its format (``pipeline.tables.escape``):
+labels, sources and reasons come from run records."""
 
 import pandas as pd
 
 from pipeline.metrics.info import PAPER_METRICS
 from pipeline.tables.aggregate import MESH_LOS_MARK, Table
+from pipeline.tables.escape import markdown, plain, tex_escape
 
 
 TIE_MARK = "≈"
@@ -53,43 +55,26 @@ def _grid(table: Table, label_header: str) -> tuple[list[str], list[list[str]]]:
     return columns, cells
 
 
-TEX_SPECIALS = (
-    ("\\", r"\textbackslash{}"), ("&", r"\&"), ("%", r"\%"), ("$", r"\$"), ("#", r"\#"), ("_", r"\_"),
-    ("{", r"\{"), ("}", r"\}"), ("~", r"\textasciitilde{}"), ("^", r"\textasciicircum{}"),
-    ("±", r"$\pm$"), ("↑", r"$\uparrow$"), ("↓", r"$\downarrow$"), ("†", r"$^\dagger$"), ("‡", r"$^\ddagger$"),
-    ("≈", r"$^\approx$"), ("Δ", r"$\Delta$"),
-)
-
-
-def tex_escape(text: str) -> str:
-    """LaTeX for plain text (specials escaped, ± ↑ ↓ † as math); '**x**' (a best cell) becomes bold."""
-    specials = dict(TEX_SPECIALS)
-    bold = text.startswith("**") and "**" in text[2:]
-    if bold:
-        inner, rest = text[2:].split("**", 1)
-        return r"\textbf{" + tex_escape(inner) + "}" + tex_escape(rest)
-    return "".join(specials.get(ch, ch) for ch in text)
-
-
 def render(table: Table, label_header: str, experiment: str | None) -> dict[str, str]:
     """The table as {'md', 'csv', 'tex'} texts ('no runs yet' texts when it has no rows)."""
     if table.rows.empty:
         command = f"python -m pipeline.run -m experiment={experiment}" if experiment else "python -m pipeline.run"
         message = f"No runs yet for {table.name}: run `{command}`, then `python -m pipeline.tables`."
         return {
-            "md": "\n".join([f"# {table.title}", "", message, "", *(f"- {n}" for n in table.notes)]).rstrip() + "\n",
-            "csv": pd.DataFrame({"note": [message, *table.notes]}).to_csv(index=False),
+            "md": "\n".join([f"# {table.title}", "", message, "", *(f"- {markdown(n)}" for n in table.notes)]).rstrip() + "\n",
+            "csv": pd.DataFrame({"note": [message, *map(plain, table.notes)]}).to_csv(index=False),
             "tex": "\n".join([f"% {table.title}", tex_escape(message), *(tex_escape(n) for n in table.notes)]) + "\n",
         }
     columns, cells = _grid(table, label_header)
-    markdown = pd.DataFrame(cells, columns=columns).to_markdown(index=False, disable_numparse=True)
-    md = [f"# {table.title}", "", *table.header, "", markdown, "", *(f"- {n}" for n in table.notes)]
-    plain = [[c.replace("**", "") for c in line] for line in cells]
-    csv = "".join(f"# {line}\n" for line in (table.title, *table.header))
-    csv += pd.DataFrame(plain, columns=columns).to_csv(index=False) + "".join(f"# {n}\n" for n in table.notes)
+    grid = pd.DataFrame([[markdown(c) for c in line] for line in cells], columns=columns)
+    md = [f"# {table.title}", "", *map(markdown, table.header), "", grid.to_markdown(index=False, disable_numparse=True), "",
+          *(f"- {markdown(n)}" for n in table.notes)]  # fmt: skip
+    bare = [[plain(c).replace("**", "") for c in line] for line in cells]
+    csv = "".join(f"# {plain(line)}\n" for line in (table.title, *table.header))
+    csv += pd.DataFrame(bare, columns=columns).to_csv(index=False) + "".join(f"# {plain(n)}\n" for n in table.notes)
     tex = [
         f"% {table.title}",
-        *(f"% {line}" for line in table.header),
+        *(f"% {plain(line)}" for line in table.header),
         r"\begin{tabular}{" + "l" * (columns.index("Scene") + 2) + "c" * (len(columns) - columns.index("Scene") - 3) + "r}",
         r"\toprule",
         " & ".join(map(tex_escape, columns)) + r" \\",

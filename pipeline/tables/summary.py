@@ -1,5 +1,6 @@
 """One run's per-step metrics as Markdown (``<run_dir>/summary.md``), with the paper's row for its scene
-and method where the paper has one, and its pictures (``run_pictures``)."""
+and method where the paper has one, and its pictures (``run_pictures``). Record text is escaped
+(``pipeline.tables.escape``)."""
 
 import math
 from pathlib import Path
@@ -8,6 +9,7 @@ import pandas as pd
 
 from pipeline.metrics.info import PAPER_METRICS
 from pipeline.records.store import atomic_write_text, record_status
+from pipeline.tables.escape import markdown
 from pipeline.tables.figures import image_grid, step_curve
 from pipeline.tables.labels import METRIC_KEYS
 from pipeline.tables.load import describe, ground_truth_label, load_run, metric_value
@@ -42,9 +44,9 @@ def summarize_run(run_dir: Path) -> Path:
     notes = [f"Status: {record_status(info, Path(run_dir))}. Scene source: {source}. Ground truth: {ground_truth}."]
     if info.get("lpips_missing_reason"):
         notes.append(f"LPIPS missing: {info['lpips_missing_reason']}.")
-    title = f"# {info['scene']} / {label} / {info['budget']} budget / seed {info['seed']}"
+    title = f"# {markdown(info['scene'])} / {markdown(label)} / {markdown(info['budget'])} budget / seed {info['seed']}"
     path = Path(run_dir) / "summary.md"
-    atomic_write_text(path, "\n".join([title, "", table, "", *(f"- {n}" for n in notes)]) + "\n")
+    atomic_write_text(path, "\n".join([title, "", table, "", *(f"- {markdown(n)}" for n in notes)]) + "\n")
     return path
 
 
