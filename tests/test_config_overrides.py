@@ -31,8 +31,8 @@ def test_compose_config_exits_with_one_line_on_any_bad_override(override, needle
 
 
 HOSTILE_VALUES = [
-    ("case_5_negative_seed", "seed=-1", "error: seed=-1 must be an integer from 0 to 2^63-1"),
-    ("case_5_seed_beyond_int64", "seed=99999999999999999999", "error: seed=99999999999999999999 must be an integer from 0"),
+    ("case_5_negative_seed", "seed=-1", "error: seed -1 is not an integer from 0 to 2^63-1"),
+    ("case_5_seed_beyond_int64", "seed=99999999999999999999", "error: seed 99999999999999999999 is not an integer from 0"),
     ("case_6_horizon_of_a_billion_steps", "budget.horizon=1000000000", "error: budget.horizon=1000000000 is more than 1000 steps"),
     ("case_6_a_billion_label_samples", "train.label_samples=1000000000",
      "error: train.label_samples=1000000000 is more than 65536 samples per segment"),

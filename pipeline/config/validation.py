@@ -22,7 +22,7 @@ from pipeline.config.catalog import declared
 from pipeline.config.memory import host_memory, too_large
 from pipeline.config.named import changed_settings
 from pipeline.config.paths import unwritable
-from pipeline.records.store import MAX_SEED, run_dir
+from pipeline.records.store import run_dir
 from pipeline.records.verify import MAX_HORIZON, record_value_problem
 from pipeline.repo import CONF
 from pipeline.config.schema import RunConfig, register_configs
@@ -135,16 +135,14 @@ def _check_finite(cfg: DictConfig) -> None:
 def _unknown_keys(node: DictConfig, schema: type, prefix: str = "") -> list[str]:
     """Dotted keys of ``node`` that its schema dataclass does not declare (added with ``+key=value``);
     free-form mappings of the schema (``dict[str, Any]``) take any key."""
-    declared_fields = {f.name: f for f in dataclasses.fields(schema)}
+    declared_fields = {f.name for f in dataclasses.fields(schema)}
     found = []
     for key in node:
-        name = f"{prefix}{key}"
+        kind = OmegaConf.get_type(node, key)
         if key not in declared_fields:
-            found.append(name)
-            continue
-        child, kind = node._get_node(key), OmegaConf.get_type(node, key)
-        if isinstance(child, DictConfig) and dataclasses.is_dataclass(kind):
-            found += _unknown_keys(child, kind, f"{name}.")
+            found.append(f"{prefix}{key}")
+        elif dataclasses.is_dataclass(kind):
+            found += _unknown_keys(node[key], kind, f"{prefix}{key}.")
     return found
 
 
@@ -160,16 +158,13 @@ def _check_known_keys(cfg: DictConfig) -> None:
 
 
 def _check_run_keys(cfg: DictConfig) -> None:
-    """The seed and the names that make the run's directory (``pipeline.records.store.run_dir``)."""
-    seed = cfg.seed
-    if not isinstance(seed, int) or isinstance(seed, bool) or not 0 <= seed <= MAX_SEED:
-        shown = seed if not isinstance(seed, int) or abs(seed) < 10**30 else f"an integer of {len(str(seed))} digits"
-        raise ConfigError(f"seed={shown} must be an integer from 0 to 2^63-1 (it seeds every generator of the run)")
+    """The seed (an int64: it seeds every generator of the run) and the names that make the run's directory,
+    as ``pipeline.records.store.run_dir`` takes them."""
     names = (cfg.scene.name, cfg.method.name, cfg.planner.name, cfg.ablation.name, cfg.budget.name)
     try:
-        run_dir(Path(str(cfg.paths.outputs)), *names, seed)
+        run_dir(Path(str(cfg.paths.outputs)), *names, cfg.seed)
     except ValueError as err:
-        raise ConfigError(f"{err} (it names the run's directory)") from None
+        raise ConfigError(str(err)) from None
 
 
 def check_paths(cfg: DictConfig, keys: tuple[str, ...] = ("paths.outputs",)) -> None:
@@ -196,8 +191,9 @@ def _check_memory(cfg: DictConfig) -> None:
 
 
 def validate(cfg: DictConfig) -> None:
-    """Reject impossible values before any work starts (one line naming the key): choices, finite
-    floats, positive sizes, sizes that fit in memory, a device torch can see and a writable ``paths.outputs``."""
+    """Reject impossible values before any work starts (one line naming the key): keys the schema declares
+    (``+key`` too), the seed and run names, values a run record can hold, choices, finite floats, positive
+    and bounded sizes, sizes that fit in memory, a device torch can see and a writable ``paths.outputs``."""
     _check_known_keys(cfg)
     _check_run_keys(cfg)
     _check_finite(cfg)

@@ -240,9 +240,11 @@ def verified(record: RunRecord) -> tuple[dict, list[dict]]:
         return {}, []
     check_info(record, info)
     rows, dropped = read_steps(record.steps_path)
+    present, horizon = _lookup(info, "config.budget.horizon")
+    if len(rows) > (horizon if present else MAX_HORIZON):
+        raise RecordError(f"{record.steps_path}: {len(rows)} rows, more than the run's horizon of {horizon if present else MAX_HORIZON} steps")
     check_rows(record.steps_path, rows)
     status = record.status()
-    present, horizon = _lookup(info, "config.budget.horizon")
     if status == "done":
         if dropped is not None:
             raise RecordError(f"{dropped} of a finished run")
@@ -250,8 +252,6 @@ def verified(record: RunRecord) -> tuple[dict, list[dict]]:
             raise RecordError(f"{record.run_json}: config.budget.horizon is missing, so the run's length is unknown")
         if len(rows) != horizon:
             raise RecordError(f"{record.steps_path}: {len(rows)} rows, but the run is marked done with a horizon of {horizon} steps")
-    elif present and len(rows) > horizon:
-        raise RecordError(f"{record.steps_path}: {len(rows)} rows, more than the run's horizon of {horizon} steps")
     if status != "unfinished":
         _check_digest(record, info)
     return info, rows
