@@ -105,11 +105,12 @@ def allocations(cfg: DictConfig) -> list[Allocation]:
         found.append(Allocation("field.hidden_dim", FLOAT32 * hidden * int(t.visibility.batch),
                                 "one hidden layer's outputs for a visibility batch (float32)", on_device=True,
                                 also=("train.visibility.batch",)))  # fmt: skip
+    else:
+        found.append(Allocation("field.hidden_dim", FLOAT32 * hidden**2, "one hidden layer's weights (float32)", on_device=True))
+    if "visibility" in stages or cfg.nvf.entropy.visibility_source == "labels":  # M17: stage 3's labels, or the scores'
         found.append(Allocation("train.label_samples", SEGMENT_BYTES * (int(t.label_samples) - 1),
                                 "one chunk of M17's label samples (float32 offsets, fractions, xyz and densities and "
                                 "boolean box tests, at least train.label_samples - 1 per point)", on_device=True))  # fmt: skip
-    else:
-        found.append(Allocation("field.hidden_dim", FLOAT32 * hidden**2, "one hidden layer's weights (float32)", on_device=True))
     for stage in ("backbone", "variance", "visibility"):
         batch = int(t[stage].batch)
         found.append(Allocation(f"train.{stage}.batch", XYZ * batch, "one batch's ray origins or points (float32 xyz)",
