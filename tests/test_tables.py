@@ -563,3 +563,20 @@ def test_case_9_every_tables_error_line_starts_with_error(tmp_path, capsys):
         assert main(args) == 2
         err = capsys.readouterr().err.splitlines()
         assert len(err) == 1 and err[0].startswith("error: "), err
+
+
+def test_a_runs_images_are_read_as_untrusted_files(tmp_path):
+    """A run's images travel with its record: a link to a file elsewhere, a file that is no PNG and an image of a
+    shape no grid shows leave their cells empty; the grid is still drawn, and nothing outside is read."""
+    run = tmp_path / "run"
+    (run / "images").mkdir(parents=True)
+    iio.imwrite(run / "images" / "step_00_gt.png", np.zeros((8, 8, 3), np.uint8))
+    (run / "images" / "step_00_pred.png").write_bytes(b"not a png")
+    iio.imwrite(run / "images" / "step_00_depth.png", np.zeros((8, 8, 2), np.uint8))
+    (tmp_path / "secret.png").write_bytes((run / "images" / "step_00_gt.png").read_bytes())
+    (run / "images" / "step_00_score.png").symlink_to(tmp_path / "secret.png")
+    assert image_grid(run, tmp_path / "grid.png") == tmp_path / "grid.png"
+    (run / "images" / "step_00_gt.png").unlink()
+    (run / "images" / "step_00_depth.png").unlink()
+    (run / "images" / "step_00_pred.png").unlink()
+    assert image_grid(run, tmp_path / "none.png") is None  # a link is not one of the run's images

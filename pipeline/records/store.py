@@ -72,8 +72,9 @@ def check_key(name: str, value: object) -> str:
 def check_seed(seed: object) -> int:
     """Return ``seed`` if it is an integer in ``[0, MAX_SEED]``, else raise ValueError."""
     if not isinstance(seed, int) or isinstance(seed, bool) or not 0 <= seed <= MAX_SEED:
-        shown = seed if not isinstance(seed, int) or abs(seed) < 10**30 else f"an integer of {len(str(seed))} digits"
-        raise ValueError(f"seed {shown!r} is not an integer from 0 to 2^63-1")
+        digits = str(seed) if isinstance(seed, int) else ""
+        shown = f"{digits[:20]}... ({len(digits)} digits)" if len(digits) > 30 else repr(seed)
+        raise ValueError(f"seed {shown} is not an integer from 0 to 2^63-1")
     return seed
 
 

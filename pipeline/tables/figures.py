@@ -10,7 +10,9 @@ import imageio.v3 as iio
 import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
+from PIL import Image
 
+from pipeline.records.files import is_plain_file
 from pipeline.records.images import save_figure
 from pipeline.metrics.info import PAPER_METRICS
 from pipeline.tables.escape import plot_text
@@ -19,6 +21,8 @@ from pipeline.tables.load import Runs
 IMAGE_NAME = re.compile(r"step_(\d+)_(.+)\.png")
 UNSAFE = re.compile(r"[^A-Za-z0-9_.=+-]")
 MAX_NAME_PART = 80
+MAX_KINDS = 8  # columns of a run's image grid
+MAX_IMAGE_PIXELS = 4096 * 4096  # a run's images are at most budget.image_size squared (512 px in the paper budget)
 MAX_FILE_NAME = 200  # characters of a whole file name: its atomic write's temp name adds 22, within NAME_MAX (255)
 IMAGE_KINDS = (("gt", "GT"), ("pred", "prediction"), ("score", "score map"), ("entropy", "entropy"), ("depth", "depth"))
 KIND_ORDER = {kind: i for i, (kind, _) in enumerate(IMAGE_KINDS)}
@@ -82,18 +86,21 @@ def curves(runs: Runs, figures: Path) -> list[Path]:
 def image_grid(run_dir: Path, out_path: Path, max_rows: int = 5) -> Path | None:
     """Assemble ``images/step_XX_<kind>.png`` of a run into one grid: rows = up to ``max_rows`` evenly
     spaced steps (first and last included), columns = GT, prediction, score/entropy map, depth, others.
-    None when the run saved no images."""
+    None when the run saved no images. The images are record files too (untrusted): only regular files
+    in a real ``images/`` directory are read, at most ``MAX_KINDS`` columns, and one that does not decode
+    leaves its cell empty."""
     found: dict[int, dict[str, Path]] = {}
-    for path in sorted((Path(run_dir) / "images").glob("step_*.png")):
+    folder = Path(run_dir) / "images"
+    for path in sorted(folder.glob("step_*.png")) if folder.is_dir() and not folder.is_symlink() else ():
         match = IMAGE_NAME.fullmatch(path.name)
-        if match:
+        if match and is_plain_file(path):
             found.setdefault(int(match.group(1)), {})[match.group(2)] = path
     if not found:
         return None
     kinds = sorted(
         {kind for images in found.values() for kind in images},
         key=lambda kind: (KIND_ORDER.get(kind, len(KIND_ORDER)), kind),
-    )
+    )[:MAX_KINDS]
     steps = sorted(found)
     steps = [steps[round(i)] for i in np.linspace(0, len(steps) - 1, min(max_rows, len(steps)))]
     fig = Figure(figsize=(2.5 * len(kinds), 2.5 * len(steps)), layout="constrained")
@@ -102,15 +109,28 @@ def image_grid(run_dir: Path, out_path: Path, max_rows: int = 5) -> Path | None:
         for j, kind in enumerate(kinds):
             ax = axes[i, j]
             ax.set_axis_off()
-            if kind in found[step]:
-                image = iio.imread(found[step][kind])
+            image = _read_image(found[step][kind]) if kind in found[step] else None
+            if image is not None:
                 ax.imshow(image[..., :3] if image.ndim == 3 else image, cmap=None if image.ndim == 3 else "viridis")
             if i == 0:
-                ax.set_title(dict(IMAGE_KINDS).get(kind, kind))
+                ax.set_title(plot_text(dict(IMAGE_KINDS).get(kind, kind)))
             if j == 0:
                 ax.text(-0.05, 0.5, f"step {step}", transform=ax.transAxes, rotation=90, ha="right", va="center")
     save_figure(fig, Path(out_path))
     return Path(out_path)
+
+
+def _read_image(path: Path) -> np.ndarray | None:
+    """A run's PNG as an array (``[H, W]``, or ``[H, W, 3 | 4]``), or None when it is not a readable image of
+    that shape and at most ``MAX_IMAGE_PIXELS`` pixels."""
+    try:
+        with Image.open(path) as image:
+            if image.width * image.height > MAX_IMAGE_PIXELS:
+                return None
+        array = iio.imread(path)
+    except (OSError, ValueError, Image.DecompressionBombError):
+        return None
+    return array if array.ndim == 2 or (array.ndim == 3 and array.shape[-1] in (3, 4)) else None
 
 
 def step_curve(rows: list[dict], title: str, out_path: Path) -> Path:
