@@ -34,7 +34,7 @@ from omegaconf import DictConfig, OmegaConf
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.named import GROUPS, NamedConfigs
 from pipeline.config.validation import compose_config
-from pipeline.records.store import DONE, atomic_write_text, run_dir
+from pipeline.records.store import RunRecord, atomic_write_text, record_status, run_dir
 from pipeline.repo import CONF, REPO
 from pipeline.scenes.scene import SceneError
 from pipeline.scenes.loading import find_asset, scene_config
@@ -69,7 +69,8 @@ def reusable(reuse: Path | None, entry: tuple[str, str], label: str, plain: str,
     overrides cannot change the entry (its label is the plain budget's)."""
     if reuse is None or label != plain:
         return False
-    return all((run_dir(reuse, scene, entry[0], "argmax", entry[1], plain, seed) / DONE).is_file() for seed in seeds)
+    directories = [run_dir(reuse, scene, entry[0], "argmax", entry[1], plain, seed) for seed in seeds]
+    return all(record_status(RunRecord(d).info(), d) == "done" for d in directories)
 
 
 def sweep_commands(

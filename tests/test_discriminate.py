@@ -77,10 +77,10 @@ def test_entries_a_setting_cannot_change_are_reused_not_rerun(tmp_path):
     labels = discriminate.entry_labels(overrides)
     assert labels[("wd", "none")] == labels[("neurar", "none")] == "smoke"
     assert labels[("nvf", "none")] == labels[("nvf", "wo_vis")] == "smoke+nvf.entropy.logdet_coeff=1.0"
-    for seed in (100, 101):
+    for seed in (100, 101):  # finished as committed records are: run.json says so (no DONE marker)
         done = discriminate.run_dir(tmp_path, "hotdog", "wd", "argmax", "none", "smoke", seed)
         done.mkdir(parents=True)
-        (done / discriminate.DONE).write_text("")
+        (done / "run.json").write_text('{"status": "done"}')
     assert discriminate.reusable(tmp_path, ("wd", "none"), "smoke", "smoke", "hotdog", (100, 101))
     assert not discriminate.reusable(tmp_path, ("wd", "none"), "smoke", "smoke", "hotdog", (100, 101, 102))
     assert not discriminate.reusable(tmp_path, ("nvf", "none"), labels[("nvf", "none")], "smoke", "hotdog", (100,))
