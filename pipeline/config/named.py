@@ -12,6 +12,7 @@ from hydra.core.global_hydra import GlobalHydra
 from hydra.errors import HydraException
 from omegaconf import OmegaConf
 
+from pipeline.records import compat
 from pipeline.records.compat import drop_not_settings, drop_retired, with_legacy_defaults
 from pipeline.records.store import to_jsonable
 from pipeline.config.schema import register_configs
@@ -62,12 +63,15 @@ class NamedConfigs:
     def overrides(self, info: Mapping) -> tuple[str, ...]:
         """``key=value`` (sorted) for every setting in the record's config whose value differs from what
         its named groups give today: command-line overrides, or defaults changed since the run (a key
-        added since is read as the value the run was made with, ``pipeline.records.compat``).
-        Empty when its groups can no longer be composed."""
+        added since is read as the value the run was made with, ``pipeline.records.compat``), except
+        settings the run's method cannot read (``compat.inert_keys``: ``nvf.entropy.logdet_coeff=1.0`` on a
+        WD run). Empty when its groups can no longer be composed."""
         named = self.named(tuple(str(info[group]) for group in GROUPS))
         config = info.get("config")
         if named is None or not isinstance(config, Mapping):
             return ()
         recorded = {k: v for k, v in drop_not_settings(drop_retired(to_jsonable(dict(config)))).items() if k not in LOCATIONS}
         recorded = with_legacy_defaults(recorded, named)  # keys added since the run: the value it was made with
-        return tuple(f"{key}={_text(value)}" for key, value in changed_settings(recorded, named))
+        inert = compat.inert_keys(recorded)  # settings the run's method cannot read do not make it another run
+        changed = changed_settings(recorded, named)
+        return tuple(f"{key}={_text(value)}" for key, value in changed if not compat.is_inert(key, inert))
