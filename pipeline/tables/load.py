@@ -1,7 +1,7 @@
 """Run records -> data frames: every run directory under some roots read once (identical copies of a run
-count once; finished copies that differ are named and none of them counts), into a long frame (one row per
-run, step and metric) and a final frame (one row per run, its last step's metrics). Step rows store NaN as
-``null`` (pipeline.records); it is read back as NaN."""
+count once; finished copies with the same settings that differ are named and none of them counts), into a
+long frame (one row per run, step and metric) and a final frame (one row per run, its last step's metrics).
+Step rows store NaN as ``null`` (pipeline.records); it is read back as NaN."""
 
 import dataclasses
 import json
@@ -52,7 +52,7 @@ class Runs:
     """All run records: ``long`` (LONG_COLUMNS, finished runs), ``final`` (one row per run, last-step
     metrics); ``skipped`` (records that fail a check, with the reason) and ``conflicts`` (records left
     out because a kept record of the same run has other settings, and finished copies of one run that
-    differ, none of which is kept), one line each."""
+    differ with the same settings, none of which is kept), one line each."""
 
     long: pd.DataFrame
     final: pd.DataFrame
@@ -148,12 +148,9 @@ def _short(value: Any) -> str:
 
 
 def copy_difference(one: dict, other: dict) -> str | None:
-    """How two copies of a run differ in what the tables read: their settings, else the first row and key,
-    else the first of run.json's ``TABULATED`` keys; None when the tables would show either alike (times
-    and provenance may differ: two copies written at other moments)."""
-    changed = run_difference(one["info"], other["info"], labels=("in the first", "in the second"))
-    if changed is not None:
-        return changed
+    """How two copies of a run with the same settings differ in what the tables read: the first row and key,
+    else the first of run.json's ``TABULATED`` keys; None when the tables would show either alike (times and
+    provenance may differ: two copies written at other moments)."""
     pairs = [(f"step {index} ", mine, theirs) for index, (mine, theirs) in enumerate(zip(one["rows"], other["rows"]))]
     tabulated = [{key: copy["info"].get(key) for key in TABULATED} for copy in (one, other)]
     for prefix, mine, theirs in [*pairs, ("run.json ", *tabulated)]:
@@ -167,24 +164,26 @@ def copy_difference(one: dict, other: dict) -> str | None:
 
 
 def _choose(copies: list[dict], conflicts: list[str]) -> dict | None:
-    """The copy of one run that counts, appending a line to ``conflicts`` for every copy left out: identical
-    copies count once; finished copies that differ are all named in one line and none counts; otherwise the
-    finished copy, else the first, and a copy with other settings than it is named."""
+    """The copy of one run that counts (a finished copy, then the first root's), appending a line to
+    ``conflicts`` for each copy left out: a copy with other settings than the kept one is named; finished
+    copies with the kept one's settings count once where identical, and where they differ (their rows, what the
+    tables show) all of them are named in one line and none counts."""
     finished = [copy for copy in copies if copy["status"] == "done"]
-    distinct = [copy for i, copy in enumerate(finished) if all(copy_difference(copy, f) for f in finished[:i])]
-    if len(distinct) > 1:
-        named = " and ".join(str(copy["directory"]) for copy in distinct)
-        conflicts.append(
-            f"left out every copy of one run: {named} are finished copies that differ "
-            f"({copy_difference(distinct[0], distinct[1])}); remove the ones that are wrong"
-        )
-        return None
     kept = finished[0] if finished else copies[0]
     for copy in copies:
         changed = None if copy is kept else run_difference(copy["info"], kept["info"], labels=("here", "there"))
         if changed is not None:
             conflicts.append(f"left out {copy['directory']}: the same run as {kept['directory']} but a different {changed}")
-    return kept
+    same = [copy for copy in finished if run_difference(copy["info"], kept["info"]) is None]
+    distinct = [copy for i, copy in enumerate(same) if all(copy_difference(copy, other) for other in same[:i])]
+    if len(distinct) < 2:
+        return kept
+    named = " and ".join(str(copy["directory"]) for copy in distinct)
+    conflicts.append(
+        f"left out every copy of one run: {named} are finished copies that differ "
+        f"({copy_difference(distinct[0], distinct[1])}); remove the ones that are wrong"
+    )
+    return None
 
 
 def collect_runs(roots: list[Path]) -> Runs:
