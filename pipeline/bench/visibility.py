@@ -1,9 +1,11 @@
-"""``python -m pipeline.bench visibility [--out PATH] [--sets N] [--sources head,labels,mesh] [overrides]``:
+"""``python -m pipeline.bench visibility [--out PATH] [--sets N] [--sources head,labels,mesh] [--record DIR --step K]
+[overrides]``:
 how well each visibility source tells seen from unseen object pixels of candidate views (METHOD 9,
 M17-M19), how much it changes NVF's ranking of the candidates against w/o Vis., and which term of the
 reward decides each ranking (default ``budget=cpu scene=default``).
 
-Trains one full NVF model (all three stages, at the budget) on the scene's initial views. For each of
+Trains one full NVF model (all three stages, at the budget) on the scene's initial views (with ``--record`` and
+``--step K``: and the views a recorded episode selected at steps ``0..K-1``, its state at step ``K``). For each of
 ``N`` candidate sets (``nvf.planning.candidate_poses`` drawn as the planner's step ``k`` would,
 ``planner.num_candidates`` poses, rendered at ``planner.resolution``) and each visibility source
 (``nvf.visibility_source``: ``head``, the trained head; ``labels``, M17-M18 at the scored samples, what a
@@ -48,8 +50,9 @@ from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
 from nvf.visibility_source import SOURCES, label_visibility
 from pipeline.bench._report import report_path, write_report
 from pipeline.bench.train import InitialViewModel
-from pipeline.cli import ArgumentParser, description
+from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.validation import compose_config
+from pipeline.tables.load import load_run
 from pipeline.metrics.ranking import auc, render_for_terms, spearman, term_attribution, ties_at_max, view_terms
 
 SURFACE_OFFSET = 0.01  # scene units: the surface point moves this far towards the candidate camera
@@ -197,9 +200,18 @@ def summarise(sets: list[dict], sources: list[str]) -> dict:
             "wo_vis_max_ties_at_max": max(s["wo_vis"]["ties_at_max"] for s in sets)}  # fmt: skip
 
 
-def visibility_report(cfg: DictConfig, sets: int, sources: list[str]) -> dict:
-    """Train the initial-view model of ``cfg`` and report ``sets`` candidate sets (see the module doc)."""
-    setup = InitialViewModel.train(cfg)
+def recorded_poses(record: Path, step: int) -> Float[Tensor, "k 4 4"]:
+    """The poses a recorded episode selected before ``step`` (its state at ``step``, after the initial views)."""
+    _, rows = load_run(record)
+    if step > len(rows):
+        raise ValueError(f"{record} has {len(rows)} steps; --step {step} needs that many")
+    return pose_to_matrix(torch.tensor([row["selected_pose"] for row in rows[:step]], dtype=torch.float32).reshape(-1, 7))
+
+
+def visibility_report(cfg: DictConfig, sets: int, sources: list[str], extra: Tensor | None = None) -> dict:
+    """Train the model of ``cfg`` on the initial views (and the poses ``extra`` after them) and report
+    ``sets`` candidate sets (see the module doc)."""
+    setup = InitialViewModel.train(cfg, extra_poses=extra)
     s = setup.settings
     res = int(s.planner.resolution)
     intr = Intrinsics.from_fov(res, res)
@@ -256,16 +268,25 @@ def main(argv: list[str]) -> None:
     parser.add_argument("--out", type=Path, default=None, help="JSON report path (default: ${paths.results}/bench/visibility.json)")
     parser.add_argument("--sets", type=int, default=3, help="candidate sets (the planner's draws at steps 0..N-1)")
     parser.add_argument("--sources", default=",".join(SOURCES), help=f"visibility sources, a subset of {','.join(SOURCES)}")
+    parser.add_argument("--record", type=Path, default=None, help="a recorded episode whose state at --step to measure")
+    parser.add_argument("--step", type=int, default=0, help="with --record: the state before this step (its views so far)")
     args = parser.parse_intermixed_args(argv)
     sources = args.sources.split(",")
     if args.sets < 1:
         parser.error("--sets must be >= 1")
     if not sources or any(name not in SOURCES for name in sources):
         parser.error(f"--sources={args.sources!r}: use a comma-separated subset of {','.join(SOURCES)}")
+    if args.step < 0 or (args.step > 0 and args.record is None):
+        parser.error("--step takes a number >= 0 and needs --record")
     start = time.perf_counter()
     cfg = compose_config(["planner.num_candidates=64", *args.overrides])
-    report = visibility_report(cfg, args.sets, sources)
+    try:
+        extra = recorded_poses(args.record, args.step) if args.record is not None else None
+    except (ValueError, OSError) as err:
+        fail(str(err))
+    report = visibility_report(cfg, args.sets, sources, extra)
     report["settings"]["overrides"] = args.overrides
+    report["settings"]["state"] = None if args.record is None else {"record": str(args.record), "step": args.step}
     report["seconds"] = time.perf_counter() - start
     args.out = report_path(args.out, cfg.paths.results, "visibility")
     write_report(report, args.out)
