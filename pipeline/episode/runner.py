@@ -30,6 +30,7 @@ from pipeline.scenes.blender import blender_python
 from pipeline.scenes.ground_truth import ground_truth_info
 from pipeline.scenes.loading import load_scene
 from pipeline.tables.summary import run_pictures, summarize_run
+from pipeline.tables.trajectory import outline_of_scene
 
 
 class StepFailed(RuntimeError):
@@ -159,7 +160,7 @@ def _run_steps(cfg: DictConfig, directory: Path, record: RunRecord, episode: Epi
         raise
     record.mark_done()
     summarize_run(directory)
-    run_pictures(directory)
+    run_pictures(directory, outline_of_scene(episode.scene, str(cfg.scene.kind)))
     return Outcome(directory, "done")
 
 
@@ -172,7 +173,7 @@ def _record_steps(cfg: DictConfig, directory: Path, episode: Episode, record: Ru
             start = time.perf_counter()
             row, images = episode.step(step, progress.train)
             if cfg.save_images:
-                save_step_images(directory / "images", step, images)
+                save_step_images(directory / "images", step, images, episode.method.score_unit)
             record.append_step(row)
             episode.observe_pose(row["selected_pose"])
             progress.step_done(step, row["n_views"], row["metrics"]["psnr"], time.perf_counter() - start)

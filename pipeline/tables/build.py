@@ -1,24 +1,31 @@
 """Every table and figure from the run records: long CSV, the paper's tables (md, csv, tex), the comparison
-with the paper, curves and image grids."""
+with the paper, curves and image grids, each run's missing pictures beside its record, and the results site."""
 
 from pathlib import Path
 
+from pipeline.config.named import NamedConfigs
+from pipeline.config.paths import configured_paths
 from pipeline.records.store import atomic_write_text
+from pipeline.repo import CONF
 from pipeline.tables.aggregate import GROUP, SPECS, build_table
 from pipeline.tables.compare import paper_comparison
 from pipeline.tables.figures import curves, image_grid, safe_name
-from pipeline.tables.load import collect_runs
+from pipeline.tables.load import Runs, collect_runs, load_run
 from pipeline.tables.render import LABEL_HEADERS, render
+from pipeline.tables.site import RunPictures, write_site
+from pipeline.tables.summary import run_title
+from pipeline.tables.trajectory import outline_of_config, recorded_scene, trajectory_figure
 
 
 def build_tables(
-    outputs: Path, runs_dirs: list[Path], results: Path, figures: bool = True
+    outputs: Path, runs_dirs: list[Path], results: Path, figures: bool = True, assets: Path | None = None
 ) -> tuple[list[Path], tuple[str, ...]]:
     """Collect runs, write runs.csv, the tables (md/csv/tex), the paper comparison and (unless
-    ``figures`` is False) the curves and image grids.
+    ``figures`` is False) the curves, image grids, each finished run's missing ``grid.png`` and
+    ``trajectory.png`` beside its record (scene outlines read from ``assets``) and the site.
 
     Returns the files written and one line per run record skipped (unreadable) or left out (settings
-    that conflict with a kept record of the same run).
+    that conflict with a kept record of the same run), or whose pictures could not be written.
     """
     runs = collect_runs([Path(outputs), *map(Path, runs_dirs)])
     results = Path(results)
@@ -39,6 +46,39 @@ def build_tables(
     for _, run in done.drop_duplicates(list(GROUP)).iterrows():  # one grid per method and scene: lowest seed
         group = "-".join(safe_name(run[key]) for key in ("method", "planner", "ablation"))
         name = f"grid_{safe_name(run['scene'])}_{group}_{safe_name(run['budget'])}_seed{int(run['seed'])}.png"
-        grid = image_grid(Path(run["directory"]), results / "figures" / "grids" / name)
+        title = f"{run['scene']} / {runs.row(run['method'], run['planner'], run['ablation']).label} / {run['budget']} budget / seed {int(run['seed'])}"
+        grid = image_grid(Path(run["directory"]), results / "figures" / "grids" / name, title)
         written += [grid] if grid is not None else []
-    return written, (*runs.skipped, *runs.conflicts)
+    pictures, problems = run_pictures_of(runs, assets)
+    written += [p for found in pictures.values() for p in (found.grid, found.trajectory) if p is not None]
+    written += write_site(runs, tables["all_runs"], pictures, results)
+    return written, (*runs.skipped, *runs.conflicts, *problems)
+
+
+def run_pictures_of(runs: Runs, assets: Path | None) -> tuple[dict[str, RunPictures], list[str]]:
+    """Each finished run's pictures beside its record (by directory), writing a missing ``grid.png`` (when it
+    saved images) and ``trajectory.png`` (records made before runs drew their cameras); one line per record
+    whose pictures could not be written (a read-only folder)."""
+    named, outlines = NamedConfigs(CONF), {}
+    assets = configured_paths({})["assets"] if assets is None else assets
+    pictures, problems = {}, []
+    for directory in runs.final.loc[runs.final["status"] == "done", "directory"]:
+        run_dir = Path(directory)
+        grid, trajectory, summary = run_dir / "grid.png", run_dir / "trajectory.png", run_dir / "summary.md"
+        try:
+            if not grid.is_file() or not trajectory.is_file():
+                info, rows = load_run(run_dir)
+                if not grid.is_file():
+                    image_grid(run_dir, grid, run_title(info))
+                if not trajectory.is_file():
+                    scene = recorded_scene(info, named)
+                    key = str(sorted(scene.items()))
+                    if key not in outlines:
+                        outlines[key] = outline_of_config(scene, assets)
+                    trajectory_figure(outlines[key], rows, run_title(info), trajectory)
+        except OSError as err:
+            problems.append(f"pictures of {run_dir} not written: {err}")
+        pictures[str(directory)] = RunPictures(
+            *(path if path.is_file() else None for path in (grid, trajectory, summary))
+        )
+    return pictures, problems
