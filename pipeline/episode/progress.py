@@ -8,7 +8,7 @@ import time
 
 from tqdm import tqdm
 
-BAR_FORMAT = "{desc} step {n_fmt}/{total_fmt} |{bar:12}| {elapsed} elapsed, episode ETA {remaining} | {postfix}"
+BAR_FORMAT = "{desc} step {n_fmt}/{total_fmt} |{bar:12}| {elapsed} elapsed, episode ETA {remaining}{postfix}"
 
 
 def clock(seconds: float) -> str:
@@ -29,7 +29,7 @@ class EpisodeProgress:
         self.interactive = sys.stderr.isatty() if interactive is None else interactive
         self.bar = tqdm(
             total=horizon, initial=first, desc=label, unit="step", bar_format=BAR_FORMAT,
-            disable=not self.interactive, dynamic_ncols=True,
+            disable=not self.interactive, dynamic_ncols=True, smoothing=0.0,  # ETA: mean step time so far
         )  # fmt: skip
         self.bar.set_postfix_str("preparing", refresh=False)
         self.stage_start = time.perf_counter()

@@ -126,6 +126,7 @@ def _run_locked(cfg: DictConfig, directory: Path) -> Outcome:
         return Outcome(directory, "skipped")
     if status == "failed":
         raise StepFailed(f"run {directory} failed: {record.failure()} (delete it to run it again)")
+    print(f"run {directory}: building the scene and its ground truth (the step bar follows)", flush=True)
     torch.set_num_threads(torch_threads())
     torch.manual_seed(int(cfg.seed))
     np.random.seed(int(cfg.seed) % 2**32)

@@ -18,10 +18,10 @@ What it writes, under ``paths.results`` (default ``${paths.outputs}/results``, y
 - ``figures/``: metric-over-steps curves per scene and budget, and one image grid per method and scene;
 - ``site/``: the results site (open ``site/index.html`` in a browser; it needs no network or server):
   scenes x methods, and per scene its table, interactive PSNR curves with 95% bands and each run's pictures;
-  the pilots under ``${paths.results}/pilots``;
-- beside each finished run's record, the pictures it lacks: ``trajectory.png`` (where it put its cameras,
-  over the scene's outline from ``paths.assets``; the tight box where the asset is not there) and
-  ``grid.png`` (when it saved its images).
+  the pilots under ``${paths.results}/pilots``. A run's pictures are linked where they lie, beside its
+  record; those an older record lacks are drawn into ``site/runs/``: ``trajectory.png`` (where it put its
+  cameras, over the scene's outline read from ``paths.assets``; the tight box where the asset is not there)
+  and ``grid.png`` (when it saved its images). Records themselves are never written to.
 
 Only finished runs count. A run whose recorded settings differ from what its named groups give today has
 them appended to its budget, e.g. ``cpu+planner.num_candidates=512``, so it is never averaged with plain

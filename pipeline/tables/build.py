@@ -1,5 +1,5 @@
 """Every table and figure from the run records: long CSV, the paper's tables (md, csv, tex), the comparison
-with the paper, curves and image grids, each run's missing pictures beside its record, and the results site."""
+with the paper, curves and image grids, and the results site (with the pictures older records lack)."""
 
 from pathlib import Path
 
@@ -21,8 +21,9 @@ def build_tables(
     outputs: Path, runs_dirs: list[Path], results: Path, figures: bool = True, assets: Path | None = None
 ) -> tuple[list[Path], tuple[str, ...]]:
     """Collect runs, write runs.csv, the tables (md/csv/tex), the paper comparison and (unless
-    ``figures`` is False) the curves, image grids, each finished run's missing ``grid.png`` and
-    ``trajectory.png`` beside its record (scene outlines read from ``assets``) and the site.
+    ``figures`` is False) the curves, image grids and the site, with the ``grid.png`` and
+    ``trajectory.png`` of each finished run that lacks them (``run_pictures_of``; scene outlines read from
+    ``assets``). Every file is written under ``results``.
 
     Returns the files written and one line per run record skipped (unreadable) or left out (settings
     that conflict with a kept record of the same run), or whose pictures could not be written.
@@ -49,36 +50,51 @@ def build_tables(
         title = f"{run['scene']} / {runs.row(run['method'], run['planner'], run['ablation']).label} / {run['budget']} budget / seed {int(run['seed'])}"
         grid = image_grid(Path(run["directory"]), results / "figures" / "grids" / name, title)
         written += [grid] if grid is not None else []
-    pictures, problems = run_pictures_of(runs, assets)
-    written += [p for found in pictures.values() for p in (found.grid, found.trajectory) if p is not None]
+    pictures, problems = run_pictures_of(runs, results / "site", assets)
+    written += [p for found in pictures.values() for p in (found.grid, found.trajectory) if p is not None and results in p.parents]
     written += write_site(runs, tables["all_runs"], pictures, results)
     return written, (*runs.skipped, *runs.conflicts, *problems)
 
 
-def run_pictures_of(runs: Runs, assets: Path | None) -> tuple[dict[str, RunPictures], list[str]]:
-    """Each finished run's pictures beside its record (by directory), writing a missing ``grid.png`` (when it
-    saved images) and ``trajectory.png`` (records made before runs drew their cameras); one line per record
-    whose pictures could not be written (a read-only folder)."""
+def run_pictures_of(runs: Runs, site: Path, assets: Path | None) -> tuple[dict[str, RunPictures], list[str]]:
+    """Each finished run's pictures (by directory): its own ``grid.png`` and ``trajectory.png`` beside its
+    record where it has them, else drawn into ``site/runs/<scene>/<method>-<planner>-<ablation>/<budget>/
+    seed_<n>/`` (records made before runs drew them; records are never written to), again when the record
+    is newer; one line per run whose pictures could not be drawn."""
     named, outlines = NamedConfigs(CONF), {}
     assets = configured_paths({})["assets"] if assets is None else assets
     pictures, problems = {}, []
-    for directory in runs.final.loc[runs.final["status"] == "done", "directory"]:
-        run_dir = Path(directory)
-        grid, trajectory, summary = run_dir / "grid.png", run_dir / "trajectory.png", run_dir / "summary.md"
+    for _, run in runs.final[runs.final["status"] == "done"].iterrows():
+        run_dir = Path(run["directory"])
+        group = "-".join(safe_name(run[key]) for key in ("method", "planner", "ablation"))
+        drawn = site / "runs" / safe_name(run["scene"]) / group / safe_name(run["budget"]) / f"seed_{int(run['seed'])}"
+        grid, trajectory = run_dir / "grid.png", run_dir / "trajectory.png"
+        grid = grid if grid.is_file() else drawn / "grid.png"
+        trajectory = trajectory if trajectory.is_file() else drawn / "trajectory.png"
         try:
-            if not grid.is_file() or not trajectory.is_file():
+            if _stale(grid, run_dir) or _stale(trajectory, run_dir):
                 info, rows = load_run(run_dir)
-                if not grid.is_file():
-                    image_grid(run_dir, grid, run_title(info))
-                if not trajectory.is_file():
+                if _stale(grid, run_dir):
+                    grid = image_grid(run_dir, grid, run_title(info))
+                if _stale(trajectory, run_dir):
                     scene = recorded_scene(info, named)
                     key = str(sorted(scene.items()))
                     if key not in outlines:
                         outlines[key] = outline_of_config(scene, assets)
                     trajectory_figure(outlines[key], rows, run_title(info), trajectory)
-        except OSError as err:
-            problems.append(f"pictures of {run_dir} not written: {err}")
-        pictures[str(directory)] = RunPictures(
-            *(path if path.is_file() else None for path in (grid, trajectory, summary))
+        except (OSError, ValueError, KeyError) as err:
+            problems.append(f"pictures of {run_dir} not drawn: {' '.join(str(err).split())}")
+        summary = run_dir / "summary.md"
+        pictures[str(run["directory"])] = RunPictures(
+            *(path if path is not None and path.is_file() else None for path in (grid, trajectory, summary))
         )
     return pictures, problems
+
+
+def _stale(picture: Path | None, run_dir: Path) -> bool:
+    """A picture for the site not yet drawn, or older than its record's steps (never the run's own pictures;
+    None: a grid of a run without images)."""
+    if picture is None or picture.parent == run_dir:
+        return False
+    steps = run_dir / "steps.jsonl"
+    return not picture.is_file() or picture.stat().st_mtime < steps.stat().st_mtime

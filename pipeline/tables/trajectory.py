@@ -146,7 +146,8 @@ def trajectory_figure(outline: SceneOutline, rows: list[dict], title: str, out_p
     margin = 0.08 * float((hi - lo).max())
     lo, hi = lo - margin, hi + margin
     size = (0.035 if outline.kind == "room" else 0.06) * float((hi - lo).max())  # a camera glyph's length
-    fig = Figure(figsize=(11, 5.2), dpi=80, layout="constrained")
+    fig = Figure(figsize=(11, 5.2), dpi=80)
+    fig.subplots_adjust(left=0.06, right=0.99, bottom=0.1, top=0.85, wspace=0.18)
     panels = fig.subplots(1, 2, width_ratios=[hi[0] - lo[0] + hi[1] - lo[1], hi[0] - lo[0] + hi[2] - lo[2]])
     cmap = matplotlib.colormaps["plasma"]
     for ax, (name, axes, labels) in zip(panels, VIEWS):
