@@ -68,6 +68,7 @@ class EntropyConfig:
     mu_un: float = 0.5
     var_un: float = 1.0
     var_bg: float = 1e-4
+    visibility_source: str = "head"  # v of M7/M9: head (METHOD) | labels (M17-M18 at the scored samples) | mesh (oracle)
 
 
 @dataclass
@@ -109,6 +110,7 @@ class TrainConfig:
     lr_decay_horizon: int = 10000  # backbone lr(k) = lr * 0.01 ** (k / horizon)
     label_samples: int = 200  # M17: samples on each camera-to-point segment
     label_max_depth: float = 10.0
+    label_margin: float = 0.0  # M17 deviation: the camera-to-point segment stops this far (scene units) short of x
     warm_start: bool = False  # deviation: reuse the previous step's weights instead of retraining
     precision: str = "fp32"  # fp32 | bf16 | fp16: the MLPs' layers in training (nvf.precision)
 

@@ -170,19 +170,23 @@ def score_poses(
 
 @dataclass
 class ScoreSummary:
-    """Statistics of the candidates' view rewards (population std)."""
+    """Statistics of the candidates' view rewards (population std). ``ties_at_max``: how many candidates
+    share the maximum exactly; above 1 the argmax is the first of them in draw order (METHOD 13), a pick
+    among candidates the score cannot tell apart."""
 
     count: int
     min: float
     mean: float
     max: float
     std: float
+    ties_at_max: int
 
     @staticmethod
     def of(scores: Float[Tensor, "m"]) -> "ScoreSummary":
         s = scores.to(torch.float64)
+        top = s.max()
         return ScoreSummary(
-            s.numel(), s.min().item(), s.mean().item(), s.max().item(), s.std(correction=0).item()
+            s.numel(), s.min().item(), s.mean().item(), top.item(), s.std(correction=0).item(), int((s == top).sum())
         )
 
 

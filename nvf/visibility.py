@@ -36,11 +36,13 @@ def segment_transmittance(
     generator: torch.Generator | None = None,
     aabb: Float[Tensor, "2 3"] | None = None,
     chunk_samples: int = 1 << 18,
+    margin: float = 0.0,
 ) -> Float[Tensor, "P"]:
     """(M17) ``T(x) = exp(-sum_{k<K} sigma(y_k) delta)`` from ``origin`` to each point.
 
-    ``K = num_samples`` stratified samples on ``[0, |x - o|]`` with ``delta = |x - o| / K``; the
-    last interval (ending at ``x``) is excluded, so ``K - 1`` densities per point. Sample ``k`` sits
+    ``K = num_samples`` stratified samples on ``[0, L]``, ``L = max(|x - o| - margin, 0)`` (``margin``
+    0: METHOD's segment; above 0 it stops short of ``x``, a deviation, ``train.label_margin``), with
+    ``delta = L / K``; the last interval is excluded, so ``K - 1`` densities per point. Sample ``k`` sits
     at the centre of bin ``k`` (``generator=None``) or uniformly inside it. Samples outside ``aabb``
     (if given) are not evaluated: the field's density is 0 there. At most ``chunk_samples``
     positions are evaluated at once.
@@ -49,6 +51,9 @@ def segment_transmittance(
         raise ValueError(f"label_samples must be >= 1, got {num_samples}")
     n_bins = num_samples - 1
     seg = points - origin  # [P,3]
+    if margin > 0:
+        length = torch.linalg.norm(seg, dim=-1, keepdim=True)
+        seg = seg * ((length - margin).clamp(min=0.0) / length.clamp(min=1e-12))
     optical = torch.zeros(points.shape[0], dtype=points.dtype, device=points.device)
     if n_bins == 0:
         return torch.ones_like(optical)
@@ -91,8 +96,9 @@ def visibility_labels(
     ``F(x)``: the cameras whose frustum (``cfg.label_max_depth``) contains ``x``; points outside
     every frustum get 0. Cameras are processed in order and a point whose running product is
     ``<= 0.01`` skips the rest, so labels saturate near 0.99. ``T_j`` is (M17) with
-    ``cfg.label_samples`` samples (see ``segment_transmittance`` for ``generator``, ``aabb`` and
-    ``chunk_samples``); density is evaluated only for in-frustum, not yet saturated pairs.
+    ``cfg.label_samples`` samples, stopping ``cfg.label_margin`` short of the point (see
+    ``segment_transmittance`` for ``generator``, ``aabb`` and ``chunk_samples``); density is evaluated
+    only for in-frustum, not yet saturated pairs.
     """
     prod = torch.ones(points.shape[0], dtype=points.dtype, device=points.device)
     for j in range(c2w.shape[0]):
@@ -101,7 +107,7 @@ def visibility_labels(
         if idx.numel() == 0:
             continue
         trans = segment_transmittance(
-            density_fn, c2w[j, :3, 3], points[idx], cfg.label_samples, generator, aabb, chunk_samples
+            density_fn, c2w[j, :3, 3], points[idx], cfg.label_samples, generator, aabb, chunk_samples, cfg.label_margin
         )
         prod[idx] = prod[idx] * (1.0 - trans)
     return 1.0 - prod

@@ -253,6 +253,20 @@ def test_argmax_and_top_k_ties_go_to_the_lowest_index():
     sel = select_next_view(blob_model(), ConstScorer(), cfg(n=8), BOX, None, INTR, 1e-4, False, gens())
     assert sel.index == 0 and sel.score == pytest.approx(0.25)
     assert sel.candidate_scores.count == sel.num_candidates and sel.candidate_scores.std == 0.0
+    assert sel.candidate_scores.ties_at_max == sel.num_candidates
+
+
+def test_a_tie_is_a_seeded_random_pick():
+    """METHOD 13: candidates are drawn i.i.d. (positions uniform in the box), so the first of tied candidates
+    is a uniform pick among them, seeded from (seed, step): over steps it lands all over the camera box."""
+    box = torch.tensor([[1.0, 1.0, 1.0], [1.9, 1.9, 1.9]])  # outside the blob: the density filter keeps all
+    picks = torch.stack([
+        select_next_view(blob_model(), ConstScorer(), cfg(n=8), box, None, INTR, 1e-4, False, gens(step=s)).pose[4:]
+        for s in range(24)
+    ])  # fmt: skip
+    assert len({tuple(p.tolist()) for p in picks}) == 24
+    middle = box.mean(0)
+    assert ((picks < middle).any(0) & (picks > middle).any(0)).all()  # both halves of the box on every axis
 
 
 def test_argmax_selection_picks_the_best_scored_candidate():
@@ -262,6 +276,7 @@ def test_argmax_selection_picks_the_best_scored_candidate():
     scores = score_poses(model, scorer, candidates, INTR, 24)
     assert sel.index == int(scores.argmax()) and torch.equal(sel.pose, candidates[sel.index])
     assert sel.score == pytest.approx(scores.max().item()) == pytest.approx(sel.candidate_scores.max)
+    assert sel.candidate_scores.ties_at_max == int((scores == scores.max()).sum())
     assert not sel.refined and sel.opt is None
 
 

@@ -368,3 +368,44 @@ def test_load_method_by_import_path():
         with pytest.raises(ValueError) as info:
             load_method(bad)
         assert "\n" not in str(info.value)
+
+
+# ---------------------------------------------------------------- the reward split into terms (M10, M14)
+
+
+@pytest.mark.parametrize(
+    "override", [{}, {"logdet_coeff": 1.0}, {"use_visibility": False}, {"use_variance": False}, {"d0": 0}]
+)
+def test_pixel_terms_add_up_to_the_score(override):
+    """(M10, M14) H_min + seen + unknown + background + mixing + correction is the scorer's H' per ray, for
+    NVF and its ablations; the bound's four terms alone are M10's H, and the correction is H' - H."""
+    d0 = float(override.pop("d0", 1.0))
+    scorer = NVFEntropyScorer(replace(CFG, **override), d0)
+    result = random_result()
+    terms = scorer.pixel_terms(result)
+    assert set(terms) == {"seen", "unknown", "background", "mixing", "correction"}
+    total = H_MIN + sum(terms.values())
+    torch.testing.assert_close(total, scorer.pixel_scores(result), atol=1e-5, rtol=0)
+    h, _, _ = nvf_reference(result, scorer.cfg)
+    bound = H_MIN + sum(terms[name] for name in ("seen", "unknown", "background", "mixing"))
+    with_samples = torch.bincount(result.samples.ray_idx, minlength=result.samples.n_rays) > 0
+    torch.testing.assert_close(bound[with_samples], h[with_samples], atol=1e-5, rtol=0)
+    if not scorer.cfg.use_visibility:
+        assert (terms["unknown"] == 0).all()
+
+
+@pytest.mark.parametrize("v, unknown_weight", [(0.0, 0.950498), (1.0, 0.0)])
+def test_pixel_terms_of_the_table(v, unknown_weight):
+    """METHOD 7.4 (alpha = 1, q = 0.01): with c = 0.5 the unknown component is worth (3/2) ln(1/1e-4) =
+    13.8155 nats per unit of weight above the floor, the background 0; the seen one (3/2) ln(0.01/1e-4)."""
+    result = render_result(torch.ones(1), torch.zeros(1, dtype=torch.long), 1, visibility=torch.tensor([v]))
+    terms = NVFEntropyScorer(CFG, 0.0).pixel_terms(result)
+    assert terms["unknown"].item() == pytest.approx(unknown_weight * 1.5 * math.log(1e4), abs=1e-4)
+    assert terms["seen"].item() == pytest.approx(v * 1.5 * math.log(100.0), abs=1e-4)
+    assert terms["background"].item() == pytest.approx(0.0, abs=1e-4)
+
+
+def test_pixel_terms_refuse_the_loose_bound():
+    """(M12) the moment-matched bound has no per-component split."""
+    with pytest.raises(ValueError, match="bound=huber"):
+        NVFEntropyScorer(replace(CFG, bound="moment_matched"), 1.0).pixel_terms(random_result())

@@ -90,6 +90,52 @@ def upper_bound_and_depth(
     return entropy, depth
 
 
+TERMS = ("seen", "unknown", "background", "mixing")  # M10's bound split per ray; see ``entropy_terms``
+
+
+def entropy_terms(
+    eq_weights: Float[Tensor, "S"],
+    visibility: Float[Tensor, "S"] | None,
+    variance: Float[Tensor, "S 3"] | None,
+    ray_idx: Int[Tensor, "S"],
+    n_rays: int,
+    cfg: EntropyConfig,
+) -> dict[str, Float[Tensor, "R"]]:
+    """(M9, M10) The bound ``H`` of each ray split into ``TERMS``, ``H = H_min + sum of the terms``
+    (``H_min`` of M11; the weights of a ray sum to 1):
+
+    - ``seen``: ``sum_i pi_i (G_i - H_min)``, the seen components' Gaussian terms above the floor, with
+      ``G = (3/2) ln(2 pi e) + c sum_ch ln(q_ch + 1e-9)``;
+    - ``unknown``: ``pi_un (G_un - H_min)``, about 13.8 nats per unit of weight with ``c = 0.5``;
+    - ``background``: ``pi_bg (G_bg - H_min)``, 0 with ``c = 0.5``;
+    - ``mixing``: ``-sum_k pi_k ln(pi_k + 1e-9)`` over every component.
+
+    Arguments as in ``upper_bound_and_depth`` (``None``: the w/o Vis. / w/o Var. ablations).
+    """
+    c, floor = cfg.logdet_coeff, entropy_floor(cfg.var_bg)
+    seen = eq_weights if visibility is None else eq_weights * visibility
+    if variance is None:
+        seen_gauss = 1.5 * LOG_2PIE + _log_det(cfg.var_bg, c, eq_weights)
+    else:
+        seen_gauss = 1.5 * LOG_2PIE + c * torch.log(variance + LOG_EPS).sum(-1)
+    mass = ray_sum(eq_weights, ray_idx, n_rays)
+    unknown = torch.zeros_like(mass) if visibility is None else ray_sum(eq_weights * (1.0 - visibility), ray_idx, n_rays)
+    background = (1.0 - mass).clamp(0.0, 1.0)
+
+    def gauss_excess(var: float) -> Float[Tensor, ""]:
+        return 1.5 * LOG_2PIE + _log_det(var, c, mass) - floor
+
+    def mixing(weights: Tensor) -> Tensor:
+        return -weights * torch.log(weights + LOG_EPS)
+
+    return {
+        "seen": ray_sum(seen * (seen_gauss - floor), ray_idx, n_rays),
+        "unknown": unknown * gauss_excess(cfg.var_un),
+        "background": background * gauss_excess(cfg.var_bg),
+        "mixing": ray_sum(mixing(seen), ray_idx, n_rays) + mixing(unknown) + mixing(background),
+    }
+
+
 def mixture_moment_matched_entropy(mix: RayMixture) -> Float[Tensor, "R"]:
     """(M12) Packed "Loose" bound: entropy ``(3/2) ln(2 pi e) + (1/2) logdet Sigma`` of the
     moment-matched Gaussian, ``Sigma = sum_k pi_k (diag q_k + (mu_k - mu_bar)(mu_k - mu_bar)^T)``

@@ -10,8 +10,10 @@ from torch import Tensor
 from nvf.config import EntropyConfig
 from nvf.model import RenderResult
 from nvf.uncertainty.entropy import (
+    TERMS,
     corrected_entropy,
     entropy_floor,
+    entropy_terms,
     equivalent_depth,
     mixture_moment_matched_entropy,
     upper_bound_and_depth,
@@ -86,3 +88,23 @@ class NVFEntropyScorer:
             depth = equivalent_depth(eq_weights, t_mid, ray_idx, n_rays, cfg.depth_mode, pixel_index, cfg.chunk_rays)
         scores = corrected_entropy(entropy, depth, self.d0, cfg.corr, floor)
         return torch.where(counts == 0, floor, scores)
+
+    def pixel_terms(self, result: RenderResult, pixel_index: Int[Tensor, "R"] | None = None) -> dict[str, Float[Tensor, "R"]]:
+        """``H' [R]`` of ``pixel_scores`` split into additive terms (nats):
+        ``H' = H_min + seen + unknown + background + mixing + correction``.
+
+        The first four are ``entropy_terms`` of the bound (M10); ``correction`` is what M13-M14 (the
+        depth-based correction and the floor) add to ``H``. Only for the component-wise bound
+        (``bound=huber``): the Loose bound (M12) has no such split.
+        """
+        if self.cfg.bound != "huber":
+            raise ValueError("pixel_terms needs bound=huber: the moment-matched bound (M12) has no per-component split")
+        samples = result.samples
+        visibility = checked_visibility(result.visibility, self.cfg)
+        variance = checked_variance(result.variance, self.cfg)
+        counts = torch.bincount(samples.ray_idx, minlength=samples.n_rays)
+        eq_weights = equivalent_weights(result.alpha, visibility, samples.ray_idx, counts, self.cfg)
+        terms = entropy_terms(eq_weights, visibility, variance, samples.ray_idx, samples.n_rays, self.cfg)
+        bound = entropy_floor(self.cfg.var_bg) + sum(terms[name] for name in TERMS)
+        terms["correction"] = self.pixel_scores(result, pixel_index) - bound
+        return terms

@@ -1,78 +1,115 @@
-"""``python -m pipeline.bench visibility [--out PATH] [--sets N] [overrides]``: how well the visibility
-head tells seen from unseen object pixels of candidate views (METHOD 9, M17-M19), and how much it
-changes NVF's ranking of the candidates against w/o Vis. (default ``budget=cpu scene=default``).
+"""``python -m pipeline.bench visibility [--out PATH] [--sets N] [--sources head,labels,mesh] [overrides]``:
+how well each visibility source tells seen from unseen object pixels of candidate views (METHOD 9,
+M17-M19), how much it changes NVF's ranking of the candidates against w/o Vis., and which term of the
+reward decides each ranking (default ``budget=cpu scene=default``).
 
-Trains one full NVF model (all three stages, at the budget) on the scene's initial views. For each
-of ``N`` candidate sets (``nvf.planning.candidate_poses`` drawn as the planner's step ``k`` would,
-``planner.num_candidates`` poses, rendered at ``planner.resolution``), per object pixel (the exact
-ray cast hits the mesh and the model's accumulation ``A > 0.5``):
+Trains one full NVF model (all three stages, at the budget) on the scene's initial views. For each of
+``N`` candidate sets (``nvf.planning.candidate_poses`` drawn as the planner's step ``k`` would,
+``planner.num_candidates`` poses, rendered at ``planner.resolution``) and each visibility source
+(``nvf.visibility_source``: ``head``, the trained head; ``labels``, M17-M18 at the scored samples, what a
+perfect head would predict; ``mesh``, the scene mesh's line of sight to the training cameras, an oracle;
+``train.label_margin`` applies to the last two):
 
-- the head's weight-averaged visibility ``sum_i w_i v_i / A``, and the same average of the labels
-  (M17-M18 from the training cameras at the same samples: what a perfect head would predict);
-- ``seen``: some initial camera has an unoccluded line of sight to the pixel's surface point
-  (``GroundTruthRenderer.line_of_sight``, the point moved 0.01 towards the candidate);
-- the AUC (Mann-Whitney) of seen against unseen pixels, for the head and for the labels;
-- the Spearman correlation of NVF's and w/o Vis.'s view rewards (M16), and whether their argmax agree.
+- per object pixel (the exact ray cast hits the mesh and the model's accumulation ``A > 0.5``): the
+  source's weight-averaged visibility ``sum_i w_i v_i / A``, and ``seen``: some initial camera has an
+  unoccluded line of sight to the pixel's surface point (the point moved 0.01 towards the candidate); the
+  AUC (Mann-Whitney) of seen against unseen pixels (0.5: no separation); the median weight spread of the
+  object pixels' samples along the ray (``shell``: the model's surface thickness, scene units);
+- the Spearman correlation of NVF's and w/o Vis.'s view rewards (M16), whether their argmax agree, and how
+  many candidates tie at each maximum;
+- each reward split into its terms (``NVFEntropyScorer.pixel_terms``) and each term's share of the
+  reward's variance over the candidates (``pipeline.metrics.ranking.term_attribution``): the decisive term;
+  the Spearman correlation of each reward with the candidates' object coverage (fraction of pixels with
+  ``A > 0.5``).
 
-An AUC of 0.5 is no separation. Writes ``results/bench/visibility.json`` (or ``--out``).
+Writes ``results/bench/visibility.json`` (or ``--out``) and prints a table per source.
 """
 
 import dataclasses
 import statistics
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import torch
 from jaxtyping import Float
-from scipy import stats
+from omegaconf import DictConfig
 from torch import Tensor
 
-from nvf.cameras import Intrinsics, pixel_rays, pose_to_matrix
-from nvf.config import TrainConfig
-from nvf.model import SceneModel
-from nvf.planning import score_poses
-from nvf.rendering import ray_sum
-from nvf.training import Observations
+from nvf.cameras import Intrinsics, pose_to_matrix
 from nvf.methods import NVF
-from nvf.uncertainty import ViewScorer
-from nvf.visibility import visibility_labels
-from pipeline.cli import ArgumentParser, description
+from nvf.rendering import ray_sum
+from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
+from nvf.visibility_source import SOURCES, label_visibility
 from pipeline.bench._report import report_path, write_report
 from pipeline.bench.train import InitialViewModel
+from pipeline.cli import ArgumentParser, description
 from pipeline.config.validation import compose_config
+from pipeline.metrics.ranking import auc, render_for_terms, spearman, term_attribution, ties_at_max, view_terms
 
 SURFACE_OFFSET = 0.01  # scene units: the surface point moves this far towards the candidate camera
 MIN_ACCUMULATION = 0.5  # PROTOCOL 4.2's surface rule
 
+SourceFn = Callable[[Float[Tensor, "S 3"]], Float[Tensor, " S"]]
 
-@torch.no_grad()
-def weighted_visibility(
-    model: SceneModel, obs: Observations, origins: Float[Tensor, "R 3"], dirs: Float[Tensor, "R 3"], cfg: TrainConfig
-) -> tuple[Float[Tensor, " R"], Float[Tensor, " R"], Float[Tensor, " R"]]:
-    """Per ray: accumulation ``A``, ``sum_i w_i v_i / A`` of the head and ``sum_i w_i V*_i / A`` of
-    the labels (M18, deterministic sample offsets)."""
-    result = model.render(origins, dirs, heads=frozenset({"visibility"}))
+
+def source_functions(setup: InitialViewModel, sources: list[str]) -> dict[str, SourceFn | None]:
+    """Each source's ``v`` at sample positions; None for the head (read from the render)."""
+    model, obs, train = setup.model, setup.obs, setup.settings.train
+    functions: dict[str, SourceFn | None] = {}
+    for source in sources:
+        if source == "head":
+            functions[source] = None
+        elif source == "labels":
+            functions[source] = label_visibility(model, obs.c2w, obs.intrinsics, train)
+        else:
+            functions[source] = lambda points: setup.renderer.line_of_sight(
+                points, obs.c2w, obs.intrinsics, train.label_margin
+            ).to(points.dtype)
+    return functions
+
+
+def _seen_surface(setup: InitialViewModel, origins: Tensor, dirs: Tensor, pixels: Tensor) -> np.ndarray:
+    """Whether some initial camera sees the surface point of each object pixel (exact, from the mesh)."""
+    t_hit, _ = setup.renderer.cast_rays(origins.numpy(), dirs.numpy())
+    t = torch.from_numpy(t_hit)[pixels] - SURFACE_OFFSET
+    surface = origins[pixels] + t[:, None] * dirs[pixels]
+    return setup.renderer.line_of_sight(surface, setup.obs.c2w, setup.obs.intrinsics).numpy()
+
+
+def candidate_view(
+    setup: InitialViewModel, c2w: Tensor, intr: Intrinsics, scorers: tuple[NVFEntropyScorer, NVFEntropyScorer],
+    functions: dict[str, SourceFn | None],
+) -> dict:
+    """One candidate view: per source its NVF reward terms and per-object-pixel visibility, w/o Vis.'s
+    terms, the object pixels' seen flags, shell thickness and the view's object coverage."""
+    nvf, blind = scorers
+    result, origins, dirs = render_for_terms(setup.model, c2w, intr)
     samples = result.samples
-    labels = visibility_labels(model.density, samples.positions(origins, dirs), obs.c2w, obs.intrinsics, cfg)
-    acc = result.acc.clamp_min(1e-12)
-    head = ray_sum(result.weights * result.visibility, samples.ray_idx, samples.n_rays) / acc
-    label = ray_sum(result.weights * labels, samples.ray_idx, samples.n_rays) / acc
-    return result.acc, head, label
+    acc = result.acc
+    with torch.no_grad():
+        positions = samples.positions(origins, dirs)
+        v = {name: result.visibility if fn is None else fn(positions) for name, fn in functions.items()}
+    t_hit, _ = setup.renderer.cast_rays(origins.numpy(), dirs.numpy())
+    pixels = torch.from_numpy(np.isfinite(t_hit)) & (acc > MIN_ACCUMULATION)
+    safe = acc.clamp_min(1e-12)
+    spread = ray_sum(result.weights * (samples.t_mid - result.depth[samples.ray_idx]).square(), samples.ray_idx, samples.n_rays)
+    return {
+        "nvf": {name: view_terms(nvf, result, values) for name, values in v.items()},
+        "wo_vis": view_terms(blind, result),
+        "pixel_v": {
+            name: (ray_sum(result.weights * values, samples.ray_idx, samples.n_rays) / safe)[pixels].numpy()
+            for name, values in v.items()
+        },
+        "seen": _seen_surface(setup, origins, dirs, pixels),
+        "shell": (spread / safe).sqrt()[pixels].numpy(),
+        "coverage": float((acc > MIN_ACCUMULATION).float().mean()),
+    }  # fmt: skip
 
 
-def auc(positive: np.ndarray, negative: np.ndarray) -> float | None:
-    """P(a positive scores above a negative), ties counted half; None if a class is empty."""
-    if len(positive) == 0 or len(negative) == 0:
-        return None
-    return float(stats.mannwhitneyu(positive, negative).statistic / (len(positive) * len(negative)))
-
-
-def spearman(a: np.ndarray, b: np.ndarray) -> float | None:
-    """Spearman's rank correlation; None when undefined (fewer than two values, or a constant one)."""
-    if len(a) < 2 or np.ptp(a) == 0 or np.ptp(b) == 0:
-        return None
-    return float(stats.spearmanr(a, b).statistic)
+def _stack(views: list[dict[str, float]]) -> dict[str, np.ndarray]:
+    return {name: np.array([view[name] for view in views]) for name in views[0]}
 
 
 def _mean(values: np.ndarray) -> float | None:
@@ -80,35 +117,82 @@ def _mean(values: np.ndarray) -> float | None:
 
 
 def candidate_set_report(
-    setup: InitialViewModel, poses: Float[Tensor, "m 7"], intr: Intrinsics, scorers: tuple[ViewScorer, ViewScorer]
-) -> dict:
-    """Seen/unseen separation of the head and the labels over one candidate set, and the view rewards
-    of ``scorers`` (NVF, w/o Vis.) compared."""
-    model, obs, renderer = setup.model, setup.obs, setup.renderer
-    head, label, seen = [], [], []
-    for c2w in pose_to_matrix(poses):
-        origins, dirs = pixel_rays(c2w, intr)
-        acc, head_v, label_v = weighted_visibility(model, obs, origins, dirs, setup.settings.train)
-        t_hit, _ = renderer.cast_rays(origins.numpy(), dirs.numpy())
-        pixels = torch.from_numpy(np.isfinite(t_hit)) & (acc > MIN_ACCUMULATION)
-        t = torch.from_numpy(t_hit)[pixels] - SURFACE_OFFSET
-        surface = origins[pixels] + t[:, None] * dirs[pixels]
-        seen.append(renderer.line_of_sight(surface, obs.c2w, obs.intrinsics).numpy())
-        head.append(head_v[pixels].numpy())
-        label.append(label_v[pixels].numpy())
-    seen_all, head_all, label_all = (np.concatenate(x) for x in (seen, head, label))
-    chunk = int(setup.settings.planner.score_chunk_rays)
-    nvf_scores, wo_vis_scores = (score_poses(model, scorer, poses, intr, chunk).numpy() for scorer in scorers)
-    return {
+    setup: InitialViewModel, poses: Float[Tensor, "m 7"], intr: Intrinsics,
+    scorers: tuple[NVFEntropyScorer, NVFEntropyScorer], functions: dict[str, SourceFn | None],
+) -> dict:  # fmt: skip
+    """Separation, ranking agreement and the decisive terms over one candidate set, per source."""
+    views = [candidate_view(setup, c2w, intr, scorers, functions) for c2w in pose_to_matrix(poses)]
+    seen = np.concatenate([view["seen"] for view in views])
+    coverage = np.array([view["coverage"] for view in views])
+    blind = _stack([view["wo_vis"] for view in views])
+    blind_reward = sum(blind.values())
+    report = {
         "candidates": int(poses.shape[0]),
-        "object_pixels": int(len(seen_all)),
-        "seen_fraction": _mean(seen_all.astype(np.float64)),
-        "head_seen": _mean(head_all[seen_all]), "head_unseen": _mean(head_all[~seen_all]),
-        "head_auc": auc(head_all[seen_all], head_all[~seen_all]),
-        "label_seen": _mean(label_all[seen_all]), "label_unseen": _mean(label_all[~seen_all]),
-        "label_auc": auc(label_all[seen_all], label_all[~seen_all]),
-        "spearman_nvf_wo_vis": spearman(nvf_scores, wo_vis_scores),
-        "same_argmax": bool(nvf_scores.argmax() == wo_vis_scores.argmax()),
+        "object_pixels": int(len(seen)),
+        "seen_fraction": _mean(seen.astype(np.float64)),
+        "shell_median": _mean(np.array([np.median(np.concatenate([view["shell"] for view in views]))])),
+        "wo_vis": {"ties_at_max": ties_at_max(blind_reward), "coverage_spearman": spearman(blind_reward, coverage),
+                   **term_attribution(blind)},
+        "sources": {},
+    }  # fmt: skip
+    for name in functions:
+        v = np.concatenate([view["pixel_v"][name] for view in views])
+        terms = _stack([view["nvf"][name] for view in views])
+        reward = sum(terms.values())
+        report["sources"][name] = {
+            "seen_mean": _mean(v[seen]), "unseen_mean": _mean(v[~seen]), "auc": auc(v[seen], v[~seen]),
+            "spearman_nvf_wo_vis": spearman(reward, blind_reward),
+            "same_argmax": bool(reward.argmax() == blind_reward.argmax()),
+            "ties_at_max": ties_at_max(reward), "coverage_spearman": spearman(reward, coverage),
+            **term_attribution(terms),
+        }  # fmt: skip
+    return report
+
+
+def _mean_of(values: list) -> float | None:
+    kept = [v for v in values if v is not None]
+    return statistics.fmean(kept) if kept else None
+
+
+def summarise(sets: list[dict], sources: list[str]) -> dict:
+    """Means over the candidate sets, per source."""
+    per_source = {}
+    for name in sources:
+        rows = [s["sources"][name] for s in sets]
+        per_source[name] = {
+            "auc_mean": _mean_of([r["auc"] for r in rows]),
+            "spearman_nvf_wo_vis_mean": _mean_of([r["spearman_nvf_wo_vis"] for r in rows]),
+            "same_argmax_sets": sum(r["same_argmax"] for r in rows),
+            "decisive_terms": [r["decisive"] for r in rows],
+            "unknown_share_mean": _mean_of([r["terms"]["unknown"]["share"] for r in rows]),
+            "max_ties_at_max": max(r["ties_at_max"] for r in rows),
+        }
+    return {"sources": per_source, "wo_vis_decisive_terms": [s["wo_vis"]["decisive"] for s in sets],
+            "wo_vis_max_ties_at_max": max(s["wo_vis"]["ties_at_max"] for s in sets)}  # fmt: skip
+
+
+def visibility_report(cfg: DictConfig, sets: int, sources: list[str]) -> dict:
+    """Train the initial-view model of ``cfg`` and report ``sets`` candidate sets (see the module doc)."""
+    setup = InitialViewModel.train(cfg)
+    s = setup.settings
+    res = int(s.planner.resolution)
+    intr = Intrinsics.from_fov(res, res)
+    d0 = float(s.entropy.d0)
+    blind = dataclasses.replace(s.entropy, use_visibility=False)
+    scorers = (NVF().scorer(s.entropy, s.baseline, d0), NVF().scorer(blind, s.baseline, d0))
+    functions = source_functions(setup, sources)
+    reports = [{"set": k, **candidate_set_report(setup, setup.candidates(k), intr, scorers, functions)} for k in range(sets)]
+    return {
+        **summarise(reports, sources),
+        "sets": reports,
+        "settings": {
+            "budget": cfg.budget.name, "scene": cfg.scene.name, "field_kind": s.field.kind, "seed": int(cfg.seed),
+            "training_views": setup.obs.num_images, "image_size": int(cfg.budget.image_size), "resolution": res,
+            "candidates_requested": int(s.planner.num_candidates), "label_samples": s.train.label_samples,
+            "label_margin": s.train.label_margin, "logdet_coeff": s.entropy.logdet_coeff,
+            "head_iters": {stage: getattr(s.train, stage).iters for stage in ("variance", "visibility")},
+            "head_lr": {stage: getattr(s.train, stage).lr for stage in ("variance", "visibility")},
+        },
     }  # fmt: skip
 
 
@@ -116,53 +200,39 @@ def _show(value: float | None, spec: str) -> str:
     return "-" if value is None else format(value, spec)
 
 
-def _mean_of(sets: list[dict], key: str) -> float | None:
-    values = [r[key] for r in sets if r[key] is not None]
-    return statistics.fmean(values) if values else None
+def print_report(report: dict) -> None:
+    columns = (("source", 8), ("set", 4), ("pixels", 7), ("seen", 6), ("shell", 7), ("AUC", 7), ("rho", 7),
+               ("same", 6), ("ties", 5), ("decisive NVF", 22), ("w/o Vis.", 20))  # fmt: skip
+    print("".join(f"{name:>{width}}" for name, width in columns))
+    for name in report["sources"]:
+        for r in report["sets"]:
+            x, blind = r["sources"][name], r["wo_vis"]
+            share = x["terms"][x["decisive"]]["share"] if x["decisive"] else None
+            blind_share = blind["terms"][blind["decisive"]]["share"] if blind["decisive"] else None
+            cells = (name, r["set"], r["object_pixels"], _show(r["seen_fraction"], ".2f"), _show(r["shell_median"], ".3f"),
+                     _show(x["auc"], ".3f"), _show(x["spearman_nvf_wo_vis"], ".3f"), x["same_argmax"], x["ties_at_max"],
+                     f"{x['decisive']} ({_show(share, '.2f')})", f"{blind['decisive']} ({_show(blind_share, '.2f')})")  # fmt: skip
+            print("".join(f"{str(cell):>{width}}" for cell, (_, width) in zip(cells, columns, strict=True)))
 
 
 def main(argv: list[str]) -> None:
     parser = ArgumentParser(prog="python -m pipeline.bench visibility", description=description(__doc__))
-    parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. train.visibility.iters=500")
+    parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. train.label_margin=0.05")
     parser.add_argument("--out", type=Path, default=None, help="JSON report path (default: ${paths.results}/bench/visibility.json)")
     parser.add_argument("--sets", type=int, default=3, help="candidate sets (the planner's draws at steps 0..N-1)")
+    parser.add_argument("--sources", default=",".join(SOURCES), help=f"visibility sources, a subset of {','.join(SOURCES)}")
     args = parser.parse_intermixed_args(argv)
+    sources = args.sources.split(",")
     if args.sets < 1:
         parser.error("--sets must be >= 1")
+    if not sources or any(name not in SOURCES for name in sources):
+        parser.error(f"--sources={args.sources!r}: use a comma-separated subset of {','.join(SOURCES)}")
     start = time.perf_counter()
     cfg = compose_config(["planner.num_candidates=64", *args.overrides])
-    setup = InitialViewModel.train(cfg)
-    s, seed, size = setup.settings, int(cfg.seed), int(cfg.budget.image_size)
-    res = int(s.planner.resolution)
-    intr = Intrinsics.from_fov(res, res)
-    d0 = float(s.entropy.d0)
-    blind = dataclasses.replace(s.entropy, use_visibility=False)
-    scorers = (NVF().scorer(s.entropy, s.baseline, d0), NVF().scorer(blind, s.baseline, d0))
-    sets = [{"set": k, **candidate_set_report(setup, setup.candidates(k), intr, scorers)} for k in range(args.sets)]
-    report = {
-        "head_auc_mean": _mean_of(sets, "head_auc"),
-        "label_auc_mean": _mean_of(sets, "label_auc"),
-        "spearman_nvf_wo_vis_mean": _mean_of(sets, "spearman_nvf_wo_vis"),
-        "same_argmax_sets": sum(r["same_argmax"] for r in sets),
-        "sets": sets,
-        "settings": {
-            "budget": cfg.budget.name, "scene": cfg.scene.name, "field_kind": s.field.kind, "seed": seed,
-            "training_views": setup.obs.num_images, "image_size": size, "resolution": res,
-            "candidates_requested": int(s.planner.num_candidates), "label_samples": s.train.label_samples,
-            "head_iters": {stage: getattr(s.train, stage).iters for stage in ("variance", "visibility")},
-            "head_lr": {stage: getattr(s.train, stage).lr for stage in ("variance", "visibility")},
-            "overrides": args.overrides,
-        },
-        "seconds": time.perf_counter() - start,
-    }  # fmt: skip
+    report = visibility_report(cfg, args.sets, sources)
+    report["settings"]["overrides"] = args.overrides
+    report["seconds"] = time.perf_counter() - start
     args.out = report_path(args.out, cfg.paths.results, "visibility")
     write_report(report, args.out)
-    columns = (("set", 4), ("pixels", 8), ("seen", 7), ("head AUC", 10), ("label AUC", 11),
-               ("rho(NVF, w/o Vis.)", 20), ("same argmax", 13))  # fmt: skip
-    print("".join(f"{name:>{width}}" for name, width in columns))
-    for r in sets:
-        cells = (r["set"], r["object_pixels"], _show(r["seen_fraction"], ".2f"), _show(r["head_auc"], ".3f"),
-                 _show(r["label_auc"], ".3f"), _show(r["spearman_nvf_wo_vis"], ".3f"), r["same_argmax"])  # fmt: skip
-        print("".join(f"{str(cell):>{width}}" for cell, (_, width) in zip(cells, columns, strict=True)))
-    print(f"mean head AUC {_show(report['head_auc_mean'], '.3f')}, label AUC {_show(report['label_auc_mean'], '.3f')}; "
-          f"{report['seconds']:.0f} s; wrote {args.out}")  # fmt: skip
+    print_report(report)
+    print(f"{report['seconds']:.0f} s; wrote {args.out}")

@@ -17,6 +17,7 @@ from omegaconf import DictConfig, OmegaConf
 from nvf.config import STAGES
 from nvf.methods import load_method
 from nvf.precision import PRECISIONS, unsupported_reason
+from nvf.visibility_source import SOURCES as VISIBILITY_SOURCES
 from pipeline.config.catalog import declared
 from pipeline.config.memory import host_memory, too_large
 from pipeline.config.named import changed_settings
@@ -39,6 +40,7 @@ _CHOICES: dict[str, tuple[Any, ...]] = {
     "nvf.entropy.corr": ("quadratic", "exp"),
     "nvf.entropy.depth_mode": ("pixel", "chunk"),
     "nvf.entropy.sampler": ("occupancy", "uniform"),
+    "nvf.entropy.visibility_source": VISIBILITY_SOURCES,
     "nvf.entropy.logdet_coeff": (0.5, 1.0),
     "train.schedule": ("paper", "reference"),
     "train.stage_order": ("var_first", "vis_first"),
@@ -170,6 +172,8 @@ def validate(cfg: DictConfig) -> None:
     stages = list(cfg.method.stages)
     if not stages or stages[0] != "backbone" or any(s not in STAGES for s in stages):
         raise ConfigError(f"method.stages={stages} must start with 'backbone' and use only {', '.join(STAGES)}")
+    if cfg.train.label_margin < 0:
+        raise ConfigError(f"train.label_margin={cfg.train.label_margin} must be >= 0 (scene units; 0 = METHOD's M17)")
     if not 0.0 < cfg.planner.opt.ray_fraction <= 1.0:
         raise ConfigError(f"planner.opt.ray_fraction={cfg.planner.opt.ray_fraction} must be in (0, 1]")
     if cfg.planner.oversample < 1.0:

@@ -23,6 +23,7 @@ from nvf.planning import Selection, argmax_first, score_poses, select_next_view
 from nvf.seeding import generator_factory, seeded_generator
 from nvf.training import Observations, TrainStats, train_model
 from nvf.uncertainty import ViewScorer
+from nvf.visibility_source import SourcedVisibility, label_visibility
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.evaluation import Evaluator
 from pipeline.metrics.image import LpipsMetric
@@ -117,11 +118,12 @@ class Episode:
         t0 = time.perf_counter()
         model, stats = self.train(obs, step, progress)
         t1 = time.perf_counter()
-        metrics, images, _ = self.evaluator.evaluate(model, self.scorer, self.face_ids, obs, step)
+        planning = self.planning_model(model, obs)
+        metrics, images, _ = self.evaluator.evaluate(planning, self.scorer, self.face_ids, obs, step)
         t2 = time.perf_counter()
         current = matrix_to_pose(self.poses[-1]).to(self.device)
         selection = select_next_view(
-            model, self.scorer, s.planner, self.scene.camera_box.to(self.device), current,
+            planning, self.scorer, s.planner, self.scene.camera_box.to(self.device), current,
             self.plan_intrinsics, s.tau, s.collision_free, generator_factory(cfg.seed, step, self.device),
             self.renderer.unoccluded,
         )  # fmt: skip
@@ -137,7 +139,7 @@ class Episode:
             "selected_score": selection.score,
             "refined": selection.refined,
             "candidate_scores": dataclasses.asdict(selection.candidate_scores) if selection.candidate_scores else
-            {"count": selection.num_candidates, "min": None, "mean": None, "max": None, "std": None},
+            {"count": selection.num_candidates, "min": None, "mean": None, "max": None, "std": None, "ties_at_max": None},
             "train": stats.stages,
             "seconds": {"train": t1 - t0, "eval": t2 - t1, "plan": t3 - t2},
         }  # fmt: skip
@@ -147,8 +149,26 @@ class Episode:
                 "refined_scores": selection.opt.refined_scores.tolist(),
             }
         if self.rival is not None and selection.scores is not None:
-            row["rank_agreement"] = self.rank_agreement(model, selection)
+            row["rank_agreement"] = self.rank_agreement(planning, selection)
         return row, images
+
+    def planning_model(self, model: SceneModel, obs: Observations) -> SceneModel | SourcedVisibility:
+        """The model the scores read (``nvf.entropy.visibility_source``): ``model`` itself (its visibility
+        head), or ``model`` with ``v`` from M17-M18 labels at the scored samples or from the scene mesh's
+        line of sight to the training cameras (an oracle; ``train.label_margin`` applies to both)."""
+        s = self.settings
+        source = s.entropy.visibility_source
+        if source == "head":
+            return model
+        if source == "labels":
+            return SourcedVisibility(model, label_visibility(model, obs.c2w, obs.intrinsics, s.train))
+        c2w, margin = obs.c2w, s.train.label_margin
+
+        def mesh_visibility(points: torch.Tensor) -> torch.Tensor:
+            seen = self.renderer.line_of_sight(points, c2w, obs.intrinsics, margin)
+            return seen.to(device=points.device, dtype=points.dtype)
+
+        return SourcedVisibility(model, mesh_visibility)
 
     def rank_agreement(self, model: SceneModel, selection: Selection) -> dict:
         """How the ``diagnostics.rank_against`` ablation's score ranks the step's candidates against the run's

@@ -34,6 +34,8 @@ LEGACY_DEFAULTS: dict[str, Any] = {
     "train.precision": "fp32",  # every MLP in float32
     "render.backend": "pyrender",  # flat colours, budget.gt_samples^2 rays per pixel
     "render.samples": None,  # Cycles' samples per pixel: no Cycles then
+    "train.label_margin": 0.0,  # M17's segment ran all the way to the point
+    "nvf.entropy.visibility_source": "head",  # v from the visibility head
 }
 DEFINED_BY_NAME = ("method", "ablation", "scene")  # groups whose keys other than name describe the named option
 RETIRED_KEYS = {

@@ -151,15 +151,23 @@ class MeshRays:
         return t_hit, ids
 
     def line_of_sight(
-        self, points: Float[Tensor, "N 3"], c2w: Float[Tensor, "M 4 4"], intr: Intrinsics
+        self, points: Float[Tensor, "N 3"], c2w: Float[Tensor, "M 4 4"], intr: Intrinsics, margin: float = 0.0
     ) -> Bool[Tensor, "N"]:
         """Exact visibility of ``points`` from the cameras ``c2w``: some camera has the point in its
         image (M17's frustum, no depth limit) and an unoccluded line of sight to it (open3d ray cast
-        from the camera centre, 1e-4 tolerance). The limit of a depth test at infinite resolution."""
+        from the camera centre, 1e-4 tolerance). The limit of a depth test at infinite resolution.
+        ``margin``: each segment stops this far (scene units) short of the point, as M17's with
+        ``train.label_margin``. On the CPU."""
         visible = torch.zeros(points.shape[0], dtype=torch.bool)
         points = points.detach().cpu().to(torch.float32)
         for pose in c2w.detach().cpu().to(torch.float32):
-            visible |= frustum_mask(points, pose, intr, math.inf) & self.unoccluded(pose[:3, 3], points)
+            origin = pose[:3, 3]
+            ends = points
+            if margin > 0:
+                to_point = points - origin
+                length = torch.linalg.norm(to_point, dim=-1, keepdim=True)
+                ends = origin + to_point * ((length - margin).clamp(min=0.0) / length.clamp(min=1e-12))
+            visible |= frustum_mask(points, pose, intr, math.inf) & self.unoccluded(origin, ends)
         return visible
 
     def unoccluded(self, origin: Float[Tensor, "3"], points: Float[Tensor, "N 3"]) -> Bool[Tensor, "N"]:

@@ -25,6 +25,11 @@ MESH_LOS_NOTE = (
     "(`planner.los_source=mesh`, the cpu budget's setting, acting on Room's collision-free sampler), not the "
     "model's transmittance, so the planner knew the true free space (docs/DEVIATIONS.md)."
 )
+MESH_VISIBILITY_NOTE = (
+    f"{MESH_LOS_MARK} Scored with an oracle: NVF's visibility came from the scene mesh's line of sight to the "
+    "training cameras (`nvf.entropy.visibility_source=mesh`), not from its visibility head (docs/METHOD.md 9.3)."
+)
+ORACLE_FLAGS = (("mesh_los", MESH_LOS_NOTE), ("mesh_visibility", MESH_VISIBILITY_NOTE))
 
 
 @dataclass(frozen=True)
@@ -54,7 +59,8 @@ def aggregate(final: pd.DataFrame) -> pd.DataFrame:
     rows = []
     for key, group in final.groupby(list(GROUP), sort=False):
         row = {**dict(zip(GROUP, key)), "scene_source": ", ".join(sorted(set(group["scene_source"]))), "n": len(group)}
-        row["mesh_los"] = bool(group["mesh_los"].any())
+        for flag, _ in ORACLE_FLAGS:
+            row[flag] = bool(group[flag].any())
         for metric in METRIC_KEYS:
             stats = mean_std_valid(group[metric].to_numpy(float))
             row[f"{metric}_mean"], row[f"{metric}_std"], row[f"{metric}_valid"] = stats
@@ -90,8 +96,8 @@ def object_mean(final: pd.DataFrame, runs: Runs) -> tuple[pd.DataFrame, tuple[st
             sources = ", ".join(sorted(set(seed_rows["scene_source"])))
             means = {m: float(seed_rows[m].to_numpy(float).mean()) for m in METRIC_KEYS}
             keys = dict(zip(("budget", "method", "planner", "ablation"), key))
-            oracle = bool(seed_rows["mesh_los"].any())
-            per_seed.append({**keys, "scene": OBJECT_MEAN, "seed": seed, "scene_source": sources, "mesh_los": oracle, **means})
+            oracles = {flag: bool(seed_rows[flag].any()) for flag, _ in ORACLE_FLAGS}
+            per_seed.append({**keys, "scene": OBJECT_MEAN, "seed": seed, "scene_source": sources, **oracles, **means})
     if not per_seed:
         return pd.DataFrame(), (), {}
     rows = aggregate(pd.DataFrame(per_seed))
@@ -212,8 +218,7 @@ def _select(final: pd.DataFrame, spec: Spec, runs: Runs) -> pd.DataFrame:
 
 def _notes(selected: pd.DataFrame, done: pd.DataFrame, rows: pd.DataFrame, runs: Runs) -> list[str]:
     notes = []
-    if "mesh_los" in rows and rows["mesh_los"].any():
-        notes.append(MESH_LOS_NOTE)
+    notes += [note for flag, note in ORACLE_FLAGS if flag in rows and rows[flag].any()]
     valid = rows[[f"{m}_valid" for m in METRIC_KEYS]].to_numpy() if not rows.empty else np.zeros((0, 1))
     if ((valid > 0) & (valid < rows[["n"]].to_numpy())).any():
         notes.append("† some seeds lack this value: the cell averages the others.")

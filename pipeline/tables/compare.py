@@ -2,7 +2,7 @@
 
 import pandas as pd
 
-from pipeline.tables.aggregate import MESH_LOS_NOTE, Table
+from pipeline.tables.aggregate import ORACLE_FLAGS, Table
 from pipeline.tables.labels import METRIC_KEYS, OBJECT_MEAN
 from pipeline.tables.load import Runs
 from pipeline.tables.paper import paper_numbers
@@ -43,7 +43,7 @@ def paper_comparison(tables: dict[str, Table], runs: Runs) -> Table:
         "mean of 3 runs).",
         "The paper ran the `paper` budget on the original assets: proxies and smaller budgets need not match.",
         *dict.fromkeys(coverage),
-        *((MESH_LOS_NOTE,) if any(row.get("mesh_los") for row in rows) else ()),
+        *(note for flag, note in ORACLE_FLAGS if any(row.get(flag) for row in rows)),
     )
     header = (f"Budget: {', '.join(sorted({r['budget'] for r in rows}))}.",) if rows else ()
     return Table("paper_comparison", "Ours vs the paper", pd.DataFrame(rows), header, notes)

@@ -25,7 +25,7 @@ LONG_COLUMNS = (
 )
 FINAL_COLUMNS = (
     *IDENTITY_KEYS, "scene_source", "asset", "ground_truth", "status", "failure_reason", "lpips_missing_reason",
-    "mesh_los", "directory", "step", "n_views",
+    "mesh_los", "mesh_visibility", "directory", "step", "n_views",
 )
 GROUP = ("budget", "scene", "method", "planner", "ablation")
 
@@ -105,6 +105,18 @@ def used_mesh_line_of_sight(info: dict) -> bool:
     return isinstance(planner, dict) and planner.get("los_source") == "mesh" and line_of_sight_filtered(info)
 
 
+def used_mesh_visibility(info: dict) -> bool:
+    """Whether NVF's scores read the visibility from the scene mesh (``nvf.entropy.visibility_source=mesh``
+    with the visibility in use): an oracle, marked in the tables."""
+    config = info.get("config")
+    entropy = config.get("nvf", {}).get("entropy") if isinstance(config, dict) and isinstance(config.get("nvf"), dict) else None
+    method = config.get("method") if isinstance(config, dict) else None
+    return (
+        isinstance(entropy, dict) and isinstance(method, dict) and method.get("name") == "nvf"
+        and entropy.get("visibility_source") == "mesh" and entropy.get("use_visibility") is True
+    )  # fmt: skip
+
+
 def record_directories(root: Path) -> list[Path]:
     """Every directory under ``root`` holding a file of a run record (run.json, steps.jsonl, DONE, FAILED)."""
     if not Path(root).is_dir():
@@ -164,6 +176,7 @@ def collect_runs(roots: list[Path]) -> Runs:
             "failure_reason": info.get("failure_reason"),
             "lpips_missing_reason": info.get("lpips_missing_reason") or last.get("lpips_missing_reason"),
             "mesh_los": used_mesh_line_of_sight(info),
+            "mesh_visibility": used_mesh_visibility(info),
             "directory": str(record["directory"]),
             "step": last.get("step"),
             "n_views": last.get("n_views"),

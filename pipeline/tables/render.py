@@ -8,7 +8,7 @@ import re
 import pandas as pd
 
 from pipeline.metrics.info import PAPER_METRICS
-from pipeline.tables.aggregate import MESH_LOS_MARK, Table
+from pipeline.tables.aggregate import MESH_LOS_MARK, ORACLE_FLAGS, Table
 
 
 TIE_MARK = "≈"
@@ -49,7 +49,7 @@ def _grid(table: Table, label_header: str) -> tuple[list[str], list[list[str]]]:
     columns += [f"{m.label}{m.arrow}" for m in PAPER_METRICS] + (["ΔPSNR vs NVF"] if versus else []) + ["n"]
     cells = []
     for _, row in table.rows.iterrows():
-        label = row["label"] + (MESH_LOS_MARK if row.get("mesh_los", False) else "")
+        label = row["label"] + (MESH_LOS_MARK if any(row.get(flag, False) for flag, _ in ORACLE_FLAGS) else "")
         line = [str(row[key]) for key in keys] + [row["scene"], label]
         line += [_cell(row, m.name, m.decimals) for m in PAPER_METRICS] + ([_versus_nvf(row)] if versus else [])
         cells.append(line + [str(int(row["n"]))])

@@ -1,0 +1,252 @@
+"""``python -m pipeline.visibility_study --setting NAME [overrides] [--scenes S,..] [--seeds N,..]
+[--steps K,..] [--sets N] [--records DIR]``: does NVF's visibility field change a decision, and does the
+change help? Paired one-step measurements on the states of recorded NVF episodes.
+
+For each scene, seed and sampled step ``k`` of the committed NVF record (``<records>/<scene>/nvf-argmax-none/
+<budget>/seed_<seed>``), the state is the record's observations before step ``k`` (the initial views and the
+poses selected at steps ``0..k-1``). At that state, under the setting's overrides (say
+``nvf.entropy.logdet_coeff=1.0``):
+
+1. a model is trained as the episode's step ``k`` trains it (same seed, the method's stages);
+2. ``--sets`` candidate sets are drawn (set 0 is the planner's own draw at step ``k``, the others come from
+   their own seeded generators) and scored with NVF and with w/o Vis. (the same settings, ``v = 1``):
+   their Spearman correlation, whether their argmax agree, how many candidates tie at each maximum, and each
+   reward split into its terms (``pipeline.metrics.ranking.term_attribution``: the decisive term);
+3. where the two picks differ, the backbone is trained once with each pick added (the seed of step ``k+1``,
+   the same for both) and each model's held-out PSNR on the scene's 20 evaluation views is measured: the
+   one-step gain of NVF's pick over w/o Vis.'s, paired.
+
+It also runs ``pipeline.bench visibility``'s report on each scene's initial views (3 sets of 64 candidates,
+the sources ``head`` and ``labels``, plus ``nvf.entropy.visibility_source`` when that is ``mesh``).
+
+Writes ``${paths.results}/pilots/visibility_study/<setting>/``: ``decisions.jsonl`` (a row per scene, seed,
+step and set; a killed study resumes after its last complete row), ``<scene>_diagnostic.json``,
+``command.txt``; then ``summary.csv`` of the whole study (``pipeline.visibility_summary``). Torch runs with
+``--threads`` threads (default 1: two studies side by side on 2 cores).
+"""
+
+import dataclasses
+import json
+import math
+import shlex
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from omegaconf import DictConfig
+
+from nvf.cameras import Intrinsics, matrix_to_pose, pose_to_matrix
+from nvf.planning import argmax_first, candidate_poses, score_poses
+from nvf.seeding import generator_factory, seeded_generator
+from nvf.training import Observations, train_model
+from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
+from pipeline.bench.visibility import visibility_report
+from pipeline.cli import ArgumentParser, description, fail
+from pipeline.config.validation import compose_config, resolve_device
+from pipeline.episode.loop import Episode
+from pipeline.metrics.evaluation import render_view
+from pipeline.metrics.image import LpipsMetric, psnr
+from pipeline.metrics.ranking import render_for_terms, spearman, term_attribution, ties_at_max, view_terms
+from pipeline.records.store import atomic_write_text, run_dir
+from pipeline.scenes.blender import blender_python
+from pipeline.scenes.loading import load_scene
+from pipeline.scenes.scene import SceneError
+from pipeline.tables.load import load_run
+from pipeline.visibility_summary import STUDY, write_summary
+
+SCENES = ("hotdog", "hubble", "default")
+SEEDS = (100, 101, 102)
+STEPS = (0, 3, 6, 9, 12, 15, 18)
+
+
+def recorded_rows(records: Path, scene: str, seed: int, budget: str) -> list[dict]:
+    """The step rows of the recorded NVF episode (verified, ``pipeline.records.verify``)."""
+    directory = run_dir(records, scene, "nvf", "argmax", "none", budget, seed)
+    try:
+        _, rows = load_run(directory)
+    except (ValueError, OSError) as err:
+        fail(f"no usable NVF record for scene {scene}, seed {seed}: {err}; pass --records DIR holding it")
+    return rows
+
+
+def scorer_pair(episode: Episode) -> tuple[NVFEntropyScorer, NVFEntropyScorer]:
+    """NVF's scorer with the run's settings and the same with ``use_visibility=False`` (w/o Vis.)."""
+    s = episode.settings
+    blind = dataclasses.replace(s.entropy, use_visibility=False)
+    d0 = float(s.entropy.d0)
+    return episode.method.scorer(s.entropy, s.baseline, d0), episode.method.scorer(blind, s.baseline, d0)
+
+
+def candidate_set(episode: Episode, model, k: int, index: int) -> torch.Tensor:
+    """Candidate set ``index`` at step ``k``: 0 is the planner's own draw, others their own generators."""
+    s = episode.settings
+    generator = generator_factory(s.seed, k, episode.device)("candidates") if index == 0 else \
+        seeded_generator(s.seed, k, f"study_candidates/{index}", episode.device)
+    current = matrix_to_pose(episode.poses[-1]).to(episode.device)
+    return candidate_poses(
+        model, s.planner, episode.scene.camera_box.to(episode.device), current, s.tau, s.collision_free,
+        generator, line_of_sight=episode.renderer.unoccluded,
+    )  # fmt: skip
+
+
+def terms_of(planning, scorers: dict[str, NVFEntropyScorer], candidates: torch.Tensor, intr: Intrinsics) -> dict:
+    """Per scorer, per candidate, the mean of each reward term over the planning image ([m] per term); one
+    render per candidate serves every scorer."""
+    views: dict[str, list[dict[str, float]]] = {name: [] for name in scorers}
+    for c2w in pose_to_matrix(candidates):
+        result = render_for_terms(planning, c2w, intr)[0]
+        for name, scorer in scorers.items():
+            views[name].append(view_terms(scorer, result))
+    return {name: {term: np.array([v[term] for v in rows]) for term in rows[0]} for name, rows in views.items()}
+
+
+def heldout_psnr(episode: Episode, obs: Observations, step: int) -> tuple[float, float]:
+    """Train the backbone on ``obs`` as step ``step`` would (its seed) and return its held-out PSNR on the
+    scene's evaluation views (PROTOCOL 4.1, pooled MSE) and the training seconds."""
+    s, start = episode.settings, time.perf_counter()
+    model = episode.new_model(step)
+    train_model(model, obs, s.train, ["backbone"], s.entropy, seeded_generator(s.seed, step, "train", episode.device))
+    seconds = time.perf_counter() - start
+    evaluator = episode.evaluator
+    pred = np.stack([render_view(model, None, c2w.to(episode.device), evaluator.intrinsics)["rgb"]
+                     for c2w in episode.scene.eval_poses]).clip(0.0, 1.0)  # fmt: skip
+    return psnr(pred, evaluator.gt), seconds
+
+
+def with_view(obs: Observations, episode: Episode, pose: torch.Tensor) -> Observations:
+    """``obs`` plus the ground truth at ``pose`` (a 7-vector), rendered as the episode observes."""
+    c2w = pose_to_matrix(pose.detach().cpu().to(torch.float32))
+    image = episode.renderer.render_rgba(c2w, episode.intrinsics, episode.settings.budget.gt_samples)
+    images = torch.cat([obs.images, torch.from_numpy(image)[None].to(obs.images)])
+    return Observations(images, torch.cat([obs.c2w, c2w[None].to(obs.c2w)]), obs.intrinsics)
+
+
+def decision(episode: Episode, planning, candidates: torch.Tensor, scorers, obs: Observations, k: int) -> dict:
+    """One candidate set at one state: both scores, their agreement, terms and (if they disagree) the
+    one-step held-out PSNR of each pick."""
+    s = episode.settings
+    nvf, blind = scorers
+    start = time.perf_counter()
+    scores = {name: score_poses(planning, scorer, candidates, episode.plan_intrinsics, s.planner.score_chunk_rays)
+              for name, scorer in (("nvf", nvf), ("wo_vis", blind))}  # fmt: skip
+    plan_seconds = time.perf_counter() - start
+    own, rival = (scores[name].cpu().numpy() for name in ("nvf", "wo_vis"))
+    picks = {name: argmax_first(values) for name, values in scores.items()}
+    row = {
+        "candidates": int(candidates.shape[0]), "spearman": spearman(own, rival),
+        "same_argmax": picks["nvf"] == picks["wo_vis"], "picks": picks,
+        "ties_at_max": {"nvf": ties_at_max(own), "wo_vis": ties_at_max(rival)},
+        "terms": {name: term_attribution(terms) for name, terms in
+                  terms_of(planning, {"nvf": nvf, "wo_vis": blind}, candidates, episode.plan_intrinsics).items()},
+        "plan_seconds": plan_seconds,
+    }  # fmt: skip
+    if not row["same_argmax"]:
+        outcomes = {name: heldout_psnr(episode, with_view(obs, episode, candidates[i]), k + 1) for name, i in picks.items()}
+        row["psnr"] = {name: value for name, (value, _) in outcomes.items()}
+        row["gain"] = row["psnr"]["nvf"] - row["psnr"]["wo_vis"]
+        row["outcome_train_seconds"] = sum(seconds for _, seconds in outcomes.values())
+    return row
+
+
+class Decisions:
+    """The study's rows for one setting (``decisions.jsonl``), rewritten atomically after each state."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.rows = [json.loads(line) for line in path.read_text().splitlines()] if path.is_file() else []
+
+    def done(self, scene: str, seed: int, step: int) -> bool:
+        return any((r["scene"], r["seed"], r["step"]) == (scene, seed, step) for r in self.rows)
+
+    def add(self, rows: list[dict]) -> None:
+        self.rows.extend(rows)
+        atomic_write_text(self.path, "".join(json.dumps(r) + "\n" for r in self.rows))
+
+
+def study_scene(
+    cfg: DictConfig, overrides: list[str], seeds: list[int], steps: list[int], sets: int, records: Path,
+    decisions: Decisions,
+) -> None:  # fmt: skip
+    """Every missing (seed, step) state of one scene (``cfg``: the scene's config with the setting's
+    ``overrides``)."""
+    scene_name = cfg.scene.name
+    scene = load_scene(cfg.scene, Path(cfg.paths.assets), blender_python(cfg.paths.blender_python))
+    lpips = LpipsMetric()
+    for seed in seeds:
+        todo = [k for k in steps if not decisions.done(scene_name, seed, k)]
+        if not todo:
+            continue
+        rows = recorded_rows(records, scene_name, seed, cfg.budget.name)
+        seeded = compose_config([f"scene={scene_name}", f"seed={seed}", *overrides])
+        episode = Episode(seeded, scene, resolve_device(seeded.device), lpips)
+        try:
+            for k in todo:
+                episode.replay(rows[len(episode.poses) - len(scene.init_poses):k])
+                obs = episode.observations()
+                start = time.perf_counter()
+                model, _ = episode.train(obs, k)
+                train_seconds = time.perf_counter() - start
+                planning = episode.planning_model(model, obs)
+                scorers = scorer_pair(episode)
+                found = []
+                for index in range(sets):
+                    candidates = candidate_set(episode, model, k, index)
+                    row = decision(episode, planning, candidates, scorers, obs, k)
+                    found.append({"scene": scene_name, "seed": seed, "step": k, "set": index,
+                                  "train_seconds": train_seconds, **row})  # fmt: skip
+                decisions.add(found)
+                print(f"{scene_name} seed {seed} step {k}: " + ", ".join(
+                    "same" if r["same_argmax"] else f"differ, gain {r['gain']:+.2f} dB" for r in found), flush=True)
+        finally:
+            episode.close()
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = ArgumentParser(prog="python -m pipeline.visibility_study", description=description(__doc__))
+    parser.add_argument("overrides", nargs="*", help="the setting's config overrides, e.g. nvf.entropy.logdet_coeff=1.0")
+    parser.add_argument("--setting", required=True, help="the setting's name: its folder under pilots/visibility_study/")
+    parser.add_argument("--scenes", default=",".join(SCENES))
+    parser.add_argument("--seeds", default=",".join(map(str, SEEDS)))
+    parser.add_argument("--steps", default=",".join(map(str, STEPS)), help="the recorded steps whose states are measured")
+    parser.add_argument("--sets", type=int, default=3, help="candidate sets per state (0: the planner's own)")
+    parser.add_argument("--records", type=Path, default=Path("results/runs"), help="where the NVF records are")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads")
+    args = parser.parse_intermixed_args(sys.argv[1:] if argv is None else argv)
+    if not args.setting.replace("_", "").replace("-", "").replace(".", "").isalnum():
+        parser.error(f"--setting={args.setting!r}: use letters, digits, '.', '_' and '-'")
+    try:
+        seeds = [int(x) for x in args.seeds.split(",")]
+        steps = [int(x) for x in args.steps.split(",")]
+    except ValueError:
+        parser.error("--seeds and --steps take comma-separated integers")
+    if args.sets < 1 or args.threads < 1 or any(k < 0 for k in steps):
+        parser.error("--sets and --threads must be >= 1, --steps >= 0")
+    torch.set_num_threads(args.threads)
+    cfg = compose_config(args.overrides)
+    out = Path(cfg.paths.results) / "pilots" / STUDY / args.setting
+    out.mkdir(parents=True, exist_ok=True)
+    command = ["python", "-m", "pipeline.visibility_study", *(sys.argv[1:] if argv is None else argv)]
+    atomic_write_text(out / "command.txt", shlex.join(command) + "\n")
+    entropy, train = cfg.nvf.entropy, cfg.train
+    setting = {"name": args.setting, "overrides": args.overrides, "visibility_source": entropy.visibility_source,
+               "logdet_coeff": entropy.logdet_coeff, "label_margin": train.label_margin, "budget": cfg.budget.name}  # fmt: skip
+    atomic_write_text(out / "setting.json", json.dumps(setting, indent=2) + "\n")
+    decisions = Decisions(out / "decisions.jsonl")
+    for scene in args.scenes.split(","):
+        scene_cfg = compose_config([f"scene={scene}", *args.overrides])
+        diagnostic = out / f"{scene}_diagnostic.json"
+        if not diagnostic.is_file():
+            sources = ["head", "labels"] + (["mesh"] if scene_cfg.nvf.entropy.visibility_source == "mesh" else [])
+            report = visibility_report(compose_config([f"scene={scene}", "planner.num_candidates=64", *args.overrides]), 3, sources)
+            atomic_write_text(diagnostic, json.dumps(report, indent=2) + "\n")
+        try:
+            study_scene(scene_cfg, args.overrides, seeds, steps, args.sets, args.records, decisions)
+        except SceneError as err:
+            fail(str(err))
+    write_summary(Path(cfg.paths.results) / "pilots" / STUDY)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

@@ -1,0 +1,86 @@
+"""The visibility study's table: one row per setting and scene (and per setting over all its scenes) from
+the folders ``python -m pipeline.visibility_study`` writes under ``${paths.results}/pilots/visibility_study/``.
+
+Columns: ``setting, scene, visibility_source, label_auc, head_auc`` (the initial views' separation of seen
+from unseen object pixels, ``pipeline.bench visibility``), ``spearman_nvf_wo_vis`` (mean over the measured
+candidate sets), ``onestep_gain_mean, onestep_ci_low, onestep_ci_high, n`` (NVF's pick minus w/o Vis.'s
+in held-out PSNR, dB, where they differ, with the 95% Student-t interval over the ``n`` disagreements),
+``minutes_per_episode`` (from the setting's discrimination records when it has them, else empty), then
+``decisions`` (candidate sets measured), ``same_argmax_fraction``, ``nvf_decisive_term`` (the reward term
+deciding NVF's ranking most often) and ``nvf_unknown_share`` (the unknown component's mean share of NVF's
+reward variance).
+"""
+
+import collections
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from pipeline.records.store import atomic_write_text
+from pipeline.tables.stats import Interval
+
+STUDY = "visibility_study"
+COLUMNS = (
+    "setting", "scene", "visibility_source", "label_auc", "head_auc", "spearman_nvf_wo_vis", "onestep_gain_mean",
+    "onestep_ci_low", "onestep_ci_high", "n", "minutes_per_episode", "decisions", "same_argmax_fraction",
+    "nvf_decisive_term", "nvf_unknown_share",
+)  # fmt: skip
+ALL_SCENES = "all"
+
+
+def _rows(folder: Path) -> list[dict]:
+    path = folder / "decisions.jsonl"
+    return [json.loads(line) for line in path.read_text().splitlines()] if path.is_file() else []
+
+
+def _diagnostic(folder: Path, scene: str) -> dict:
+    path = folder / f"{scene}_diagnostic.json"
+    return json.loads(path.read_text()) if path.is_file() else {}
+
+
+def _mean(values: list) -> float:
+    kept = [v for v in values if v is not None]
+    return float(np.mean(kept)) if kept else math.nan
+
+
+def setting_row(setting: dict, scene: str, rows: list[dict], diagnostics: list[dict]) -> dict:
+    """The summary row of one setting over ``rows`` (one scene's, or all of them)."""
+    gains = np.array([r["gain"] for r in rows if "gain" in r], dtype=float)
+    interval = Interval.of(gains)
+    decisive = collections.Counter(r["terms"]["nvf"]["decisive"] for r in rows)
+    sources = [d.get("sources", {}) for d in diagnostics]
+    return {
+        "setting": setting["name"], "scene": scene, "visibility_source": setting.get("visibility_source", "head"),
+        "label_auc": _mean([s.get("labels", {}).get("auc_mean") for s in sources]),
+        "head_auc": _mean([s.get("head", {}).get("auc_mean") for s in sources]),
+        "spearman_nvf_wo_vis": _mean([r["spearman"] for r in rows]),
+        "onestep_gain_mean": interval.mean, "onestep_ci_low": interval.low, "onestep_ci_high": interval.high,
+        "n": interval.n, "minutes_per_episode": setting.get("minutes_per_episode", {}).get(scene, math.nan),
+        "decisions": len(rows), "same_argmax_fraction": _mean([float(r["same_argmax"]) for r in rows]),
+        "nvf_decisive_term": decisive.most_common(1)[0][0] if decisive else None,
+        "nvf_unknown_share": _mean([r["terms"]["nvf"]["terms"]["unknown"]["share"] for r in rows]),
+    }  # fmt: skip
+
+
+def summary_frame(study: Path) -> pd.DataFrame:
+    """Every setting folder under ``study``: a row per scene and one over all its scenes."""
+    out = []
+    for folder in sorted(p for p in study.iterdir() if p.is_dir() and (p / "setting.json").is_file()):
+        setting = json.loads((folder / "setting.json").read_text())
+        rows = _rows(folder)
+        scenes = list(dict.fromkeys(r["scene"] for r in rows))
+        for scene in scenes:
+            out.append(setting_row(setting, scene, [r for r in rows if r["scene"] == scene], [_diagnostic(folder, scene)]))
+        if len(scenes) > 1:
+            out.append(setting_row(setting, ALL_SCENES, rows, [_diagnostic(folder, scene) for scene in scenes]))
+    return pd.DataFrame(out, columns=list(COLUMNS))
+
+
+def write_summary(study: Path) -> Path:
+    """Write ``<study>/summary.csv`` (atomically) and return its path."""
+    path = study / "summary.csv"
+    atomic_write_text(path, summary_frame(study).to_csv(index=False, float_format="%.4g"))
+    return path
