@@ -52,7 +52,7 @@ def build_tables(
         written += [grid] if grid is not None else []
     pictures, problems = run_pictures_of(runs, results / "site", assets)
     written += [p for found in pictures.values() for p in (found.grid, found.trajectory) if p is not None and results in p.parents]
-    written += write_site(runs, tables["all_runs"], pictures, results)
+    written += write_site(runs, pictures, results)
     return written, (*runs.skipped, *runs.conflicts, *problems)
 
 

@@ -24,7 +24,7 @@ from plotly.offline import get_plotlyjs
 from scipy import stats
 
 from pipeline.records.store import atomic_write_text
-from pipeline.tables.aggregate import Table
+from pipeline.tables.aggregate import SPECS, Table, build_table
 from pipeline.tables.figures import safe_name
 from pipeline.tables.load import Runs
 from pipeline.tables.paper import paper_numbers
@@ -77,9 +77,9 @@ def scene_page_name(scene: str, budget: str) -> str:
     return f"scenes/{safe_name(scene)}_{safe_name(budget)}.html"
 
 
-def write_site(runs: Runs, table: Table, pictures: Mapping[str, RunPictures], results: Path) -> list[Path]:
-    """Write the site under ``results / "site"`` from the runs, the ``all_runs`` table and each run's pictures
-    (by run directory); returns the files written."""
+def write_site(runs: Runs, pictures: Mapping[str, RunPictures], results: Path) -> list[Path]:
+    """Write the site under ``results / "site"`` from the runs and each run's pictures (by run directory);
+    returns the files written."""
     site = Path(results) / "site"
     done = runs.final[runs.final["status"] == "done"]
     written = [site / PLOTLY_JS]
@@ -88,7 +88,7 @@ def write_site(runs: Runs, table: Table, pictures: Mapping[str, RunPictures], re
     for (budget, scene), frame in done.groupby(["budget", "scene"]):
         path = site / scene_page_name(scene, budget)
         pages[(budget, scene)] = path
-        atomic_write_text(path, scene_page(runs, table, frame, pictures, scene, budget, path))
+        atomic_write_text(path, scene_page(runs, frame, pictures, scene, budget, path))
         written.append(path)
     index = site / "index.html"
     atomic_write_text(index, index_page(runs, done, pages, index))
@@ -200,13 +200,20 @@ def _alpha(color: str, alpha: float) -> str:
     return f"rgba({r},{g},{b},{alpha})"
 
 
+def scene_table(runs: Runs, scene: str, budget: str) -> Table:
+    """The ``all_runs`` table of one scene at one budget, with its own header and notes."""
+    final = runs.final[(runs.final["scene"] == scene) & (runs.final["budget"] == budget)]
+    long = runs.long[(runs.long["scene"] == scene) & (runs.long["budget"] == budget)]
+    spec = next(spec for spec in SPECS if spec.name == "all_runs")
+    return build_table(replace(runs, final=final, long=long, skipped=(), conflicts=()), spec)
+
+
 def scene_page(
-    runs: Runs, table: Table, frame: pd.DataFrame, pictures: Mapping[str, RunPictures], scene: str, budget: str,
-    page: Path,
+    runs: Runs, frame: pd.DataFrame, pictures: Mapping[str, RunPictures], scene: str, budget: str, page: Path
 ) -> str:
     """One scene at one budget: table, curves, each run's pictures."""
-    rows = table.rows[(table.rows["scene"] == scene) & (table.rows["budget"] == budget)]
-    parts = [f"<h2>Final step, every metric</h2><div class=\"wide\">{html_table(replace(table, rows=rows), 'Method')}</div>"]
+    table = scene_table(runs, scene, budget)
+    parts = [f"<h2>Final step, every metric</h2><div class=\"wide\">{html_table(table, 'Method')}</div>"]
     parts.append(f'<p class="note">{html.escape(" ".join(table.header))}</p>')
     parts.append('<p class="note">' + "<br>".join(html.escape(n) for n in table.notes) + "</p>")
     chart = psnr_figure(runs, scene, budget).to_html(full_html=False, include_plotlyjs=False, div_id="psnr-curves")
@@ -240,15 +247,27 @@ def _run_card(run: pd.Series, found: RunPictures, page: Path) -> str:
 
 
 RELATIVE = re.compile(r'(href|src)="(?![a-z]+:|#|/)([^"]+)"')
+HEADING = re.compile(r"<(/?)h([1-6])([ >])")
+
+
+def _note(path: Path, page: Path) -> str:
+    """A Markdown note as HTML under the page's own headings (its headings three levels down), its
+    relative links pointing at the files beside it."""
+    text = markdown.markdown(path.read_text(encoding="utf-8"), extensions=["tables", "fenced_code"])
+    base = link(path.parent, page)
+    text = RELATIVE.sub(lambda m: f'{m.group(1)}="{base}/{m.group(2)}"', text)
+    return HEADING.sub(lambda m: f"<{m.group(1)}h{min(6, int(m.group(2)) + 3)}{m.group(3)}", text)
 
 
 def pilots_page(pilots: Path, page: Path) -> str:
     """Each pilot under ``pilots``: its Markdown notes (README.md, summaries) and pictures, two folders deep
     (the records under them are not listed); links in the notes point at the files beside them."""
-    parts = []
-    if not pilots.is_dir():
-        parts.append(f"<p>No pilots under {html.escape(str(pilots))}.</p>")
-    for folder in sorted(p for p in pilots.iterdir() if p.is_dir()) if pilots.is_dir() else ():
+    folders = sorted(p for p in pilots.iterdir() if p.is_dir()) if pilots.is_dir() else []
+    parts = [f"<p>No pilots under {html.escape(str(pilots))}.</p>"] if not folders else []
+    if folders:
+        items = "".join(f'<li><a href="#{html.escape(f.name)}">{html.escape(f.name)}</a></li>' for f in folders)
+        parts.append(f"<p>Settings tried beside the budgets, each with its notes and pictures:</p><ul>{items}</ul>")
+    for folder in folders:
         parts.append(f'<div class="pilot"><h2 id="{html.escape(folder.name)}">{html.escape(folder.name)}</h2>')
         files = sorted({*folder.glob("*.md"), *folder.glob("*/*.md"), *folder.glob("*.png"), *folder.glob("*/*.png")},
                        key=lambda p: (p.parent != folder, p.parent.name, p.name != "README.md", p.name))  # fmt: skip
@@ -257,9 +276,6 @@ def pilots_page(pilots: Path, page: Path) -> str:
             if path.suffix == ".png":
                 parts.append(f'<h3>{html.escape(where)}</h3><img src="{link(path, page)}" alt="{html.escape(where)}">')
                 continue
-            base = link(path.parent, page)
-            text = markdown.markdown(path.read_text(encoding="utf-8"), extensions=["tables", "fenced_code"])
-            text = RELATIVE.sub(lambda m: f'{m.group(1)}="{base}/{m.group(2)}"', text)
-            parts.append(f"<h3>{html.escape(where)}</h3>{text}")
+            parts.append(f"<h3>{html.escape(where)}</h3>{_note(path, page)}")
         parts.append("</div>")
     return _page("Pilots", "".join(parts))
