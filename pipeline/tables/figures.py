@@ -72,7 +72,8 @@ def curves(runs: Runs, figures: Path) -> list[Path]:
             fig.legend(handles, labels, loc="lower center", ncol=min(7, len(handles)), frameon=False)
         seeds = frame.groupby(["method", "planner", "ablation"])["seed"].nunique()
         seed_text = f"{seeds.min()}" if seeds.min() == seeds.max() else f"{seeds.min()}-{seeds.max()}"
-        fig.suptitle(f"{scene}, {budget} budget: mean ± population std over {seed_text} seeds per method")
+        plural = "s" if seeds.max() > 1 else ""
+        fig.suptitle(f"{scene}, {budget} budget: mean ± population std over {seed_text} seed{plural} per method")
         path = figures / f"curves_{safe_name(scene)}_{safe_name(budget)}.png"
         save_figure(fig, path)
         written.append(path)
