@@ -65,9 +65,8 @@ def main(argv: list[str]) -> int:
     if problem is not None:
         print(f"pipeline.tables: error: {problem}", file=sys.stderr)
         return 2
-    roots = [results / "runs"]
-    if with_committed and (RESULTS / "runs").resolve() not in {Path(outputs).resolve(), (results / "runs").resolve()}:
-        roots.append(RESULTS / "runs")
+    roots = [results / "runs", *([RESULTS / "runs"] if with_committed else [])]
+    roots = list({root.resolve(): root for root in roots if root.resolve() != outputs.resolve()}.values())  # each once
     try:
         written, skipped = build_tables(outputs, roots, results, assets=paths["assets"])
     except (ValueError, OSError) as err:
