@@ -1,10 +1,11 @@
 """The results site, ``${paths.results}/site/``: static pages that open from ``file://`` with no server and no
-network. ``index.html`` is a scenes x methods overview of the final PSNR; one page per scene and budget holds
+network. ``index.html`` is a methods x scenes overview of the final PSNR; one page per scene and budget holds
 its table (paired intervals as in ``tables/all_runs``), its PSNR-over-steps curves per method (mean and 95%
 Student-t band over seeds, the paper's final value marked where it has one) and every run's pictures;
 ``pilots.html`` shows the pilots under ``${paths.results}/pilots``. The interactive plots are plotly's, its
 JavaScript written once beside the pages (``plotly.min.js``); pictures are linked where they lie (beside the
-run records, in ``pilots/``), not copied, so the site works while it stays beside them.
+run records, in ``pilots/``, or drawn into ``site/runs/`` for records that lack them), not copied, so the site
+works while it stays beside them.
 """
 
 import html
@@ -14,6 +15,7 @@ import re
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
+from urllib.parse import quote
 
 import markdown
 import numpy as np
@@ -61,7 +63,8 @@ PAGE = Environment(autoescape=True).from_string("""<!DOCTYPE html>
 
 @dataclass(frozen=True)
 class RunPictures:
-    """One run's pictures beside its record (None where it has none)."""
+    """One run's pictures: its grid and trajectory (beside its record, or drawn for the site) and its per-step
+    table (None where it has none)."""
 
     grid: Path | None
     trajectory: Path | None
@@ -69,8 +72,8 @@ class RunPictures:
 
 
 def link(target: Path, page: Path) -> str:
-    """``target`` relative to the folder of ``page``, as a URL path."""
-    return Path(os.path.relpath(Path(target).resolve(), Path(page).resolve().parent)).as_posix()
+    """``target`` relative to the folder of ``page``, as a URL path (characters a URL cannot hold quoted)."""
+    return quote(Path(os.path.relpath(Path(target).resolve(), Path(page).resolve().parent)).as_posix())
 
 
 def scene_page_name(scene: str, budget: str) -> str:
