@@ -122,9 +122,14 @@ def test_tables_read_your_runs_and_with_committed_the_committed_ones(tmp_path, c
     args = [f"paths.outputs={tmp_path / 'out'}", f"paths.results={tmp_path / 'res'}"]
     assert tables_cli.main(args) == 0
     assert set(pd.read_csv(tmp_path / "res" / "runs.csv")["seed"]) == {100}
+    drawn = Path("site", "runs", "hubble", "nvf-argmax-none", "smoke", "seed_101", "trajectory.png")
+    (committed / drawn).parent.mkdir(parents=True)
+    iio.imwrite(committed / drawn, np.zeros((4, 4, 3), np.uint8))  # the committed site drew it already
     assert tables_cli.main([*args, "--with-committed"]) == 0
     runs = pd.read_csv(tmp_path / "res" / "runs.csv")
     assert set(runs["seed"]) == {100, 101} and len(runs[runs["seed"] == 100]) == len(runs[runs["seed"] == 101])
+    assert not (tmp_path / "res" / drawn).exists() and (tmp_path / "res" / drawn.parent.parent / "seed_100").is_dir()
+    assert "repo_results/site/runs/hubble" in (tmp_path / "res" / "site" / "scenes" / "hubble_smoke.html").read_text()
     assert "site/index.html" in capsys.readouterr().out
     assert tables_cli.main([*args, "--with-comitted"]) == 2
     assert "unknown argument '--with-comitted'" in capsys.readouterr().err

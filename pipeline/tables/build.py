@@ -58,19 +58,20 @@ def build_tables(
 
 def run_pictures_of(runs: Runs, site: Path, assets: Path | None) -> tuple[dict[str, RunPictures], list[str]]:
     """Each finished run's pictures (by directory): its own ``grid.png`` and ``trajectory.png`` beside its
-    record where it has them, else drawn into ``site/runs/<scene>/<method>-<planner>-<ablation>/<budget>/
-    seed_<n>/`` (records made before runs drew them; records are never written to), again when the record
-    is newer; one line per run whose pictures could not be drawn."""
+    record where it has them; else those drawn for a site beside its records' folder (the committed
+    ``results/site/runs/`` for ``results/runs``) or for this ``site``, under ``runs/<scene>/<method>-<planner>-
+    <ablation>/<budget>/seed_<n>/``; else they are drawn there for this site (records made before runs drew
+    them; records are never written to), again when the record is newer. One line per run whose pictures
+    could not be drawn."""
     named, outlines = NamedConfigs(CONF), {}
     assets = configured_paths({})["assets"] if assets is None else assets
     pictures, problems = {}, []
     for _, run in runs.final[runs.final["status"] == "done"].iterrows():
         run_dir = Path(run["directory"])
         group = "-".join(safe_name(run[key]) for key in ("method", "planner", "ablation"))
-        drawn = site / "runs" / safe_name(run["scene"]) / group / safe_name(run["budget"]) / f"seed_{int(run['seed'])}"
-        grid, trajectory = run_dir / "grid.png", run_dir / "trajectory.png"
-        grid = grid if grid.is_file() else drawn / "grid.png"
-        trajectory = trajectory if trajectory.is_file() else drawn / "trajectory.png"
+        key = Path(safe_name(run["scene"]), group, safe_name(run["budget"]), f"seed_{int(run['seed'])}")
+        places = [run_dir, run_dir.parents[3].parent / "site" / "runs" / key, site / "runs" / key]
+        grid, trajectory = (_found(name, places, run_dir) for name in ("grid.png", "trajectory.png"))
         try:
             if _stale(grid, run_dir) or _stale(trajectory, run_dir):
                 info, rows = load_run(run_dir)
@@ -78,10 +79,10 @@ def run_pictures_of(runs: Runs, site: Path, assets: Path | None) -> tuple[dict[s
                     grid = image_grid(run_dir, grid, run_title(info))
                 if _stale(trajectory, run_dir):
                     scene = recorded_scene(info, named)
-                    key = str(sorted(scene.items()))
-                    if key not in outlines:
-                        outlines[key] = outline_of_config(scene, assets)
-                    trajectory_figure(outlines[key], rows, run_title(info), trajectory)
+                    scene_key = str(sorted(scene.items()))
+                    if scene_key not in outlines:
+                        outlines[scene_key] = outline_of_config(scene, assets)
+                    trajectory_figure(outlines[scene_key], rows, run_title(info), trajectory)
         except (OSError, ValueError, KeyError) as err:
             problems.append(f"pictures of {run_dir} not drawn: {' '.join(str(err).split())}")
         summary = run_dir / "summary.md"
@@ -91,10 +92,16 @@ def run_pictures_of(runs: Runs, site: Path, assets: Path | None) -> tuple[dict[s
     return pictures, problems
 
 
+def _found(name: str, places: list[Path], run_dir: Path) -> Path:
+    """The first up-to-date ``name`` in ``places``; else where this site draws it (the last place)."""
+    return next((place / name for place in places if not _stale(place / name, run_dir)), places[-1] / name)
+
+
 def _stale(picture: Path | None, run_dir: Path) -> bool:
-    """A picture for the site not yet drawn, or older than its record's steps (never the run's own pictures;
-    None: a grid of a run without images)."""
-    if picture is None or picture.parent == run_dir:
+    """A picture not there, or drawn for a site before its record's last step was written (a run's own
+    pictures are never stale; None: the grid of a run without images)."""
+    if picture is None:
         return False
-    steps = run_dir / "steps.jsonl"
-    return not picture.is_file() or picture.stat().st_mtime < steps.stat().st_mtime
+    if not picture.is_file():
+        return True
+    return picture.parent != run_dir and picture.stat().st_mtime < (run_dir / "steps.jsonl").stat().st_mtime
