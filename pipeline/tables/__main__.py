@@ -17,9 +17,10 @@ What it writes, under ``paths.results`` (default ``${paths.outputs}/results``, y
   difference to NVF;
 - ``figures/``: metric-over-steps curves per scene and budget, and one image grid per method and scene;
 - ``site/``: the results site (open ``site/index.html`` in a browser; it needs no network or server):
-  scenes x methods, and per scene its table, interactive PSNR curves with 95% bands and each run's pictures;
+  methods x scenes, and per scene its table, interactive PSNR curves with 95% bands and each run's pictures;
   the pilots under ``${paths.results}/pilots``. A run's pictures are linked where they lie, beside its
-  record; those an older record lacks are drawn into ``site/runs/``: ``trajectory.png`` (where it put its
+  record; those an older record lacks are taken from the site beside its records' folder where that drew
+  them (the committed ``results/site/runs/``), else drawn into ``site/runs/``: ``trajectory.png`` (where it put its
   cameras, over the scene's outline read from ``paths.assets``; the tight box where the asset is not there)
   and ``grid.png`` (when it saved its images). Records themselves are never written to.
 
