@@ -15,7 +15,7 @@ from collections.abc import Callable
 
 import torch
 from jaxtyping import Float, Int
-from torch import Tensor
+from torch import Tensor, nn
 
 from nvf.cameras import Intrinsics
 from nvf.config import TrainConfig
@@ -40,7 +40,7 @@ def label_visibility(
     return visibility
 
 
-class SourcedVisibility:
+class SourcedVisibility(nn.Module):
     """A ``SceneModel`` whose renders take ``v`` from ``source(positions)`` instead of the visibility head.
 
     Everything else (density, filters, colours, variances) is the wrapped model's. ``v`` carries no
@@ -48,6 +48,7 @@ class SourcedVisibility:
     """
 
     def __init__(self, model: SceneModel, source: VisibilityFn):
+        super().__init__()
         self.model = model
         self.source = source
 

@@ -2,10 +2,12 @@
 does a budget tell the methods apart? The paired discrimination experiment of one budget.
 
 For each scene and seed it runs (through ``python -m pipeline.run -m``, scene by scene, one Hydra sweep
-per group of entries, ``hydra/launcher=joblib`` with ``J`` one-thread jobs; finished runs are skipped, so a killed
-experiment resumes) full NVF (recording, at every step, how w/o Vis.'s score ranks the same candidates:
-``diagnostics.rank_against=wo_vis``), its ablations w/o Vis. and Ind. Rays, and the baselines WD,
-ActiveNeRF and NeurAR. Then, per scene, the paired (same seed) differences of final PSNR and of PSNR
+per entry, ``hydra/launcher=joblib`` with ``J`` one-thread jobs; finished runs are skipped, so a killed
+experiment resumes; ``step_metrics=psnr``: the steps before the last record the PSNR alone) full NVF
+(recording, at every step, how w/o Vis.'s score ranks the same candidates: ``diagnostics.rank_against=wo_vis``),
+its ablations w/o Vis. and Ind. Rays, and the baselines WD, ActiveNeRF and NeurAR. An entry the overrides
+cannot change (``pipeline.records.compat.inert_keys``: ``nvf.entropy.logdet_coeff=1.0`` on WD) is not run
+again where ``--reuse DIR`` (default ``results/runs``) holds its finished records of the plain budget. Then, per scene, the paired (same seed) differences of final PSNR and of PSNR
 averaged over the steps: NVF - w/o Vis., NVF - Ind. Rays and NVF - the best baseline (the baseline with
 the highest mean final PSNR on that scene), each with a 95% Student-t interval over the seeds, the
 Spearman correlation of NVF's and w/o Vis.'s candidate scores, and minutes per episode.
@@ -32,7 +34,7 @@ from omegaconf import DictConfig, OmegaConf
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.named import GROUPS, NamedConfigs
 from pipeline.config.validation import compose_config
-from pipeline.records.store import atomic_write_text
+from pipeline.records.store import RunRecord, atomic_write_text, record_status, run_dir
 from pipeline.repo import CONF, REPO
 from pipeline.scenes.scene import SceneError
 from pipeline.scenes.loading import find_asset, scene_config
@@ -43,11 +45,8 @@ SCENES = ("hotdog", "hubble", "default")
 SEEDS = (100, 101, 102)
 NVF, WO_VIS, IND_RAYS = ("nvf", "none"), ("nvf", "wo_vis"), ("nvf", "ind_rays")
 BASELINES = (("wd", "none"), ("activenerf", "none"), ("neurar", "none"))
-SWEEPS = (  # (method, ablation, extra override) per Hydra sweep
-    ("nvf", "none", "diagnostics.rank_against=wo_vis"),
-    ("nvf", "wo_vis,ind_rays", None),
-    ("wd,activenerf,neurar", "none", None),
-)
+ENTRIES = (NVF, WO_VIS, IND_RAYS, *BASELINES)
+EXTRA = {NVF: "diagnostics.rank_against=wo_vis"}  # an entry's measurement beyond the run
 COMPARISONS = (("nvf-wo_vis", WO_VIS), ("nvf-ind_rays", IND_RAYS), ("nvf-best_baseline", None))
 SUMMARY_COLUMNS = ("scene", "comparison", "mean_diff", "ci_low", "ci_high", "n", "minutes_per_episode")
 
@@ -59,33 +58,49 @@ def budget_label(cfg: DictConfig) -> str:
     return NamedConfigs(CONF).budget_label(info)
 
 
+def entry_labels(overrides: list[str]) -> dict[tuple[str, str], str]:
+    """Each entry's budget label under ``overrides`` (the plain budget's where they cannot act on it)."""
+    return {entry: budget_label(compose_config([f"method={entry[0]}", f"ablation={entry[1]}", *overrides]))
+            for entry in ENTRIES}  # fmt: skip
+
+
+def reusable(reuse: Path | None, entry: tuple[str, str], label: str, plain: str, scene: str, seeds) -> bool:
+    """Whether ``reuse`` holds a finished record of ``entry`` for every seed under the plain budget, and the
+    overrides cannot change the entry (its label is the plain budget's)."""
+    if reuse is None or label != plain:
+        return False
+    directories = [run_dir(reuse, scene, entry[0], "argmax", entry[1], plain, seed) for seed in seeds]
+    return all(record_status(RunRecord(d).info(), d) == "done" for d in directories)
+
+
 def sweep_commands(
-    overrides: list[str], scenes: tuple[str, ...], seeds: tuple[int, ...], outputs: Path, jobs: int
+    overrides: list[str], entries: list[tuple[str, tuple[str, str]]], seeds: tuple[int, ...], outputs: Path, jobs: int
 ) -> list[list[str]]:
-    """One ``python -m pipeline.run -m`` per scene and entry group (``SWEEPS``), scene by scene, so that each
+    """One ``python -m pipeline.run -m`` per (scene, entry) in ``entries``, scene by scene, so that each
     scene's comparisons are complete before the next scene starts."""
     common = [
         f"seed={','.join(map(str, seeds))}", f"paths.outputs='{outputs}'", "save_images=false",  # quoted: '=' in labels
-        "hydra/launcher=joblib", f"hydra.launcher.n_jobs={jobs}", *overrides,
+        "step_metrics=psnr", "hydra/launcher=joblib", f"hydra.launcher.n_jobs={jobs}", *overrides,
     ]  # fmt: skip
     commands = []
-    for scene in scenes:
-        for method, ablation, extra in SWEEPS:
-            command = [sys.executable, "-m", "pipeline.run", "-m", f"scene={scene}", f"method={method}",
-                       f"ablation={ablation}", *common]  # fmt: skip
-            commands.append(command + ([extra] if extra else []))
+    for scene, (method, ablation) in entries:
+        command = [sys.executable, "-m", "pipeline.run", "-m", f"scene={scene}", f"method={method}",
+                   f"ablation={ablation}", *common]  # fmt: skip
+        extra = EXTRA.get((method, ablation))
+        commands.append(command + ([extra] if extra else []))
     return commands
 
 
-def per_seed(outputs: Path, budget: str, planner: str, scenes: tuple[str, ...], seeds: tuple[int, ...]) -> pd.DataFrame:
-    """One row per finished run of the experiment (``budget`` label, ``planner``): scene, method, ablation, seed, final PSNR, PSNR averaged
-    over the steps, minutes (the steps' train + eval + plan seconds), mean Spearman and same-choice fraction."""
-    runs = collect_runs([outputs])
-    final = runs.final[
-        (runs.final["status"] == "done") & (runs.final["budget"] == budget) & (runs.final["planner"] == planner)
-    ]
-    entries = {NVF, WO_VIS, IND_RAYS, *BASELINES}
-    mine = np.array([(m, a) in entries for m, a in zip(final["method"], final["ablation"])], dtype=bool)
+def per_seed(
+    roots: list[Path], labels: dict[tuple[str, str], str], planner: str, scenes: tuple[str, ...], seeds: tuple[int, ...]
+) -> pd.DataFrame:  # fmt: skip
+    """One row per finished run of the experiment under ``roots`` (each entry's budget label in ``labels``,
+    ``planner``): scene, method, ablation, seed, final PSNR, PSNR averaged over the steps, minutes (the steps'
+    train + eval + plan seconds), mean Spearman and same-choice fraction."""
+    runs = collect_runs(roots)
+    final = runs.final[(runs.final["status"] == "done") & (runs.final["planner"] == planner)]
+    mine = np.array([labels.get((m, a)) == b for m, a, b in zip(final["method"], final["ablation"], final["budget"])],
+                    dtype=bool)  # fmt: skip
     rows = []
     for _, run in final[final["scene"].isin(scenes) & final["seed"].isin(seeds) & mine].iterrows():
         steps = [json.loads(line) for line in (Path(run["directory"]) / "steps.jsonl").read_text().splitlines()]
@@ -156,12 +171,14 @@ def markdown(label: str, details: pd.DataFrame, runs: pd.DataFrame) -> str:
 
 
 def summarize(
-    outputs: Path, out: Path, label: str, budget: str, planner: str, scenes: tuple[str, ...], seeds: tuple[int, ...]
-) -> list[Path]:
-    """Write summary.csv, details.csv, per_seed.csv and summary.md for the runs under ``outputs``."""
-    runs = per_seed(outputs, budget, planner, scenes, seeds)
+    roots: list[Path], out: Path, label: str, labels: dict[tuple[str, str], str], planner: str,
+    scenes: tuple[str, ...], seeds: tuple[int, ...],
+) -> list[Path]:  # fmt: skip
+    """Write summary.csv, details.csv, per_seed.csv and summary.md for the runs under ``roots``."""
+    runs = per_seed(roots, labels, planner, scenes, seeds)
     if runs.empty:
-        fail(f"no finished {budget} runs of scenes {', '.join(scenes)} under {outputs}; run without --summarize-only")
+        fail(f"no finished {label} runs of scenes {', '.join(scenes)} under {', '.join(map(str, roots))}; "
+             "run without --summarize-only")  # fmt: skip
     details = compare(runs)
     summary = details[details["measure"] == "final_psnr"].loc[:, list(SUMMARY_COLUMNS)]
     files = [out / "summary.csv", out / "details.csv", out / "per_seed.csv", out / "summary.md"]
@@ -190,6 +207,9 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--jobs", type=int, default=2, help="parallel one-thread jobs (default 2)")
     parser.add_argument("--label", default=None, help="the experiment's folder name (default: its budget label)")
     parser.add_argument("--summarize-only", action="store_true", help="only summarise existing runs")
+    parser.add_argument("--reuse", type=Path, default=Path("results/runs"),
+                        help="finished plain-budget records of the entries the overrides cannot change (default "
+                             "results/runs; 'none' runs every entry)")  # fmt: skip
     args = parser.parse_intermixed_args(argv)
     scenes, seeds = parse_list(args.scenes, str, "--scenes"), parse_list(args.seeds, int, "--seeds")
     if any(o.split("=")[0].lstrip("+~") in ("method", "ablation", "scene", "seed") for o in args.overrides):
@@ -199,8 +219,11 @@ def main(argv: list[str]) -> int:
     cfg = compose_config(args.overrides)
     budget = budget_label(cfg)
     label = args.label or budget
+    labels = entry_labels(args.overrides)
+    reuse = None if str(args.reuse) == "none" else args.reuse
     out = Path(cfg.paths.results) / "pilots" / "discriminate" / label
     outputs = Path(cfg.paths.outputs) if args.summarize_only else out / "runs"
+    roots = [outputs] + ([reuse] if reuse is not None and reuse.resolve() != outputs.resolve() else [])
     if not args.summarize_only:
         for scene in scenes:  # a missing scene or asset is one line now, not 18 failed jobs later
             try:
@@ -210,11 +233,14 @@ def main(argv: list[str]) -> int:
             except SceneError as err:
                 fail(str(err))
         out.mkdir(parents=True, exist_ok=True)
-        commands = sweep_commands(args.overrides, scenes, seeds, outputs.resolve(), args.jobs)
+        plain = cfg.budget.name
+        entries = [(scene, entry) for scene in scenes for entry in ENTRIES
+                   if not reusable(reuse, entry, labels[entry], plain, scene, seeds)]  # fmt: skip
+        commands = sweep_commands(args.overrides, entries, seeds, outputs.resolve(), args.jobs)
         atomic_write_text(out / "command.txt", "".join(shlex.join(["python", *c[1:]]) + "\n" for c in commands))
         for command in commands:
             subprocess.run(command, cwd=REPO, check=False)  # a failed job is recorded; the summary counts seeds
-    files = summarize(outputs, out, label, budget, cfg.planner.name, scenes, seeds)
+    files = summarize(roots, out, label, labels, cfg.planner.name, scenes, seeds)
     print("pipeline.discriminate: wrote " + ", ".join(map(str, files)))
     return 0
 

@@ -140,11 +140,12 @@ def test_episode_bench_writes_phases_and_samples_per_ray(tmp_path):
     assert list(outputs.glob("*/*/*/seed_*/steps.jsonl"))  # --outputs keeps the run records
 
 
-def test_visibility_bench_writes_separation_and_ranking(tmp_path):
+def test_visibility_bench_writes_separation_ranking_and_terms(tmp_path):
     """At 48 px and 8 candidates the smoke model's candidate views hold object pixels of both classes
-    (measured: 53 pixels, 23% seen), so both AUCs are computed and lie in [0, 1] (at smoke's 12 px there
-    were 2 pixels, both seen, and the AUCs were missing). Smoke's 5 head iterations separate nothing
-    yet (head 0.72, labels 0.60): no order is asserted."""
+    (measured: 53 pixels, 23% seen), so every source's AUC is computed and lies in [0, 1] (at smoke's 12 px
+    there were 2 pixels, both seen, and the AUCs were missing). Smoke's 5 head iterations separate nothing
+    yet: no order is asserted. Each reward's terms' shares add up to 1 and name a decisive term; w/o Vis.
+    has no unknown component."""
     out = tmp_path / "visibility.json"
     args = ["budget=smoke", "planner.num_candidates=8", "planner.resolution=48", "--sets", "1", "--out", str(out)]
     visibility.main(args)
@@ -152,15 +153,18 @@ def test_visibility_bench_writes_separation_and_ranking(tmp_path):
     assert len(report["sets"]) == 1 and report["settings"]["budget"] == "smoke"
     one = report["sets"][0]
     assert one["candidates"] == 8 and one["object_pixels"] >= 20 and 0.0 < one["seen_fraction"] < 1.0
-    for key in ("head_auc", "label_auc"):
-        assert isinstance(one[key], float) and 0.0 <= one[key] <= 1.0, (key, one[key])
-    assert isinstance(one["spearman_nvf_wo_vis"], float) and -1.0 <= one["spearman_nvf_wo_vis"] <= 1.0
-    assert report["same_argmax_sets"] in (0, 1)
+    assert one["shell_median"] > 0
+    assert set(one["sources"]) == {"head", "labels", "mesh"}
+    for source in one["sources"].values():
+        assert isinstance(source["auc"], float) and 0.0 <= source["auc"] <= 1.0
+        assert -1.0 <= source["spearman_nvf_wo_vis"] <= 1.0 and 1 <= source["ties_at_max"] <= 8
+        assert sum(t["share"] for t in source["terms"].values()) == pytest.approx(1.0)
+        assert source["decisive"] in source["terms"]
+    assert one["wo_vis"]["terms"]["unknown"]["std"] == 0.0
+    assert report["sources"]["head"]["same_argmax_sets"] in (0, 1)
 
 
-def test_auc_and_spearman_helpers():
-    assert visibility.auc(np.array([2.0, 3.0]), np.array([0.0, 1.0])) == 1.0
-    assert visibility.auc(np.array([1.0]), np.array([1.0])) == 0.5
-    assert visibility.auc(np.array([]), np.array([1.0])) is None
-    assert visibility.spearman(np.array([1.0, 2.0, 3.0]), np.array([3.0, 2.0, 1.0])) == -1.0
-    assert visibility.spearman(np.array([1.0, 1.0]), np.array([3.0, 2.0])) is None
+def test_visibility_bench_refuses_an_unknown_source(capsys):
+    with pytest.raises(SystemExit) as exit_:
+        visibility.main(["--sources", "head,oracle"])
+    assert exit_.value.code == 2 and "--sources='head,oracle'" in capsys.readouterr().err

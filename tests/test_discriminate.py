@@ -67,3 +67,24 @@ def test_bad_input_is_one_line_and_status_2(argv, says, capsys):
         discriminate.main(argv)
     err = capsys.readouterr().err
     assert info.value.code == 2 and len(err.strip().splitlines()) == 1 and says in err
+
+
+def test_entries_a_setting_cannot_change_are_reused_not_rerun(tmp_path):
+    """``nvf.entropy.logdet_coeff=1.0`` acts on NVF and its ablations, not on the baselines: their label stays the
+    plain budget's, and their finished plain-budget records are reused; sweeps record PSNR alone before the
+    last step, and only NVF's sweep measures w/o Vis.'s ranking."""
+    overrides = ["budget=smoke", "nvf.entropy.logdet_coeff=1.0"]
+    labels = discriminate.entry_labels(overrides)
+    assert labels[("wd", "none")] == labels[("neurar", "none")] == "smoke"
+    assert labels[("nvf", "none")] == labels[("nvf", "wo_vis")] == "smoke+nvf.entropy.logdet_coeff=1.0"
+    for seed in (100, 101):  # finished as committed records are: run.json says so (no DONE marker)
+        done = discriminate.run_dir(tmp_path, "hotdog", "wd", "argmax", "none", "smoke", seed)
+        done.mkdir(parents=True)
+        (done / "run.json").write_text('{"status": "done"}')
+    assert discriminate.reusable(tmp_path, ("wd", "none"), "smoke", "smoke", "hotdog", (100, 101))
+    assert not discriminate.reusable(tmp_path, ("wd", "none"), "smoke", "smoke", "hotdog", (100, 101, 102))
+    assert not discriminate.reusable(tmp_path, ("nvf", "none"), labels[("nvf", "none")], "smoke", "hotdog", (100,))
+    commands = discriminate.sweep_commands(overrides, [("hotdog", ("nvf", "none")), ("hotdog", ("wd", "none"))],
+                                           (100,), tmp_path, 2)  # fmt: skip
+    assert all("step_metrics=psnr" in c for c in commands)
+    assert ["diagnostics.rank_against=wo_vis" in c for c in commands] == [True, False]

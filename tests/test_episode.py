@@ -95,6 +95,25 @@ def test_smoke_episode_writes_complete_records(tmp_path):
         run_episode(_cfg(tmp_path, "method=random", "budget.horizon=2"))
 
 
+def test_psnr_only_steps_and_label_visibility_keep_the_run_and_its_views(tmp_path):
+    """``step_metrics=psnr``: steps before the last record PSNR alone, the last one every metric, with the same
+    views and PSNRs as a run recording everything: not another run (the second is skipped as finished).
+    ``nvf.entropy.visibility_source=labels`` plans with the labels at the scored samples (METHOD 9.3) and
+    records that setting; candidates tied at the maximum are counted in every row."""
+    full = run_episode(_cfg(tmp_path / "a", "budget.horizon=2"))
+    brief = run_episode(_cfg(tmp_path / "b", "budget.horizon=2", "step_metrics=psnr"))
+    rows_full, rows_brief = (RunRecord(o.directory).completed_steps() for o in (full, brief))
+    assert [r["selected_pose"] for r in rows_full] == [r["selected_pose"] for r in rows_brief]
+    assert [r["metrics"]["psnr"] for r in rows_full] == [r["metrics"]["psnr"] for r in rows_brief]
+    assert rows_brief[0]["metrics"]["ssim"] is None and rows_brief[0]["metrics"]["vis"] is None
+    assert_metrics_in_range(rows_brief[-1]["metrics"])
+    assert run_episode(_cfg(tmp_path / "b", "budget.horizon=2")).status == "skipped"
+    assert all(r["candidate_scores"]["ties_at_max"] >= 1 for r in rows_full)
+    labels = run_episode(_cfg(tmp_path / "c", "budget.horizon=1", "nvf.entropy.visibility_source=labels"))
+    info = json.loads((labels.directory / "run.json").read_text())
+    assert labels.status == "done" and info["config"]["nvf"]["entropy"]["visibility_source"] == "labels"
+
+
 def test_a_collapsed_run_is_recorded_as_failed_and_a_rerun_repeats_the_reason(tmp_path):
     """``train.backbone.lr=1e3`` collapses stage 1 (loss 0.009 -> ~0.1): the run is recorded as failed
     (it used to be recorded as done, PSNR 7.2); a rerun repeats the reason (one line, exit 1)."""

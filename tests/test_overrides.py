@@ -33,3 +33,18 @@ def test_keys_a_record_lacks_are_not_overrides_and_unknown_groups_give_none():
     named = NamedConfigs(CONF)
     assert named.overrides(older) == ()
     assert named.overrides({**info, "scene": "no_such_scene"}) == ()
+
+
+def test_settings_a_method_cannot_read_do_not_split_its_rows():
+    """``compat.inert_keys``: NVF's entropy keys do not act on WD (no NVF score, no variance head), the
+    visibility head's keys and the visibility source not on w/o Vis. (it reads no v); on NVF they do. With
+    ``train.stage_order=vis_first`` the trained visibility head feeds the variance head w/o Vis. reads."""
+    named = NamedConfigs(CONF)
+    c1, margin = "nvf.entropy.logdet_coeff=1.0", "train.label_margin=0.2"
+    assert named.overrides(_info("method=wd", c1, margin)) == ()
+    assert named.overrides(_info("ablation=wo_vis", margin, "nvf.entropy.visibility_source=labels")) == ()
+    assert named.overrides(_info("ablation=wo_vis", c1)) == ("nvf.entropy.logdet_coeff=1.0",)
+    assert named.overrides(_info(c1, margin)) == ("nvf.entropy.logdet_coeff=1.0", "train.label_margin=0.2")
+    vis_first = _info("ablation=wo_vis", margin, "train.stage_order=vis_first")
+    assert named.overrides(vis_first) == ("train.label_margin=0.2", "train.stage_order=vis_first")
+    assert named.overrides(_info("method=activenerf", "train.variance.iters=7")) == ()

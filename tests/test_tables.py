@@ -393,3 +393,19 @@ def test_rows_planned_with_the_mesh_line_of_sight_are_marked(tmp_path):
     assert md.count("‡") == 2 and "‡ Planned with an oracle: M29's line-of-sight filter used the scene mesh" in md
     assert r"NVF$^\ddagger$" in read(tmp_path / "res" / "tables" / "main.tex")
     assert "‡" not in read(tmp_path / "res" / "tables" / "table34_nerf_assets.md")
+
+
+def test_rows_scored_with_the_mesh_visibility_are_marked(tmp_path):
+    """``nvf.entropy.visibility_source=mesh`` is an oracle for NVF's score (‡ and its own footnote); for w/o Vis.,
+    which reads no visibility, and for other methods the key changes nothing and earns no mark."""
+    out = tmp_path / "out"
+    oracle = {"nvf": {"entropy": {"visibility_source": "mesh", "use_visibility": True}}, "method": {"name": "nvf"}}
+    blind = {"nvf": {"entropy": {"visibility_source": "mesh", "use_visibility": False}}, "method": {"name": "nvf"}}
+    make_run(out, scene="hubble", seed=100, config=oracle)
+    make_run(out, scene="hubble", ablation="wo_vis", seed=100, config=blind)
+    build_tables(out, [], tmp_path / "res", figures=False)
+    md = read(tmp_path / "res" / "tables" / "table2_ablation.md")
+    table = pd.read_csv(tmp_path / "res" / "tables" / "table2_ablation.csv", comment="#")
+    assert sorted(table["Variant"]) == ["NVF‡", "w/o Vis."]
+    assert "‡ Scored with an oracle: NVF's visibility came from the scene mesh" in md
+    assert "M29's line-of-sight filter" not in md

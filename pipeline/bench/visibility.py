@@ -20,7 +20,8 @@ perfect head would predict; ``mesh``, the scene mesh's line of sight to the trai
 - each reward split into its terms (``NVFEntropyScorer.pixel_terms``) and each term's share of the
   reward's variance over the candidates (``pipeline.metrics.ranking.term_attribution``): the decisive term;
   the Spearman correlation of each reward with the candidates' object coverage (fraction of pixels with
-  ``A > 0.5``).
+  ``A > 0.5``) and with their unseen coverage (fraction of pixels that are object pixels no initial camera
+  saw): a score that rewards new surface follows the second.
 
 Writes ``results/bench/visibility.json`` (or ``--out``) and prints a table per source.
 """
@@ -95,7 +96,7 @@ def candidate_view(
     pixels = torch.from_numpy(np.isfinite(t_hit)) & (acc > MIN_ACCUMULATION)
     safe = acc.clamp_min(1e-12)
     spread = ray_sum(result.weights * (samples.t_mid - result.depth[samples.ray_idx]).square(), samples.ray_idx, samples.n_rays)
-    return {
+    view = {
         "nvf": {name: view_terms(nvf, result, values) for name, values in v.items()},
         "wo_vis": view_terms(blind, result),
         "pixel_v": {
@@ -106,6 +107,8 @@ def candidate_view(
         "shell": (spread / safe).sqrt()[pixels].numpy(),
         "coverage": float((acc > MIN_ACCUMULATION).float().mean()),
     }  # fmt: skip
+    view["unseen_coverage"] = float((~view["seen"]).sum()) / acc.shape[0]
+    return view
 
 
 def _stack(views: list[dict[str, float]]) -> dict[str, np.ndarray]:
@@ -124,6 +127,7 @@ def candidate_set_report(
     views = [candidate_view(setup, c2w, intr, scorers, functions) for c2w in pose_to_matrix(poses)]
     seen = np.concatenate([view["seen"] for view in views])
     coverage = np.array([view["coverage"] for view in views])
+    unseen = np.array([view["unseen_coverage"] for view in views])
     blind = _stack([view["wo_vis"] for view in views])
     blind_reward = sum(blind.values())
     report = {
@@ -132,7 +136,7 @@ def candidate_set_report(
         "seen_fraction": _mean(seen.astype(np.float64)),
         "shell_median": _mean(np.array([np.median(np.concatenate([view["shell"] for view in views]))])),
         "wo_vis": {"ties_at_max": ties_at_max(blind_reward), "coverage_spearman": spearman(blind_reward, coverage),
-                   **term_attribution(blind)},
+                   "unseen_coverage_spearman": spearman(blind_reward, unseen), **term_attribution(blind)},
         "sources": {},
     }  # fmt: skip
     for name in functions:
@@ -144,6 +148,7 @@ def candidate_set_report(
             "spearman_nvf_wo_vis": spearman(reward, blind_reward),
             "same_argmax": bool(reward.argmax() == blind_reward.argmax()),
             "ties_at_max": ties_at_max(reward), "coverage_spearman": spearman(reward, coverage),
+            "unseen_coverage_spearman": spearman(reward, unseen),
             **term_attribution(terms),
         }  # fmt: skip
     return report
@@ -165,9 +170,14 @@ def summarise(sets: list[dict], sources: list[str]) -> dict:
             "same_argmax_sets": sum(r["same_argmax"] for r in rows),
             "decisive_terms": [r["decisive"] for r in rows],
             "unknown_share_mean": _mean_of([r["terms"]["unknown"]["share"] for r in rows]),
+            "coverage_spearman_mean": _mean_of([r["coverage_spearman"] for r in rows]),
+            "unseen_coverage_spearman_mean": _mean_of([r["unseen_coverage_spearman"] for r in rows]),
             "max_ties_at_max": max(r["ties_at_max"] for r in rows),
         }
-    return {"sources": per_source, "wo_vis_decisive_terms": [s["wo_vis"]["decisive"] for s in sets],
+    blind = [s["wo_vis"] for s in sets]
+    return {"sources": per_source, "wo_vis_decisive_terms": [s["decisive"] for s in blind],
+            "wo_vis_coverage_spearman_mean": _mean_of([s["coverage_spearman"] for s in blind]),
+            "wo_vis_unseen_coverage_spearman_mean": _mean_of([s["unseen_coverage_spearman"] for s in blind]),
             "wo_vis_max_ties_at_max": max(s["wo_vis"]["ties_at_max"] for s in sets)}  # fmt: skip
 
 
@@ -201,8 +211,9 @@ def _show(value: float | None, spec: str) -> str:
 
 
 def print_report(report: dict) -> None:
+    """A table per source and candidate set (rho: NVF vs w/o Vis.; rho cov / new: NVF vs object / unseen coverage)."""
     columns = (("source", 8), ("set", 4), ("pixels", 7), ("seen", 6), ("shell", 7), ("AUC", 7), ("rho", 7),
-               ("same", 6), ("ties", 5), ("decisive NVF", 22), ("w/o Vis.", 20))  # fmt: skip
+               ("same", 6), ("ties", 5), ("rho cov", 8), ("rho new", 8), ("decisive NVF", 22), ("w/o Vis.", 20))  # fmt: skip
     print("".join(f"{name:>{width}}" for name, width in columns))
     for name in report["sources"]:
         for r in report["sets"]:
@@ -211,8 +222,12 @@ def print_report(report: dict) -> None:
             blind_share = blind["terms"][blind["decisive"]]["share"] if blind["decisive"] else None
             cells = (name, r["set"], r["object_pixels"], _show(r["seen_fraction"], ".2f"), _show(r["shell_median"], ".3f"),
                      _show(x["auc"], ".3f"), _show(x["spearman_nvf_wo_vis"], ".3f"), x["same_argmax"], x["ties_at_max"],
+                     _show(x["coverage_spearman"], ".3f"), _show(x["unseen_coverage_spearman"], ".3f"),
                      f"{x['decisive']} ({_show(share, '.2f')})", f"{blind['decisive']} ({_show(blind_share, '.2f')})")  # fmt: skip
             print("".join(f"{str(cell):>{width}}" for cell, (_, width) in zip(cells, columns, strict=True)))
+    blind = report["sets"]
+    print("w/o Vis. rho cov " + ", ".join(_show(r["wo_vis"]["coverage_spearman"], ".3f") for r in blind)
+          + "; rho new " + ", ".join(_show(r["wo_vis"]["unseen_coverage_spearman"], ".3f") for r in blind))  # fmt: skip
 
 
 def main(argv: list[str]) -> None:

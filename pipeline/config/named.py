@@ -63,12 +63,15 @@ class NamedConfigs:
     def overrides(self, info: Mapping) -> tuple[str, ...]:
         """``key=value`` (sorted) for every setting in the record's config whose value differs from what
         its named groups give today: command-line overrides, or defaults changed since the run (a key
-        added since is read as the value the run was made with, ``pipeline.records.compat``).
-        Empty when its groups can no longer be composed."""
+        added since is read as the value the run was made with, ``pipeline.records.compat``), except
+        settings the run's method cannot read (``compat.inert_keys``: ``nvf.entropy.logdet_coeff=1.0`` on a
+        WD run). Empty when its groups can no longer be composed."""
         named = self.named(tuple(str(info[group]) for group in GROUPS))
         config = info.get("config")
         if named is None or not isinstance(config, Mapping):
             return ()
         recorded = {k: v for k, v in drop_retired(to_jsonable(dict(config))).items() if k not in NOT_SETTINGS}
         recorded = with_legacy_defaults(recorded, named)  # keys added since the run: the value it was made with
-        return tuple(f"{key}={_text(value)}" for key, value in changed_settings(recorded, named))
+        inert = compat.inert_keys(recorded)  # settings the run's method cannot read do not make it another run
+        changed = changed_settings(recorded, named)
+        return tuple(f"{key}={_text(value)}" for key, value in changed if not compat.is_inert(key, inert))

@@ -148,6 +148,7 @@ class RunConfig:
     seed: int = 100
     device: str = "auto"  # auto | cpu | cuda | cuda:N
     save_images: bool = True
+    step_metrics: str = "all"  # all | psnr: steps before the last record PSNR alone (the last step every metric)
 
 
 def register_configs() -> None:

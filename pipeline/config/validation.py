@@ -51,6 +51,7 @@ _CHOICES: dict[str, tuple[Any, ...]] = {
     "baseline.activenerf_variant": ("A", "B"),
     "baseline.neurar_loss": ("residual_mse", "nll"),
     "render.backend": ("pyrender", "blender"),
+    "step_metrics": ("all", "psnr"),
 }
 
 # METHOD 12 alternatives named in the config but not implemented: key -> (alternative, recommended default).

@@ -119,7 +119,8 @@ class Episode:
         model, stats = self.train(obs, step, progress)
         t1 = time.perf_counter()
         planning = self.planning_model(model, obs)
-        metrics, images, _ = self.evaluator.evaluate(planning, self.scorer, self.face_ids, obs, step)
+        psnr_only = cfg.step_metrics == "psnr" and step < s.budget.horizon - 1
+        metrics, images, _ = self.evaluator.evaluate(planning, self.scorer, self.face_ids, obs, step, psnr_only=psnr_only)
         t2 = time.perf_counter()
         current = matrix_to_pose(self.poses[-1]).to(self.device)
         selection = select_next_view(
@@ -170,7 +171,7 @@ class Episode:
 
         return SourcedVisibility(model, mesh_visibility)
 
-    def rank_agreement(self, model: SceneModel, selection: Selection) -> dict:
+    def rank_agreement(self, model: SceneModel | SourcedVisibility, selection: Selection) -> dict:
         """How the ``diagnostics.rank_against`` ablation's score ranks the step's candidates against the run's
         own: Spearman correlation and whether both pick the same candidate (no randomness: the run's
         choices are unchanged)."""

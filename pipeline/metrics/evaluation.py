@@ -11,23 +11,26 @@ from torch import Tensor
 
 from nvf.cameras import Intrinsics, pixel_rays
 from nvf.model import SceneModel
+from nvf.visibility_source import SourcedVisibility
 from nvf.seeding import seeded_generator
 from nvf.training import Observations
 from pipeline.config.schema import BudgetConfig, MetricsConfig
 from pipeline.metrics.correlation import uncertainty_correlation
 from pipeline.metrics.coverage import seen_faces, visual_coverage
 from pipeline.metrics.geometry import geometry_metrics, points_from_rays
-from pipeline.metrics.image import LpipsMetric, image_metrics
+from pipeline.metrics.image import LpipsMetric, image_metrics, psnr
 from pipeline.scenes.ground_truth import Renderer
 from pipeline.scenes.scene import Scene
 
 RENDER_CHUNK = 4096  # rays per model call at inference
+STEP_METRICS = ("psnr", "ssim", "lpips", "rgb", "acc", "comp", "cr", "vis", "vis_area", "num_points", "patch_pearson",
+                "view_pearson", "ause")  # what ``Evaluator.evaluate`` records, in order  # fmt: skip
 PATCHES_PER_SIDE = 16  # PROTOCOL 4.4: 32x32 patches of a 512x512 view
 
 
 @torch.no_grad()
 def render_view(
-    model: SceneModel, scorer, c2w: Float[Tensor, "4 4"], intr: Intrinsics, chunk: int = RENDER_CHUNK
+    model: SceneModel | SourcedVisibility, scorer, c2w: Float[Tensor, "4 4"], intr: Intrinsics, chunk: int = RENDER_CHUNK
 ) -> dict[str, np.ndarray]:
     """Colour [H,W,3], expected depth [H,W], accumulation [H,W] and the scorer's per-pixel score [H,W]
     (NaN without a scorer) of one view, rendered in row-major chunks of rays (M3)."""
@@ -57,7 +60,7 @@ def render_view(
 
 @torch.no_grad()
 def reconstruct_points(
-    model: SceneModel, obs: Observations, num_points: int, batch: int, generator: torch.Generator
+    model: SceneModel | SourcedVisibility, obs: Observations, num_points: int, batch: int, generator: torch.Generator
 ) -> np.ndarray:
     """Points ``o + D d`` of training-view rays with accumulation > 0.5 (PROTOCOL 4.2), drawn in
     batches of pixels uniformly over all training images until ``num_points`` (at most 4x the
@@ -95,19 +98,27 @@ class Evaluator:
 
     def evaluate(
         self,
-        model: SceneModel,
+        model: SceneModel | SourcedVisibility,
         scorer,
         face_ids: list[Int[np.ndarray, "H W"]],
         obs: Observations,
         step: int,
         view: int = 0,
+        psnr_only: bool = False,
     ) -> tuple[dict, dict, dict]:
         """Metrics of ``model`` after training on ``obs`` (step ``step``), images of evaluation view ``view``,
         and with a scorer ``view_error`` and ``view_score`` [V], the per-view sums the view r pairs (else
-        empty). ``face_ids``: the face hit by each pixel-centre ray of every training view (Vis.)."""
+        empty). ``face_ids``: the face hit by each pixel-centre ray of every training view (Vis.).
+        ``psnr_only``: PSNR alone (every other metric None, no score map; ``step_metrics=psnr``)."""
         budget, scene = self.budget, self.scene
+        if psnr_only:
+            scorer = None
         renders = [render_view(model, scorer, c2w.to(self.device), self.intrinsics) for c2w in scene.eval_poses]
         pred = np.stack([r["rgb"] for r in renders]).clip(0.0, 1.0)
+        if psnr_only:
+            shown = renders[view]
+            metrics = {key: None for key in STEP_METRICS} | {"psnr": psnr(pred, self.gt)}
+            return metrics, {"gt": self.gt[view], "pred": pred[view], "score": shown["score"], "depth": shown["depth"]}, {}
         images = image_metrics(pred, self.gt, self.lpips, self.metrics.ssim_data_range, self.gt_lpips)
         points = reconstruct_points(
             model, obs, budget.recon_points, budget.recon_batch,

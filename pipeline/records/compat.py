@@ -42,7 +42,7 @@ RETIRED_KEYS = {
     "method.aux_loss": "implied by method.name: a method's stage-1 loss belongs to its class (nvf.methods)",
 }
 # what never changes a run's views or metrics (added measurements, whether images are saved): not part of its identity
-NOT_SETTINGS = ("diagnostics", "save_images")
+NOT_SETTINGS = ("diagnostics", "save_images", "step_metrics")
 
 
 def _get(config: Any, dotted: str) -> Any:
@@ -116,6 +116,41 @@ def with_legacy_defaults(recorded: Any, other: Any) -> Any:
         if isinstance(mine, dict) and isinstance(theirs, Mapping) and mine.get("name") == theirs.get("name"):
             filled[group] = {**theirs, **mine}
     return filled
+
+
+VISIBILITY_HEAD_KEYS = ("train.visibility", "train.label_samples", "train.label_max_depth", "train.label_margin")
+VARIANCE_HEAD_KEYS = ("train.variance", "train.var_loss_background")
+
+
+def inert_keys(config: Mapping) -> tuple[str, ...]:
+    """Dotted keys (or key prefixes) that cannot change a run's views or metrics, given what its method reads:
+    a setting there does not make it another run, so its records are tabulated with the plain budget's.
+
+    - ``nvf.entropy``: read by NVF's score and by the variance head's loss (M21) only: inert for a method
+      with neither (every baseline);
+    - the visibility head's keys (``VISIBILITY_HEAD_KEYS``) and ``nvf.entropy.visibility_source``: inert
+      where no score reads ``v`` (every method but NVF, and NVF's w/o Vis.), unless the head is trained
+      before the variance head that reads it (``train.stage_order=vis_first``);
+    - the variance head's keys: inert for a method that does not train it (``method.stages``).
+    """
+    stages = _get(config, "method.stages")
+    stages = list(stages) if isinstance(stages, list) else []
+    nvf_score = _get(config, "method.name") == "nvf"
+    reads_v = nvf_score and _get(config, "nvf.entropy.use_visibility") is not False
+    feeds_variance = _get(config, "train.stage_order") == "vis_first" and "variance" in stages
+    inert: list[str] = []
+    if not nvf_score and "variance" not in stages:
+        inert.append("nvf.entropy")
+    if not reads_v and not feeds_variance:
+        inert += [*VISIBILITY_HEAD_KEYS, "nvf.entropy.visibility_source"]
+    if "variance" not in stages:
+        inert += VARIANCE_HEAD_KEYS
+    return tuple(inert)
+
+
+def is_inert(dotted: str, inert: tuple[str, ...]) -> bool:
+    """Whether ``dotted`` is one of ``inert`` (``inert_keys``) or lies under one of them."""
+    return any(dotted == key or dotted.startswith(key + ".") for key in inert)
 
 
 def drop_retired(config: Any) -> Any:

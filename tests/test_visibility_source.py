@@ -1,0 +1,101 @@
+"""nvf/visibility_source.py and M17's ``train.label_margin``: where NVF's scores read ``v`` from (METHOD 9.3)."""
+
+import dataclasses
+
+import pytest
+import torch
+
+from nvf.cameras import Intrinsics, look_at, pixel_rays
+from nvf.config import FieldConfig, SamplerConfig, TrainConfig
+from nvf.model import SceneModel
+from nvf.visibility import segment_transmittance, visibility_labels
+from nvf.visibility_source import SourcedVisibility, label_visibility
+
+AABB = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+INTR = Intrinsics.from_fov(8, 8)
+
+
+def small_model() -> SceneModel:
+    torch.manual_seed(0)
+    field = FieldConfig(log2_hashmap_size=10, num_levels=4, max_resolution=32)
+    model = SceneModel(AABB, field, SamplerConfig(grid_resolution=16))
+    model.grid.occupied[:] = True
+    return model
+
+
+def rays():
+    return pixel_rays(look_at(torch.tensor([0.0, -2.5, 0.3]), torch.zeros(3)), INTR)
+
+
+def test_sourced_visibility_replaces_only_v():
+    """The wrapped render is the model's, with v = source(sample positions); without the visibility head asked
+    for, it is the model's render unchanged."""
+    model = small_model()
+    origins, dirs = rays()
+    wrapped = SourcedVisibility(model, lambda points: (points[:, 0] > 0).float())
+    heads = frozenset({"variance", "visibility"})
+    own, theirs = model.render(origins, dirs, heads), wrapped.render(origins, dirs, heads)
+    assert own.samples.num_samples > 0
+    torch.testing.assert_close(theirs.alpha, own.alpha)
+    torch.testing.assert_close(theirs.variance, own.variance)
+    expected = (own.samples.positions(origins, dirs)[:, 0] > 0).float()
+    torch.testing.assert_close(theirs.visibility, expected)
+    plain = wrapped.render(origins, dirs)
+    torch.testing.assert_close(plain.rgb, model.render(origins, dirs).rgb)
+    assert wrapped.aabb is model.aabb
+    torch.testing.assert_close(wrapped.density(origins), model.density(origins))
+
+
+def test_label_source_is_m18_at_the_samples():
+    """``labels``: V* of M17-M18 through the model's density from the training cameras, bin centres."""
+    model = small_model()
+    cams = torch.stack([look_at(torch.tensor([0.0, -2.5, 0.0]), torch.zeros(3)), look_at(torch.tensor([2.5, 0.0, 0.0]), torch.zeros(3))])
+    cfg = TrainConfig(label_samples=16)
+    points = torch.rand(50, 3) - 0.5
+    got = label_visibility(model, cams, INTR, cfg)(points)
+    torch.testing.assert_close(got, visibility_labels(model.density, points, cams, INTR, cfg))
+
+
+@pytest.mark.parametrize("margin", [0.0, 0.3])
+def test_label_margin_stops_the_segment_short(margin):
+    """M17 with ``train.label_margin``: the transmittance to x is METHOD's transmittance to the point
+    ``margin`` closer to the camera (0: unchanged); a point within the margin of the camera reads T = 1."""
+    origin = torch.tensor([0.0, -2.0, 0.0])
+    points = torch.tensor([[0.0, 0.2, 0.0], [0.3, 0.5, -0.2], [0.0, -1.9, 0.0]])
+
+    def density(x: torch.Tensor) -> torch.Tensor:
+        return torch.where(x.norm(dim=-1) < 0.5, 50.0, 0.0)
+
+    got = segment_transmittance(density, origin, points, 24, margin=margin)
+    seg = points - origin
+    length = seg.norm(dim=-1, keepdim=True)
+    pulled = origin + seg * (length - margin).clamp(min=0) / length
+    torch.testing.assert_close(got, segment_transmittance(density, origin, pulled, 24))
+    assert got[2] == 1.0
+    cam = look_at(origin, torch.zeros(3))[None]
+    labels = visibility_labels(density, points[:2], cam, INTR, TrainConfig(label_samples=24, label_margin=margin))
+    torch.testing.assert_close(labels, got[:2])
+
+
+def test_a_margin_uncovers_the_shell_of_a_seen_surface():
+    """The shell-average hypothesis in one ray: a soft surface spans several samples; without a margin the
+    labels of the samples inside it fall from 1 to 0, so their weight-averaged label is about 1/2; a margin
+    as thick as the shell lifts it towards 1 while the far side of a thick object stays unseen."""
+    origin = torch.tensor([0.0, -2.0, 0.0])
+
+    def density(x: torch.Tensor) -> torch.Tensor:  # a ball of radius 0.5 with a soft shell from 0.6 to 0.4
+        return 40.0 * ((0.6 - x.norm(dim=-1)) / 0.2).clamp(0.0, 1.0)
+
+    t = torch.linspace(1.3, 1.7, 41)  # along the camera ray through the front shell
+    points = origin + t[:, None] * torch.tensor([0.0, 1.0, 0.0])
+    sigma = density(points)
+    alpha = 1 - torch.exp(-sigma * 0.01)
+    weights = alpha * torch.cumprod(torch.cat([torch.ones(1), 1 - alpha[:-1]]), 0)
+    cam = look_at(origin, torch.zeros(3))[None]
+    average = {}
+    for margin in (0.0, 0.2):
+        v = visibility_labels(density, points, cam, INTR, TrainConfig(label_samples=400, label_margin=margin))
+        average[margin] = float((weights * v).sum() / weights.sum())
+    assert 0.3 < average[0.0] < 0.7 and average[0.2] > 0.9
+    back = visibility_labels(density, torch.tensor([[0.0, 0.45, 0.0]]), cam, INTR, TrainConfig(label_samples=400, label_margin=0.2))
+    assert back.item() < 0.01

@@ -1,0 +1,121 @@
+"""pipeline/visibility_study.py and pipeline/visibility_summary.py: paired one-step gains of NVF's picks over
+w/o Vis.'s on recorded NVF states, and the study's summary table."""
+
+import json
+import math
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from nvf.cameras import Intrinsics, look_at
+from pipeline import visibility_study
+from pipeline.scenes.render import MeshRays
+from pipeline.visibility_summary import COLUMNS, summary_frame, write_summary
+
+
+def decision_row(scene, step, gain=None, spearman=0.99, decisive="unknown", share=0.9):
+    row = {"scene": scene, "seed": 100, "step": step, "set": 0, "spearman": spearman, "same_argmax": gain is None,
+           "terms": {"nvf": {"decisive": decisive, "terms": {"unknown": {"share": share}}}}}  # fmt: skip
+    if gain is not None:
+        row["gain"] = gain
+    return row
+
+
+def write_setting(folder, name, rows, diagnostics=None):
+    folder.mkdir(parents=True)
+    (folder / "setting.json").write_text(json.dumps({"name": name, "visibility_source": "head"}))
+    (folder / "decisions.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    for scene, report in (diagnostics or {}).items():
+        (folder / f"{scene}_diagnostic.json").write_text(json.dumps(report))
+
+
+def test_summary_pairs_the_disagreements_per_scene_and_over_scenes(tmp_path):
+    """A row per scene and one over all scenes; the gain's interval is the Student-t interval of the
+    disagreements alone (agreements carry no paired outcome)."""
+    gains = [0.5, 0.3, 0.7, 0.1]
+    rows = [decision_row("hotdog", k, g) for k, g in enumerate(gains[:2])] + [decision_row("hotdog", 9)]
+    rows += [decision_row("default", k, g) for k, g in enumerate(gains[2:])]
+    diagnostic = {"sources": {"head": {"auc_mean": 0.7}, "labels": {"auc_mean": 0.8}}}
+    write_setting(tmp_path / "c1", "c1", rows, {"hotdog": diagnostic, "default": diagnostic})
+    path = write_summary(tmp_path)
+    frame = summary_frame(tmp_path)
+    assert list(frame.columns) == list(COLUMNS) and path.read_text().startswith(",".join(COLUMNS))
+    assert list(frame["scene"]) == ["hotdog", "default", "all"]
+    hotdog, _, pooled = (frame.iloc[i] for i in range(3))
+    assert hotdog["n"] == 2 and hotdog["decisions"] == 3 and hotdog["same_argmax_fraction"] == pytest.approx(1 / 3)
+    assert pooled["n"] == 4 and pooled["onestep_gain_mean"] == pytest.approx(np.mean(gains))
+    half = 3.182446 * np.std(gains, ddof=1) / 2  # t(0.975, 3) s / sqrt(4)
+    assert pooled["onestep_ci_low"] == pytest.approx(np.mean(gains) - half, rel=1e-5)
+    assert hotdog["label_auc"] == 0.8 and hotdog["head_auc"] == 0.7 and hotdog["nvf_decisive_term"] == "unknown"
+    assert math.isnan(hotdog["minutes_per_episode"])
+
+
+def test_study_refuses_a_bad_setting_name(capsys):
+    with pytest.raises(SystemExit) as exit_:
+        visibility_study.main(["--setting", "../x"])
+    assert exit_.value.code == 2 and "--setting='../x'" in capsys.readouterr().err
+
+
+def test_mesh_line_of_sight_margin():
+    """A point just inside a box is hidden from a camera outside it; with a margin larger than its depth the
+    segment stops in front of the face and reads as seen, as M17's ``train.label_margin`` does."""
+    rays = MeshRays(trimesh.creation.box(extents=(1.0, 1.0, 1.0)))
+    cam = look_at(torch.tensor([0.0, -3.0, 0.0]), torch.zeros(3))[None]
+    intr = Intrinsics.from_fov(16, 16)
+    points = torch.tensor([[0.0, -0.45, 0.0], [0.0, 0.45, 0.0]])  # 0.05 behind the front face; near the back face
+    assert rays.line_of_sight(points, cam, intr).tolist() == [False, False]
+    assert rays.line_of_sight(points, cam, intr, margin=0.1).tolist() == [True, False]
+
+
+@pytest.mark.slow
+def test_study_on_a_smoke_record(tmp_path):
+    """End to end at the smoke budget: a 2-step NVF record, then the study on its steps 0 and 1 with 2 candidate
+    sets each: a row per state and set, every row's terms, and a finite gain wherever the picks differ."""
+    records = tmp_path / "runs"
+    subprocess.run([sys.executable, "-m", "pipeline.run", "budget=smoke", "budget.horizon=2", f"paths.outputs={records}",
+                    "save_images=false"], check=True, capture_output=True)  # fmt: skip
+    results = tmp_path / "results"
+    visibility_study.main(["budget=smoke", f"paths.results={results}", "--setting", "smoke", "--scenes", "default",
+                           "--seeds", "100", "--steps", "0,1", "--sets", "2", "--records", str(records)])  # fmt: skip
+    folder = results / "pilots" / "visibility_study" / "smoke"
+    rows = [json.loads(line) for line in (folder / "decisions.jsonl").read_text().splitlines()]
+    assert [(r["step"], r["set"]) for r in rows] == [(0, 0), (0, 1), (1, 0), (1, 1)]
+    for row in rows:
+        assert row["terms"]["wo_vis"]["terms"]["unknown"]["std"] == 0.0
+        assert row["same_argmax"] or math.isfinite(row["gain"])
+    assert (folder / "default_diagnostic.json").is_file() and (results / "pilots" / "visibility_study" / "summary.csv").is_file()
+    before = (folder / "decisions.jsonl").read_text()
+    visibility_study.main(["budget=smoke", f"paths.results={results}", "--setting", "smoke", "--scenes", "default",
+                           "--seeds", "100", "--steps", "0,1", "--sets", "2", "--records", str(records)])  # fmt: skip
+    assert (folder / "decisions.jsonl").read_text() == before  # finished states are not measured again
+
+
+def test_one_step_outcome_of_a_pick():
+    """``with_view`` adds the ground truth at a pose to the observations; ``heldout_psnr`` trains the backbone
+    as the next step would (same seed: the same PSNR twice) and measures it on the evaluation views."""
+    from nvf.cameras import matrix_to_pose
+    from pipeline.config.validation import compose_config
+    from pipeline.episode.loop import Episode
+    from pipeline.metrics.image import LpipsMetric
+    from pipeline.scenes.loading import load_scene
+
+    cfg = compose_config(["budget=smoke", "train.backbone.iters=5"])
+    scene = load_scene(cfg.scene, Path(cfg.paths.assets))
+    episode = Episode(cfg, scene, torch.device("cpu"), LpipsMetric())
+    try:
+        obs = episode.observations()
+        pose = matrix_to_pose(scene.eval_poses[0].to(torch.float32))
+        more = visibility_study.with_view(obs, episode, pose)
+        assert more.num_images == obs.num_images + 1
+        torch.testing.assert_close(more.c2w[-1], scene.eval_poses[0].to(torch.float32), atol=1e-5, rtol=0)
+        first, _ = visibility_study.heldout_psnr(episode, more, 1)
+        again, _ = visibility_study.heldout_psnr(episode, more, 1)
+        assert math.isfinite(first) and first == again
+    finally:
+        episode.close()
