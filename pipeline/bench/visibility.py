@@ -20,13 +20,16 @@ perfect head would predict; ``mesh``, the scene mesh's line of sight to the trai
 - each reward split into its terms (``NVFEntropyScorer.pixel_terms``) and each term's share of the
   reward's variance over the candidates (``pipeline.metrics.ranking.term_attribution``): the decisive term;
   the Spearman correlation of each reward with the candidates' object coverage (fraction of pixels with
-  ``A > 0.5``) and with their unseen coverage (fraction of pixels that are object pixels no initial camera
-  saw): a score that rewards new surface follows the second.
+  ``A > 0.5``), with their unseen coverage (fraction of pixels that are object pixels no initial camera
+  saw) and with their novelty (the unseen share of their object pixels, over the views whose object pixels
+  fill 5% of the image or more): a score that rewards seeing the object follows the first, one that rewards
+  new surface the second and the third.
 
 Writes ``results/bench/visibility.json`` (or ``--out``) and prints a table per source.
 """
 
 import dataclasses
+import math
 import statistics
 import time
 from collections.abc import Callable
@@ -51,6 +54,7 @@ from pipeline.metrics.ranking import auc, render_for_terms, spearman, term_attri
 
 SURFACE_OFFSET = 0.01  # scene units: the surface point moves this far towards the candidate camera
 MIN_ACCUMULATION = 0.5  # PROTOCOL 4.2's surface rule
+MIN_OBJECT_FRACTION = 0.05  # novelty is measured on views whose object pixels fill at least this much
 
 SourceFn = Callable[[Float[Tensor, "S 3"]], Float[Tensor, " S"]]
 
@@ -108,11 +112,19 @@ def candidate_view(
         "coverage": float((acc > MIN_ACCUMULATION).float().mean()),
     }  # fmt: skip
     view["unseen_coverage"] = float((~view["seen"]).sum()) / acc.shape[0]
+    enough = len(view["seen"]) >= MIN_OBJECT_FRACTION * acc.shape[0]
+    view["novelty"] = float((~view["seen"]).mean()) if enough else math.nan
     return view
 
 
 def _stack(views: list[dict[str, float]]) -> dict[str, np.ndarray]:
     return {name: np.array([view[name] for view in views]) for name in views[0]}
+
+
+def _novelty_spearman(reward: np.ndarray, novelty: np.ndarray) -> float | None:
+    """Spearman of the reward with novelty over the views that see enough object to have one."""
+    seen_enough = np.isfinite(novelty)
+    return spearman(reward[seen_enough], novelty[seen_enough])
 
 
 def _mean(values: np.ndarray) -> float | None:
@@ -128,6 +140,7 @@ def candidate_set_report(
     seen = np.concatenate([view["seen"] for view in views])
     coverage = np.array([view["coverage"] for view in views])
     unseen = np.array([view["unseen_coverage"] for view in views])
+    novelty = np.array([view["novelty"] for view in views])
     blind = _stack([view["wo_vis"] for view in views])
     blind_reward = sum(blind.values())
     report = {
@@ -136,7 +149,8 @@ def candidate_set_report(
         "seen_fraction": _mean(seen.astype(np.float64)),
         "shell_median": _mean(np.array([np.median(np.concatenate([view["shell"] for view in views]))])),
         "wo_vis": {"ties_at_max": ties_at_max(blind_reward), "coverage_spearman": spearman(blind_reward, coverage),
-                   "unseen_coverage_spearman": spearman(blind_reward, unseen), **term_attribution(blind)},
+                   "unseen_coverage_spearman": spearman(blind_reward, unseen),
+                   "novelty_spearman": _novelty_spearman(blind_reward, novelty), **term_attribution(blind)},
         "sources": {},
     }  # fmt: skip
     for name in functions:
@@ -148,7 +162,7 @@ def candidate_set_report(
             "spearman_nvf_wo_vis": spearman(reward, blind_reward),
             "same_argmax": bool(reward.argmax() == blind_reward.argmax()),
             "ties_at_max": ties_at_max(reward), "coverage_spearman": spearman(reward, coverage),
-            "unseen_coverage_spearman": spearman(reward, unseen),
+            "unseen_coverage_spearman": spearman(reward, unseen), "novelty_spearman": _novelty_spearman(reward, novelty),
             **term_attribution(terms),
         }  # fmt: skip
     return report
@@ -172,12 +186,14 @@ def summarise(sets: list[dict], sources: list[str]) -> dict:
             "unknown_share_mean": _mean_of([r["terms"]["unknown"]["share"] for r in rows]),
             "coverage_spearman_mean": _mean_of([r["coverage_spearman"] for r in rows]),
             "unseen_coverage_spearman_mean": _mean_of([r["unseen_coverage_spearman"] for r in rows]),
+            "novelty_spearman_mean": _mean_of([r["novelty_spearman"] for r in rows]),
             "max_ties_at_max": max(r["ties_at_max"] for r in rows),
         }
     blind = [s["wo_vis"] for s in sets]
     return {"sources": per_source, "wo_vis_decisive_terms": [s["decisive"] for s in blind],
             "wo_vis_coverage_spearman_mean": _mean_of([s["coverage_spearman"] for s in blind]),
             "wo_vis_unseen_coverage_spearman_mean": _mean_of([s["unseen_coverage_spearman"] for s in blind]),
+            "wo_vis_novelty_spearman_mean": _mean_of([s["novelty_spearman"] for s in blind]),
             "wo_vis_max_ties_at_max": max(s["wo_vis"]["ties_at_max"] for s in sets)}  # fmt: skip
 
 
@@ -211,9 +227,11 @@ def _show(value: float | None, spec: str) -> str:
 
 
 def print_report(report: dict) -> None:
-    """A table per source and candidate set (rho: NVF vs w/o Vis.; rho cov / new: NVF vs object / unseen coverage)."""
+    """A table per source and candidate set (rho: NVF vs w/o Vis.; rho cov / new / nov: NVF vs object coverage,
+    unseen coverage and novelty)."""
     columns = (("source", 8), ("set", 4), ("pixels", 7), ("seen", 6), ("shell", 7), ("AUC", 7), ("rho", 7),
-               ("same", 6), ("ties", 5), ("rho cov", 8), ("rho new", 8), ("decisive NVF", 22), ("w/o Vis.", 20))  # fmt: skip
+               ("same", 6), ("ties", 5), ("rho cov", 8), ("rho new", 8), ("rho nov", 8), ("decisive NVF", 22),
+               ("w/o Vis.", 20))  # fmt: skip
     print("".join(f"{name:>{width}}" for name, width in columns))
     for name in report["sources"]:
         for r in report["sets"]:
@@ -223,11 +241,13 @@ def print_report(report: dict) -> None:
             cells = (name, r["set"], r["object_pixels"], _show(r["seen_fraction"], ".2f"), _show(r["shell_median"], ".3f"),
                      _show(x["auc"], ".3f"), _show(x["spearman_nvf_wo_vis"], ".3f"), x["same_argmax"], x["ties_at_max"],
                      _show(x["coverage_spearman"], ".3f"), _show(x["unseen_coverage_spearman"], ".3f"),
+                     _show(x["novelty_spearman"], ".3f"),
                      f"{x['decisive']} ({_show(share, '.2f')})", f"{blind['decisive']} ({_show(blind_share, '.2f')})")  # fmt: skip
             print("".join(f"{str(cell):>{width}}" for cell, (_, width) in zip(cells, columns, strict=True)))
     blind = report["sets"]
     print("w/o Vis. rho cov " + ", ".join(_show(r["wo_vis"]["coverage_spearman"], ".3f") for r in blind)
-          + "; rho new " + ", ".join(_show(r["wo_vis"]["unseen_coverage_spearman"], ".3f") for r in blind))  # fmt: skip
+          + "; rho new " + ", ".join(_show(r["wo_vis"]["unseen_coverage_spearman"], ".3f") for r in blind)
+          + "; rho nov " + ", ".join(_show(r["wo_vis"]["novelty_spearman"], ".3f") for r in blind))  # fmt: skip
 
 
 def main(argv: list[str]) -> None:
