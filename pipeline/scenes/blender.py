@@ -30,7 +30,7 @@ from pipeline.scenes.render import GTView, MeshRays, as_pose, base_color_texture
 from pipeline.scenes.scene import Scene, SceneError
 
 DEFAULT_PYTHON = ".venv-blender/bin/python"
-INSTALL = "install it with scripts/setup.sh (it creates .venv-blender with bpy==5.0.1)"
+INSTALL = "install it with `make blender` (scripts/setup.sh blender: .venv-blender with bpy==5.0.1)"
 
 
 class BlenderError(SceneError):
