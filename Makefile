@@ -1,19 +1,26 @@
 # Two entry points for a fresh machine: `make run` (one NVF episode on the embedded scene) and
-# `make test` (the default test suite). Both install everything first (scripts/setup.sh).
+# `make test` (the default test suite). Each installs what it needs first (scripts/setup.sh): `run` the
+# main environment, `test` also Blender (its tests render with it); `make blender` installs Blender alone.
 PY := .venv/bin/python
 ARGS ?=
 
-.PHONY: setup run test test-slow smoke bench
+.PHONY: setup blender browser run test test-slow bench
 setup:
 	@bash scripts/setup.sh
+
+blender:
+	@bash scripts/setup.sh blender
+
+browser:
+	@bash scripts/setup.sh browser
 
 run: setup
 	$(PY) -m pipeline.run $(ARGS)
 
-test: setup
+test: setup blender
 	$(PY) -m pytest -n 2 $(ARGS)
 
-test-slow: setup
+test-slow: setup blender browser
 	$(PY) -m pytest -m slow $(ARGS)
 
 bench: setup

@@ -15,9 +15,11 @@ from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
 from nvf.uncertainty.scorers import ViewScorer
 
 class Method:
-    """A method with no scorer (the planner then picks uniformly, as Random) and no auxiliary loss."""
+    """A method with no scorer (the planner then picks uniformly, as Random) and no auxiliary loss.
+    ``score_unit``: the unit of its per-pixel score (labels the score map's colour bar)."""
 
     aux_loss: ClassVar[AuxLoss | None] = None
+    score_unit: ClassVar[str] = ""
 
     def scorer(self, entropy: EntropyConfig, baseline: BaselineConfig, d0: float) -> ViewScorer | None:
         """The per-pixel view scorer (M16 averages it over the planning image); ``d0`` is NVF's resolved
@@ -32,6 +34,8 @@ class Random(Method):
 class WD(Method):
     """Weight-distribution entropy (M22)."""
 
+    score_unit = "nats"  # an entropy
+
     def scorer(self, entropy: EntropyConfig, baseline: BaselineConfig, d0: float) -> ViewScorer:
         return WDScorer()
 
@@ -39,12 +43,16 @@ class WD(Method):
 class ActiveRMAP(Method):
     """Binary opacity entropy summed along the ray (M23; ``baseline.rmap_occlusion_weighted``)."""
 
+    score_unit = "nats"  # an entropy
+
     def scorer(self, entropy: EntropyConfig, baseline: BaselineConfig, d0: float) -> ViewScorer:
         return ActiveRMAPScorer(occlusion_weighted=baseline.rmap_occlusion_weighted)
 
 
 class AIR(Method):
     """Occlusion-aware opacity entropy, mean over the ray's samples (M24; ``baseline.air_reduce``)."""
+
+    score_unit = "nats"  # an entropy
 
     def scorer(self, entropy: EntropyConfig, baseline: BaselineConfig, d0: float) -> ViewScorer:
         if baseline.air_view_score != "pixel_mean":
@@ -54,6 +62,8 @@ class AIR(Method):
 
 class ActiveNeRF(Method):
     """Rendered variance (M26) of a variance head trained in stage 1 on its NLL (M25, variant A)."""
+
+    score_unit = "colour variance"  # of colours in [0, 1]
 
     aux_loss = staticmethod(activenerf_loss)
 
@@ -68,6 +78,8 @@ class ActiveNeRF(Method):
 class NeurAR(Method):
     """Rendered variance (M26) of a variance head regressed in stage 1 on the squared residual (M27)."""
 
+    score_unit = "colour variance"  # of colours in [0, 1]
+
     aux_loss = staticmethod(neurar_loss)
 
     def scorer(self, entropy: EntropyConfig, baseline: BaselineConfig, d0: float) -> ViewScorer:
@@ -76,6 +88,8 @@ class NeurAR(Method):
 
 class NVF(Method):
     """Neural Visibility Field: the corrected view entropy of the visibility-aware ray mixture (M7-M16)."""
+
+    score_unit = "nats"  # an entropy
 
     def scorer(self, entropy: EntropyConfig, baseline: BaselineConfig, d0: float) -> ViewScorer:
         return NVFEntropyScorer(entropy, d0)

@@ -19,7 +19,7 @@ from pathlib import Path
 import pandas as pd
 from matplotlib.figure import Figure
 
-from pipeline.cli import fail
+from pipeline.cli import fail, help_page
 from pipeline.config.paths import paths_from_args
 from pipeline.records.images import save_figure
 from pipeline.records.store import atomic_write_text
@@ -133,7 +133,7 @@ def report(candidates: list[Setting], chosen: Setting | None, why: str) -> str:
 
 def main(argv: list[str]) -> int:
     if any(arg in ("-h", "--help") for arg in argv):
-        print(__doc__.strip())
+        print(help_page(__doc__))
         return 0
     try:
         root = paths_from_args(argv, ("paths.results",))["results"] / "pilots" / "discriminate"

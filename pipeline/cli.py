@@ -3,15 +3,27 @@ overrides (``paths.assets=DIR``, ``paths.results=DIR``), argparse only for what 
 from the module's docstring, and bad input as one ``error: ...`` line on stderr with exit status 2."""
 
 import argparse
+import re
 import sys
 from typing import NoReturn
 
 BAD_INPUT = 2  # exit status of every command for bad input (a config, a scene, an argument)
+LITERAL = re.compile(r"``(.+?)``", re.DOTALL)
+
+
+def plain(text: str) -> str:
+    """A docstring as a terminal shows it: ````code```` marks dropped."""
+    return LITERAL.sub(r"\1", text)
 
 
 def description(doc: str | None) -> str:
-    """The first paragraph of a module docstring, as one line (argparse's description)."""
-    return " ".join((doc or "").strip().split("\n\n")[0].split())
+    """The first paragraph of a module docstring, as one plain line (argparse's description)."""
+    return " ".join(plain(doc or "").strip().split("\n\n")[0].split())
+
+
+def help_page(doc: str | None) -> str:
+    """A whole module docstring as a ``--help`` page: plain text, its paragraphs and lists kept."""
+    return plain(doc or "").strip()
 
 
 def fail(message: str) -> NoReturn:

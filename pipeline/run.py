@@ -52,6 +52,7 @@ def main(cfg: DictConfig) -> dict:
         directory = outcome.directory
         print(f"images:  {directory / 'images'} (every step), {directory / 'grid.png'} (labelled)")
         print(f"curve:   {directory / 'psnr.png'}")
+        print(f"cameras: {directory / 'trajectory.png'} (initial and chosen views, from above and from the side)")
         print(f"records: {directory / 'run.json'}, {directory / 'steps.jsonl'}")
         print(f"table:   {directory / 'summary.md'}")
     return {"status": outcome.status, "reason": None}

@@ -7,8 +7,9 @@ candidate sets), ``onestep_gain_mean, onestep_ci_low, onestep_ci_high, n`` (NVF'
 in held-out PSNR, dB, where they differ, with the 95% Student-t interval over the ``n`` disagreements),
 ``minutes_per_episode`` (from the setting's discrimination records when it has them, else empty), then
 ``decisions`` (candidate sets measured), ``same_argmax_fraction``, ``nvf_decisive_term`` (the reward term
-deciding NVF's ranking most often) and ``nvf_unknown_share`` (the unknown component's mean share of NVF's
-reward variance).
+deciding NVF's ranking most often), ``nvf_unknown_share`` (the unknown component's mean share of NVF's
+reward variance) and ``nvf_tied_fraction``, ``wo_vis_tied_fraction`` (the candidate sets whose maximum
+several candidates share: a pick by draw order).
 """
 
 import collections
@@ -26,7 +27,7 @@ STUDY = "visibility_study"
 COLUMNS = (
     "setting", "scene", "visibility_source", "label_auc", "head_auc", "spearman_nvf_wo_vis", "onestep_gain_mean",
     "onestep_ci_low", "onestep_ci_high", "n", "minutes_per_episode", "decisions", "same_argmax_fraction",
-    "nvf_decisive_term", "nvf_unknown_share",
+    "nvf_decisive_term", "nvf_unknown_share", "nvf_tied_fraction", "wo_vis_tied_fraction",
 )  # fmt: skip
 ALL_SCENES = "all"
 
@@ -62,6 +63,8 @@ def setting_row(setting: dict, scene: str, rows: list[dict], diagnostics: list[d
         "decisions": len(rows), "same_argmax_fraction": _mean([float(r["same_argmax"]) for r in rows]),
         "nvf_decisive_term": decisive.most_common(1)[0][0] if decisive else None,
         "nvf_unknown_share": _mean([r["terms"]["nvf"]["terms"]["unknown"]["share"] for r in rows]),
+        "nvf_tied_fraction": _mean([float(r["ties_at_max"]["nvf"] > 1) for r in rows]),
+        "wo_vis_tied_fraction": _mean([float(r["ties_at_max"]["wo_vis"] > 1) for r in rows]),
     }  # fmt: skip
 
 

@@ -164,7 +164,9 @@ def test_visibility_bench_writes_separation_ranking_and_terms(tmp_path):
     assert report["sources"]["head"]["same_argmax_sets"] in (0, 1)
 
 
-def test_visibility_bench_refuses_an_unknown_source(capsys):
+@pytest.mark.parametrize("argv, says", [(["--sources", "head,oracle"], "--sources='head,oracle'"),
+                                        (["--step", "3"], "needs --record")])  # fmt: skip
+def test_visibility_bench_refuses_bad_arguments(argv, says, capsys):
     with pytest.raises(SystemExit) as exit_:
-        visibility.main(["--sources", "head,oracle"])
-    assert exit_.value.code == 2 and "--sources='head,oracle'" in capsys.readouterr().err
+        visibility.main(argv)
+    assert exit_.value.code == 2 and says in capsys.readouterr().err

@@ -267,11 +267,11 @@ def test_missing_blender_is_one_line_saying_how_to_install(tmp_path, capsys):
     missing = tmp_path / "no-blender" / "python"
     code, err = _show(capsys, "default", "render.backend=blender", f"paths.blender_python={missing}",
                       "--out", str(tmp_path / "out"), "--res", "16")
-    assert code == 2 and err.count("\n") == 1 and "scripts/setup.sh" in err and str(missing) in err
+    assert code == 2 and err.count("\n") == 1 and "make blender" in err and str(missing) in err
     assert not (tmp_path / "out").exists()
     with initialize_config_dir(str(CONF), version_base="1.3"):
         cfg = compose("config", overrides=["budget=smoke", "render.backend=blender", f"paths.blender_python={missing}"])
-    with pytest.raises(ConfigError, match="render.backend=blender: Blender's Python not found.*scripts/setup.sh"):
+    with pytest.raises(ConfigError, match="render.backend=blender: Blender's Python not found.*make blender"):
         validate(cfg)
 
 

@@ -78,7 +78,7 @@ def test_smoke_episode_writes_complete_records(tmp_path):
     assert verified(record)[1] == rows
     assert (directory / "images" / "step_01_pred.png").is_file()
     # the run's own labelled pictures and table, beside its records
-    assert all((directory / name).stat().st_size > 0 for name in ("grid.png", "psnr.png", "summary.md"))
+    assert all((directory / name).stat().st_size > 0 for name in ("grid.png", "psnr.png", "trajectory.png", "summary.md"))
     assert RunLock(directory, tmp_path).path.read_text() == ""  # released
     # a finished run is skipped, not re-run; one finished with other settings is refused, untouched
     assert run_episode(_cfg(tmp_path, "method=random", "budget.horizon=2")) == Outcome(directory, "skipped")

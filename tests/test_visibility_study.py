@@ -21,7 +21,8 @@ from pipeline.visibility_summary import COLUMNS, summary_frame, write_summary
 
 def decision_row(scene, step, gain=None, spearman=0.99, decisive="unknown", share=0.9):
     row = {"scene": scene, "seed": 100, "step": step, "set": 0, "spearman": spearman, "same_argmax": gain is None,
-           "terms": {"nvf": {"decisive": decisive, "terms": {"unknown": {"share": share}}}}}  # fmt: skip
+           "terms": {"nvf": {"decisive": decisive, "terms": {"unknown": {"share": share}}}},
+           "ties_at_max": {"nvf": 1, "wo_vis": 1 + step % 2}}  # fmt: skip
     if gain is not None:
         row["gain"] = gain
     return row
@@ -54,6 +55,7 @@ def test_summary_pairs_the_disagreements_per_scene_and_over_scenes(tmp_path):
     assert pooled["onestep_ci_low"] == pytest.approx(np.mean(gains) - half, rel=1e-5)
     assert hotdog["label_auc"] == 0.8 and hotdog["head_auc"] == 0.7 and hotdog["nvf_decisive_term"] == "unknown"
     assert math.isnan(hotdog["minutes_per_episode"])
+    assert hotdog["nvf_tied_fraction"] == 0.0 and hotdog["wo_vis_tied_fraction"] == pytest.approx(2 / 3)
 
 
 def test_study_refuses_a_bad_setting_name(capsys):

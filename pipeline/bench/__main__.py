@@ -1,15 +1,18 @@
-"""``python -m pipeline.bench NAME [args]``: run the benchmark module ``pipeline/bench/NAME.py``.
+"""``python -m pipeline.bench NAME [args]``: run the benchmark module ``pipeline/bench/NAME.py``; its report
+goes to ``${paths.results}/bench/`` and ``python -m pipeline.bench NAME --help`` lists its options.
 
 Each benchmark is a module of this package exposing ``main(argv: list[str]) -> None``; adding a
 benchmark is adding a module. A missing or unknown name is one ``error:`` line on stderr and exit status 2.
 """
 
+import ast
 import importlib
 import pkgutil
 import sys
+import textwrap
 from pathlib import Path
 
-from pipeline.cli import fail
+from pipeline.cli import description, fail
 
 
 def available() -> list[str]:
@@ -17,13 +20,22 @@ def available() -> list[str]:
     return sorted(m.name for m in pkgutil.iter_modules([str(Path(__file__).parent)]) if not m.name.startswith("_"))
 
 
+def help_page(names: list[str]) -> str:
+    """Usage, what the command does, and each benchmark's first docstring paragraph (read without importing it)."""
+    lines = [f"usage: python -m pipeline.bench {{{','.join(names)}}} [args]", "", *textwrap.wrap(description(__doc__), 100)]
+    lines += ["", "benchmarks:"]
+    for name in names:
+        doc = ast.get_docstring(ast.parse((Path(__file__).parent / f"{name}.py").read_text(encoding="utf-8")))
+        lines += textwrap.wrap(description(doc), 100, initial_indent=f"  {name:<11} ", subsequent_indent=" " * 14)
+    return "\n".join(lines)
+
+
 def main(argv: list[str]) -> None:
     names = available()
-    usage = f"python -m pipeline.bench {{{','.join(names)}}} [args]"
     if not argv:
-        fail(f"name a benchmark: {usage}")
+        fail(f"name a benchmark: python -m pipeline.bench {{{','.join(names)}}} [args] (--help describes each)")
     if argv[0] in ("-h", "--help"):
-        print(f"usage: {usage}")
+        print(help_page(names))
         raise SystemExit(0)
     if argv[0] not in names:
         fail(f"unknown benchmark '{argv[0]}'; choose one of: {', '.join(names)}")

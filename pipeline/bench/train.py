@@ -155,8 +155,9 @@ def train_in_lockstep(
 
 @dataclass
 class InitialViewModel:
-    """A full NVF model (all three stages, at the budget) trained on the scene's initial views: the
-    model of an episode's first planning step, shared by the ``plan`` and ``visibility`` benchmarks."""
+    """A full NVF model (all three stages, at the budget) trained on the scene's initial views (and
+    ``extra_poses`` after them: a later state of an episode): the model of an episode's first planning
+    step, shared by the ``plan`` and ``visibility`` benchmarks."""
 
     cfg: DictConfig
     scene: Scene
@@ -167,12 +168,15 @@ class InitialViewModel:
     train_seconds: float
 
     @staticmethod
-    def train(cfg: DictConfig, model_cls: type[SceneModel] = SceneModel) -> "InitialViewModel":
+    def train(
+        cfg: DictConfig, model_cls: type[SceneModel] = SceneModel, extra_poses: Float[Tensor, "k 4 4"] | None = None
+    ) -> "InitialViewModel":
         scene = load(cfg)
         s = EpisodeSettings.of(cfg, scene)
         size = int(cfg.budget.image_size)
         renderer = GroundTruthRenderer(scene.mesh)
-        obs = observations(renderer, scene.init_poses, Intrinsics.from_fov(size, size))
+        poses = scene.init_poses if extra_poses is None else torch.cat([scene.init_poses, extra_poses.to(scene.init_poses)])
+        obs = observations(renderer, poses, Intrinsics.from_fov(size, size))
         torch.manual_seed(int(cfg.seed))
         model = model_cls(scene.object_aabb, s.field, s.sampler)
         stats = train_model(model, obs, s.train, STAGES, s.entropy, torch.Generator().manual_seed(int(cfg.seed)))
@@ -205,9 +209,9 @@ class InitialViewModel:
 
     def candidates(self, step: int) -> Float[Tensor, "m 7"]:
         """The candidate poses the planner would draw at ``step`` (METHOD 13, M28/M29 filters), from
-        the last initial view."""
+        the last observed view."""
         s = self.settings
-        current = matrix_to_pose(self.scene.init_poses[-1].to(torch.float32))
+        current = matrix_to_pose(self.obs.c2w[-1].to(torch.float32))
         return candidate_poses(
             self.model, s.planner, self.scene.camera_box, current, s.tau, s.collision_free,
             seeded_generator(int(self.cfg.seed), step, "candidates"), line_of_sight=self.renderer.unoccluded,

@@ -1,9 +1,11 @@
-"""``python -m pipeline.bench visibility [--out PATH] [--sets N] [--sources head,labels,mesh] [overrides]``:
+"""``python -m pipeline.bench visibility [--out PATH] [--sets N] [--sources head,labels,mesh] [--record DIR --step K]
+[overrides]``:
 how well each visibility source tells seen from unseen object pixels of candidate views (METHOD 9,
 M17-M19), how much it changes NVF's ranking of the candidates against w/o Vis., and which term of the
 reward decides each ranking (default ``budget=cpu scene=default``).
 
-Trains one full NVF model (all three stages, at the budget) on the scene's initial views. For each of
+Trains one full NVF model (all three stages, at the budget) on the scene's initial views (with ``--record`` and
+``--step K``: and the views a recorded episode selected at steps ``0..K-1``, its state at step ``K``). For each of
 ``N`` candidate sets (``nvf.planning.candidate_poses`` drawn as the planner's step ``k`` would,
 ``planner.num_candidates`` poses, rendered at ``planner.resolution``) and each visibility source
 (``nvf.visibility_source``: ``head``, the trained head; ``labels``, M17-M18 at the scored samples, what a
@@ -20,13 +22,16 @@ perfect head would predict; ``mesh``, the scene mesh's line of sight to the trai
 - each reward split into its terms (``NVFEntropyScorer.pixel_terms``) and each term's share of the
   reward's variance over the candidates (``pipeline.metrics.ranking.term_attribution``): the decisive term;
   the Spearman correlation of each reward with the candidates' object coverage (fraction of pixels with
-  ``A > 0.5``) and with their unseen coverage (fraction of pixels that are object pixels no initial camera
-  saw): a score that rewards new surface follows the second.
+  ``A > 0.5``), with their unseen coverage (fraction of pixels that are object pixels no initial camera
+  saw) and with their novelty (the unseen share of their object pixels, over the views whose object pixels
+  fill 5% of the image or more): a score that rewards seeing the object follows the first, one that rewards
+  new surface the second and the third.
 
 Writes ``results/bench/visibility.json`` (or ``--out``) and prints a table per source.
 """
 
 import dataclasses
+import math
 import statistics
 import time
 from collections.abc import Callable
@@ -45,12 +50,14 @@ from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
 from nvf.visibility_source import SOURCES, label_visibility
 from pipeline.bench._report import report_path, write_report
 from pipeline.bench.train import InitialViewModel
-from pipeline.cli import ArgumentParser, description
+from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.validation import compose_config
+from pipeline.tables.load import load_run
 from pipeline.metrics.ranking import auc, render_for_terms, spearman, term_attribution, ties_at_max, view_terms
 
 SURFACE_OFFSET = 0.01  # scene units: the surface point moves this far towards the candidate camera
 MIN_ACCUMULATION = 0.5  # PROTOCOL 4.2's surface rule
+MIN_OBJECT_FRACTION = 0.05  # novelty is measured on views whose object pixels fill at least this much
 
 SourceFn = Callable[[Float[Tensor, "S 3"]], Float[Tensor, " S"]]
 
@@ -108,11 +115,19 @@ def candidate_view(
         "coverage": float((acc > MIN_ACCUMULATION).float().mean()),
     }  # fmt: skip
     view["unseen_coverage"] = float((~view["seen"]).sum()) / acc.shape[0]
+    enough = len(view["seen"]) >= MIN_OBJECT_FRACTION * acc.shape[0]
+    view["novelty"] = float((~view["seen"]).mean()) if enough else math.nan
     return view
 
 
 def _stack(views: list[dict[str, float]]) -> dict[str, np.ndarray]:
     return {name: np.array([view[name] for view in views]) for name in views[0]}
+
+
+def _novelty_spearman(reward: np.ndarray, novelty: np.ndarray) -> float | None:
+    """Spearman of the reward with novelty over the views that see enough object to have one."""
+    seen_enough = np.isfinite(novelty)
+    return spearman(reward[seen_enough], novelty[seen_enough])
 
 
 def _mean(values: np.ndarray) -> float | None:
@@ -128,6 +143,7 @@ def candidate_set_report(
     seen = np.concatenate([view["seen"] for view in views])
     coverage = np.array([view["coverage"] for view in views])
     unseen = np.array([view["unseen_coverage"] for view in views])
+    novelty = np.array([view["novelty"] for view in views])
     blind = _stack([view["wo_vis"] for view in views])
     blind_reward = sum(blind.values())
     report = {
@@ -136,7 +152,8 @@ def candidate_set_report(
         "seen_fraction": _mean(seen.astype(np.float64)),
         "shell_median": _mean(np.array([np.median(np.concatenate([view["shell"] for view in views]))])),
         "wo_vis": {"ties_at_max": ties_at_max(blind_reward), "coverage_spearman": spearman(blind_reward, coverage),
-                   "unseen_coverage_spearman": spearman(blind_reward, unseen), **term_attribution(blind)},
+                   "unseen_coverage_spearman": spearman(blind_reward, unseen),
+                   "novelty_spearman": _novelty_spearman(blind_reward, novelty), **term_attribution(blind)},
         "sources": {},
     }  # fmt: skip
     for name in functions:
@@ -148,7 +165,7 @@ def candidate_set_report(
             "spearman_nvf_wo_vis": spearman(reward, blind_reward),
             "same_argmax": bool(reward.argmax() == blind_reward.argmax()),
             "ties_at_max": ties_at_max(reward), "coverage_spearman": spearman(reward, coverage),
-            "unseen_coverage_spearman": spearman(reward, unseen),
+            "unseen_coverage_spearman": spearman(reward, unseen), "novelty_spearman": _novelty_spearman(reward, novelty),
             **term_attribution(terms),
         }  # fmt: skip
     return report
@@ -172,18 +189,29 @@ def summarise(sets: list[dict], sources: list[str]) -> dict:
             "unknown_share_mean": _mean_of([r["terms"]["unknown"]["share"] for r in rows]),
             "coverage_spearman_mean": _mean_of([r["coverage_spearman"] for r in rows]),
             "unseen_coverage_spearman_mean": _mean_of([r["unseen_coverage_spearman"] for r in rows]),
+            "novelty_spearman_mean": _mean_of([r["novelty_spearman"] for r in rows]),
             "max_ties_at_max": max(r["ties_at_max"] for r in rows),
         }
     blind = [s["wo_vis"] for s in sets]
     return {"sources": per_source, "wo_vis_decisive_terms": [s["decisive"] for s in blind],
             "wo_vis_coverage_spearman_mean": _mean_of([s["coverage_spearman"] for s in blind]),
             "wo_vis_unseen_coverage_spearman_mean": _mean_of([s["unseen_coverage_spearman"] for s in blind]),
+            "wo_vis_novelty_spearman_mean": _mean_of([s["novelty_spearman"] for s in blind]),
             "wo_vis_max_ties_at_max": max(s["wo_vis"]["ties_at_max"] for s in sets)}  # fmt: skip
 
 
-def visibility_report(cfg: DictConfig, sets: int, sources: list[str]) -> dict:
-    """Train the initial-view model of ``cfg`` and report ``sets`` candidate sets (see the module doc)."""
-    setup = InitialViewModel.train(cfg)
+def recorded_poses(record: Path, step: int) -> Float[Tensor, "k 4 4"]:
+    """The poses a recorded episode selected before ``step`` (its state at ``step``, after the initial views)."""
+    _, rows = load_run(record)
+    if step > len(rows):
+        raise ValueError(f"{record} has {len(rows)} steps; --step {step} needs that many")
+    return pose_to_matrix(torch.tensor([row["selected_pose"] for row in rows[:step]], dtype=torch.float32).reshape(-1, 7))
+
+
+def visibility_report(cfg: DictConfig, sets: int, sources: list[str], extra: Tensor | None = None) -> dict:
+    """Train the model of ``cfg`` on the initial views (and the poses ``extra`` after them) and report
+    ``sets`` candidate sets (see the module doc)."""
+    setup = InitialViewModel.train(cfg, extra_poses=extra)
     s = setup.settings
     res = int(s.planner.resolution)
     intr = Intrinsics.from_fov(res, res)
@@ -211,9 +239,11 @@ def _show(value: float | None, spec: str) -> str:
 
 
 def print_report(report: dict) -> None:
-    """A table per source and candidate set (rho: NVF vs w/o Vis.; rho cov / new: NVF vs object / unseen coverage)."""
+    """A table per source and candidate set (rho: NVF vs w/o Vis.; rho cov / new / nov: NVF vs object coverage,
+    unseen coverage and novelty)."""
     columns = (("source", 8), ("set", 4), ("pixels", 7), ("seen", 6), ("shell", 7), ("AUC", 7), ("rho", 7),
-               ("same", 6), ("ties", 5), ("rho cov", 8), ("rho new", 8), ("decisive NVF", 22), ("w/o Vis.", 20))  # fmt: skip
+               ("same", 6), ("ties", 5), ("rho cov", 8), ("rho new", 8), ("rho nov", 8), ("decisive NVF", 22),
+               ("w/o Vis.", 20))  # fmt: skip
     print("".join(f"{name:>{width}}" for name, width in columns))
     for name in report["sources"]:
         for r in report["sets"]:
@@ -223,11 +253,13 @@ def print_report(report: dict) -> None:
             cells = (name, r["set"], r["object_pixels"], _show(r["seen_fraction"], ".2f"), _show(r["shell_median"], ".3f"),
                      _show(x["auc"], ".3f"), _show(x["spearman_nvf_wo_vis"], ".3f"), x["same_argmax"], x["ties_at_max"],
                      _show(x["coverage_spearman"], ".3f"), _show(x["unseen_coverage_spearman"], ".3f"),
+                     _show(x["novelty_spearman"], ".3f"),
                      f"{x['decisive']} ({_show(share, '.2f')})", f"{blind['decisive']} ({_show(blind_share, '.2f')})")  # fmt: skip
             print("".join(f"{str(cell):>{width}}" for cell, (_, width) in zip(cells, columns, strict=True)))
     blind = report["sets"]
     print("w/o Vis. rho cov " + ", ".join(_show(r["wo_vis"]["coverage_spearman"], ".3f") for r in blind)
-          + "; rho new " + ", ".join(_show(r["wo_vis"]["unseen_coverage_spearman"], ".3f") for r in blind))  # fmt: skip
+          + "; rho new " + ", ".join(_show(r["wo_vis"]["unseen_coverage_spearman"], ".3f") for r in blind)
+          + "; rho nov " + ", ".join(_show(r["wo_vis"]["novelty_spearman"], ".3f") for r in blind))  # fmt: skip
 
 
 def main(argv: list[str]) -> None:
@@ -236,16 +268,25 @@ def main(argv: list[str]) -> None:
     parser.add_argument("--out", type=Path, default=None, help="JSON report path (default: ${paths.results}/bench/visibility.json)")
     parser.add_argument("--sets", type=int, default=3, help="candidate sets (the planner's draws at steps 0..N-1)")
     parser.add_argument("--sources", default=",".join(SOURCES), help=f"visibility sources, a subset of {','.join(SOURCES)}")
+    parser.add_argument("--record", type=Path, default=None, help="a recorded episode whose state at --step to measure")
+    parser.add_argument("--step", type=int, default=0, help="with --record: the state before this step (its views so far)")
     args = parser.parse_intermixed_args(argv)
     sources = args.sources.split(",")
     if args.sets < 1:
         parser.error("--sets must be >= 1")
     if not sources or any(name not in SOURCES for name in sources):
         parser.error(f"--sources={args.sources!r}: use a comma-separated subset of {','.join(SOURCES)}")
+    if args.step < 0 or (args.step > 0 and args.record is None):
+        parser.error("--step takes a number >= 0 and needs --record")
     start = time.perf_counter()
     cfg = compose_config(["planner.num_candidates=64", *args.overrides])
-    report = visibility_report(cfg, args.sets, sources)
+    try:
+        extra = recorded_poses(args.record, args.step) if args.record is not None else None
+    except (ValueError, OSError) as err:
+        fail(str(err))
+    report = visibility_report(cfg, args.sets, sources, extra)
     report["settings"]["overrides"] = args.overrides
+    report["settings"]["state"] = None if args.record is None else {"record": str(args.record), "step": args.step}
     report["seconds"] = time.perf_counter() - start
     args.out = report_path(args.out, cfg.paths.results, "visibility")
     write_report(report, args.out)

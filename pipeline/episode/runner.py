@@ -7,7 +7,6 @@ the run with a one-line reason and leaves it to resume.
 """
 
 import os
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,13 +15,13 @@ import numpy as np
 import torch
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
-from tqdm import tqdm
 
 from nvf.planning import NoCandidatesError
 from nvf.training import TrainingDiverged
 from pipeline.config.validation import validate
 from pipeline.records.images import save_step_images
 from pipeline.episode.loop import Episode
+from pipeline.episode.progress import EpisodeProgress
 from pipeline.config.validation import resolve_device
 from pipeline.metrics.image import LpipsMetric
 from pipeline.records.lock import RunLock
@@ -32,6 +31,7 @@ from pipeline.scenes.blender import BlenderTimeout, blender_python
 from pipeline.scenes.ground_truth import ground_truth_info
 from pipeline.scenes.loading import load_scene
 from pipeline.tables.summary import run_pictures, summarize_run
+from pipeline.tables.trajectory import outline_of_scene
 
 
 class StepFailed(RuntimeError):
@@ -129,6 +129,7 @@ def _run_locked(cfg: DictConfig, directory: Path) -> Outcome:
         return Outcome(directory, "skipped")
     if status == "failed":
         raise StepFailed(f"run {directory} failed: {record.failure()} (delete it to run it again)")
+    print(f"run {directory}: building the scene and its ground truth (the step bar follows)", flush=True)
     torch.set_num_threads(torch_threads())
     torch.manual_seed(int(cfg.seed))
     np.random.seed(int(cfg.seed) % 2**32)
@@ -169,42 +170,20 @@ def _run_steps(cfg: DictConfig, directory: Path, record: RunRecord, episode: Epi
         raise
     record.mark_done()
     summarize_run(directory)
-    run_pictures(directory)
+    run_pictures(directory, outline_of_scene(episode.scene, str(cfg.scene.kind)))
     return Outcome(directory, "done")
 
 
 def _record_steps(cfg: DictConfig, directory: Path, episode: Episode, record: RunRecord, first: int) -> None:
     """Steps ``first`` .. horizon - 1, each row (and the step's images) written once the step is complete."""
-    horizon = int(cfg.budget.horizon)
-    interactive = sys.stderr.isatty()
-    with (
-        tqdm(range(first, horizon), desc="steps", unit="step", disable=not interactive, initial=first, total=horizon) as steps,
-        tqdm(desc="train", unit="it", leave=False, disable=not interactive) as inner,
-    ):
-        _step_loop(cfg, directory, episode, record, steps, inner, interactive)
-
-
-def _step_loop(cfg: DictConfig, directory: Path, episode: Episode, record: RunRecord, steps: tqdm, inner: tqdm,
-               interactive: bool) -> None:  # fmt: skip
-    """The loop of ``_record_steps`` (the progress bars close with it, also when it is interrupted)."""
-
-    def on_train(stage: str, iteration: int, total: int, loss: float) -> None:
-        if iteration == 0:
-            inner.reset(total=total)
-            inner.set_description(stage)
-        inner.update(1)
-        if iteration % 25 == 0:
-            inner.set_postfix(loss=f"{loss:.4g}")
-
-    for step in steps:
-        start = time.perf_counter()
-        row, images = episode.step(step, on_train)
-        if cfg.save_images:
-            save_step_images(directory / "images", step, images)
-        record.append_step(row)
-        episode.observe_pose(row["selected_pose"])
-        psnr = row["metrics"]["psnr"]
-        message = f"step {step:2d}: {row['n_views']} views, PSNR {psnr:.2f} dB, {time.perf_counter() - start:.1f} s"
-        steps.set_postfix_str(message.split(": ", 1)[1])
-        if not interactive:
-            print(f"[{cfg.scene.name}/{cfg.method.name}] {message}", flush=True)
+    label = f"{cfg.scene.name}/{cfg.method.name} {cfg.budget.name} seed {int(cfg.seed)}"
+    stages = list(cfg.method.stages)
+    with EpisodeProgress(label, first, int(cfg.budget.horizon), stages) as progress:
+        for step in range(first, int(cfg.budget.horizon)):
+            start = time.perf_counter()
+            row, images = episode.step(step, progress.train)
+            if cfg.save_images:
+                save_step_images(directory / "images", step, images, episode.method.score_unit)
+            record.append_step(row)
+            episode.observe_pose(row["selected_pose"])
+            progress.step_done(step, row["n_views"], row["metrics"]["psnr"], time.perf_counter() - start)

@@ -35,7 +35,7 @@ from pipeline.scenes.scene import Scene, SceneError
 
 DEFAULT_PYTHON = ".venv-blender/bin/python"
 DEFAULT_TIMEOUT = RenderConfig.timeout  # seconds per request
-INSTALL = "install it with scripts/setup.sh (it creates .venv-blender with bpy==5.0.1)"
+INSTALL = "install it with `make blender` (scripts/setup.sh blender: .venv-blender with bpy==5.0.1)"
 
 
 class BlenderError(SceneError):

@@ -1,15 +1,21 @@
 """Every table and figure from the run records: long CSV, the paper's tables (md, csv, tex), the comparison
-with the paper, curves and image grids."""
+with the paper, curves and image grids, and the results site (with the pictures older records lack)."""
 
 from pathlib import Path
 
+from pipeline.config.named import NamedConfigs
+from pipeline.config.paths import configured_paths
 from pipeline.records.files import check_directory, make_directory
 from pipeline.records.store import atomic_write_text
+from pipeline.repo import CONF
 from pipeline.tables.aggregate import GROUP, SPECS, build_table
 from pipeline.tables.compare import paper_comparison
-from pipeline.tables.figures import curves, file_name, image_grid
-from pipeline.tables.load import collect_runs
+from pipeline.tables.figures import curves, file_name, image_grid, safe_name
+from pipeline.tables.load import Runs, collect_runs, load_run
 from pipeline.tables.render import LABEL_HEADERS, render
+from pipeline.tables.site import RunPictures, write_site
+from pipeline.tables.summary import run_title
+from pipeline.tables.trajectory import outline_of_config, recorded_scene, trajectory_figure
 
 OUTPUT_DIRECTORIES = ("tables", "figures", "figures/grids")  # under paths.results
 
@@ -23,14 +29,17 @@ def prepare_outputs(results: Path) -> None:
 
 
 def build_tables(
-    outputs: Path, runs_dirs: list[Path], results: Path, figures: bool = True
+    outputs: Path, runs_dirs: list[Path], results: Path, figures: bool = True, assets: Path | None = None
 ) -> tuple[list[Path], tuple[str, ...]]:
     """Collect runs, write runs.csv, the tables (md/csv/tex), the paper comparison and (unless
-    ``figures`` is False) the curves and image grids.
+    ``figures`` is False) the curves, image grids and the site, with the ``grid.png`` and
+    ``trajectory.png`` of each finished run that lacks them (``run_pictures_of``; scene outlines read from
+    ``assets``). Every file is written under ``results``.
 
     Returns the files written and one line per run record skipped (unreadable) or left out (settings
-    that conflict with a kept record of the same run, differing finished copies). Nothing is written
-    before the output directories are checked (``prepare_outputs``) and every file name is known.
+    that conflict with a kept record of the same run, differing finished copies), or whose pictures could not
+    be written. Nothing is written before the output directories are checked (``prepare_outputs``) and
+    every figure's file name is known.
     """
     results = Path(results)
     prepare_outputs(results)
@@ -39,7 +48,9 @@ def build_tables(
     grids = [  # one grid per method and scene: lowest seed
         (Path(run["directory"]), results / "figures" / "grids" / file_name(
             ["grid", run["scene"], "-".join((run["method"], run["planner"], run["ablation"])), run["budget"],
-             f"seed{int(run['seed'])}"], "_", ".png"))
+             f"seed{int(run['seed'])}"], "_", ".png"),
+         f"{run['scene']} / {runs.row(run['method'], run['planner'], run['ablation']).label} / {run['budget']} budget "
+         f"/ seed {int(run['seed'])}")
         for _, run in done.drop_duplicates(list(GROUP)).iterrows()
     ]  # fmt: skip
     written = [results / "runs.csv"]
@@ -55,7 +66,61 @@ def build_tables(
     if not figures:
         return written, (*runs.skipped, *runs.conflicts)
     written += curves(runs, results / "figures")
-    for run_directory, path in grids:
-        grid = image_grid(run_directory, path)
+    for run_directory, path, title in grids:
+        grid = image_grid(run_directory, path, title)
         written += [grid] if grid is not None else []
-    return written, (*runs.skipped, *runs.conflicts)
+    pictures, problems = run_pictures_of(runs, results / "site", assets)
+    written += [p for found in pictures.values() for p in (found.grid, found.trajectory) if p is not None and results in p.parents]
+    written += write_site(runs, pictures, results)
+    return written, (*runs.skipped, *runs.conflicts, *problems)
+
+
+def run_pictures_of(runs: Runs, site: Path, assets: Path | None) -> tuple[dict[str, RunPictures], list[str]]:
+    """Each finished run's pictures (by directory): its own ``grid.png`` and ``trajectory.png`` beside its
+    record where it has them; else those drawn for a site beside its records' folder (the committed
+    ``results/site/runs/`` for ``results/runs``) or for this ``site``, under ``runs/<scene>/<method>-<planner>-
+    <ablation>/<budget>/seed_<n>/``; else they are drawn there for this site (records made before runs drew
+    them; records are never written to), again when the record is newer. One line per run whose pictures
+    could not be drawn."""
+    named, outlines = NamedConfigs(CONF), {}
+    assets = configured_paths({})["assets"] if assets is None else assets
+    pictures, problems = {}, []
+    for _, run in runs.final[runs.final["status"] == "done"].iterrows():
+        run_dir = Path(run["directory"])
+        group = "-".join(safe_name(run[key]) for key in ("method", "planner", "ablation"))
+        key = Path(safe_name(run["scene"]), group, safe_name(run["budget"]), f"seed_{int(run['seed'])}")
+        places = [run_dir, run_dir.parents[3].parent / "site" / "runs" / key, site / "runs" / key]
+        grid, trajectory = (_found(name, places, run_dir) for name in ("grid.png", "trajectory.png"))
+        try:
+            if _stale(grid, run_dir) or _stale(trajectory, run_dir):
+                info, rows = load_run(run_dir)
+                if _stale(grid, run_dir):
+                    grid = image_grid(run_dir, grid, run_title(info))
+                if _stale(trajectory, run_dir):
+                    scene = recorded_scene(info, named)
+                    scene_key = str(sorted(scene.items()))
+                    if scene_key not in outlines:
+                        outlines[scene_key] = outline_of_config(scene, assets)
+                    trajectory_figure(outlines[scene_key], rows, run_title(info), trajectory)
+        except (OSError, ValueError, KeyError) as err:
+            problems.append(f"pictures of {run_dir} not drawn: {' '.join(str(err).split())}")
+        summary = run_dir / "summary.md"
+        pictures[str(run["directory"])] = RunPictures(
+            *(path if path is not None and path.is_file() else None for path in (grid, trajectory, summary))
+        )
+    return pictures, problems
+
+
+def _found(name: str, places: list[Path], run_dir: Path) -> Path:
+    """The first up-to-date ``name`` in ``places``; else where this site draws it (the last place)."""
+    return next((place / name for place in places if not _stale(place / name, run_dir)), places[-1] / name)
+
+
+def _stale(picture: Path | None, run_dir: Path) -> bool:
+    """A picture not there, or drawn for a site before its record's last step was written (a run's own
+    pictures are never stale; None: the grid of a run without images)."""
+    if picture is None:
+        return False
+    if not picture.is_file():
+        return True
+    return picture.parent != run_dir and picture.stat().st_mtime < (run_dir / "steps.jsonl").stat().st_mtime

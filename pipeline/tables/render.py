@@ -1,7 +1,10 @@
-"""A ``Table`` as Markdown, CSV and LaTeX texts: cells 'mean ± std' (bold for the best, † where some
+"""A ``Table`` as Markdown, CSV and LaTeX texts (and an HTML table for the results site): cells 'mean ± std' (bold for the best, † where some
 seeds lack the value), ‡ after the label of a row planned with the mesh's line of sight, header lines
 and footnotes. Every cell, header line and footnote is escaped for its format (``pipeline.tables.escape``):
 labels, sources and reasons come from run records."""
+
+import html
+import re
 
 import pandas as pd
 
@@ -85,6 +88,23 @@ def render(table: Table, label_header: str, experiment: str | None) -> dict[str,
         *(r"\par{\footnotesize " + tex_escape(n) + "}" for n in table.notes),
     ]
     return {"md": "\n".join(md) + "\n", "csv": csv, "tex": "\n".join(tex) + "\n"}
+
+
+BOLD = re.compile(r"\*\*(.+?)\*\*")
+
+
+def _html_cell(text: str) -> str:
+    return BOLD.sub(r"<strong>\1</strong>", html.escape(text))
+
+
+def html_table(table: Table, label_header: str) -> str:
+    """The table's rows as an HTML ``<table>`` (the Markdown cells; a best value in ``<strong>``)."""
+    if table.rows.empty:
+        return "<p>No finished runs.</p>"
+    columns, cells = _grid(table, label_header)
+    head = "".join(f"<th>{html.escape(c)}</th>" for c in columns)
+    body = "".join("<tr>" + "".join(f"<td>{_html_cell(c)}</td>" for c in line) + "</tr>" for line in cells)
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
 LABEL_HEADERS = {"table2_ablation": "Variant"}

@@ -1,6 +1,6 @@
 """One run's per-step metrics as Markdown (``<run_dir>/summary.md``), with the paper's row for its scene
-and method where the paper has one, and its pictures (``run_pictures``). Record text is escaped
-(``pipeline.tables.escape``)."""
+and method where the paper has one, and its pictures (``run_pictures``: image grid, PSNR curve, cameras).
+Record text is escaped (``pipeline.tables.escape``)."""
 
 import math
 from pathlib import Path
@@ -14,6 +14,7 @@ from pipeline.tables.figures import image_grid, step_curve
 from pipeline.tables.labels import METRIC_KEYS
 from pipeline.tables.load import describe, ground_truth_label, load_run, metric_value
 from pipeline.tables.paper import paper_numbers
+from pipeline.tables.trajectory import SceneOutline, trajectory_figure
 
 
 def summarize_run(run_dir: Path) -> Path:
@@ -50,10 +51,20 @@ def summarize_run(run_dir: Path) -> Path:
     return path
 
 
-def run_pictures(run_dir: Path) -> list[Path]:
+def run_title(info: dict) -> str:
+    """``scene / method label / budget budget / seed n`` of a run record."""
+    return f"{info['scene']} / {describe(info)[0].label} / {info['budget']} budget / seed {info['seed']}"
+
+
+def run_pictures(run_dir: Path, outline: SceneOutline) -> list[Path]:
     """A finished run's labelled pictures beside its records: ``grid.png`` (steps x GT | prediction | score
-    map | depth; only when the run saved its images) and ``psnr.png`` (PSNR per step)."""
+    map | depth; only when the run saved its images), ``psnr.png`` (PSNR per step) and ``trajectory.png``
+    (its cameras over ``outline``, the scene's)."""
     info, rows = load_run(Path(run_dir))
-    title = f"{info['scene']} / {describe(info)[0].label} / {info['budget']} / seed {info['seed']}"
-    grid = image_grid(Path(run_dir), Path(run_dir) / "grid.png")
-    return [*([grid] if grid is not None else []), step_curve(rows, title, Path(run_dir) / "psnr.png")]
+    title = run_title(info)
+    grid = image_grid(Path(run_dir), Path(run_dir) / "grid.png", title)
+    return [
+        *([grid] if grid is not None else []),
+        step_curve(rows, title, Path(run_dir) / "psnr.png"),
+        trajectory_figure(outline, rows, title, Path(run_dir) / "trajectory.png"),
+    ]

@@ -1,0 +1,284 @@
+"""The results site, ``${paths.results}/site/``: static pages that open from ``file://`` with no server and no
+network. ``index.html`` is a methods x scenes overview of the final PSNR; one page per scene and budget holds
+its table (paired intervals as in ``tables/all_runs``), its PSNR-over-steps curves per method (mean and 95%
+Student-t band over seeds, the paper's final value marked where it has one) and every run's pictures;
+``pilots.html`` shows the pilots under ``${paths.results}/pilots``. The interactive plots are plotly's, its
+JavaScript written once beside the pages (``plotly.min.js``); pictures are linked where they lie (beside the
+run records, in ``pilots/``, or drawn into ``site/runs/`` for records that lack them), not copied, so the site
+works while it stays beside them.
+"""
+
+import html
+import math
+import os
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from pathlib import Path
+from urllib.parse import quote
+
+import markdown
+import numpy as np
+import pandas as pd
+import plotly.graph_objects as go
+from jinja2 import Environment
+from plotly.offline import get_plotlyjs
+from scipy import stats
+
+from pipeline.records.store import atomic_write_text
+from pipeline.tables.aggregate import SPECS, Table, build_table
+from pipeline.tables.figures import safe_name
+from pipeline.tables.load import Runs
+from pipeline.tables.paper import paper_numbers
+from pipeline.tables.render import html_table
+
+PLOTLY_JS = "plotly.min.js"
+LEVEL = 0.95  # the curves' bands: two-sided Student-t interval of the mean over seeds
+
+STYLE = """
+body { font-family: system-ui, sans-serif; margin: 1.5em auto; max-width: 1300px; padding: 0 1em; color: #222; }
+h1 { font-size: 1.5em; } h2 { font-size: 1.2em; margin-top: 1.6em; } h3 { font-size: 1.05em; }
+table { border-collapse: collapse; margin: 0.6em 0; font-size: 0.85em; }
+th, td { border: 1px solid #ccc; padding: 0.2em 0.5em; text-align: right; white-space: nowrap; }
+th:nth-child(-n+2), td:nth-child(-n+2), td.label { text-align: left; }
+thead th { background: #f0f0f0; }
+.note { color: #555; font-size: 0.85em; }
+.runs { display: flex; flex-wrap: wrap; gap: 1em; }
+.run { border: 1px solid #ddd; padding: 0.5em; }
+.run img { display: block; max-width: 600px; margin: 0.3em 0; }
+.pilot img { max-width: 800px; display: block; }
+nav a { margin-right: 1em; }
+.wide { overflow-x: auto; }
+"""
+
+PAGE = Environment(autoescape=True).from_string("""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>{{ title }}</title>
+<style>{{ style }}</style>{% if plotly %}<script src="{{ plotly }}"></script>{% endif %}</head>
+<body><nav><a href="{{ home }}index.html">Overview</a><a href="{{ home }}pilots.html">Pilots</a></nav>
+<h1>{{ title }}</h1>
+{{ body | safe }}
+</body></html>
+""")
+
+
+@dataclass(frozen=True)
+class RunPictures:
+    """One run's pictures: its grid and trajectory (beside its record, or drawn for the site) and its per-step
+    table (None where it has none)."""
+
+    grid: Path | None
+    trajectory: Path | None
+    summary: Path | None
+
+
+def link(target: Path, page: Path) -> str:
+    """``target`` relative to the folder of ``page``, as a URL path (characters a URL cannot hold quoted)."""
+    return quote(Path(os.path.relpath(Path(target).resolve(), Path(page).resolve().parent)).as_posix())
+
+
+def scene_page_name(scene: str, budget: str) -> str:
+    return f"scenes/{safe_name(scene)}_{safe_name(budget)}.html"
+
+
+def write_site(runs: Runs, pictures: Mapping[str, RunPictures], results: Path) -> list[Path]:
+    """Write the site under ``results / "site"`` from the runs and each run's pictures (by run directory);
+    returns the files written."""
+    site = Path(results) / "site"
+    done = runs.final[runs.final["status"] == "done"]
+    written = [site / PLOTLY_JS]
+    atomic_write_text(written[0], get_plotlyjs())  # plotly.js, its MIT licence in its first lines
+    pages = {}
+    for (budget, scene), frame in done.groupby(["budget", "scene"]):
+        path = site / scene_page_name(scene, budget)
+        pages[(budget, scene)] = path
+        atomic_write_text(path, scene_page(runs, frame, pictures, scene, budget, path))
+        written.append(path)
+    index = site / "index.html"
+    atomic_write_text(index, index_page(runs, done, pages, index))
+    pilots = site / "pilots.html"
+    atomic_write_text(pilots, pilots_page(Path(results) / "pilots", pilots))
+    return [*written, index, pilots]
+
+
+def _page(title: str, body: str, home: str = "", plotly: bool = False) -> str:
+    """A whole page; ``home``: the site's folder relative to the page's ("" or "../")."""
+    return PAGE.render(title=title, body=body, style=STYLE, home=home, plotly=f"{home}{PLOTLY_JS}" if plotly else None)
+
+
+def index_page(runs: Runs, done: pd.DataFrame, pages: Mapping[tuple[str, str], Path], page: Path) -> str:
+    """Per budget, methods x scenes: final PSNR mean ± population std over seeds, each scene linking to its page."""
+    parts = []
+    if done.empty:
+        parts.append("<p>No finished runs yet: run <code>python -m pipeline.run</code>, then "
+                     "<code>python -m pipeline.tables</code>.</p>")  # fmt: skip
+    for budget, frame in done.groupby("budget"):
+        frame = frame.assign(row=list(zip(frame["method"], frame["planner"], frame["ablation"])))
+        groups = sorted(set(frame["row"]), key=lambda key: runs.row(*key).order)
+        scenes = sorted(set(frame["scene"]), key=lambda scene: runs.scene(scene).order)
+        head = "".join(f'<th><a href="{link(pages[(budget, s)], page)}">{html.escape(s)}</a></th>' for s in scenes)
+        lines = []
+        for key in groups:
+            cells = []
+            for scene in scenes:
+                psnr = frame.loc[(frame["scene"] == scene) & (frame["row"] == key), "psnr"].to_numpy(float)
+                psnr = psnr[np.isfinite(psnr)]
+                text = f"{psnr.mean():.2f} ± {psnr.std():.2f}" if len(psnr) else "-"
+                cells.append(f'<td title="{len(psnr)} seeds">{text}</td>')
+            lines.append(f'<tr><td class="label">{html.escape(runs.row(*key).label)}</td>{"".join(cells)}</tr>')
+        parts.append(
+            f'<h2>{html.escape(budget)} budget</h2><div class="wide"><table><thead><tr><th>method</th>{head}</tr>'
+            f"</thead><tbody>{''.join(lines)}</tbody></table></div>"
+        )
+    parts.append(
+        '<p class="note">Final PSNR (dB) on the evaluation views: mean ± population std over seeds (hover a cell for '
+        "the number of seeds). A scene's page has every metric with paired 95% intervals, the curves over the steps "
+        "and each run's pictures. Proxies and the procedural default scene are stand-ins, not the paper's assets.</p>"
+    )
+    return _page("nvf-bench results", "".join(parts))
+
+
+def psnr_bands(runs: Runs, scene: str, budget: str) -> list[tuple[str, pd.DataFrame]]:
+    """Per method row (in the paper's order): step, mean, low, high and n of the PSNR over seeds, the band
+    the two-sided ``LEVEL`` Student-t interval of the mean (none from one seed)."""
+    long = runs.long[(runs.long["scene"] == scene) & (runs.long["budget"] == budget) & (runs.long["metric"] == "psnr")]
+    out = []
+    for key, group in sorted(long.groupby(["method", "planner", "ablation"]), key=lambda kv: runs.row(*kv[0]).order):
+        rows = []
+        for step, values in group.groupby("step")["value"]:
+            v = values.to_numpy(float)
+            v = v[np.isfinite(v)]
+            mean = float(v.mean()) if len(v) else math.nan
+            half = float(stats.t.ppf(0.5 + LEVEL / 2, len(v) - 1) * v.std(ddof=1) / math.sqrt(len(v))) if len(v) > 1 else math.nan
+            rows.append({"step": int(step), "mean": mean, "low": mean - half, "high": mean + half, "n": len(v)})
+        out.append((runs.row(*key).label, pd.DataFrame(rows)))
+    return out
+
+
+def psnr_figure(runs: Runs, scene: str, budget: str) -> go.Figure:
+    """PSNR over the steps per method: mean line and 95% band; the paper's final value as a marker at the last
+    step where the paper reports this scene and method (Tables S3-S4)."""
+    fig = go.Figure()
+    paper = paper_numbers()
+    paper_scene = runs.scene(scene).paper_scene
+    last = 0
+    for i, (label, frame) in enumerate(psnr_bands(runs, scene, budget)):
+        color = COLORS[i % len(COLORS)]
+        last = max(last, int(frame["step"].max()))
+        if frame["n"].max() > 1:
+            fig.add_trace(go.Scatter(x=frame["step"], y=frame["high"], line={"width": 0}, hoverinfo="skip",
+                                     showlegend=False, legendgroup=label))  # fmt: skip
+            fig.add_trace(go.Scatter(x=frame["step"], y=frame["low"], line={"width": 0}, fill="tonexty",
+                                     fillcolor=_alpha(color, 0.12), hoverinfo="skip", showlegend=False,
+                                     legendgroup=label))  # fmt: skip
+        fig.add_trace(go.Scatter(
+            x=frame["step"], y=frame["mean"], name=label, legendgroup=label, line={"color": color},
+            customdata=frame[["low", "high", "n"]].to_numpy(),
+            hovertemplate=f"{html.escape(label)} step %{{x}}: %{{y:.2f}} dB [%{{customdata[0]:.2f}}, "
+                          "%{customdata[1]:.2f}], n=%{customdata[2]}<extra></extra>",
+        ))  # fmt: skip
+        ref = paper[paper["table"].isin(["S3", "S4"]) & (paper["scene"] == paper_scene) & (paper["method"] == label)]
+        if paper_scene is not None and not ref.empty:
+            fig.add_trace(go.Scatter(
+                x=[int(frame["step"].max())], y=[float(ref["psnr"].iloc[0])], mode="markers", legendgroup=label,
+                marker={"symbol": "star", "size": 12, "color": color, "line": {"width": 1, "color": "black"}},
+                name=f"{label}: paper (Table {ref['table'].iloc[0]})",
+                hovertemplate=f"paper, {html.escape(label)} on the {paper_scene} asset at the paper budget: "
+                              "%{y:.2f} dB<extra></extra>",
+            ))  # fmt: skip
+    fig.update_layout(
+        height=480, margin={"l": 60, "r": 20, "t": 40, "b": 50}, template="plotly_white",
+        title=f"{scene}, {budget} budget: PSNR over the steps (mean and {LEVEL:.0%} interval over seeds)",
+        xaxis={"title": "step", "dtick": 1 if last <= 20 else None}, yaxis={"title": "PSNR (dB)"},
+        legend={"groupclick": "togglegroup"},
+    )  # fmt: skip
+    return fig
+
+
+COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22",
+          "#17becf")  # matplotlib's, as the PNG curves
+
+
+def _alpha(color: str, alpha: float) -> str:
+    r, g, b = (int(color[i : i + 2], 16) for i in (1, 3, 5))
+    return f"rgba({r},{g},{b},{alpha})"
+
+
+def scene_table(runs: Runs, scene: str, budget: str) -> Table:
+    """The ``all_runs`` table of one scene at one budget, with its own header and notes."""
+    final = runs.final[(runs.final["scene"] == scene) & (runs.final["budget"] == budget)]
+    long = runs.long[(runs.long["scene"] == scene) & (runs.long["budget"] == budget)]
+    spec = next(spec for spec in SPECS if spec.name == "all_runs")
+    return build_table(replace(runs, final=final, long=long, skipped=(), conflicts=()), spec)
+
+
+def scene_page(
+    runs: Runs, frame: pd.DataFrame, pictures: Mapping[str, RunPictures], scene: str, budget: str, page: Path
+) -> str:
+    """One scene at one budget: table, curves, each run's pictures."""
+    table = scene_table(runs, scene, budget)
+    parts = [f"<h2>Final step, every metric</h2><div class=\"wide\">{html_table(table, 'Method')}</div>"]
+    parts.append(f'<p class="note">{html.escape(" ".join(table.header))}</p>')
+    parts.append('<p class="note">' + "<br>".join(html.escape(n) for n in table.notes) + "</p>")
+    chart = psnr_figure(runs, scene, budget).to_html(full_html=False, include_plotlyjs=False, div_id="psnr-curves")
+    parts.append(f"<h2>PSNR over the steps</h2>{chart}")
+    parts.append(
+        '<p class="note">Band: two-sided 95% Student-t interval of the mean over seeds; stars: the paper\'s final '
+        "PSNR for the real asset at the paper budget (Tables S3-S4), where it reports this scene and method. "
+        "Click a legend entry to hide a method.</p><h2>Runs</h2>"
+    )
+    for key, group in sorted(frame.groupby(["method", "planner", "ablation"]), key=lambda kv: runs.row(*kv[0]).order):
+        parts.append(f"<h3>{html.escape(runs.row(*key).label)}</h3><div class=\"runs\">")
+        for _, run in group.sort_values("seed").iterrows():
+            found = pictures.get(str(run["directory"]), RunPictures(None, None, None))
+            parts.append(_run_card(run, found, page))
+        parts.append("</div>")
+    return _page(f"{scene}, {budget} budget", "".join(parts), "../", plotly=True)
+
+
+def _run_card(run: pd.Series, found: RunPictures, page: Path) -> str:
+    lines = [f"<div class=\"run\"><strong>seed {int(run['seed'])}</strong>: final PSNR {run['psnr']:.2f} dB"]
+    if found.summary is not None:
+        lines.append(f' (<a href="{link(found.summary, page)}">per-step table</a>)')
+    for picture, what in ((found.trajectory, "cameras"), (found.grid, "images")):
+        if picture is not None:
+            target = link(picture, page)
+            lines.append(f'<a href="{target}"><img src="{target}" alt="{what}, seed {int(run["seed"])}"></a>')
+    if found.grid is None:
+        lines.append('<span class="note">no images: the record keeps its steps only (save_images off, or a '
+                     "committed record)</span>")  # fmt: skip
+    return "".join(lines) + "</div>"
+
+
+RELATIVE = re.compile(r'(href|src)="(?![a-z]+:|#|/)([^"]+)"')
+HEADING = re.compile(r"<(/?)h([1-6])([ >])")
+
+
+def _note(path: Path, page: Path) -> str:
+    """A Markdown note as HTML under the page's own headings (its headings three levels down), its
+    relative links pointing at the files beside it."""
+    text = markdown.markdown(path.read_text(encoding="utf-8"), extensions=["tables", "fenced_code"])
+    base = link(path.parent, page)
+    text = RELATIVE.sub(lambda m: f'{m.group(1)}="{base}/{m.group(2)}"', text)
+    return HEADING.sub(lambda m: f"<{m.group(1)}h{min(6, int(m.group(2)) + 3)}{m.group(3)}", text)
+
+
+def pilots_page(pilots: Path, page: Path) -> str:
+    """Each pilot under ``pilots``: its Markdown notes (README.md, summaries) and pictures, two folders deep
+    (the records under them are not listed); links in the notes point at the files beside them."""
+    folders = sorted(p for p in pilots.iterdir() if p.is_dir()) if pilots.is_dir() else []
+    parts = [f"<p>No pilots under {html.escape(str(pilots))}.</p>"] if not folders else []
+    if folders:
+        items = "".join(f'<li><a href="#{html.escape(f.name)}">{html.escape(f.name)}</a></li>' for f in folders)
+        parts.append(f"<p>Settings tried beside the budgets, each with its notes and pictures:</p><ul>{items}</ul>")
+    for folder in folders:
+        parts.append(f'<div class="pilot"><h2 id="{html.escape(folder.name)}">{html.escape(folder.name)}</h2>')
+        files = sorted({*folder.glob("*.md"), *folder.glob("*/*.md"), *folder.glob("*.png"), *folder.glob("*/*.png")},
+                       key=lambda p: (p.parent != folder, p.parent.name, p.name != "README.md", p.name))  # fmt: skip
+        for path in files:
+            where = path.relative_to(folder).as_posix()
+            if path.suffix == ".png":
+                parts.append(f'<h3>{html.escape(where)}</h3><img src="{link(path, page)}" alt="{html.escape(where)}">')
+                continue
+            parts.append(f"<h3>{html.escape(where)}</h3>{_note(path, page)}")
+        parts.append("</div>")
+    return _page("Pilots", "".join(parts))

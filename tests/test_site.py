@@ -1,0 +1,159 @@
+"""Pictures that explain themselves and the results site: map ranges recorded for colour bars, trajectories,
+the static site's pages, links and offline script, the tables command's choice of records, and every entry
+point's --help page."""
+
+import math
+import re
+from html.parser import HTMLParser
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+import pandas as pd
+import pytest
+
+import pipeline.tables.__main__ as tables_cli
+from pipeline.records.images import map_range, save_step_images
+from pipeline.tables.build import build_tables
+from pipeline.tables.figures import image_grid
+from pipeline.tables.trajectory import chosen_poses, outline_of_config, trajectory_figure
+from pipeline.scenes.loading import scene_config
+from test_tables import make_run
+
+
+def test_a_map_records_its_range_and_unit_and_an_empty_one_says_so(tmp_path):
+    depth = np.linspace(0.5, 2.5, 64, dtype=np.float32).reshape(8, 8)
+    score = np.full((8, 8), np.nan, dtype=np.float32)
+    rgb = np.zeros((8, 8, 3), dtype=np.float32)
+    save_step_images(tmp_path, 3, {"gt": rgb, "depth": depth, "score": score}, score_unit="nats")
+    assert map_range(tmp_path / "step_03_depth.png") == (0.5, 2.5, "scene units")
+    low, high, unit = map_range(tmp_path / "step_03_score.png")
+    assert math.isnan(low) and math.isnan(high) and unit == "nats"
+    assert map_range(tmp_path / "step_03_gt.png") is None  # a colour image has no range
+    out = image_grid(tmp_path.parent / tmp_path.name, tmp_path / "grid.png", "default / Random / smoke budget / seed 0")
+    assert out is None  # images/ is not there: the run saved none
+    (tmp_path / "run" / "images").mkdir(parents=True)
+    for step in (0, 1):
+        save_step_images(tmp_path / "run" / "images", step, {"gt": rgb, "depth": depth, "score": score})
+    grid = image_grid(tmp_path / "run", tmp_path / "grid.png", "default / Random / smoke budget / seed 0")
+    assert iio.imread(grid).shape[0] > 200  # enlarged: two rows of 8-px images drawn hundreds of pixels high
+
+
+def test_chosen_poses_read_the_recorded_quaternions():
+    rows = [
+        {"step": 0, "selected_pose": [0.0, 0.0, 0.0, 1.0, 1.0, 2.0, 3.0]},
+        {"step": 1, "selected_pose": "corrupt"},
+        {"step": 2, "selected_pose": [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]},  # 180 degrees about x
+    ]
+    steps, poses = chosen_poses(rows)
+    assert steps == [0, 2]
+    np.testing.assert_allclose(poses[0][:3, 3], [1.0, 2.0, 3.0])
+    np.testing.assert_allclose(poses[1][:3, :3], np.diag([1.0, -1.0, -1.0]), atol=1e-12)
+
+
+def test_a_trajectory_without_its_asset_is_drawn_on_the_tight_box(tmp_path):
+    outline = outline_of_config(scene_config("hubble"), tmp_path / "no_assets")
+    assert outline.points is None and "tight box" in outline.note and len(outline.init_poses) == 3
+    rows = [{"step": s, "selected_pose": [0.0, 0.0, 0.0, 1.0, 0.5 * s, 1.0, 1.5]} for s in range(4)]
+    path = trajectory_figure(outline, rows, "hubble / NVF / smoke budget / seed 0", tmp_path / "trajectory.png")
+    assert iio.imread(path).shape[1] > 600
+
+
+class Links(HTMLParser):
+    """The img sources, hrefs and script sources of a page."""
+
+    def __init__(self):
+        super().__init__()
+        self.images, self.hrefs, self.scripts = [], [], []
+
+    def handle_starttag(self, tag, attrs):
+        attrs = dict(attrs)
+        if tag == "img":
+            self.images.append(attrs["src"])
+        elif tag == "a" and "href" in attrs:
+            self.hrefs.append(attrs["href"])
+        elif tag == "script" and "src" in attrs:
+            self.scripts.append(attrs["src"])
+
+
+def links(page: Path) -> Links:
+    parser = Links()
+    parser.feed(page.read_text(encoding="utf-8"))
+    return parser
+
+
+def test_the_site_links_every_picture_and_needs_no_network(tmp_path):
+    out, results = tmp_path / "out", tmp_path / "res"
+    for seed in (100, 101):
+        for method in ("random", "nvf"):
+            make_run(out, scene="hubble", method=method, seed=seed, final={"psnr": 20.0 + seed % 2})
+    own = make_run(out, scene="hubble", method="nvf", seed=102)  # a run with its own pictures
+    iio.imwrite(own.directory / "trajectory.png", np.zeros((4, 4, 3), np.uint8))
+    (results / "pilots" / "a_pilot").mkdir(parents=True)
+    (results / "pilots" / "a_pilot" / "README.md").write_text("# A pilot\n\n| a | b |\n|--|--|\n| 1 | 2 |\n\n[data](x.csv)\n")
+    iio.imwrite(results / "pilots" / "a_pilot" / "curve.png", np.zeros((4, 4, 3), np.uint8))
+    before = sorted(p for p in out.rglob("*"))
+    build_tables(out, [], results, assets=tmp_path / "no_assets")
+    assert sorted(p for p in out.rglob("*")) == before  # records are never written to
+    site = results / "site"
+    assert sorted(p.name for p in site.rglob("*.js")) == ["plotly.min.js"]
+    index = links(site / "index.html")
+    assert index.hrefs[:2] == ["index.html", "pilots.html"] and "scenes/hubble_smoke.html" in index.hrefs
+    page = site / "scenes" / "hubble_smoke.html"
+    found = links(page)
+    assert found.scripts == ["../plotly.min.js"]
+    assert len(found.images) == 5 and all((page.parent / src).resolve().is_file() for src in found.images)
+    assert sum(src.endswith("out/hubble/nvf-argmax-none/smoke/seed_102/trajectory.png") for src in found.images) == 1
+    assert all(src.startswith("../runs/") for src in found.images if "seed_102" not in src)  # drawn for the site
+    text = page.read_text(encoding="utf-8")
+    assert len(re.findall(r"<tr><td>hubble</td>", text)) == 2  # the table: Random and NVF
+    assert "psnr-curves" in text and "http://" not in text.replace("http://www.w3.org", "")
+    pilots = (site / "pilots.html").read_text(encoding="utf-8")
+    assert "<table>" in pilots and 'href="../pilots/a_pilot/x.csv"' in pilots
+    assert all((site / src).resolve().is_file() for src in links(site / "pilots.html").images)
+
+
+def test_tables_read_your_runs_and_with_committed_the_committed_ones(tmp_path, capsys, monkeypatch):
+    committed = tmp_path / "repo_results"
+    make_run(committed / "runs", seed=100)  # the same run as yours: counted once
+    make_run(committed / "runs", seed=101)
+    make_run(tmp_path / "out", seed=100)
+    monkeypatch.setattr(tables_cli, "RESULTS", committed)
+    args = [f"paths.outputs={tmp_path / 'out'}", f"paths.results={tmp_path / 'res'}"]
+    assert tables_cli.main(args) == 0
+    assert set(pd.read_csv(tmp_path / "res" / "runs.csv")["seed"]) == {100}
+    drawn = Path("site", "runs", "hubble", "nvf-argmax-none", "smoke", "seed_101", "trajectory.png")
+    (committed / drawn).parent.mkdir(parents=True)
+    iio.imwrite(committed / drawn, np.zeros((4, 4, 3), np.uint8))  # the committed site drew it already
+    assert tables_cli.main([*args, "--with-committed"]) == 0
+    runs = pd.read_csv(tmp_path / "res" / "runs.csv")
+    assert set(runs["seed"]) == {100, 101} and len(runs[runs["seed"] == 100]) == len(runs[runs["seed"] == 101])
+    assert not (tmp_path / "res" / drawn).exists() and (tmp_path / "res" / drawn.parent.parent / "seed_100").is_dir()
+    assert "repo_results/site/runs/hubble" in (tmp_path / "res" / "site" / "scenes" / "hubble_smoke.html").read_text()
+    assert "site/index.html" in capsys.readouterr().out
+    assert tables_cli.main([*args, "--with-comitted"]) == 2
+    assert "unknown argument '--with-comitted'" in capsys.readouterr().err
+
+
+def entry_points():
+    from pipeline import budget_curve, discriminate, uncertainty, visibility_study
+    from pipeline.bench.__main__ import main as bench
+    from pipeline.scenes.__main__ import main as scenes
+
+    return {
+        "tables": tables_cli.main, "budget_curve": budget_curve.main, "bench": bench, "scenes": scenes,
+        "uncertainty": uncertainty.main, "discriminate": discriminate.main, "visibility_study": visibility_study.main,
+    }  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "name", ["tables", "budget_curve", "bench", "scenes", "uncertainty", "discriminate", "visibility_study"]
+)
+def test_every_entry_point_has_a_plain_help_page(name, capsys):
+    try:
+        code = entry_points()[name](["--help"])
+    except SystemExit as exit_:
+        code = exit_.code
+    page = capsys.readouterr().out
+    assert code in (0, None)
+    assert f"python -m pipeline.{name}" in page and "``" not in page and len(page.splitlines()) >= 5
