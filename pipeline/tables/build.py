@@ -17,7 +17,7 @@ from pipeline.tables.site import RunPictures, write_site
 from pipeline.tables.summary import run_title
 from pipeline.tables.trajectory import outline_of_config, recorded_scene, trajectory_figure
 
-OUTPUT_DIRECTORIES = ("tables", "figures", "figures/grids")  # under paths.results
+OUTPUT_DIRECTORIES = ("tables", "figures", "figures/grids", "site", "site/runs")  # under paths.results
 
 
 def prepare_outputs(results: Path) -> None:
@@ -89,7 +89,8 @@ def run_pictures_of(runs: Runs, site: Path, assets: Path | None) -> tuple[dict[s
         run_dir = Path(run["directory"])
         group = "-".join(safe_name(run[key]) for key in ("method", "planner", "ablation"))
         key = Path(safe_name(run["scene"]), group, safe_name(run["budget"]), f"seed_{int(run['seed'])}")
-        places = [run_dir, run_dir.parents[3].parent / "site" / "runs" / key, site / "runs" / key]
+        beside = [run_dir.parents[3].parent / "site" / "runs" / key] if len(run_dir.parents) >= 4 else []
+        places = [run_dir, *beside, site / "runs" / key]
         grid, trajectory = (_found(name, places, run_dir) for name in ("grid.png", "trajectory.png"))
         try:
             if _stale(grid, run_dir) or _stale(trajectory, run_dir):

@@ -21,6 +21,7 @@ from scipy.spatial.transform import Rotation
 
 from pipeline.config.named import GROUPS, NamedConfigs
 from pipeline.records.images import save_figure
+from pipeline.tables.escape import plot_text
 from pipeline.tables.load import effective_config
 
 SURFACE_POINTS = 40000  # sampled on the mesh for its outline
@@ -178,7 +179,7 @@ def trajectory_figure(outline: SceneOutline, rows: list[dict], title: str, out_p
         Rectangle((0, 0), 1, 1, fill=False, ec="0.35", ls="--", label="tight box"),
     ]
     panels[0].legend(handles=legend, loc="upper left", fontsize=7, framealpha=0.85)
-    fig.suptitle(f"{title}\n{outline.note}; a wedge opens along its camera's view direction, a disc looks "
+    fig.suptitle(f"{plot_text(title)}\n{outline.note}; a wedge opens along its camera's view direction, a disc looks "
                  "along the third axis", fontsize=10)
     save_figure(fig, Path(out_path), colors=PNG_COLORS)
     return Path(out_path)
