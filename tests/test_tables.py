@@ -517,7 +517,7 @@ def test_case_3_long_names_are_shortened_before_any_file_is_written(tmp_path):
     (record.directory / "images").mkdir()
     iio.imwrite(record.directory / "images" / "step_00_gt.png", np.zeros((8, 8, 3), np.uint8))
     written, lines = build_tables(tmp_path / "out", [], tmp_path / "res")
-    assert not lines
+    assert all(line.startswith("pictures of") for line in lines)  # no scene of that name to draw a trajectory over
     grids = [p for p in written if p.parent.name == "grids"]
     assert len(grids) == 1 and len(grids[0].name) == 200  # grid_<scene>_<method-planner-ablation>_<budget label>_seed100
     assert re.fullmatch(r"grid_s{64}_m{64}-p{15}-[0-9a-f]{8}_b+-[0-9a-f]{8}\.png", grids[0].name)
