@@ -6,13 +6,15 @@ Adding a method is adding a ``Method`` subclass (here or in any importable modul
 """
 
 import importlib
+from dataclasses import dataclass
 from typing import ClassVar
 
 from nvf.config import BaselineConfig, EntropyConfig
 from nvf.training import AuxLoss, activenerf_loss, neurar_loss
 from nvf.uncertainty.baselines import ActiveRMAPScorer, AIRScorer, RenderedVarianceScorer, WDScorer
+from nvf.uncertainty.fisher import FisherRFScorer
 from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
-from nvf.uncertainty.scorers import ViewScorer
+from nvf.uncertainty.scorers import StepScorer, ViewScorer
 
 class Method:
     """A method with no scorer (the planner then picks uniformly, as Random) and no auxiliary loss.
@@ -21,9 +23,10 @@ class Method:
     aux_loss: ClassVar[AuxLoss | None] = None
     score_unit: ClassVar[str] = ""
 
-    def scorer(self, entropy: EntropyConfig, baseline: BaselineConfig, d0: float) -> ViewScorer | None:
-        """The per-pixel view scorer (M16 averages it over the planning image); ``d0`` is NVF's resolved
-        correlation length (M13), which the baselines ignore."""
+    def scorer(self, entropy: EntropyConfig, baseline: BaselineConfig, d0: float) -> ViewScorer | StepScorer | None:
+        """The per-pixel view scorer (M16 averages it over the planning image), or a ``StepScorer`` that scores
+        whole views once prepared from the step's model (FisherRF); ``d0`` is NVF's resolved correlation
+        length (M13), which the baselines ignore."""
         return None
 
 
@@ -93,6 +96,20 @@ class NVF(Method):
 
     def scorer(self, entropy: EntropyConfig, baseline: BaselineConfig, d0: float) -> ViewScorer:
         return NVFEntropyScorer(entropy, d0)
+
+
+@dataclass
+class FisherRF(Method):
+    """FisherRF (Jiang et al., ECCV 2024) on NVF's backbone: a view's expected information gain about the
+    backbone's parameters, ``sum_j diag(H_c)_j / (diag(H_D)_j + lambda)`` (METHOD 17, M30-M32); stage 1 only,
+    argmax planning only (no per-pixel score to refine). ``probes``: Rademacher probes per view (M31, K;
+    docs/BUDGETS.md says why 4); ``prior_precision``: lambda, FisherRF's code default."""
+
+    probes: int = 4
+    prior_precision: float = 1e-6
+
+    def scorer(self, entropy: EntropyConfig, baseline: BaselineConfig, d0: float) -> StepScorer:
+        return FisherRFScorer(self.probes, self.prior_precision)
 
 
 def load_method(path: str) -> Method:

@@ -2,7 +2,8 @@
 
 Pose vectors are ``[qx, qy, qz, qw, x, y, z]`` (nvf.cameras). The model is anything following the
 ``SceneModel`` contract (``.aabb``, ``.density(x) -> sigma``, ``.render(origins, dirs,
-heads, train, generator, sampler)``); the scorer is a ``nvf.uncertainty.ViewScorer``.
+heads, train, generator, sampler)``); the scorer is a ``nvf.uncertainty.ViewScorer`` (per pixel) or a
+``WholeViewScorer`` (FisherRF, METHOD 17: a step's ``StepScorer`` after ``prepare_scorer``; argmax only).
 ``scorer=None`` is the Random method (METHOD 12).
 
 Randomness (PROTOCOL.md 3): every draw uses a generator from a ``GeneratorFactory``, a callable that
@@ -29,7 +30,8 @@ from nvf.cameras import (
 )
 from nvf.config import OptConfig, PlannerConfig
 from nvf.seeding import GeneratorFactory
-from nvf.uncertainty import ViewScorer
+from nvf.training import Observations
+from nvf.uncertainty import StepScorer, ViewScorer, WholeViewScorer
 from nvf.visibility import segment_transmittance
 
 # (origin [3], points [n,3]) -> [n] True where the segment from origin to the point is free (M29, los_source=mesh)
@@ -139,15 +141,30 @@ def _check_finite(scores: Tensor, what: str) -> None:
         raise FloatingPointError(f"non-finite view score for {what} {bad.tolist()[:8]} (scorer bug)")
 
 
+def prepare_scorer(
+    scorer: ViewScorer | StepScorer | None,
+    model: nn.Module,
+    observations: Observations,
+    generators: GeneratorFactory,
+    chunk_rays: int,
+) -> ViewScorer | WholeViewScorer | None:
+    """The scorer one planning step uses: ``scorer.prepare(...)`` for a ``StepScorer`` (FisherRF's ``H_D``
+    from the step's model and training views, METHOD 17), else ``scorer`` itself."""
+    if isinstance(scorer, StepScorer):
+        return scorer.prepare(model, observations, generators, chunk_rays)
+    return scorer
+
+
 @torch.no_grad()
 def score_poses(
     model: nn.Module,
-    scorer: ViewScorer,
+    scorer: ViewScorer | WholeViewScorer,
     poses: Float[Tensor, "m 7"],
     intrinsics: Intrinsics,
     chunk_rays: int,
 ) -> Float[Tensor, "m"]:
-    """(M16) View reward ``R(p)`` of each pose: mean of ``scorer.pixel_scores`` over the full image.
+    """(M16) View reward ``R(p)`` of each pose: mean of ``scorer.pixel_scores`` over the full image; for a
+    ``WholeViewScorer``, its ``view_score`` of the full image (METHOD 17).
 
     Each pose's rays are rendered in row-major chunks of ``chunk_rays`` (use a multiple of the
     scorer's depth chunk, 4096, for ``depth_mode=chunk``) with ``scorer.heads`` and
@@ -155,6 +172,11 @@ def score_poses(
     ``FloatingPointError`` on a non-finite score.
     """
     cam_dirs = camera_directions(intrinsics, poses.device)
+    if isinstance(scorer, WholeViewScorer):
+        rays = (rays_from_camera_dirs(c2w, cam_dirs) for c2w in pose_to_matrix(poses))
+        scores = torch.stack([scorer.view_score(model, origins, dirs, chunk_rays) for origins, dirs in rays])
+        _check_finite(scores, "pose")
+        return scores
     num_pixels = cam_dirs.shape[0]
     scores = torch.zeros(poses.shape[0], dtype=torch.float64, device=poses.device)
     for i, c2w in enumerate(pose_to_matrix(poses)):
@@ -327,7 +349,7 @@ def refine_poses(
 
 def select_next_view(
     model: nn.Module,
-    scorer: ViewScorer | None,
+    scorer: ViewScorer | WholeViewScorer | None,
     cfg: PlannerConfig,
     camera_box: Float[Tensor, "2 3"],
     current_pose: Float[Tensor, "7"] | None,
@@ -346,12 +368,15 @@ def select_next_view(
     - ``cfg.name == "opt"``: refine the top ``cfg.opt.top_k`` (``refine_poses``), re-score the
       original top-k followed by the refined poses on the full image and take the argmax (ties to
       the earlier entry, i.e. an original over its refinement). The choice therefore never scores
-      below the best starting candidate. No filter re-check after refinement (METHOD 14.4).
+      below the best starting candidate. No filter re-check after refinement (METHOD 14.4). It needs a
+      per-pixel score: a ``WholeViewScorer`` is refused (ValueError).
 
     ``tau`` and ``collision_free`` are the resolved scene values; ``current_pose`` is the most
     recently observed pose (needed by the collision-free sampler); ``line_of_sight``: the scene mesh's
     segment test, needed when ``cfg.los_source == "mesh"`` (``candidate_poses``).
     """
+    if cfg.name == "opt" and scorer is not None and not isinstance(scorer, ViewScorer):
+        raise ValueError(f"-OPT refines poses by a per-pixel score; {scorer.name} scores whole views: use argmax")
     filters = scorer is not None or cfg.random_filters
     candidates = candidate_poses(
         model, cfg, camera_box, current_pose, tau, collision_free, generators("candidates"), filters, line_of_sight

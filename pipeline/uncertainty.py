@@ -42,6 +42,7 @@ from nvf.config import BaselineConfig, EntropyConfig
 from nvf.methods import load_method
 from nvf.model import SceneModel
 from nvf.training import Observations
+from nvf.uncertainty import ViewScorer
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.catalog import ablation_configs, method_configs
 from pipeline.config.validation import compose_config
@@ -65,14 +66,15 @@ PARTIAL_SEED = 0
 
 
 def all_entries() -> tuple[tuple[str, str], ...]:
-    """Every (method, ablation) with a score, in the order of the table and the figure: each ablated method
-    (NVF), then its ablations in Table S2's order, then the other methods that score views, in table order
-    (``conf/method``, ``conf/ablation``; Random has no score)."""
+    """Every (method, ablation) with a per-pixel score, in the order of the table and the figure: each ablated
+    method (NVF), then its ablations in Table S2's order, then the other methods that score pixels, in table
+    order (``conf/method``, ``conf/ablation``; Random has no score, a method that scores whole views, FisherRF,
+    no map to correlate)."""
     ablations = [a for a in ablation_configs().values() if a["name"] != "none"]
     ablated = {a["of"] for a in ablations}
     entries = [(method, "none") for method in ablated] + [(a["of"], a["name"]) for a in ablations]
-    scoring = [name for name, m in method_configs().items() if load_method(m["implementation"]).scorer(
-        EntropyConfig(), BaselineConfig(), 1.0) is not None]  # fmt: skip
+    scoring = [name for name, m in method_configs().items() if isinstance(load_method(m["implementation"]).scorer(
+        EntropyConfig(), BaselineConfig(), 1.0), ViewScorer)]  # fmt: skip
     return (*entries, *((name, "none") for name in scoring if name not in ablated))
 
 

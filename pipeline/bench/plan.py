@@ -1,6 +1,7 @@
-"""``python -m pipeline.bench plan [--out PATH] [--repeats N] [--blocks K] [--precisions fp32,bf16] [overrides]``:
-view-scoring throughput of every scorer against a plain render (default ``budget=cpu scene=default``), and
-the training precisions side by side.
+"""``python -m pipeline.bench plan [--out PATH] [--repeats N] [--blocks K] [--precisions fp32,bf16] [--probes LIST]
+[overrides]``: view-scoring throughput of every scorer against a plain render (default ``budget=cpu
+scene=default``), the scoring seconds of one planning step per method, the training precisions side by
+side, and FisherRF's probe count against its cost.
 
 Trains one full NVF model (all three stages, at the budget) per ``train.precision`` in ``--precisions``
 on the scene's initial views, from the same initial weights and seed, in lockstep (the trainings take
@@ -27,8 +28,19 @@ in the same rotation. ``precisions`` gives per precision its model's training se
 stages and by stage), candidates/s with the MLPs in it, and its model's held-out PSNR (5 views at the
 image size, rendered in float32 as an episode renders); ``ratios`` the paired speed-ups over the
 reference (training: median [min, max] over ``K`` iteration windows; scoring: over blocks) and the PSNR
-difference. The top-level figures are the reference precision's. The models run on the CPU. Writes
-``results/bench/plan.json`` (or ``--out``) and prints a table.
+difference. The top-level figures are the reference precision's. The models run on the CPU.
+
+A method whose scorer reads the step's model and training views first (FisherRF, METHOD 17) is prepared
+once on the reference model (``prepare_seconds``, ``prepare_seconds_per_view``: its ``H_D`` over the
+training views), then timed like the others. ``seconds_per_step`` is, per method, what one planning step
+spends scoring the candidate set: its preparation plus its summed block times over one pass.
+
+``--probes 1,2,4,8,16`` compares FisherRF's probe counts ``K`` (M31; its other settings its class's
+defaults) on the same model and candidates, whether or not ``conf/method`` declares it: per ``K`` the
+preparation and scoring seconds, ``seconds_per_step``, and against a reference (the largest ``K``, drawn
+from an independent generator: seed + 1) the Spearman correlation of the candidates' scores and whether
+both pick the same candidate; the largest ``K``'s own row is the noise floor, two independent draws.
+Writes ``results/bench/plan.json`` (or ``--out``) and prints a table.
 """
 
 import statistics
@@ -45,9 +57,12 @@ from tqdm import tqdm
 from nvf.cameras import Intrinsics, camera_directions, pose_to_matrix, rays_from_camera_dirs
 from nvf.config import STAGES
 from nvf.field import INFERENCE_BLOCK, VIS_POSITION_WIDTH
-from nvf.planning import score_poses
-from nvf.methods import load_method
-from pipeline.cli import ArgumentParser, description
+from nvf.planning import argmax_first, prepare_scorer, score_poses
+from nvf.methods import FisherRF, load_method
+from nvf.seeding import generator_factory
+from nvf.uncertainty import StepScorer, ViewScorer
+from nvf.uncertainty.fisher import FisherRFScorer
+from pipeline.cli import ArgumentParser, description, fail
 from pipeline.bench._report import report_path, write_report
 from pipeline.bench.field import matmul_gflops, mlp_flops
 from nvf.precision import precision_dtype
@@ -55,6 +70,7 @@ from pipeline.bench._paired import IterationClock, ratio_spread
 from pipeline.bench.train import RGB, CountingModel, InitialViewModel, held_out_poses, parse_precisions, view_psnr
 from pipeline.config.catalog import method_configs
 from pipeline.config.validation import compose_config
+from pipeline.metrics.ranking import spearman
 
 CANDIDATES = 512  # the paper's N; a later planner.num_candidates=... override wins
 WARMUP_CANDIDATES = 8
@@ -138,6 +154,44 @@ def precision_comparison(
     return per, ratios
 
 
+def probes_study(
+    setup: InitialViewModel, poses: Float[Tensor, "m 7"], intr: Intrinsics, chunk: int, probes: list[int]
+) -> dict:
+    """FisherRF at each ``K`` of ``probes`` (sorted) on ``setup``'s model and ``poses``: seconds (prepare, score,
+    per step) and the agreement of the candidates' scores with the largest ``K``'s drawn with seed + 1."""
+    seed, defaults = int(setup.cfg.seed), FisherRF()
+
+    def run(k: int, seed: int) -> tuple[Tensor, float, float]:
+        start = time.perf_counter()
+        scorer = FisherRFScorer(k, defaults.prior_precision).prepare(setup.model, setup.obs, generator_factory(seed, 0), chunk)
+        prepared = time.perf_counter()
+        scores = score_poses(setup.model, scorer, poses, intr, chunk)
+        return scores, prepared - start, time.perf_counter() - prepared
+
+    reference, _, _ = run(max(probes), seed + 1)
+    rows = []
+    for k in sorted(probes):
+        scores, prepare, score = run(k, seed)
+        rows.append({
+            "probes": k, "prepare_seconds": prepare, "prepare_seconds_per_view": prepare / setup.obs.num_images,
+            "score_seconds": score, "seconds_per_step": prepare + score,
+            "spearman_to_reference": spearman(scores.cpu().numpy(), reference.cpu().numpy()),
+            "same_choice_as_reference": argmax_first(scores) == argmax_first(reference),
+        })  # fmt: skip
+    return {"reference_probes": max(probes), "prior_precision": defaults.prior_precision, "rows": rows}
+
+
+def parse_probes(value: str) -> list[int]:
+    """``1,2,4`` -> distinct positive probe counts (one line and exit status 2 otherwise)."""
+    try:
+        counts = [int(part) for part in value.split(",") if part.strip()]
+    except ValueError:
+        counts = []
+    if not counts or min(counts) < 1 or len(set(counts)) != len(counts):
+        fail(f"--probes {value!r} must list distinct positive probe counts, e.g. 1,2,4,8,16")
+    return counts
+
+
 def timed(fn: Callable[[], object]) -> tuple[float, float]:
     """Wall and process-CPU-per-thread seconds of one call."""
     start, start_cpu = time.perf_counter(), time.process_time()
@@ -153,9 +207,11 @@ def main(argv: list[str]) -> None:
     parser.add_argument("--blocks", type=int, default=8, help="candidate blocks per pass (ratio = median over blocks)")
     parser.add_argument("--precisions", help="train.precision values compared, first the reference (default: fp32,bf16 "
                         "where the CPU has bfloat16, else fp32)")  # fmt: skip
+    parser.add_argument("--probes", help="FisherRF probe counts K to compare, e.g. 1,2,4,8,16 (default: none)")
     args = parser.parse_intermixed_args(argv)
     if args.repeats < 1 or args.blocks < 1:
         parser.error("--repeats and --blocks must be >= 1")
+    probes = None if args.probes is None else parse_probes(args.probes)
     start = time.perf_counter()
     cfg = compose_config([f"planner.num_candidates={CANDIDATES}", *args.overrides])
     precisions = parse_precisions(args.precisions)
@@ -171,6 +227,11 @@ def main(argv: list[str]) -> None:
     chunk = int(planner.score_chunk_rays)
     methods = {name: load_method(m["implementation"]) for name, m in method_configs().items()}
     scorers = {name: scorer for name, method in methods.items() if (scorer := s.scorer(method)) is not None}
+    prepare_seconds = {}
+    for name in [name for name, scorer in scorers.items() if isinstance(scorer, StepScorer)]:
+        began = time.perf_counter()
+        scorers[name] = prepare_scorer(scorers[name], model, obs, generator_factory(int(cfg.seed), 0), chunk)
+        prepare_seconds[name] = time.perf_counter() - began
     work: dict[str, Callable[[Tensor], object]] = {"plain_render": lambda p: plain_render(model, p, intr, chunk)}
     for method, scorer in scorers.items():
         work[method] = lambda p, scorer=scorer: score_poses(model, scorer, p, intr, chunk)
@@ -210,6 +271,11 @@ def main(argv: list[str]) -> None:
     extra_seconds = sum(wall["nvf"]) - plain_seconds
     report["nvf_extra_fraction_of_limit"] = extra_seconds_at_limit / extra_seconds if extra_seconds > 0 else None
     report.update({
+        "prepare_seconds": prepare_seconds,
+        "prepare_seconds_per_view": {method: t / obs.num_images for method, t in prepare_seconds.items()},
+        "seconds_per_step": {method: prepare_seconds.get(method, 0.0) + sum(wall[method]) / args.repeats
+                             for method in scorers},
+        "fisherrf_probes": None if probes is None else probes_study(setup, poses, intr, chunk, probes),
         "goal_nvf_over_plain_render": GOAL_NVF_OVER_PLAIN,
         "goal_met": ratio <= GOAL_NVF_OVER_PLAIN,
         "goal_within_limit": report["nvf_over_plain_render_at_limit"] <= GOAL_NVF_OVER_PLAIN,
@@ -225,8 +291,8 @@ def main(argv: list[str]) -> None:
             "train_iters": {stage: getattr(s.train, stage).iters for stage in STAGES},
             "train_seconds": setup.train_seconds, "candidates": m, "candidates_requested": planner.num_candidates,
             "resolution": res, "chunk_rays": chunk, "tau": s.tau, "collision_free": s.collision_free,
-            "heads": {method: sorted(scorer.heads) for method, scorer in scorers.items()},
-            "samplers": {method: scorer.sampler for method, scorer in scorers.items()},
+            "heads": {method: sorted(scorer.heads) for method, scorer in scorers.items() if isinstance(scorer, ViewScorer)},
+            "samplers": {method: scorer.sampler for method, scorer in scorers.items() if isinstance(scorer, ViewScorer)},
             "plain_render_samples_per_ray": kept["plain_render"] / (args.repeats * m * intr.num_pixels),
             "repeats": args.repeats, "blocks": args.blocks, "torch_threads": torch.get_num_threads(),
             "precisions": precisions,
@@ -236,11 +302,12 @@ def main(argv: list[str]) -> None:
     })  # fmt: skip
     args.out = report_path(args.out, cfg.paths.results, "plan")
     write_report(report, args.out)
-    print(f"{'':14}{'cand/s':>10}{'(cpu)':>10}{'x plain':>9}")
+    print(f"{'':14}{'cand/s':>10}{'(cpu)':>10}{'x plain':>9}{'s/step':>9}")
     for name in work:
         x = 1.0 if name == "plain_render" else report[f"{name}_over_plain_render"]
         rate, rate_cpu = report[f"candidates_per_s_{name}"], report[f"candidates_per_s_{name}_cpu"]
-        print(f"{name:14}{rate:>10.1f}{rate_cpu:>10.1f}{x:>9.2f}")
+        per_step = sum(wall[name]) / args.repeats + prepare_seconds.get(name, 0.0)
+        print(f"{name:14}{rate:>10.1f}{rate_cpu:>10.1f}{x:>9.2f}{per_step:>9.2f}")
     fraction = report["nvf_extra_fraction_of_limit"]
     print(
         f"NVF / plain render = {ratio:.2f} (goal <= {GOAL_NVF_OVER_PLAIN}: "
@@ -262,4 +329,14 @@ def main(argv: list[str]) -> None:
             f"{ratio['heldout_psnr_diff']:+.2f} dB; scoring with the MLPs in {name}: "
             + ", ".join(f"{job} {spread(x)}" for job, x in ratio["scoring_speedup"].items())
         )
+    if probes is not None:
+        print(f"FisherRF by probes K ({m} candidates, {obs.num_images} training views; reference: "
+              f"K = {max(probes)} drawn independently):")  # fmt: skip
+        for row in report["fisherrf_probes"]["rows"]:
+            rho = row["spearman_to_reference"]
+            print(
+                f"  K = {row['probes']:>3}: {row['seconds_per_step']:7.2f} s per step "
+                f"(H_D {row['prepare_seconds_per_view']:.2f} s per training view), Spearman "
+                f"{'n/a' if rho is None else f'{rho:.3f}'}, same choice {row['same_choice_as_reference']}"
+            )
     print(f"wrote {args.out}")

@@ -19,10 +19,10 @@ from scipy import stats
 from nvf.cameras import Intrinsics, matrix_to_pose, pose_to_matrix
 from nvf.methods import load_method
 from nvf.model import SceneModel
-from nvf.planning import Selection, argmax_first, score_poses, select_next_view
-from nvf.seeding import generator_factory, seeded_generator
+from nvf.planning import Selection, argmax_first, prepare_scorer, score_poses, select_next_view
+from nvf.seeding import GeneratorFactory, generator_factory, seeded_generator
 from nvf.training import Observations, TrainStats, train_model
-from nvf.uncertainty import ViewScorer
+from nvf.uncertainty import StepScorer, ViewScorer
 from nvf.visibility_source import SourcedVisibility, label_visibility
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.evaluation import Evaluator
@@ -63,7 +63,7 @@ class Episode:
             raise
         self.previous_model: SceneModel | None = None
 
-    def rival_scorer(self, ablation: str | None) -> tuple[str, ViewScorer] | None:
+    def rival_scorer(self, ablation: str | None) -> tuple[str, ViewScorer | StepScorer] | None:
         """``(name, scorer)`` of ``ablation`` (its ``conf/ablation`` switches on this run's config) for
         ``rank_agreement``; None when no ablation is named."""
         if ablation is None:
@@ -123,10 +123,11 @@ class Episode:
         metrics, images, _ = self.evaluator.evaluate(planning, self.scorer, self.face_ids, obs, step, psnr_only=psnr_only)
         t2 = time.perf_counter()
         current = matrix_to_pose(self.poses[-1]).to(self.device)
+        generators = generator_factory(cfg.seed, step, self.device)
+        scorer = prepare_scorer(self.scorer, planning, obs, generators, s.planner.score_chunk_rays)
         selection = select_next_view(
-            planning, self.scorer, s.planner, self.scene.camera_box.to(self.device), current,
-            self.plan_intrinsics, s.tau, s.collision_free, generator_factory(cfg.seed, step, self.device),
-            self.renderer.unoccluded,
+            planning, scorer, s.planner, self.scene.camera_box.to(self.device), current,
+            self.plan_intrinsics, s.tau, s.collision_free, generators, self.renderer.unoccluded,
         )  # fmt: skip
         t3 = time.perf_counter()
         self.previous_model = model if s.train.warm_start else None
@@ -150,7 +151,7 @@ class Episode:
                 "refined_scores": selection.opt.refined_scores.tolist(),
             }
         if self.rival is not None and selection.scores is not None:
-            row["rank_agreement"] = self.rank_agreement(planning, selection)
+            row["rank_agreement"] = self.rank_agreement(planning, selection, obs, generators)
         return row, images
 
     def planning_model(self, model: SceneModel, obs: Observations) -> SceneModel | SourcedVisibility:
@@ -171,12 +172,15 @@ class Episode:
 
         return SourcedVisibility(model, mesh_visibility)
 
-    def rank_agreement(self, model: SceneModel | SourcedVisibility, selection: Selection) -> dict:
+    def rank_agreement(
+        self, model: SceneModel | SourcedVisibility, selection: Selection, obs: Observations, generators: GeneratorFactory
+    ) -> dict:
         """How the ``diagnostics.rank_against`` ablation's score ranks the step's candidates against the run's
         own: Spearman correlation and whether both pick the same candidate (no randomness: the run's
         choices are unchanged)."""
         name, scorer = self.rival
         chunk = self.settings.planner.score_chunk_rays
+        scorer = prepare_scorer(scorer, model, obs, generators, chunk)
         rival = score_poses(model, scorer, selection.candidates, self.plan_intrinsics, chunk)
         own = selection.scores.detach().cpu().numpy()
         spearman = float(stats.spearmanr(own, rival.detach().cpu().numpy()).statistic) if len(own) > 1 else math.nan

@@ -9,8 +9,9 @@ from omegaconf import DictConfig, OmegaConf
 
 from nvf.config import BaselineConfig, EntropyConfig, FieldConfig, PlannerConfig, SamplerConfig, TrainConfig
 from nvf.methods import Method
-from nvf.uncertainty import ViewScorer
+from nvf.uncertainty import StepScorer, ViewScorer
 from pipeline.config.schema import BudgetConfig, MetricsConfig
+from pipeline.config.validation import ConfigError
 from pipeline.scenes.scene import Scene
 
 
@@ -45,10 +46,16 @@ class EpisodeSettings:
     tau: float
     collision_free: bool
 
-    def scorer(self, method: Method) -> ViewScorer | None:
+    def scorer(self, method: Method) -> ViewScorer | StepScorer | None:
         """``method``'s view scorer with these settings (NVF's resolved ``d0``); None for a method without one
-        (Random)."""
-        return method.scorer(self.entropy, self.baseline, float(self.entropy.d0))
+        (Random). ``ConfigError`` for ``planner=opt`` with a scorer of whole views (FisherRF, METHOD 17)."""
+        scorer = method.scorer(self.entropy, self.baseline, float(self.entropy.d0))
+        if self.planner.name == "opt" and scorer is not None and not isinstance(scorer, ViewScorer):
+            raise ConfigError(
+                f"planner=opt: {scorer.name} scores whole views, without the per-pixel score -OPT refines "
+                "(docs/METHOD.md 17); use planner=argmax"
+            )
+        return scorer
 
     @staticmethod
     def of(cfg: DictConfig, scene: Scene) -> "EpisodeSettings":

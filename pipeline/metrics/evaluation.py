@@ -11,6 +11,7 @@ from torch import Tensor
 
 from nvf.cameras import Intrinsics, pixel_rays
 from nvf.model import SceneModel
+from nvf.uncertainty import ViewScorer
 from nvf.visibility_source import SourcedVisibility
 from nvf.seeding import seeded_generator
 from nvf.training import Observations
@@ -107,11 +108,12 @@ class Evaluator:
         psnr_only: bool = False,
     ) -> tuple[dict, dict, dict]:
         """Metrics of ``model`` after training on ``obs`` (step ``step``), images of evaluation view ``view``,
-        and with a scorer ``view_error`` and ``view_score`` [V], the per-view sums the view r pairs (else
-        empty). ``face_ids``: the face hit by each pixel-centre ray of every training view (Vis.).
+        and with a per-pixel scorer (``ViewScorer``) ``view_error`` and ``view_score`` [V], the per-view sums the
+        view r pairs (else empty: Random, or a method that scores whole views, has no score map and no
+        correlation). ``face_ids``: the face hit by each pixel-centre ray of every training view (Vis.).
         ``psnr_only``: PSNR alone (every other metric None, no score map; ``step_metrics=psnr``)."""
         budget, scene = self.budget, self.scene
-        if psnr_only:
+        if psnr_only or not isinstance(scorer, ViewScorer):
             scorer = None
         renders = [render_view(model, scorer, c2w.to(self.device), self.intrinsics) for c2w in scene.eval_poses]
         pred = np.stack([r["rgb"] for r in renders]).clip(0.0, 1.0)
