@@ -16,6 +16,7 @@ from nvf.uncertainty.fisher import FisherRFScorer
 from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
 from nvf.uncertainty.scorers import StepScorer, ViewScorer
 
+
 class Method:
     """A method with no scorer (the planner then picks uniformly, as Random) and no auxiliary loss.
     ``score_unit``: the unit of its per-pixel score (labels the score map's colour bar)."""

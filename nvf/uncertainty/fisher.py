@@ -69,7 +69,11 @@ def probe_fisher_diagonal(
             continue
         for k in range(probes):
             grads = torch.autograd.grad(
-                rgb, params, signs[k, start : start + chunk_rays].to(rgb), retain_graph=k < probes - 1, allow_unused=True
+                rgb,
+                params,
+                signs[k, start : start + chunk_rays].to(rgb),
+                retain_graph=k < probes - 1,
+                allow_unused=True,
             )
             sums[k] += _flat(grads, params)
     return torch.stack([s.double().square() for s in sums]).mean(0)

@@ -70,4 +70,3 @@ class StepScorer(Protocol):
     def prepare(
         self, model: nn.Module, observations: "Observations", generators: GeneratorFactory, chunk_rays: int
     ) -> WholeViewScorer: ...
-

@@ -120,7 +120,9 @@ class Episode:
         t1 = time.perf_counter()
         planning = self.planning_model(model, obs)
         psnr_only = cfg.step_metrics == "psnr" and step < s.budget.horizon - 1
-        metrics, images, _ = self.evaluator.evaluate(planning, self.scorer, self.face_ids, obs, step, psnr_only=psnr_only)
+        metrics, images, _ = self.evaluator.evaluate(
+            planning, self.scorer, self.face_ids, obs, step, psnr_only=psnr_only
+        )
         t2 = time.perf_counter()
         current = matrix_to_pose(self.poses[-1]).to(self.device)
         generators = generator_factory(cfg.seed, step, self.device)
@@ -173,7 +175,11 @@ class Episode:
         return SourcedVisibility(model, mesh_visibility)
 
     def rank_agreement(
-        self, model: SceneModel | SourcedVisibility, selection: Selection, obs: Observations, generators: GeneratorFactory
+        self,
+        model: SceneModel | SourcedVisibility,
+        selection: Selection,
+        obs: Observations,
+        generators: GeneratorFactory,
     ) -> dict:
         """How the ``diagnostics.rank_against`` ablation's score ranks the step's candidates against the run's
         own: Spearman correlation and whether both pick the same candidate (no randomness: the run's
