@@ -68,7 +68,9 @@ class EntropyConfig:
     mu_un: float = 0.5
     var_un: float = 1.0
     var_bg: float = 1e-4
-    visibility_source: str = "head"  # v of M7/M9: head (METHOD) | labels (M17-M18 at the scored samples) | mesh (oracle)
+    visibility_source: str = (
+        "head"  # v of M7/M9: head (METHOD) | labels (M17-M18 at the scored samples) | mesh (oracle)
+    )
 
 
 @dataclass

@@ -14,6 +14,7 @@ from nvf.uncertainty.baselines import ActiveRMAPScorer, AIRScorer, RenderedVaria
 from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
 from nvf.uncertainty.scorers import ViewScorer
 
+
 class Method:
     """A method with no scorer (the planner then picks uniformly, as Random) and no auxiliary loss.
     ``score_unit``: the unit of its per-pixel score (labels the score map's colour bar)."""

@@ -23,10 +23,10 @@ from pipeline.config.catalog import declared
 from pipeline.config.memory import host_memory, too_large
 from pipeline.config.named import changed_settings
 from pipeline.config.paths import unwritable
+from pipeline.config.schema import RunConfig, register_configs
 from pipeline.records.store import run_dir
 from pipeline.records.verify import MAX_HORIZON, record_value_problem
 from pipeline.repo import CONF
-from pipeline.config.schema import RunConfig, register_configs
 
 
 class ConfigError(ValueError):

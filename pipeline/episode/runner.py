@@ -18,12 +18,11 @@ from omegaconf import DictConfig, OmegaConf
 
 from nvf.planning import NoCandidatesError
 from nvf.training import TrainingDiverged
-from pipeline.config.validation import validate
-from pipeline.records.images import save_step_images
+from pipeline.config.validation import resolve_device, validate
 from pipeline.episode.loop import Episode
 from pipeline.episode.progress import EpisodeProgress
-from pipeline.config.validation import resolve_device
 from pipeline.metrics.image import LpipsMetric
+from pipeline.records.images import save_step_images
 from pipeline.records.lock import RunLock
 from pipeline.records.store import RunRecord, run_dir
 from pipeline.records.verify import verified

@@ -20,7 +20,9 @@ def open_renderer(scene: Scene, cfg: DictConfig, threads: int | None = None) -> 
     if cfg.render.backend == "blender":
         python = blender_python(cfg.paths.blender_python)
         threads = threads or torch.get_num_threads()
-        return BlenderRenderer(scene, int(cfg.render.samples), python, threads=threads, timeout=float(cfg.render.timeout))
+        return BlenderRenderer(
+            scene, int(cfg.render.samples), python, threads=threads, timeout=float(cfg.render.timeout)
+        )
     return GroundTruthRenderer(scene.mesh)
 
 
@@ -34,6 +36,11 @@ def ground_truth_info(scene: Scene, renderer: Renderer, assets: Path) -> dict:
         except ValueError:
             asset = scene.asset.name
     if isinstance(renderer, BlenderRenderer):
-        return {"backend": "blender", "asset": asset, "samples": renderer.samples, "device": renderer.device,
-                "blender": renderer.version}
+        return {
+            "backend": "blender",
+            "asset": asset,
+            "samples": renderer.samples,
+            "device": renderer.device,
+            "blender": renderer.version,
+        }
     return {"backend": "pyrender", "asset": asset}
