@@ -73,7 +73,7 @@ def relative_error(estimate: torch.Tensor, exact: torch.Tensor) -> float:
 def test_probes_converge_to_the_exact_diagonal(smoke):
     """(M30, M31) On 6 rays of the smoke field the mean of K Rademacher probes approaches the exact diagonal
     (one backward pass per ray and channel): its relative L1 error falls at least like 1/sqrt(K), to under
-    10% at K = 512 (measured: MEASURED)."""
+    10% at K = 512 (measured on this field: 0.32 at K = 16, 0.045 at K = 512)."""
     model = smoke[-1]
     params = colour_parameters(model)
     origins, dirs = object_rays(smoke, 6)
@@ -144,7 +144,7 @@ def ring_pose(scene, obs, azimuth_offset_deg: float) -> torch.Tensor:
 def test_a_repeated_training_view_scores_below_the_unseen_side(smoke):
     """(M32) A candidate at a training camera adds little information the training views do not hold; views
     of the side no training view saw add parameters the training rays never constrained (measured at the
-    smoke budget: 1.0e4 and 1.1e4 for two training cameras, 2.4e4-3.9e4 for the unseen side)."""
+    smoke budget: 1.0e4 and 1.2e4 for two training cameras, 3.4e4-4.3e4 for the unseen side)."""
     cfg, _, scene, _, obs, model = smoke
     scorer = prepare_scorer(fisher_scorer(), model, obs, generator_factory(0, 0), CHUNK)
     assert isinstance(scorer, WholeViewScorer)
