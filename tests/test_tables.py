@@ -454,6 +454,35 @@ def test_rows_scored_with_the_mesh_visibility_are_marked(tmp_path):
     assert "M29's line-of-sight filter" not in md
 
 
+def test_a_method_the_paper_lacks_is_marked_and_compared_with_nvf(tmp_path):
+    """FisherRF (docs/METHOD.md 17, M30-M32) joins the main table and Tables S3-S4 like the paper's methods: its
+    row carries the not-in-paper mark (§, its footnote saying -OPT is n/a) and its paired PSNR difference to NVF
+    with the 95% Student-t interval; it has no paper reference numbers, so the paper comparison leaves it out.
+    """
+    out = tmp_path / "out"
+    nvf, fisher = (22.0, 23.0, 21.5), (21.0, 21.5, 21.2)
+    for scene in ("hubble", "hotdog", "chair_proxy"):
+        for seed, a, b in zip((100, 101, 102), nvf, fisher, strict=True):
+            make_run(out, scene=scene, method="nvf", seed=seed, final={"psnr": a})
+            make_run(out, scene=scene, method="fisherrf", seed=seed, final={"psnr": b})
+    build_tables(out, [], tmp_path / "res", figures=False)
+    tables = tmp_path / "res" / "tables"
+    main_table = pd.read_csv(tables / "main.csv", comment="#").set_index(["Scene", "Method"])
+    diffs = np.subtract(fisher, nvf)
+    half = 4.302653 * diffs.std(ddof=1) / np.sqrt(3)  # t(0.975, 2 degrees of freedom)
+    expected = f"{diffs.mean():+.2f} [{diffs.mean() - half:+.2f}, {diffs.mean() + half:+.2f}]"
+    assert main_table.loc[("hubble", "FisherRF§"), "ΔPSNR vs NVF"] == expected
+    assert main_table.loc[("hubble", "NVF"), "ΔPSNR vs NVF"] == "-"
+    md = read(tables / "main.md")
+    assert md.count("FisherRF§") == 2  # hubble and the object-scene mean
+    assert "§ Not in the paper: FisherRF" in md and "-OPT is n/a" in md
+    assert r"FisherRF$^\S$" in read(tables / "main.tex")
+    objects = pd.read_csv(tables / "table34_nerf_assets.csv", comment="#")
+    assert set(objects["Method"]) == {"NVF", "FisherRF§"}
+    assert "FisherRF" not in read(tables / "paper_comparison.md")
+    assert "§" not in read(tables / "table1_opt.md")
+
+
 # ----------------------------------------------------------------------------- hostile records (issue 30)
 
 

@@ -29,6 +29,15 @@ MESH_VISIBILITY_NOTE = (
     "training cameras (`nvf.entropy.visibility_source=mesh`), not from its visibility head (docs/METHOD.md 9.3)."
 )
 ORACLE_FLAGS = (("mesh_los", MESH_LOS_NOTE), ("mesh_visibility", MESH_VISIBILITY_NOTE))
+NOT_IN_PAPER_MARK = "§"
+
+
+def not_in_paper_note(labels: list[str]) -> str:
+    """The footnote for rows whose method the paper does not have."""
+    return (
+        f"{NOT_IN_PAPER_MARK} Not in the paper: {', '.join(labels)}, a baseline this benchmark adds, has no reference "
+        "numbers. FisherRF scores whole views (docs/METHOD.md 17), so it has no -OPT row: -OPT is n/a."
+    )
 
 
 @dataclass(frozen=True)
@@ -224,6 +233,8 @@ def _select(final: pd.DataFrame, spec: Spec, runs: Runs) -> pd.DataFrame:
 def _notes(selected: pd.DataFrame, done: pd.DataFrame, rows: pd.DataFrame, runs: Runs) -> list[str]:
     notes = []
     notes += [note for flag, note in ORACLE_FLAGS if flag in rows and rows[flag].any()]
+    if "in_paper" in rows and not rows["in_paper"].all():
+        notes.append(not_in_paper_note(list(dict.fromkeys(rows.loc[~rows["in_paper"], "label"]))))
     valid = rows[[f"{m}_valid" for m in METRIC_KEYS]].to_numpy() if not rows.empty else np.zeros((0, 1))
     if ((valid > 0) & (valid < rows[["n"]].to_numpy())).any():
         notes.append("† some seeds lack this value: the cell averages the others.")
@@ -309,6 +320,8 @@ def _build_table(runs: Runs, spec: Spec) -> Table:
         notes = _notes(selected, done, pd.DataFrame(columns=["n"]), runs)
         return Table(spec.name, spec.title, pd.DataFrame(), (), tuple(notes))
     rows = order_rows(_mark_best(pd.concat(parts, ignore_index=True), samples), runs)
-    rows["label"] = [runs.row(m, p, a).label for m, p, a in zip(rows["method"], rows["planner"], rows["ablation"])]
+    names = [runs.row(m, p, a) for m, p, a in zip(rows["method"], rows["planner"], rows["ablation"])]
+    rows["label"] = [name.label for name in names]
+    rows["in_paper"] = [name.in_paper for name in names]
     notes = _notes(selected, done, rows, runs) + [f"{OBJECT_MEAN}: {n}." for n in mean_notes]
     return Table(spec.name, spec.title, rows, _header(done, runs), tuple(notes))

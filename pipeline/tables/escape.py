@@ -28,6 +28,7 @@ TEX_SPECIALS = (
     ("†", r"$^\dagger$"),
     ("‡", r"$^\ddagger$"),
     ("≈", r"$^\approx$"),
+    ("§", r"$^\S$"),
     ("Δ", r"$\Delta$"),
 )
 

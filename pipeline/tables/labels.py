@@ -1,13 +1,15 @@
 """How tables name and order runs and scenes, read from each run's own config (``conf/method``,
 ``conf/ablation``, ``conf/scene`` as the run was made; a key a record predates is read from today's
 config of the same named groups): method and ablation labels, '-OPT' for the refining planner, the
-paper's row order, the scene order, and which scenes form the object-scene mean."""
+paper's row order, whether the paper has the method at all, the scene order, and which scenes form the
+object-scene mean."""
 
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
 from pipeline.metrics.info import PAPER_METRICS
+from pipeline.tables.paper import paper_methods
 
 METRIC_KEYS = tuple(m.name for m in PAPER_METRICS)
 OBJECT_MEAN = "object-scene mean"
@@ -16,11 +18,14 @@ LAST = 10**6  # order of the object-scene mean: after every scene
 
 @dataclass(frozen=True)
 class RowName:
-    """A (method, planner, ablation) row: its label (``NVF``, ``w/o Vis.``, ``AIR-OPT``) and sort key
-    (plain before refined planners, ablations as in Table S2, methods as in Tables S3-S4)."""
+    """A (method, planner, ablation) row: its label (``NVF``, ``w/o Vis.``, ``AIR-OPT``), sort key (plain
+    before refined planners, ablations as in Table S2, methods as in Tables S3-S4) and whether its method
+    is one of the paper's (``in_paper``; False for a baseline this benchmark adds, e.g. FisherRF, which
+    has no reference numbers)."""
 
     label: str
     order: tuple
+    in_paper: bool = True
 
 
 @dataclass(frozen=True)
@@ -43,7 +48,7 @@ def row_name(config: Mapping[str, Any]) -> RowName:
     if planner != "argmax":
         label = f"{label}-{planner.upper()}"
     order = (planner != "argmax", planner, ablation.get("rank", LAST), method.get("rank", LAST), method["name"])
-    return RowName(label, order)
+    return RowName(label, order, method.get("label", method["name"]) in paper_methods())
 
 
 def scene_name(config: Mapping[str, Any]) -> SceneName:

@@ -5,6 +5,7 @@ Final-step values, mean of 3 runs. S1 and S2 do not say which scene they refer t
 """
 
 import io
+from functools import cache
 
 import pandas as pd
 
@@ -86,6 +87,12 @@ mean8,,ActiveNeRF,19.130,0.7855,0.2641,0.01465,0.02925,0.02503,0.4190,0.4206
 mean8,,NeurAR,19.995,0.7689,0.2720,0.01240,0.03386,0.02598,0.4346,0.4269
 mean8,,NVF,24.174,0.8945,0.1028,0.00428,0.01885,0.01419,0.6455,0.5244
 """
+
+
+@cache
+def paper_methods() -> frozenset[str]:
+    """The labels of the methods the paper's tables have a row for (its ``-OPT`` rows and ablations too)."""
+    return frozenset(paper_numbers()["method"])
 
 
 def paper_numbers() -> pd.DataFrame:

@@ -1,5 +1,6 @@
 """A ``Table`` as Markdown, CSV and LaTeX texts (and an HTML table for the results site): cells 'mean ± std' (bold for the best, † where some
-seeds lack the value), ‡ after the label of a row planned with the mesh's line of sight, header lines
+seeds lack the value), ‡ after the label of a row planned with the mesh's line of sight, § after the label of
+a row whose method the paper does not have, header lines
 and footnotes. Every cell, header line and footnote is escaped for its format (``pipeline.tables.escape``):
 labels, sources and reasons come from run records."""
 
@@ -9,7 +10,7 @@ import re
 import pandas as pd
 
 from pipeline.metrics.info import PAPER_METRICS
-from pipeline.tables.aggregate import MESH_LOS_MARK, ORACLE_FLAGS, Table
+from pipeline.tables.aggregate import MESH_LOS_MARK, NOT_IN_PAPER_MARK, ORACLE_FLAGS, Table
 from pipeline.tables.escape import markdown, plain, tex_escape
 
 TIE_MARK = "≈"
@@ -51,6 +52,7 @@ def _grid(table: Table, label_header: str) -> tuple[list[str], list[list[str]]]:
     cells = []
     for _, row in table.rows.iterrows():
         label = row["label"] + (MESH_LOS_MARK if any(row.get(flag, False) for flag, _ in ORACLE_FLAGS) else "")
+        label += "" if row.get("in_paper", True) else NOT_IN_PAPER_MARK
         line = [str(row[key]) for key in keys] + [row["scene"], label]
         line += [_cell(row, m.name, m.decimals) for m in PAPER_METRICS] + ([_versus_nvf(row)] if versus else [])
         cells.append(line + [str(int(row["n"]))])
