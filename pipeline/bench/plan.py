@@ -46,7 +46,6 @@ from nvf.cameras import Intrinsics, camera_directions, pose_to_matrix, rays_from
 from nvf.config import STAGES
 from nvf.field import INFERENCE_BLOCK, VIS_POSITION_WIDTH
 from nvf.planning import score_poses
-from nvf.methods import load_method
 from pipeline.cli import ArgumentParser, description
 from pipeline.bench._report import report_path, write_report
 from pipeline.bench.field import matmul_gflops, mlp_flops
@@ -54,6 +53,7 @@ from nvf.precision import precision_dtype
 from pipeline.bench._paired import IterationClock, ratio_spread
 from pipeline.bench.train import RGB, CountingModel, InitialViewModel, held_out_poses, parse_precisions, view_psnr
 from pipeline.config.catalog import method_configs
+from pipeline.config.method import build_method
 from pipeline.config.validation import compose_config
 
 CANDIDATES = 512  # the paper's N; a later planner.num_candidates=... override wins
@@ -169,8 +169,10 @@ def main(argv: list[str]) -> None:
     res = int(planner.resolution)
     intr = Intrinsics.from_fov(res, res)
     chunk = int(planner.score_chunk_rays)
-    methods = {name: load_method(m["implementation"]) for name, m in method_configs().items()}
-    scorers = {name: scorer for name, method in methods.items() if (scorer := s.scorer(method)) is not None}
+    methods = {name: build_method(m) for name, m in method_configs().items()}
+    scorers = {
+        name: scorer for name, method in methods.items() if (scorer := method.scorer(s.entropy, float(s.entropy.d0)))
+    }
     work: dict[str, Callable[[Tensor], object]] = {"plain_render": lambda p: plain_render(model, p, intr, chunk)}
     for method, scorer in scorers.items():
         work[method] = lambda p, scorer=scorer: score_poses(model, scorer, p, intr, chunk)
