@@ -14,6 +14,8 @@ from typing import Any
 from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING
 
+from pipeline.config.catalog import register_resolvers
+
 from nvf.config import EntropyConfig, FieldConfig, PlannerConfig, SamplerConfig, TrainConfig
 
 
@@ -153,5 +155,7 @@ class RunConfig:
 
 
 def register_configs() -> None:
-    """Register the schema under the name ``run_schema`` (first entry of conf/config.yaml's defaults)."""
+    """Register the schema under the name ``run_schema`` (first entry of conf/config.yaml's defaults) and the
+    experiments' resolver (``pipeline.config.catalog.register_resolvers``)."""
     ConfigStore.instance().store(name="run_schema", node=RunConfig)
+    register_resolvers()
