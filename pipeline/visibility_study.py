@@ -95,7 +95,7 @@ def terms_of(planning, scorers: dict[str, NVFEntropyScorer], candidates: torch.T
     render per candidate serves every scorer."""
     views: dict[str, list[dict[str, float]]] = {name: [] for name in scorers}
     for c2w in pose_to_matrix(candidates):
-        result = render_for_terms(planning, c2w, intr)[0]
+        result = render_for_terms(planning, c2w, intr, next(iter(scorers.values())).sampler)[0]
         for name, scorer in scorers.items():
             views[name].append(view_terms(scorer, result))
     return {name: {term: np.array([v[term] for v in rows]) for term in rows[0]} for name, rows in views.items()}

@@ -308,7 +308,7 @@ def test_a_smoke_episode_on_blender_ground_truth_records_it(tmp_path):
     directory = run_episode(cfg).directory
     assert RunRecord(directory).is_done()
     info = json.loads((directory / "run.json").read_text())
-    assert info["scene_source"] == "blend" and info["config"]["render"] == {"backend": "blender", "samples": 4}
+    assert info["scene_source"] == "blend" and info["config"]["render"] == {"backend": "blender", "samples": 4, "timeout": 1800.0}
     assert info["ground_truth"]["backend"] == "blender" and info["ground_truth"]["asset"] == f"{SCENE}/{SCENE}.blend"
     assert info["ground_truth"]["samples"] == 4 and info["ground_truth"]["device"]
 

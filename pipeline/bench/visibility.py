@@ -92,7 +92,7 @@ def candidate_view(
     """One candidate view: per source its NVF reward terms and per-object-pixel visibility, w/o Vis.'s
     terms, the object pixels' seen flags, shell thickness and the view's object coverage."""
     nvf, blind = scorers
-    result, origins, dirs = render_for_terms(setup.model, c2w, intr)
+    result, origins, dirs = render_for_terms(setup.model, c2w, intr, nvf.sampler)
     samples = result.samples
     acc = result.acc
     with torch.no_grad():

@@ -51,11 +51,14 @@ def view_terms(
 
 
 @torch.no_grad()
-def render_for_terms(model, c2w: Float[Tensor, "4 4"], intr: Intrinsics) -> tuple[RenderResult, Tensor, Tensor]:
-    """One planning view rendered with the variance and visibility heads (deterministic, ``train=False``):
-    the render, and the rays' origins and directions ``[R, 3]``."""
+def render_for_terms(
+    model, c2w: Float[Tensor, "4 4"], intr: Intrinsics, sampler: str = "occupancy"
+) -> tuple[RenderResult, Tensor, Tensor]:
+    """One planning view rendered with the variance and visibility heads (deterministic, ``train=False``)
+    with the scorer's ``sampler`` (``nvf.entropy.sampler``): the render, and the rays' origins and
+    directions ``[R, 3]``."""
     origins, dirs = pixel_rays(c2w, intr)
-    return model.render(origins, dirs, heads=frozenset({"variance", "visibility"})), origins, dirs
+    return model.render(origins, dirs, heads=frozenset({"variance", "visibility"}), sampler=sampler), origins, dirs
 
 
 def term_attribution(terms: dict[str, np.ndarray]) -> dict:
