@@ -68,7 +68,9 @@ def _build_dir(cflags: list[str]) -> Path:
     cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
     flags = "".join(flag.lstrip("-") for flag in cflags)
     source = hashlib.sha256(str(_CSRC).encode() + _CSRC.read_bytes()).hexdigest()[:12]
-    tag = f"torch{torch.__version__}-py{sys.version_info.major}{sys.version_info.minor}-{flags}-{source}".replace("+", "_")
+    tag = f"torch{torch.__version__}-py{sys.version_info.major}{sys.version_info.minor}-{flags}-{source}".replace(
+        "+", "_"
+    )
     path = cache / "nvf-bench" / "torch_extensions" / f"hashgrid-{tag}"
     path.mkdir(parents=True, exist_ok=True)
     return path
@@ -141,7 +143,14 @@ class _CppHashGrid(torch.autograd.Function):
 
     @staticmethod
     def forward(
-        ctx, table: Tensor, u: Tensor, levels: Tensor, offsets: Tensor, n_dense: int, hash_mask: int, known: Tensor | None
+        ctx,
+        table: Tensor,
+        u: Tensor,
+        levels: Tensor,
+        offsets: Tensor,
+        n_dense: int,
+        hash_mask: int,
+        known: Tensor | None,
     ):
         ctx.save_for_backward(table, u, levels, offsets)
         ctx.meta = (n_dense, hash_mask)
@@ -216,9 +225,7 @@ class HashEncoding(nn.Module):
             return True
         return cpp_extension() is not None
 
-    def corner_indices(
-        self, u: Float[Tensor, "N 3"]
-    ) -> tuple[Int[Tensor, "N L 8"], Float[Tensor, "N L 8"]]:
+    def corner_indices(self, u: Float[Tensor, "N 3"]) -> tuple[Int[Tensor, "N L 8"], Float[Tensor, "N L 8"]]:
         """Table rows (int32, level offset included) and trilinear weights of the 8 cell corners."""
         u = u.clamp(0.0, 1.0)
         scaled = u.unsqueeze(1) * self._scale  # [N, L, 3]

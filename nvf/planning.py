@@ -231,9 +231,7 @@ def top_k_first(scores: Float[Tensor, "m"], k: int) -> Int[Tensor, "k2"]:
 # ----------------------------------------------------------------------------------------------
 
 
-def ray_subset(
-    num_pixels: int, chunk_rays: int, fraction: float, generator: torch.Generator
-) -> Int[Tensor, "n"]:
+def ray_subset(num_pixels: int, chunk_rays: int, fraction: float, generator: torch.Generator) -> Int[Tensor, "n"]:
     """Sorted row-major pixel ids: a random ``floor(fraction * n)`` of each ``chunk_rays`` chunk
     of ``n`` pixels (METHOD 14; 8,987 of a 300x300 image at 10 %). On the generator's device."""
     parts = []

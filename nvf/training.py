@@ -124,9 +124,7 @@ def _ground_truth(rgba: Float[Tensor, "R 4"], background: Float[Tensor, "R 3"]) 
     return composite(rgba[:, :3] * alpha[:, None], alpha, background)
 
 
-def activenerf_loss(
-    ray_variance: Float[Tensor, "R 3"], sq_residual: Float[Tensor, "R 3"]
-) -> Float[Tensor, ""]:
+def activenerf_loss(ray_variance: Float[Tensor, "R 3"], sq_residual: Float[Tensor, "R 3"]) -> Float[Tensor, ""]:
     """(M25) ``mean[ sg(res^2) / (2 (V + 1e-9)) + 0.5 ln(V + 1e-9) ]``; the residual is detached."""
     v = ray_variance + AUX_VAR_EPS
     return (sq_residual.detach() / (2.0 * v) + 0.5 * torch.log(v)).mean()

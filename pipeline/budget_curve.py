@@ -61,9 +61,7 @@ def settings(curve: pd.DataFrame) -> list[Setting]:
     for label, rows in curve.groupby("label", sort=True):
         rule = rows[rows["comparison"].isin(RULE_COMPARISONS)]
         per_scene = rule.groupby("scene")
-        won = sum(
-            len(g) == len(RULE_COMPARISONS) and bool((g["ci_low"] > 0).all()) for _, g in per_scene
-        )
+        won = sum(len(g) == len(RULE_COMPARISONS) and bool((g["ci_low"] > 0).all()) for _, g in per_scene)
         leads = [g["mean_diff"].min() for _, g in per_scene if len(g) == len(RULE_COMPARISONS)]
         out.append(Setting(
             label=str(label), scenes=tuple(sorted(rows["scene"].unique())),
@@ -87,7 +85,10 @@ def choose(candidates: list[Setting]) -> tuple[Setting | None, str]:
         best = max(positive, key=lambda s: s.lead / s.minutes)
         return best, "no setting meets the rule; this one has the widest positive lead per minute"
     best = min(complete, key=lambda s: s.minutes)
-    return best, "no setting meets the rule and none has a positive lead over both w/o Vis. and the best baseline; this is the cheapest"
+    return (
+        best,
+        "no setting meets the rule and none has a positive lead over both w/o Vis. and the best baseline; this is the cheapest",
+    )
 
 
 def plot(curve: pd.DataFrame) -> Figure:

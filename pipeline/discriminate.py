@@ -36,8 +36,8 @@ from pipeline.config.named import GROUPS, NamedConfigs
 from pipeline.config.validation import compose_config
 from pipeline.records.store import RunRecord, atomic_write_text, record_status, run_dir
 from pipeline.repo import CONF, REPO
-from pipeline.scenes.scene import SceneError
 from pipeline.scenes.loading import find_asset, scene_config
+from pipeline.scenes.scene import SceneError
 from pipeline.tables.load import collect_runs
 from pipeline.tables.stats import Interval
 
@@ -201,7 +201,9 @@ def parse_list(text: str, cast, name: str) -> tuple:
 
 def main(argv: list[str]) -> int:
     parser = ArgumentParser(prog="python -m pipeline.discriminate", description=description(__doc__))
-    parser.add_argument("overrides", nargs="*", help="Hydra overrides of the budget, e.g. budget=cpu train.precision=bf16")
+    parser.add_argument(
+        "overrides", nargs="*", help="Hydra overrides of the budget, e.g. budget=cpu train.precision=bf16"
+    )
     parser.add_argument("--scenes", default=",".join(SCENES), help=f"comma-separated (default {','.join(SCENES)})")
     parser.add_argument("--seeds", default=",".join(map(str, SEEDS)), help="comma-separated (default 100,101,102)")
     parser.add_argument("--jobs", type=int, default=2, help="parallel one-thread jobs (default 2)")

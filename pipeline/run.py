@@ -72,8 +72,11 @@ def cli() -> None:
         print(error_line(err), file=sys.stderr)
         sys.exit(2)
     except KeyboardInterrupt:
-        print("\ninterrupted: every finished step is recorded; run the same command again to resume at the first "
-              "missing step", file=sys.stderr)
+        print(
+            "\ninterrupted: every finished step is recorded; run the same command again to resume at the first "
+            "missing step",
+            file=sys.stderr,
+        )
         sys.exit(130)
 
 

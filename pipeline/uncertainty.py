@@ -44,18 +44,17 @@ from nvf.training import Observations
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.catalog import ablation_configs, method_configs
 from pipeline.config.method import build_method
-from pipeline.config.validation import compose_config
-from pipeline.episode.loop import Episode
-from pipeline.config.validation import resolve_device
-from pipeline.episode.settings import EpisodeSettings
-from pipeline.records.images import colorize, save_figure
-from pipeline.metrics.image import LpipsMetric
 from pipeline.config.named import GROUPS, NamedConfigs
+from pipeline.config.validation import compose_config, resolve_device
+from pipeline.episode.loop import Episode
+from pipeline.episode.settings import EpisodeSettings
+from pipeline.metrics.image import LpipsMetric
+from pipeline.records.images import colorize, save_figure
 from pipeline.records.store import atomic_write_bytes, atomic_write_text, to_jsonable
 from pipeline.repo import CONF
 from pipeline.scenes.blender import blender_python
-from pipeline.scenes.scene import Scene, SceneError
 from pipeline.scenes.loading import load_scene
+from pipeline.scenes.scene import Scene, SceneError
 from pipeline.tables.aggregate import mean_std_valid
 from pipeline.tables.labels import row_name
 
@@ -319,7 +318,9 @@ def figure(shown: dict, maps: dict[str, np.ndarray]) -> Figure:
 def main(argv: list[str]) -> int:
     parser = ArgumentParser(prog="python -m pipeline.uncertainty", description=description(__doc__))
     parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. scene=hubble budget=smoke")
-    parser.add_argument("--out", type=Path, default=None, help="output directory (default ${paths.results}/uncertainty)")
+    parser.add_argument(
+        "--out", type=Path, default=None, help="output directory (default ${paths.results}/uncertainty)"
+    )
     parser.add_argument("--entries", default=None, help="comma-separated subset, e.g. nvf,nvf-wo_vis,wd (default all)")
     parser.add_argument("--seeds", default=None, help="comma-separated training seeds (default 100,101,102)")
     args = parser.parse_intermixed_args(argv)

@@ -45,9 +45,9 @@ from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
 from pipeline.bench.visibility import visibility_report
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.validation import compose_config, resolve_device
+from pipeline.episode.evaluation import render_view
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
-from pipeline.episode.evaluation import render_view
 from pipeline.metrics.image import LpipsMetric, psnr
 from pipeline.metrics.ranking import render_for_terms, spearman, term_attribution, ties_at_max, view_terms
 from pipeline.records.store import atomic_write_text, run_dir
@@ -81,8 +81,11 @@ def scorer_pair(episode: Episode) -> tuple[NVFEntropyScorer, NVFEntropyScorer]:
 def candidate_set(episode: Episode, model, k: int, index: int) -> torch.Tensor:
     """Candidate set ``index`` at step ``k``: 0 is the planner's own draw, others their own generators."""
     s = episode.settings
-    generator = generator_factory(s.seed, k, episode.device)("candidates") if index == 0 else \
-        seeded_generator(s.seed, k, f"study_candidates/{index}", episode.device)
+    generator = (
+        generator_factory(s.seed, k, episode.device)("candidates")
+        if index == 0
+        else seeded_generator(s.seed, k, f"study_candidates/{index}", episode.device)
+    )
     current = matrix_to_pose(episode.poses[-1]).to(episode.device)
     return candidate_poses(
         model, s.planner, episode.scene.camera_box.to(episode.device), current, s.tau, s.collision_free,
@@ -142,7 +145,9 @@ def decision(episode: Episode, planning, candidates: torch.Tensor, scorers, obs:
         "plan_seconds": plan_seconds,
     }  # fmt: skip
     if not row["same_argmax"]:
-        outcomes = {name: heldout_psnr(episode, with_view(obs, episode, candidates[i]), k + 1) for name, i in picks.items()}
+        outcomes = {
+            name: heldout_psnr(episode, with_view(obs, episode, candidates[i]), k + 1) for name, i in picks.items()
+        }
         row["psnr"] = {name: value for name, (value, _) in outcomes.items()}
         row["gain"] = row["psnr"]["nvf"] - row["psnr"]["wo_vis"]
         row["outcome_train_seconds"] = sum(seconds for _, seconds in outcomes.values())
@@ -182,7 +187,7 @@ def study_scene(
         episode = Episode(EpisodeSettings.of(seeded, scene), scene, resolve_device(seeded.device), lpips)
         try:
             for k in todo:
-                episode.replay(rows[len(episode.poses) - len(scene.init_poses):k])
+                episode.replay(rows[len(episode.poses) - len(scene.init_poses) : k])
                 obs = episode.observations()
                 start = time.perf_counter()
                 model, _ = episode.train(obs, k)
@@ -196,19 +201,28 @@ def study_scene(
                     found.append({"scene": scene_name, "seed": seed, "step": k, "set": index,
                                   "train_seconds": train_seconds, **row})  # fmt: skip
                 decisions.add(found)
-                print(f"{scene_name} seed {seed} step {k}: " + ", ".join(
-                    "same" if r["same_argmax"] else f"differ, gain {r['gain']:+.2f} dB" for r in found), flush=True)
+                print(
+                    f"{scene_name} seed {seed} step {k}: "
+                    + ", ".join("same" if r["same_argmax"] else f"differ, gain {r['gain']:+.2f} dB" for r in found),
+                    flush=True,
+                )
         finally:
             episode.close()
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = ArgumentParser(prog="python -m pipeline.visibility_study", description=description(__doc__))
-    parser.add_argument("overrides", nargs="*", help="the setting's config overrides, e.g. nvf.entropy.logdet_coeff=1.0")
-    parser.add_argument("--setting", required=True, help="the setting's name: its folder under pilots/visibility_study/")
+    parser.add_argument(
+        "overrides", nargs="*", help="the setting's config overrides, e.g. nvf.entropy.logdet_coeff=1.0"
+    )
+    parser.add_argument(
+        "--setting", required=True, help="the setting's name: its folder under pilots/visibility_study/"
+    )
     parser.add_argument("--scenes", default=",".join(SCENES))
     parser.add_argument("--seeds", default=",".join(map(str, SEEDS)))
-    parser.add_argument("--steps", default=",".join(map(str, STEPS)), help="the recorded steps whose states are measured")
+    parser.add_argument(
+        "--steps", default=",".join(map(str, STEPS)), help="the recorded steps whose states are measured"
+    )
     parser.add_argument("--sets", type=int, default=3, help="candidate sets per state (0: the planner's own)")
     parser.add_argument("--records", type=Path, default=Path("results/runs"), help="where the NVF records are")
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
@@ -238,7 +252,9 @@ def main(argv: list[str] | None = None) -> None:
         diagnostic = out / f"{scene}_diagnostic.json"
         if not diagnostic.is_file():
             sources = ["head", "labels"] + (["mesh"] if scene_cfg.nvf.entropy.visibility_source == "mesh" else [])
-            report = visibility_report(compose_config([f"scene={scene}", "planner.num_candidates=64", *args.overrides]), 3, sources)
+            report = visibility_report(
+                compose_config([f"scene={scene}", "planner.num_candidates=64", *args.overrides]), 3, sources
+            )
             atomic_write_text(diagnostic, json.dumps(report, indent=2) + "\n")
         try:
             study_scene(scene_cfg, args.overrides, seeds, steps, args.sets, args.records, decisions)

@@ -76,7 +76,9 @@ def summary_frame(study: Path) -> pd.DataFrame:
         rows = _rows(folder)
         scenes = list(dict.fromkeys(r["scene"] for r in rows))
         for scene in scenes:
-            out.append(setting_row(setting, scene, [r for r in rows if r["scene"] == scene], [_diagnostic(folder, scene)]))
+            out.append(
+                setting_row(setting, scene, [r for r in rows if r["scene"] == scene], [_diagnostic(folder, scene)])
+            )
         if len(scenes) > 1:
             out.append(setting_row(setting, ALL_SCENES, rows, [_diagnostic(folder, scene) for scene in scenes]))
     return pd.DataFrame(out, columns=list(COLUMNS))

@@ -37,9 +37,9 @@ from pipeline.scenes.blender import (
     missing_python,
 )
 from pipeline.scenes.blender_worker import linear_to_srgb
+from pipeline.scenes.loading import load_scene, scene_config
 from pipeline.scenes.render import GroundTruthRenderer
 from pipeline.scenes.scene import SceneError
-from pipeline.scenes.loading import load_scene, scene_config
 
 PYTHON = blender_python()
 needs_blender = pytest.mark.skipif(missing_python(PYTHON) is not None, reason=str(missing_python(PYTHON)))
@@ -109,9 +109,17 @@ def build_blend(assets: Path, emission=False, scale=1.0, meshes=True, sun=True, 
     """``<assets>/chair/chair.blend`` built by Blender's Python from ``BUILD``."""
     path = assets / SCENE / f"{SCENE}.blend"
     path.parent.mkdir(parents=True, exist_ok=True)
-    spec = {"path": str(path), "box": [list(v) for v in scene_config(SCENE)["tight_box"]], "emission": emission, "scale": scale,
-            "meshes": meshes, "sun": sun and not emission, "world": 0.0 if emission else world, "body": BODY,
-            "cube": CUBE}
+    spec = {
+        "path": str(path),
+        "box": [list(v) for v in scene_config(SCENE)["tight_box"]],
+        "emission": emission,
+        "scale": scale,
+        "meshes": meshes,
+        "sun": sun and not emission,
+        "world": 0.0 if emission else world,
+        "body": BODY,
+        "cube": CUBE,
+    }
     subprocess.run([str(PYTHON), "-c", BUILD, json.dumps(spec)], check=True, capture_output=True, timeout=120)
     return path
 
@@ -265,8 +273,16 @@ def test_a_blend_without_meshes_or_out_of_the_box_is_one_line(tmp_path):
 
 def test_missing_blender_is_one_line_saying_how_to_install(tmp_path, capsys):
     missing = tmp_path / "no-blender" / "python"
-    code, err = _show(capsys, "default", "render.backend=blender", f"paths.blender_python={missing}",
-                      "--out", str(tmp_path / "out"), "--res", "16")
+    code, err = _show(
+        capsys,
+        "default",
+        "render.backend=blender",
+        f"paths.blender_python={missing}",
+        "--out",
+        str(tmp_path / "out"),
+        "--res",
+        "16",
+    )
     assert code == 2 and err.count("\n") == 1 and "make blender" in err and str(missing) in err
     assert not (tmp_path / "out").exists()
     with initialize_config_dir(str(CONF), version_base="1.3"):
@@ -301,14 +317,26 @@ def test_a_smoke_episode_on_blender_ground_truth_records_it(tmp_path):
     file; the ground truth in its images is Cycles' (lit), not pyrender's."""
     assets = tmp_path / "assets"
     build_blend(assets)
-    overrides = ["budget=smoke", f"scene={SCENE}", "method=random", "budget.horizon=1", f"paths.outputs={tmp_path}",
-                 f"paths.assets={assets}", "render.backend=blender", "render.samples=4"]
+    overrides = [
+        "budget=smoke",
+        f"scene={SCENE}",
+        "method=random",
+        "budget.horizon=1",
+        f"paths.outputs={tmp_path}",
+        f"paths.assets={assets}",
+        "render.backend=blender",
+        "render.samples=4",
+    ]
     with initialize_config_dir(str(CONF), version_base="1.3"):
         cfg = compose("config", overrides=overrides)
     directory = run_episode(cfg).directory
     assert RunRecord(directory).is_done()
     info = json.loads((directory / "run.json").read_text())
-    assert info["scene_source"] == "blend" and info["config"]["render"] == {"backend": "blender", "samples": 4, "timeout": 1800.0}
+    assert info["scene_source"] == "blend" and info["config"]["render"] == {
+        "backend": "blender",
+        "samples": 4,
+        "timeout": 1800.0,
+    }
     assert info["ground_truth"]["backend"] == "blender" and info["ground_truth"]["asset"] == f"{SCENE}/{SCENE}.blend"
     assert info["ground_truth"]["samples"] == 4 and info["ground_truth"]["device"]
 
@@ -374,11 +402,24 @@ def test_case_7_a_run_whose_worker_hangs_fails_in_one_line_leaving_no_lock_or_pr
     one ``error:`` line naming the timeout; the worker is gone, the run's lock free, the run left to resume."""
     hangs, pid_file = _fake_worker(tmp_path, "hangs_on_render")
     out = tmp_path / "out"
-    overrides = ["budget=smoke", "method=random", "budget.horizon=1", "render.backend=blender", "render.timeout=2",
-                 f"paths.blender_python={hangs}", f"paths.outputs={out}"]
+    overrides = [
+        "budget=smoke",
+        "method=random",
+        "budget.horizon=1",
+        "render.backend=blender",
+        "render.timeout=2",
+        f"paths.blender_python={hangs}",
+        f"paths.outputs={out}",
+    ]
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    proc = subprocess.run([sys.executable, "-m", "pipeline.run", *overrides], cwd=REPO, env=env, capture_output=True,
-                          text=True, timeout=600)
+    proc = subprocess.run(
+        [sys.executable, "-m", "pipeline.run", *overrides],
+        cwd=REPO,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     lines = [line for line in proc.stderr.splitlines() if line.strip() and "cpp_extension" not in line]
     assert proc.returncode == 1 and len(lines) == 1, proc.stderr
     assert lines[0].startswith(f"error: run {out / 'default' / 'random-argmax-none' / 'smoke' / 'seed_100'} stopped")

@@ -12,11 +12,11 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf, open_dict
 
 from pipeline.config import validation
-from pipeline.config.memory import SIZE_KEYS_BOUNDED, allocations, too_large
 from pipeline.config.catalog import declared
+from pipeline.config.memory import SIZE_KEYS_BOUNDED, allocations, too_large
+from pipeline.config.schema import register_configs
 from pipeline.config.validation import ConfigError, validate
 from pipeline.repo import CONF
-from pipeline.config.schema import register_configs
 
 
 def _options(group: str) -> list[str]:
@@ -69,7 +69,9 @@ def test_every_ablation_budget_planner_combination(composer):
 def test_full_cross_product_composes(composer):
     groups = [_options(g) for g in ("scene", "method", "ablation", "planner", "budget")]
     for scene, method, ablation, planner, budget in itertools.product(*groups):
-        cfg = composer(f"scene={scene}", f"method={method}", f"ablation={ablation}", f"planner={planner}", f"budget={budget}")
+        cfg = composer(
+            f"scene={scene}", f"method={method}", f"ablation={ablation}", f"planner={planner}", f"budget={budget}"
+        )
         validate(cfg)
 
 
@@ -124,7 +126,11 @@ def test_budgets_scale_only_sizes_except_the_documented_departures(composer, bud
 
 
 def _float_keys(composer) -> list[str]:
-    return [key for key, value in _flat(OmegaConf.to_container(composer(), resolve=True)).items() if isinstance(value, float)]
+    return [
+        key
+        for key, value in _flat(OmegaConf.to_container(composer(), resolve=True)).items()
+        if isinstance(value, float)
+    ]
 
 
 @pytest.mark.parametrize("value", [math.nan, math.inf, -math.inf])
@@ -145,11 +151,23 @@ def test_every_float_key_rejects_nan_and_inf(composer, value):
 @pytest.mark.parametrize(
     ("overrides", "needle"),
     [
-        (["budget.image_size=100000"], r"^budget.image_size=100000: one ground-truth render of 100000x100000 RGBA "
-                                       r"float32 samples .* needs 149.0 GiB, more than the [0-9.]+ GiB of memory"),
-        (["budget.image_size=20000", "budget.gt_samples=8"], r"^budget.image_size=20000: .* of 160000x160000 .* 381.5 GiB"),
-        (["sampler.grid_resolution=100000"], r"^sampler.grid_resolution=100000: the occupancy grid .* needs 5587935.4 GiB"),
-        (["field.kind=densegrid", "field.dense_resolution=4000"], r"^field.dense_resolution=4000: the dense feature grid"),
+        (
+            ["budget.image_size=100000"],
+            r"^budget.image_size=100000: one ground-truth render of 100000x100000 RGBA "
+            r"float32 samples .* needs 149.0 GiB, more than the [0-9.]+ GiB of memory",
+        ),
+        (
+            ["budget.image_size=20000", "budget.gt_samples=8"],
+            r"^budget.image_size=20000: .* of 160000x160000 .* 381.5 GiB",
+        ),
+        (
+            ["sampler.grid_resolution=100000"],
+            r"^sampler.grid_resolution=100000: the occupancy grid .* needs 5587935.4 GiB",
+        ),
+        (
+            ["field.kind=densegrid", "field.dense_resolution=4000"],
+            r"^field.dense_resolution=4000: the dense feature grid",
+        ),
         (["budget.eval_size=200000"], r"^budget.eval_size=200000: the 20 evaluation views' RGB float32 ground truth"),
     ],
 )
@@ -218,7 +236,9 @@ def test_largest_allocations_are_lower_bounds_of_real_arrays(composer):
 def test_an_unusable_outputs_directory_is_refused(composer, tmp_path):
     a_file = tmp_path / "file"
     a_file.write_text("x")
-    with pytest.raises(ConfigError, match=rf"^paths.outputs={a_file} is a file, not a directory; pass paths.outputs=DIR$"):
+    with pytest.raises(
+        ConfigError, match=rf"^paths.outputs={a_file} is a file, not a directory; pass paths.outputs=DIR$"
+    ):
         validate(composer(f"paths.outputs={a_file}"))
     with pytest.raises(ConfigError, match=rf"^paths.outputs={a_file / 'x'} lies under {a_file}, which is a file"):
         validate(composer(f"paths.outputs={a_file / 'x'}"))
@@ -239,7 +259,10 @@ def _read_only_directory(tmp_path):
 
 def test_a_read_only_outputs_directory_is_refused(composer, tmp_path):
     read_only = _read_only_directory(tmp_path)
-    with pytest.raises(ConfigError, match=rf"^paths.outputs={read_only / 'runs'} would be created in {read_only}, which is not writable here"):
+    with pytest.raises(
+        ConfigError,
+        match=rf"^paths.outputs={read_only / 'runs'} would be created in {read_only}, which is not writable here",
+    ):
         validate(composer(f"paths.outputs={read_only / 'runs'}"))
     with pytest.raises(ConfigError, match=rf"^paths.outputs={read_only} is not writable here; pass paths.outputs=DIR$"):
         validate(composer(f"paths.outputs={read_only}"))

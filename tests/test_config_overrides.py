@@ -32,12 +32,27 @@ def test_compose_config_exits_with_one_line_on_any_bad_override(override, needle
 
 HOSTILE_VALUES = [
     ("case_5_negative_seed", "seed=-1", "error: seed -1 is not an integer from 0 to 2^63-1"),
-    ("case_5_seed_beyond_int64", "seed=99999999999999999999", "error: seed 99999999999999999999 is not an integer from 0"),
-    ("case_6_horizon_of_a_billion_steps", "budget.horizon=1000000000", "error: budget.horizon=1000000000 is more than 1000 steps"),
-    ("case_6_a_billion_label_samples", "train.label_samples=1000000000",
-     "error: train.label_samples=1000000000 is more than 65536 samples per segment"),
+    (
+        "case_5_seed_beyond_int64",
+        "seed=99999999999999999999",
+        "error: seed 99999999999999999999 is not an integer from 0",
+    ),
+    (
+        "case_6_horizon_of_a_billion_steps",
+        "budget.horizon=1000000000",
+        "error: budget.horizon=1000000000 is more than 1000 steps",
+    ),
+    (
+        "case_6_a_billion_label_samples",
+        "train.label_samples=1000000000",
+        "error: train.label_samples=1000000000 is more than 65536 samples per segment",
+    ),
     ("case_9_unknown_plus_key", "+no_such_key=1", "error: unknown key 'no_such_key' (added with +no_such_key=...)"),
-    ("case_9_unknown_plus_key_in_a_group", "+train.backbone.momentum=0.9", "error: unknown key 'train.backbone.momentum'"),
+    (
+        "case_9_unknown_plus_key_in_a_group",
+        "+train.backbone.momentum=0.9",
+        "error: unknown key 'train.backbone.momentum'",
+    ),
     ("a_name_too_long_for_a_run_directory", "budget.name=" + "b" * 65, "has 65 characters, more than 64"),
     ("a_blender_timeout_of_zero", "render.timeout=0", "error: render.timeout=0.0 must be positive"),
 ]

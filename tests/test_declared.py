@@ -63,7 +63,13 @@ eval_views: {rig: rule}
 
 def smoke(conf: Path, outputs: Path, *overrides: str) -> Outcome:
     cfg = compose_config(
-        [f"hydra.searchpath=[file://{conf}]", "budget=smoke", "budget.horizon=2", f"paths.outputs={outputs}", *overrides]
+        [
+            f"hydra.searchpath=[file://{conf}]",
+            "budget=smoke",
+            "budget.horizon=2",
+            f"paths.outputs={outputs}",
+            *overrides,
+        ]
     )
     return run_episode(cfg)
 

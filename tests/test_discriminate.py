@@ -45,9 +45,19 @@ def test_compare_pairs_seeds_and_picks_the_best_baseline():
     assert final.loc[("a", "nvf-wo_vis"), "ci_low"] == pytest.approx(1.0)  # identical differences: no spread
     assert final.loc[("a", "nvf-best_baseline"), "against"] == "neurar-none"
     assert final.loc[("a", "nvf-best_baseline"), "mean_diff"] == pytest.approx(1.5)
-    assert (final["n"] == 3).all() and final.loc[("b", "nvf-best_baseline"), "minutes_per_episode"] == pytest.approx(5.5)
+    assert (final["n"] == 3).all() and final.loc[("b", "nvf-best_baseline"), "minutes_per_episode"] == pytest.approx(
+        5.5
+    )
     summary = details.loc[details["measure"] == "final_psnr", list(SUMMARY_COLUMNS)]
-    assert list(summary.columns) == ["scene", "comparison", "mean_diff", "ci_low", "ci_high", "n", "minutes_per_episode"]
+    assert list(summary.columns) == [
+        "scene",
+        "comparison",
+        "mean_diff",
+        "ci_low",
+        "ci_high",
+        "n",
+        "minutes_per_episode",
+    ]
     assert set(summary["comparison"]) == {"nvf-wo_vis", "nvf-ind_rays", "nvf-best_baseline"}
 
 

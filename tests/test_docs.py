@@ -204,7 +204,9 @@ def unresolved_labels(path: str, text: str) -> list[str]:
     m_defined = set(re.findall(r"\(M(\d+)\)", method))
     d_defined = set(re.findall(r"^\| D(\d+) \|", protocol, flags=re.MULTILINE))
     problems += [f"{path}: M{n} is not defined in docs/METHOD.md" for n in M_LABEL.findall(text) if n not in m_defined]
-    problems += [f"{path}: D{n} is not in docs/PROTOCOL.md's table" for n in D_LABEL.findall(text) if n not in d_defined]
+    problems += [
+        f"{path}: D{n} is not in docs/PROTOCOL.md's table" for n in D_LABEL.findall(text) if n not in d_defined
+    ]
     return problems
 
 

@@ -78,7 +78,9 @@ def test_smoke_episode_writes_complete_records(tmp_path):
     assert verified(record)[1] == rows
     assert (directory / "images" / "step_01_pred.png").is_file()
     # the run's own labelled pictures and table, beside its records
-    assert all((directory / name).stat().st_size > 0 for name in ("grid.png", "psnr.png", "trajectory.png", "summary.md"))
+    assert all(
+        (directory / name).stat().st_size > 0 for name in ("grid.png", "psnr.png", "trajectory.png", "summary.md")
+    )
     assert RunLock(directory, tmp_path).path.read_text() == ""  # released
     # a finished run is skipped, not re-run; one finished with other settings is refused, untouched
     assert run_episode(_cfg(tmp_path, "method=random", "budget.horizon=2")) == Outcome(directory, "skipped")
@@ -277,7 +279,9 @@ def test_an_outputs_path_that_is_a_file_is_one_line_before_anything_is_written(t
     proc = _cli(tmp_path, f"paths.outputs={a_file}")
     _, err = proc.communicate(timeout=300)
     lines = [line for line in err.splitlines() if line.strip() and "cpp_extension" not in line]
-    assert proc.returncode == 2 and lines == [f"error: paths.outputs={a_file} is a file, not a directory; pass paths.outputs=DIR"]
+    assert proc.returncode == 2 and lines == [
+        f"error: paths.outputs={a_file} is a file, not a directory; pass paths.outputs=DIR"
+    ]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["outputs"] and a_file.read_text() == "not a directory"
 
 
@@ -332,7 +336,9 @@ def test_a_smoke_episode_on_cuda(tmp_path, planner):
     """The GPU path end to end: training, evaluation, planning (and -OPT's gradients) with ``device=cuda``,
     recorded as a CUDA run that verifies, with every metric finite and in range. (Not compared with a
     CPU run: the seeded generators live on the device, so the two draw different batches.)"""
-    directory = run_episode(_cfg(tmp_path, "method=nvf", f"planner={planner}", "budget.horizon=2", "device=cuda")).directory
+    directory = run_episode(
+        _cfg(tmp_path, "method=nvf", f"planner={planner}", "budget.horizon=2", "device=cuda")
+    ).directory
     info, rows = verified(RunRecord(directory))
     assert info["status"] == "done" and info["device"].startswith("cuda") and len(rows) == 2
     for row in rows:

@@ -9,17 +9,17 @@ import pytest
 import torch
 
 from nvf.cameras import Intrinsics, look_at, matrix_to_pose
+from nvf.methods import NVF
 from nvf.model import SceneModel
 from nvf.planning import score_poses
 from nvf.training import train_model
-from nvf.methods import NVF
 from nvf.visibility import visibility_labels
 from pipeline.bench.train import held_out_poses, observations, view_psnr
 from pipeline.config.validation import compose_config
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.image import edge_pixels, off_edge_psnr, psnr
-from pipeline.scenes.render import GroundTruthRenderer
 from pipeline.scenes.loading import load_scene
+from pipeline.scenes.render import GroundTruthRenderer
 
 pytestmark = pytest.mark.slow
 HEAD_STAGES = ("variance", "visibility")
@@ -48,7 +48,9 @@ def ring(scene, n: int, elevation_deg: float, azimuth0_deg: float, radius: float
     for i in range(n):
         theta = math.radians(azimuth0_deg + 360.0 * i / n)
         phi = math.radians(elevation_deg)
-        offset = radius * torch.tensor([math.cos(theta) * math.cos(phi), math.sin(theta) * math.cos(phi), math.sin(phi)])
+        offset = radius * torch.tensor(
+            [math.cos(theta) * math.cos(phi), math.sin(theta) * math.cos(phi), math.sin(phi)]
+        )
         poses.append(look_at(centre + offset, centre))
     return torch.stack(poses)
 
@@ -86,7 +88,9 @@ def test_backbone_reaches_28db_off_edges(held_out):
     on another day, edge pixels 13% of the pixels and 79% of the squared error)."""
     pred, gt = held_out
     value = off_edge_psnr(pred, gt)
-    print(f"held-out PSNR off the ground truth's edges: {value:.2f} dB ({edge_pixels(gt).mean():.3f} of pixels on edges)")
+    print(
+        f"held-out PSNR off the ground truth's edges: {value:.2f} dB ({edge_pixels(gt).mean():.3f} of pixels on edges)"
+    )
     assert value >= 28.0
 
 
@@ -150,7 +154,9 @@ def seen_unseen_gap(setup, one_sided, entropy) -> float:
     radius = float(torch.linalg.norm(seen_dir))
     seen = ring(scene, 3, 30.0, azimuth - 20.0, radius)[:1]
     seen = torch.cat([seen, ring(scene, 3, 30.0, azimuth + 20.0, radius)[:1]])
-    unseen = torch.cat([ring(scene, 3, 30.0, azimuth + 160.0, radius)[:1], ring(scene, 3, 30.0, azimuth + 200.0, radius)[:1]])
+    unseen = torch.cat(
+        [ring(scene, 3, 30.0, azimuth + 160.0, radius)[:1], ring(scene, 3, 30.0, azimuth + 200.0, radius)[:1]]
+    )
     plan = Intrinsics.from_fov(int(cfg.planner.resolution), int(cfg.planner.resolution))
 
     scorer = NVF().scorer(entropy, settings.baseline, float(entropy.d0))

@@ -10,12 +10,12 @@ from PIL import Image
 from skimage.metrics import structural_similarity
 
 from pipeline.metrics import image as metrics
-from pipeline.metrics.lpips_weights import LpipsUnavailable, default_sources, load_lpips_alex
-from pipeline.metrics.info import METRICS, PAPER_METRICS
 from pipeline.metrics.correlation import uncertainty_correlation
 from pipeline.metrics.coverage import seen_faces, visual_coverage
 from pipeline.metrics.geometry import geometry_metrics, points_from_rays
 from pipeline.metrics.image import LpipsMetric, image_metrics, psnr, psnr_from_mse, rgb_mse, ssim
+from pipeline.metrics.info import METRICS, PAPER_METRICS
+from pipeline.metrics.lpips_weights import LpipsUnavailable, default_sources, load_lpips_alex
 
 # Published LPIPS(alex, v0.1) of the IQA-PyTorch calibration pairs (ResultsCalibra; files under NVF_CALIBRATION, README.md).
 CALIBRATION = {"I03": 0.7237, "I04": 0.2572, "I06": 0.0508, "I08": 0.0521, "I19": 0.4253}
@@ -76,7 +76,12 @@ def test_ssim_matches_skimage_gaussian_population_statistics(data_range):
     reference = np.mean(
         [
             structural_similarity(
-                p, g, data_range=expected_range, channel_axis=-1, gaussian_weights=True, sigma=1.5,
+                p,
+                g,
+                data_range=expected_range,
+                channel_axis=-1,
+                gaussian_weights=True,
+                sigma=1.5,
                 use_sample_covariance=False,
             )
             for p, g in zip(pred, gt)

@@ -205,7 +205,9 @@ def test_training_render_reuses_the_skipping_encoding(monkeypatch) -> None:
     model.update_grid(0, torch.Generator().manual_seed(0))
     calls = []
     encode = model.field.encoding.forward
-    monkeypatch.setattr(model.field.encoding, "forward", lambda u, known=None: calls.append(known is not None) or encode(u, known))
+    monkeypatch.setattr(
+        model.field.encoding, "forward", lambda u, known=None: calls.append(known is not None) or encode(u, known)
+    )
     result = model.render(*front_rays(), train=True, generator=torch.Generator().manual_seed(0))
     assert result.samples.num_samples > 0 and calls == [False, True]
     result.rgb.sum().backward()

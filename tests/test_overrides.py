@@ -5,8 +5,8 @@ import copy
 from hydra import compose, initialize_config_dir
 
 from pipeline.config.named import NamedConfigs
-from pipeline.repo import CONF
 from pipeline.episode.runner import run_settings
+from pipeline.repo import CONF
 
 GROUPS = ["scene=default", "method=nvf", "planner=argmax", "ablation=none", "budget=smoke", "seed=101"]
 

@@ -15,6 +15,7 @@ from torch import nn
 
 from nvf.cameras import Intrinsics, look_at, matrix_to_pose
 from nvf.config import BaselineConfig, EntropyConfig, OptConfig, PlannerConfig
+from nvf.methods import NVF, load_method
 from nvf.model import RenderResult
 from nvf.planning import (
     NoCandidatesError,
@@ -27,9 +28,8 @@ from nvf.planning import (
     select_next_view,
     top_k_first,
 )
-from nvf.seeding import generator_factory, seeded_generator
 from nvf.rendering import Samples, alpha_from_density, expected_depth, ray_sum, weights_from_alpha
-from nvf.methods import NVF, load_method
+from nvf.seeding import generator_factory, seeded_generator
 from nvf.uncertainty import ViewScorer
 
 AABB = torch.tensor([[-2.0, -2.0, -2.0], [2.0, 2.0, 2.0]])
@@ -236,7 +236,9 @@ def test_no_candidates_error_names_the_filter():
 
 def test_score_poses_is_the_full_image_mean_and_passes_pixel_index():
     model, scorer = blob_model(), AccScorer()
-    poses = torch.stack([pose_looking([1.5, 0.0, 0.0], [0.0, 0.0, 0.0]), pose_looking([1.5, 0.0, 0.0], [3.0, 0.0, 0.0])])
+    poses = torch.stack(
+        [pose_looking([1.5, 0.0, 0.0], [0.0, 0.0, 0.0]), pose_looking([1.5, 0.0, 0.0], [3.0, 0.0, 0.0])]
+    )
     scores = score_poses(model, scorer, poses, INTR, chunk_rays=24)
     assert scores.shape == (2,) and scores[0] > 0.5 and scores[1] < 0.01
     seen = torch.cat(scorer.pixel_indices[: math.ceil(64 / 24)])
@@ -287,7 +289,9 @@ def test_random_method_skips_filters_unless_asked():
     assert sel.score is None and sel.candidate_scores is None and sel.num_candidates == 8
     with pytest.raises(NoCandidatesError):
         select_next_view(model, None, cfg(n=8, random_filters=True), box, None, INTR, 1e-4, False, gens())
-    picks = {select_next_view(model, None, cfg(n=8), box, None, INTR, 1e-4, False, gens(step=s)).index for s in range(40)}
+    picks = {
+        select_next_view(model, None, cfg(n=8), box, None, INTR, 1e-4, False, gens(step=s)).index for s in range(40)
+    }
     assert len(picks) >= 5  # uniform choice, not always the first
 
 
@@ -320,7 +324,9 @@ def test_opt_refinement_ascends_the_score(param):
 
 def test_opt_default_lr_moves_poses_only_slightly():
     model, scorer = blob_model(), AccScorer()
-    start = torch.stack([pose_looking([1.8, 0.0, 0.0], [0.0, 1.6, 0.0]), pose_looking([0.0, 1.8, 0.5], [0.0, 0.0, 0.0])])
+    start = torch.stack(
+        [pose_looking([1.8, 0.0, 0.0], [0.0, 1.6, 0.0]), pose_looking([0.0, 1.8, 0.5], [0.0, 0.0, 0.0])]
+    )
     refined, _ = refine_poses(model, scorer, start, BOX, INTR, OptConfig(), gens())
     step = (refined - start).abs().max()
     assert 0 < step < 5e-3  # 20 Adam steps of 1e-4 (METHOD 14.4)

@@ -52,7 +52,8 @@ def test_default_object_self_occludes():
         xs, ys = np.meshgrid(np.linspace(0.2, 0.5, 40), np.linspace(-0.45, -0.15, 40))
         origins = np.stack([xs, ys, np.full_like(xs, 2.0)], -1).reshape(-1, 3)
         _, top_ids = renderer.cast_rays(origins, np.broadcast_to([0.0, 0.0, -1.0], origins.shape))
-        side = renderer.face_ids(look_at(torch.tensor([0.35, -1.6, 0.15]), torch.tensor([0.35, -0.3, 0.15])).numpy(),
-                                 intr)
+        side = renderer.face_ids(
+            look_at(torch.tensor([0.35, -1.6, 0.15]), torch.tensor([0.35, -0.3, 0.15])).numpy(), intr
+        )
     assert not yellow[top_ids[top_ids >= 0]].any()
     assert yellow[side[side >= 0]].sum() > 20

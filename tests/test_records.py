@@ -4,9 +4,9 @@ writer lock, verification on read and the legacy defaults of keys added after re
 import hashlib
 import json
 import math
+import multiprocessing
 import os
 import re
-import multiprocessing
 import signal
 import stat
 import subprocess
@@ -34,8 +34,8 @@ from pipeline.records.store import (
     atomic_write_text,
     check_key,
     read_steps,
-    run_dir,
     run_difference,
+    run_dir,
     temp_file,
     to_jsonable,
 )
@@ -62,7 +62,13 @@ def _info(**overrides) -> dict:
 
 def _row(step: int, psnr: float = 20.0) -> dict:
     metrics = {"psnr": psnr, "lpips": None}
-    return {"step": step, "n_views": 3 + step, "status": "ok", "metrics": metrics, "selected_pose": [0.0, 0, 0, 1, 0, 0, 2]}
+    return {
+        "step": step,
+        "n_views": 3 + step,
+        "status": "ok",
+        "metrics": metrics,
+        "selected_pose": [0.0, 0, 0, 1, 0, 0, 2],
+    }
 
 
 def _started(tmp_path: Path) -> RunRecord:
@@ -443,7 +449,9 @@ def _first_row_is_step_1_only(record):
 
 
 def _nan_pose(record):
-    record.steps_path.write_text(record.steps_path.read_text().replace('"selected_pose":[0.0', '"selected_pose":[null', 1))
+    record.steps_path.write_text(
+        record.steps_path.read_text().replace('"selected_pose":[0.0', '"selected_pose":[null', 1)
+    )
 
 
 def _missing_middle_row(record):
@@ -485,7 +493,9 @@ def _case_3_a_middle_line_of_100000_nested_brackets(record):
 
 
 def _case_3_a_last_line_of_100000_nested_brackets(record):
-    record.steps_path.write_text("".join(_lines(record)[:2]) + '{"step": 2, "x": ' + "[" * 100_000 + "]" * 100_000 + "}\n")
+    record.steps_path.write_text(
+        "".join(_lines(record)[:2]) + '{"step": 2, "x": ' + "[" * 100_000 + "]" * 100_000 + "}\n"
+    )
 
 
 def _case_3_run_json_nested_40_deep(record):
@@ -546,13 +556,22 @@ MALFORMED = [
     (_case_3_metric_of_401_digits, r"steps.jsonl: step 2 holds metrics.psnr: an integer of 401 digits, beyond int64"),
     (_case_3_metric_beyond_float, r"steps.jsonl: step 2 holds metrics.psnr: inf, not a finite number"),
     (_case_3_a_middle_line_of_100000_nested_brackets, r"steps.jsonl: line 2 is corrupt and not the last one"),
-    (_case_3_a_last_line_of_100000_nested_brackets, r"steps.jsonl: dropped a corrupt last line \(line 3\) of a finished run"),
+    (
+        _case_3_a_last_line_of_100000_nested_brackets,
+        r"steps.jsonl: dropped a corrupt last line \(line 3\) of a finished run",
+    ),
     (_case_3_run_json_nested_40_deep, r"run.json: holds extra\.0\.0(\.0)*: nested more than 32 levels deep"),
     (_case_3_run_json_of_100000_nested_brackets, r"run.json: not valid JSON \(nested deeper than a record may be\)"),
     (_case_3_a_name_of_200_characters, r"run.json: run key scene='s{64}'... has 200 characters, more than 64"),
     (_case_3_a_rank_that_is_text, r"run.json: config.method.rank is 'first', not int"),
-    (_case_4_a_config_value_with_line_breaks, r"run.json: holds config.planner.num_candidates: a text with a control character"),
-    (_case_9_method_relabelled_after_it_finished, r"seed_100: run.json or steps.jsonl differs from the digest run.json took"),
+    (
+        _case_4_a_config_value_with_line_breaks,
+        r"run.json: holds config.planner.num_candidates: a text with a control character",
+    ),
+    (
+        _case_9_method_relabelled_after_it_finished,
+        r"seed_100: run.json or steps.jsonl differs from the digest run.json took",
+    ),
     (_run_json_a_symbolic_link, r"run.json: a symbolic link, not a record file"),
     (_steps_a_symbolic_link, r"steps.jsonl: a symbolic link, not a record file"),
     (_run_json_of_17_mib, r"run.json: more than 16777216 bytes, more than a record file may hold"),
@@ -591,7 +610,9 @@ def test_records_finished_before_the_record_digest_are_checked_against_their_row
     record.run_json.write_text(json.dumps({**info, "scene_source": "edited"}))
     assert verified(record)[0]["scene_source"] == "edited"
     _changed_value(record)
-    with pytest.raises(RecordError, match=r"steps.jsonl: differs from the digest run.json took when the run finished \(steps_digest\)"):
+    with pytest.raises(
+        RecordError, match=r"steps.jsonl: differs from the digest run.json took when the run finished \(steps_digest\)"
+    ):
         verified(record)
 
 
@@ -672,6 +693,8 @@ def test_a_committed_room_record_made_before_los_source_reads_as_the_models_line
     assert "los_source" not in info["config"]["planner"]
     assert run_difference(info, today) == 'config.planner.los_source ("model" in the record, "mesh" now)'
     assert NamedConfigs(CONF).overrides(info) == ("planner.los_source=model",)  # its own budget label in the tables
-    info, today = _committed_and_today("room/random-argmax-none/cpu/seed_100", ["scene=room", "method=random", "budget=cpu"])
+    info, today = _committed_and_today(
+        "room/random-argmax-none/cpu/seed_100", ["scene=room", "method=random", "budget=cpu"]
+    )
     assert "los_source" not in info["config"]["planner"]
     assert run_difference(info, today) is None and NamedConfigs(CONF).overrides(info) == ()

@@ -49,8 +49,11 @@ def test_flat_colour_black_background_and_face_ids(cube_renderer):
     c2w = look_at(torch.tensor([1.5, 1.2, 1.0]), torch.tensor([0.0, 0.0, 0.0]))
     view = cube_renderer.render(c2w, INTR)
     assert view.rgb.shape == (80, 96, 3) and view.rgb.dtype == np.float32
-    np.testing.assert_allclose(view.rgb[view.mask], np.broadcast_to([200 / 255, 100 / 255, 50 / 255],
-                                                                     view.rgb[view.mask].shape), atol=1.5 / 255)
+    np.testing.assert_allclose(
+        view.rgb[view.mask],
+        np.broadcast_to([200 / 255, 100 / 255, 50 / 255], view.rgb[view.mask].shape),
+        atol=1.5 / 255,
+    )
     assert np.all(view.rgb[~view.mask] == 0)
     hit = view.face_id >= 0
     assert view.face_id.dtype == np.int64 and (hit == view.mask).mean() > 0.99
@@ -171,13 +174,28 @@ def test_render_bench_and_dispatch(tmp_path, capsys):
     import json
 
     from pipeline.bench.__main__ import main as bench_main
-
     from pipeline.scenes.blender import blender_python, missing_python
 
     out = tmp_path / "render.json"
     backends = ["pyrender"] if missing_python(blender_python()) else ["pyrender", "blender"]
-    bench_main(["render", "--res", "16", "24", "--views", "1", "--samples", "2", "--scenes", "default",
-                "--backends", *backends, "--out", str(out)])
+    bench_main(
+        [
+            "render",
+            "--res",
+            "16",
+            "24",
+            "--views",
+            "1",
+            "--samples",
+            "2",
+            "--scenes",
+            "default",
+            "--backends",
+            *backends,
+            "--out",
+            str(out),
+        ]
+    )
     rows = json.loads(out.read_text())["rows"]
     assert [r["resolution"] for r in rows] == [16, 24] and all(r["ray_cast_ms"] > 0 for r in rows)
     assert all(r[f"{backend}_rgba_ms"] > 0 for r in rows for backend in backends)

@@ -12,8 +12,8 @@ import trimesh
 
 from pipeline.repo import REPO
 from pipeline.scenes.blender import blender_python, missing_python
-from pipeline.scenes.scene import SceneError
 from pipeline.scenes.loading import find_asset, load_scene, scene_config, scene_names
+from pipeline.scenes.scene import SceneError
 from pipeline.scenes.views import rule_views
 
 PROXIES = [name for name in scene_names() if name.endswith("_proxy")]
@@ -21,18 +21,35 @@ NO_BLENDER = missing_python(blender_python())
 
 # PROTOCOL 2.3: rounded initial views, position -> look-at target
 INIT = {
-    "hubble": [((1.3463, 2.0533, 0.3500), (0, 0, -0.1500)), ((1.8766, 1.5231, 0.7829), (0, 0, 0.3500)),
-               ((1.8766, 1.5231, -0.0830), (0, 0, 0.8499))],
-    "lego": [((-0.3000, 2.2000, 0.3500), (0, 0, -0.30)), ((0.1500, 2.2000, 0.6098), (0, 0, 0.15)),
-             ((0.1500, 2.2000, 0.0902), (0, 0, 0.60))],
-    "hotdog": [((0, -1.5, 1.2), (0, 0, -0.150)), ((1.4266, -0.4635, 1.2), (0, 0, -0.075)),
-               ((0.8817, 1.2135, 1.2), (0, 0, 0)), ((-0.8817, 1.2135, 1.2), (0, 0, 0.075)),
-               ((-1.4266, -0.4635, 1.2), (0, 0, 0.150))],
-    "room": [((0.6999, 1.9998, 2.3498), (-2, 2, 0.3500)), ((0.7001, 3.9996, 2.3498), (0, 0, -0.1500)),
-             ((-0.0651, 3.5318, 3.3827), (0, 0, -0.0250)), ((-0.4722, 2.3471, 3.9323), (0, 0, 0.1000)),
-             ((-0.3310, 1.0000, 3.7415), (0, 0, 0.2250)), ((0.2927, 0.1206, 2.8994), (0, 0, 0.3500)),
-             ((1.1069, 0.1206, 1.8001), (0, 0, 0.4750)), ((1.7307, 0.9998, 0.9581), (0, 0, 0.5999)),
-             ((1.8722, 2.3470, 0.7672), (0, 0, 0.7249)), ((1.4651, 3.5317, 1.3168), (0, 0, 0.8499))],
+    "hubble": [
+        ((1.3463, 2.0533, 0.3500), (0, 0, -0.1500)),
+        ((1.8766, 1.5231, 0.7829), (0, 0, 0.3500)),
+        ((1.8766, 1.5231, -0.0830), (0, 0, 0.8499)),
+    ],
+    "lego": [
+        ((-0.3000, 2.2000, 0.3500), (0, 0, -0.30)),
+        ((0.1500, 2.2000, 0.6098), (0, 0, 0.15)),
+        ((0.1500, 2.2000, 0.0902), (0, 0, 0.60)),
+    ],
+    "hotdog": [
+        ((0, -1.5, 1.2), (0, 0, -0.150)),
+        ((1.4266, -0.4635, 1.2), (0, 0, -0.075)),
+        ((0.8817, 1.2135, 1.2), (0, 0, 0)),
+        ((-0.8817, 1.2135, 1.2), (0, 0, 0.075)),
+        ((-1.4266, -0.4635, 1.2), (0, 0, 0.150)),
+    ],
+    "room": [
+        ((0.6999, 1.9998, 2.3498), (-2, 2, 0.3500)),
+        ((0.7001, 3.9996, 2.3498), (0, 0, -0.1500)),
+        ((-0.0651, 3.5318, 3.3827), (0, 0, -0.0250)),
+        ((-0.4722, 2.3471, 3.9323), (0, 0, 0.1000)),
+        ((-0.3310, 1.0000, 3.7415), (0, 0, 0.2250)),
+        ((0.2927, 0.1206, 2.8994), (0, 0, 0.3500)),
+        ((1.1069, 0.1206, 1.8001), (0, 0, 0.4750)),
+        ((1.7307, 0.9998, 0.9581), (0, 0, 0.5999)),
+        ((1.8722, 2.3470, 0.7672), (0, 0, 0.7249)),
+        ((1.4651, 3.5317, 1.3168), (0, 0, 0.8499)),
+    ],
 }
 
 # PROTOCOL 2.5 table: target t, semi-axes a, top view, P0, z_i
@@ -118,8 +135,9 @@ def test_lego_proxy_views_and_boxes():
     for pose, (position, target) in zip(scene.init_poses, INIT["lego"], strict=True):
         assert_view(pose, position, target)
     t = (0, 0, 0.35)
-    for pose, (position, target) in zip(scene.eval_poses, lego_layout_expected(t, (1.5, 2.0, 1.7), t, (0, 0, 1.7), t),
-                                        strict=True):
+    for pose, (position, target) in zip(
+        scene.eval_poses, lego_layout_expected(t, (1.5, 2.0, 1.7), t, (0, 0, 1.7), t), strict=True
+    ):
         assert_view(pose, position, target)
     torch.testing.assert_close(scene.camera_box, torch.tensor([[-1.75, -3.0, -0.345], [1.75, 3.0, 3.2675]]))
     torch.testing.assert_close(scene.object_aabb, torch.tensor([[-0.7, -1.2, -0.345], [0.7, 1.2, 1.1]]))
@@ -148,8 +166,7 @@ def test_room_eval_views_straight_down(mesh_scenes):
     index = [*range(5), *range(10), *range(5)]
     for pose, (cx, cy, r, step), i in zip(scene.eval_poses.double(), centres, index, strict=True):
         theta = math.radians(step * i)
-        np.testing.assert_allclose(pose[:3, 3], (cx + r * math.cos(theta), cy + r * math.sin(theta), 4),
-                                   atol=1e-5)
+        np.testing.assert_allclose(pose[:3, 3], (cx + r * math.cos(theta), cy + r * math.sin(theta), 4), atol=1e-5)
         np.testing.assert_allclose(pose[:3, 0], (math.cos(theta), math.sin(theta), 0), atol=1e-6)
         np.testing.assert_allclose(pose[:3, 2], (0, 0, 1), atol=1e-6)
     assert scene.collision_free and scene.d0 == 6.0 and scene.cr_threshold == 0.1 and scene.n_init == 10
@@ -192,7 +209,9 @@ def test_mesh_placement(mesh_scenes):
     assert hubble.mesh.visual.kind == "texture"
     assert hotdog.source == hubble.source == "mesh"
     # the tight box's x extent over the model's 11.64 m (PROTOCOL 2.2's uniform fit)
-    assert hubble.asset.name == "hubble_nasaA_zup_m.glb" and hubble.asset_to_scene[0, 0] == pytest.approx(0.1584, abs=1e-4)
+    assert hubble.asset.name == "hubble_nasaA_zup_m.glb" and hubble.asset_to_scene[0, 0] == pytest.approx(
+        0.1584, abs=1e-4
+    )
 
 
 def test_room_blend_is_preferred_over_its_mesh(mesh_scenes, assets_dir):
@@ -276,8 +295,13 @@ def test_user_mesh_lookup_and_bad_meshes(tmp_path):
 
 def test_show_cli_bad_input(capsys):
     """Bad input: one line on stderr, non-zero exit, no traceback (in a subprocess and in-process)."""
-    result = subprocess.run([sys.executable, "-m", "pipeline.scenes", "show", "teapot"], cwd=REPO, capture_output=True,
-                            text=True, timeout=120)
+    result = subprocess.run(
+        [sys.executable, "-m", "pipeline.scenes", "show", "teapot"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert result.returncode != 0
     assert len(result.stderr.strip().splitlines()) == 1 and "Traceback" not in result.stderr
     from pipeline.scenes.__main__ import main

@@ -11,14 +11,14 @@ import imageio.v3 as iio
 import numpy as np
 import pandas as pd
 import pytest
+from test_tables import make_run
 
 import pipeline.tables.__main__ as tables_cli
 from pipeline.records.images import map_range, save_step_images
+from pipeline.scenes.loading import scene_config
 from pipeline.tables.build import build_tables
 from pipeline.tables.figures import image_grid
 from pipeline.tables.trajectory import chosen_poses, outline_of_config, trajectory_figure
-from pipeline.scenes.loading import scene_config
-from test_tables import make_run
 
 
 def test_a_map_records_its_range_and_unit_and_an_empty_one_says_so(tmp_path):
@@ -90,7 +90,9 @@ def test_the_site_links_every_picture_and_needs_no_network(tmp_path):
     own = make_run(out, scene="hubble", method="nvf", seed=102)  # a run with its own pictures
     iio.imwrite(own.directory / "trajectory.png", np.zeros((4, 4, 3), np.uint8))
     (results / "pilots" / "a_pilot").mkdir(parents=True)
-    (results / "pilots" / "a_pilot" / "README.md").write_text("# A pilot\n\n| a | b |\n|--|--|\n| 1 | 2 |\n\n[data](x.csv)\n")
+    (results / "pilots" / "a_pilot" / "README.md").write_text(
+        "# A pilot\n\n| a | b |\n|--|--|\n| 1 | 2 |\n\n[data](x.csv)\n"
+    )
     iio.imwrite(results / "pilots" / "a_pilot" / "curve.png", np.zeros((4, 4, 3), np.uint8))
     before = sorted(p for p in out.rglob("*"))
     build_tables(out, [], results, assets=tmp_path / "no_assets")

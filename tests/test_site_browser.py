@@ -31,7 +31,9 @@ def site(tmp_path_factory) -> Path:
         ["pipeline.run", "-m", "experiment=smoke", f"paths.outputs={root / 'outputs'}", "hydra/launcher=joblib"],
         ["pipeline.tables", f"paths.outputs={root / 'outputs'}", f"paths.results={root / 'results'}"],
     ):
-        subprocess.run([sys.executable, "-m", *command], cwd=REPO, env=env, check=True, capture_output=True, timeout=1800)
+        subprocess.run(
+            [sys.executable, "-m", *command], cwd=REPO, env=env, check=True, capture_output=True, timeout=1800
+        )
     return root / "results" / "site"
 
 
@@ -67,7 +69,9 @@ def broken_images(driver) -> list[str]:
     return driver.execute_script(script)
 
 
-@pytest.mark.skipif(bool(missing), reason=f"needs {' and '.join(missing)} (Debian's chromium, chromium-driver: make browser)")
+@pytest.mark.skipif(
+    bool(missing), reason=f"needs {' and '.join(missing)} (Debian's chromium, chromium-driver: make browser)"
+)
 def test_the_smoke_sweeps_site_loads_in_chromium(site, browser, tmp_path):
     browser.get((site / "index.html").as_uri())
     assert browser.title == "nvf-bench results" and errors(browser) == []

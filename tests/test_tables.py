@@ -13,12 +13,10 @@ import imageio.v3 as iio
 import numpy as np
 import pandas as pd
 import pytest
-
 from omegaconf import OmegaConf
 
 from pipeline.config.named import NamedConfigs
 from pipeline.config.validation import compose_config
-from pipeline.tables.paper import paper_numbers
 from pipeline.records.store import DIGEST_KEY, RunRecord, record_digest, run_dir
 from pipeline.repo import CONF, REPO
 from pipeline.tables.__main__ import main
@@ -26,6 +24,7 @@ from pipeline.tables.build import build_tables
 from pipeline.tables.figures import image_grid, safe_name
 from pipeline.tables.labels import row_name
 from pipeline.tables.load import LONG_COLUMNS
+from pipeline.tables.paper import paper_numbers
 from pipeline.tables.summary import summarize_run
 
 METRICS = ("psnr", "ssim", "lpips", "rgb", "acc", "comp", "cr", "vis")
@@ -33,8 +32,19 @@ POSE = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 2.0]
 
 
 def make_run(
-    root: Path, scene="hubble", method="nvf", planner="argmax", ablation="none", seed=100, final=None,
-    status="done", lpips_reason=None, steps=3, config=None, source=None, ground_truth=None,
+    root: Path,
+    scene="hubble",
+    method="nvf",
+    planner="argmax",
+    ablation="none",
+    seed=100,
+    final=None,
+    status="done",
+    lpips_reason=None,
+    steps=3,
+    config=None,
+    source=None,
+    ground_truth=None,
 ) -> RunRecord:
     """A synthetic run: `steps` step rows (smoke's horizon, 3), the last one carrying `final` metric values
     (others 0); its config's horizon is `steps` unless `config` sets one."""
@@ -53,7 +63,13 @@ def make_run(
         metrics = {**base, **(final or {})} if step == steps - 1 else {m: 0.0 for m in METRICS}
         if lpips_reason:
             metrics["lpips"] = None
-        row = {"step": step, "n_views": 3 + step, "status": "ok", "metrics": {**metrics, "vis_area": 0.1}, "selected_pose": POSE}
+        row = {
+            "step": step,
+            "n_views": 3 + step,
+            "status": "ok",
+            "metrics": {**metrics, "vis_area": 0.1},
+            "selected_pose": POSE,
+        }
         record.append_step(row)
     if status == "done":
         record.mark_done()
@@ -238,8 +254,10 @@ def test_two_finished_copies_with_different_rows_are_both_named_and_neither_tabu
     info[DIGEST_KEY] = record_digest(info, (forged / "steps.jsonl").read_bytes())  # a consistent forgery
     (forged / "run.json").write_text(json.dumps(info))
     written, lines = build_tables(tmp_path / "out", [tmp_path / "res" / "runs"], tmp_path / "res", figures=False)
-    assert list(lines) == [f"left out every copy of one run: {real.directory} and {forged} are finished copies that differ "
-                     "(step 2 metrics.psnr (20.0 in the first, 99.0 in the second)); remove the ones that are wrong"]
+    assert list(lines) == [
+        f"left out every copy of one run: {real.directory} and {forged} are finished copies that differ "
+        "(step 2 metrics.psnr (20.0 in the first, 99.0 in the second)); remove the ones that are wrong"
+    ]
     assert "No runs yet" in read(tmp_path / "res" / "tables" / "all_runs.md")
     shutil.rmtree(forged)
     written, lines = build_tables(tmp_path / "out", [tmp_path / "res" / "runs"], tmp_path / "res", figures=False)
@@ -450,9 +468,11 @@ def test_case_1_a_results_folder_linked_outside_is_refused_before_anything_is_wr
         (results / linked).symlink_to(elsewhere)
         assert main([f"paths.outputs={tmp_path / 'out'}", f"paths.results={results}"]) == 2
         err = capsys.readouterr().err.splitlines()
-        assert err == [f"error: paths.results: {results / linked} is a symbolic link to {elsewhere}, outside {results}; "
-                       f"records and results are never read or written through such a link: remove it (or point it "
-                       f"inside {results})"]
+        assert err == [
+            f"error: paths.results: {results / linked} is a symbolic link to {elsewhere}, outside {results}; "
+            f"records and results are never read or written through such a link: remove it (or point it "
+            f"inside {results})"
+        ]
         assert not list(elsewhere.iterdir()) and sorted(p.name for p in results.iterdir()) == [linked]
         (results / linked).unlink()
 
@@ -463,8 +483,10 @@ def test_case_1_records_behind_a_link_leaving_their_root_are_skipped(tmp_path):
     make_run(tmp_path / "out", seed=100)
     (tmp_path / "out" / "room").symlink_to(tmp_path / "elsewhere" / "room")
     _, lines = build_tables(tmp_path / "out", [], tmp_path / "res", figures=False)
-    assert list(lines) == [f"skipped run records under {tmp_path / 'out' / 'room'}: a symbolic link to "
-                           f"{tmp_path / 'elsewhere' / 'room'}, outside {tmp_path / 'out'}"]
+    assert list(lines) == [
+        f"skipped run records under {tmp_path / 'out' / 'room'}: a symbolic link to "
+        f"{tmp_path / 'elsewhere' / 'room'}, outside {tmp_path / 'out'}"
+    ]
     assert set(pd.read_csv(tmp_path / "res" / "runs.csv")["scene"]) == {"hubble"}
 
 
@@ -482,12 +504,24 @@ def _rewrite(record: RunRecord, info_changes: dict | None = None, last_row: tupl
 CRAFTED = [
     ("seed_of_301_digits", {"seed": 10**300}, None, "run.json: holds seed: an integer of 301 digits, beyond int64"),
     ("metric_of_401_digits", None, ('"psnr":0.5', f'"psnr":{10**400}'), "holds metrics.psnr: an integer of 401 digits"),
-    ("steps_line_of_100000_nested_brackets", None, ('"metrics"', '"x":' + "[" * 100_000 + "]" * 100_000 + ',"metrics"'),
-     "dropped a corrupt last line (line 3) of a finished run"),
-    ("names_of_200_characters", {key: key[0] * 200 for key in ("scene", "method", "planner", "ablation", "budget")}, None,
-     "has 200 characters, more than 64"),
-    ("rank_that_is_text", {"config": {"budget": {"horizon": 3}, "method": {"name": "nvf", "rank": "first"}}}, None,
-     "config.method.rank is 'first', not int"),
+    (
+        "steps_line_of_100000_nested_brackets",
+        None,
+        ('"metrics"', '"x":' + "[" * 100_000 + "]" * 100_000 + ',"metrics"'),
+        "dropped a corrupt last line (line 3) of a finished run",
+    ),
+    (
+        "names_of_200_characters",
+        {key: key[0] * 200 for key in ("scene", "method", "planner", "ablation", "budget")},
+        None,
+        "has 200 characters, more than 64",
+    ),
+    (
+        "rank_that_is_text",
+        {"config": {"budget": {"horizon": 3}, "method": {"name": "nvf", "rank": "first"}}},
+        None,
+        "config.method.rank is 'first', not int",
+    ),
 ]
 
 
@@ -503,7 +537,11 @@ def test_case_3_one_crafted_record_is_one_skip_line_and_the_tables_go_on(tmp_pat
     _rewrite(crafted, info, row)
     assert main([f"paths.outputs={tmp_path / 'out'}", f"paths.results={tmp_path / 'res'}"]) == 0
     err = [line for line in capsys.readouterr().err.splitlines() if "is not a directory" not in line]
-    assert len(err) == 1 and err[0].startswith(f"pipeline.tables: skipped run record: {crafted.directory}") and problem in err[0]
+    assert (
+        len(err) == 1
+        and err[0].startswith(f"pipeline.tables: skipped run record: {crafted.directory}")
+        and problem in err[0]
+    )
     assert set(pd.read_csv(tmp_path / "res" / "runs.csv")["seed"]) == {101}
     assert "| 21.00 " in read(tmp_path / "res" / "tables" / "all_runs.md")
 
@@ -519,7 +557,9 @@ def test_case_3_long_names_are_shortened_before_any_file_is_written(tmp_path):
     written, lines = build_tables(tmp_path / "out", [], tmp_path / "res")
     assert all(line.startswith("pictures of") for line in lines)  # no scene of that name to draw a trajectory over
     grids = [p for p in written if p.parent.name == "grids"]
-    assert len(grids) == 1 and len(grids[0].name) == 200  # grid_<scene>_<method-planner-ablation>_<budget label>_seed100
+    assert (
+        len(grids) == 1 and len(grids[0].name) == 200
+    )  # grid_<scene>_<method-planner-ablation>_<budget label>_seed100
     assert re.fullmatch(r"grid_s{64}_m{64}-p{15}-[0-9a-f]{8}_b+-[0-9a-f]{8}\.png", grids[0].name)
     assert all(len(p.name) <= 200 for p in written)
 
@@ -530,7 +570,11 @@ def test_case_4_record_text_is_escaped_in_markdown_latex_and_csv(tmp_path):
     without is escaped: no extra cell, row or line, no live LaTeX command."""
     named = NamedConfigs(CONF).named(("hubble", "nvf", "argmax", "none", "smoke"))
     hostile = r"a|b | injected | row | \input{/etc/passwd} <script>"
-    config = {**named, "method": {**named["method"], "label": hostile}, "planner": {**named["planner"], "los_source": hostile}}
+    config = {
+        **named,
+        "method": {**named["method"], "label": hostile},
+        "planner": {**named["planner"], "los_source": hostile},
+    }
     make_run(tmp_path / "out", seed=100, config=config)
     broken = make_run(tmp_path / "out", seed=101)
     _rewrite(broken, {"config": {**config, "planner": {"los_source": "a|b\n| injected | row |\n\\input{/etc/passwd}"}}})

@@ -208,7 +208,9 @@ def test_collapse_rule_needs_a_full_window_above_four_times_the_lowest_mean_and_
     """(documented in ``_Recorder``) The mean of the last 5 losses above 4x the lowest earlier mean and
     above the first loss."""
     collapse = [0.01, 0.1, 0.1, 0.1, 0.1]  # lr=1e3 at the smoke budget: 6-16x from iteration 1 on
-    with pytest.raises(TrainingDiverged, match=r"backbone stage collapsed at iteration 4: mean loss 0\.082 .* 8\.2 times"):
+    with pytest.raises(
+        TrainingDiverged, match=r"backbone stage collapsed at iteration 4: mean loss 0\.082 .* 8\.2 times"
+    ):
         _feed("backbone", collapse)
     _feed("backbone", [0.01, 0.1, 0.1, 0.1])  # no full window yet
     _feed("backbone", [0.01, 0.001, 0.002, 0.001, 0.003, 0.004, 0.002, 0.001, 0.001])  # noise at a low loss: 2.8x
@@ -224,7 +226,9 @@ def test_visibility_stage_with_lr_1e3_collapses(trained):
     collapse rule stops the stage at iteration 4 (before: recorded as a finished stage)."""
     model, obs = trained
     cfg = tiny_config(visibility=StageBudget(30, 1024, 1e3))
-    with pytest.raises(TrainingDiverged, match=r"visibility stage collapsed at iteration 4: .* lowest earlier mean 0\.69"):
+    with pytest.raises(
+        TrainingDiverged, match=r"visibility stage collapsed at iteration 4: .* lowest earlier mean 0\.69"
+    ):
         train_visibility_head(copy_model(model), obs, cfg, torch.Generator().manual_seed(2))
 
 
@@ -272,9 +276,7 @@ def test_visibility_stage_bce_decreases(trained):
 def test_reference_schedule_step_counts(trained):
     model, obs = trained
     model = copy_model(model)
-    cfg = tiny_config(
-        schedule="reference", variance=StageBudget(2, 64, 1e-3), visibility=StageBudget(2, 256, 1e-3)
-    )
+    cfg = tiny_config(schedule="reference", variance=StageBudget(2, 64, 1e-3), visibility=StageBudget(2, 256, 1e-3))
     stats = train_model(model, obs, cfg, ["variance", "visibility"], EntropyConfig(), torch.Generator().manual_seed(0))
     assert list(stats.stages) == ["variance", "visibility"]
     assert stats.stages["variance"]["steps"] == 6  # D6: 3 fresh batches per iteration
@@ -354,7 +356,12 @@ def test_appearance_embedding_is_trained_per_image():
     obs = ball_observations(3)
     torch.manual_seed(0)
     field_cfg = FieldConfig(
-        num_levels=4, log2_hashmap_size=12, base_resolution=4, max_resolution=32, hidden_dim=32, appearance_embedding=True
+        num_levels=4,
+        log2_hashmap_size=12,
+        base_resolution=4,
+        max_resolution=32,
+        hidden_dim=32,
+        appearance_embedding=True,
     )
     sampler_cfg = SamplerConfig(grid_resolution=16, step_size=0.03, warmup_iters=16, update_every=4)
     model = SceneModel(AABB, field_cfg, sampler_cfg, num_images=obs.num_images)

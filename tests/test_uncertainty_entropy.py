@@ -77,7 +77,9 @@ def test_upper_bound_tight_for_separated_components():
 def one_sample_mixture(v):
     """METHOD 7.4: beta = 0.95, one sample with alpha = 1 and q = 0.01 per channel."""
     rgb, q = torch.full((1, 3), 0.5), torch.full((1, 3), 0.01)
-    return ray_mixture(torch.ones(1), rgb, q, torch.tensor([v]), torch.zeros(1, dtype=torch.long), 1, EntropyConfig())[0]
+    return ray_mixture(torch.ones(1), rgb, q, torch.tensor([v]), torch.zeros(1, dtype=torch.long), 1, EntropyConfig())[
+        0
+    ]
 
 
 @pytest.mark.parametrize(

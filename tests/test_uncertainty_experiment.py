@@ -11,10 +11,9 @@ import torch
 
 from nvf.cameras import look_at
 from pipeline import uncertainty
-from pipeline.uncertainty import S
-from pipeline.scenes.scene import SceneError
 from pipeline.scenes.loading import load_scene
-from pipeline.uncertainty import least_seen_view, main, partial_views
+from pipeline.scenes.scene import SceneError
+from pipeline.uncertainty import S, least_seen_view, main, partial_views
 
 
 def test_hotdog_partial_views_follow_protocol_4_4(assets_dir):
@@ -105,8 +104,10 @@ def test_entries_select_a_subset_in_table_order_and_unknown_names_are_refused(ca
             uncertainty.select_entries(bad)
     assert exit_code(["--entries", "nvf,vnf"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert err == ["error: --entries: unknown ['vnf']; choose from " + ",".join(
-        uncertainty.entry_name(*entry) for entry in uncertainty.ENTRIES)]
+    assert err == [
+        "error: --entries: unknown ['vnf']; choose from "
+        + ",".join(uncertainty.entry_name(*entry) for entry in uncertainty.ENTRIES)
+    ]
 
 
 def test_seeds_are_distinct_integers_and_a_seed_override_is_refused(capsys):
@@ -117,7 +118,8 @@ def test_seeds_are_distinct_integers_and_a_seed_override_is_refused(capsys):
             uncertainty.parse_seeds(bad)
     assert exit_code(["seed=101"]) == 2
     assert capsys.readouterr().err.strip().splitlines() == [
-        "error: a seed= override: the experiment's seeds are --seeds (default 100,101,102)"]
+        "error: a seed= override: the experiment's seeds are --seeds (default 100,101,102)"
+    ]
 
 
 def test_unknown_scene_is_one_line_and_status_2(assets_dir, capsys):
@@ -165,6 +167,9 @@ def test_a_row_is_the_mean_and_population_std_over_the_seeds_that_have_the_numbe
     ]
     row = uncertainty.summary(runs)
     assert (row["psnr"], row["psnr_std"]) == (12.0, 2.0)
-    assert (row["lpips"], row["lpips_std"]) == (0.2, 0.0)  # a missing value (None, as a saved seed keeps NaN) is skipped
+    assert (row["lpips"], row["lpips_std"]) == (
+        0.2,
+        0.0,
+    )  # a missing value (None, as a saved seed keeps NaN) is skipped
     assert math.isnan(row["ause"]) and math.isnan(row["ause_std"])
     assert "seed" not in row and "view_error" not in row and row["seeds"] == runs

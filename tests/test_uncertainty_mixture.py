@@ -32,7 +32,13 @@ def random_rays(counts, seed=0):
 
 def build(inputs, cfg=CFG):
     return ray_mixture(
-        inputs["alpha"], inputs["rgb_s"], inputs["variance"], inputs["visibility"], inputs["ray_idx"], inputs["n_rays"], cfg
+        inputs["alpha"],
+        inputs["rgb_s"],
+        inputs["variance"],
+        inputs["visibility"],
+        inputs["ray_idx"],
+        inputs["n_rays"],
+        cfg,
     )
 
 
@@ -190,6 +196,8 @@ def test_mixture_gradients_finite():
     inputs["visibility"][1] = 0.0
     leaves = {k: inputs[k].clone().requires_grad_() for k in ("alpha", "rgb_s", "variance", "visibility")}
     mix, eq_w = build(dict(inputs, **leaves))
-    (mixture_log_density(mix, torch.rand(3, 3)).sum() + eq_w.sum() + (mix.weights * mix.variances.sum(-1)).sum()).backward()
+    (
+        mixture_log_density(mix, torch.rand(3, 3)).sum() + eq_w.sum() + (mix.weights * mix.variances.sum(-1)).sum()
+    ).backward()
     for name, leaf in leaves.items():
         assert leaf.grad is not None and torch.isfinite(leaf.grad).all(), name

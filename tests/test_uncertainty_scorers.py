@@ -8,9 +8,9 @@ import pytest
 import torch
 
 from nvf.config import BaselineConfig, EntropyConfig
+from nvf.methods import AIR, NVF, WD, ActiveNeRF, ActiveRMAP, NeurAR, Random, load_method
 from nvf.model import RenderResult
 from nvf.rendering import Samples, ray_sum, weights_from_alpha
-from nvf.methods import AIR, NVF, ActiveNeRF, ActiveRMAP, NeurAR, Random, WD, load_method
 from nvf.uncertainty import H_MIN, ViewScorer, ray_mixture
 from nvf.uncertainty.baselines import ActiveRMAPScorer, AIRScorer, RenderedVarianceScorer, WDScorer
 from nvf.uncertainty.entropy import (
@@ -66,9 +66,17 @@ def random_result(counts=(4, 0, 1, 9, 3), seed=0):
 def nvf_reference(result, cfg=CFG, d0=1.0, pixel_index=None):
     """H' assembled from the building blocks: bound (M10 | M12), depth (M15), correction (M14)."""
     samples = result.samples
-    mix, eq_w = ray_mixture(result.alpha, result.rgb_s, result.variance, result.visibility, samples.ray_idx, samples.n_rays, cfg)
-    h = mixture_entropy_upper_bound(mix, cfg.logdet_coeff) if cfg.bound == "huber" else mixture_moment_matched_entropy(mix)
-    depth = equivalent_depth(eq_w, samples.t_mid, samples.ray_idx, samples.n_rays, cfg.depth_mode, pixel_index, cfg.chunk_rays)
+    mix, eq_w = ray_mixture(
+        result.alpha, result.rgb_s, result.variance, result.visibility, samples.ray_idx, samples.n_rays, cfg
+    )
+    h = (
+        mixture_entropy_upper_bound(mix, cfg.logdet_coeff)
+        if cfg.bound == "huber"
+        else mixture_moment_matched_entropy(mix)
+    )
+    depth = equivalent_depth(
+        eq_w, samples.t_mid, samples.ray_idx, samples.n_rays, cfg.depth_mode, pixel_index, cfg.chunk_rays
+    )
     return h, depth, corrected_entropy(h, depth, d0, cfg.corr)
 
 

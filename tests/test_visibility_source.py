@@ -49,7 +49,12 @@ def test_sourced_visibility_replaces_only_v():
 def test_label_source_is_m18_at_the_samples():
     """``labels``: V* of M17-M18 through the model's density from the training cameras, bin centres."""
     model = small_model()
-    cams = torch.stack([look_at(torch.tensor([0.0, -2.5, 0.0]), torch.zeros(3)), look_at(torch.tensor([2.5, 0.0, 0.0]), torch.zeros(3))])
+    cams = torch.stack(
+        [
+            look_at(torch.tensor([0.0, -2.5, 0.0]), torch.zeros(3)),
+            look_at(torch.tensor([2.5, 0.0, 0.0]), torch.zeros(3)),
+        ]
+    )
     cfg = TrainConfig(label_samples=16)
     points = torch.rand(50, 3) - 0.5
     got = label_visibility(model, cams, INTR, cfg)(points)
@@ -97,5 +102,7 @@ def test_a_margin_uncovers_the_shell_of_a_seen_surface():
         v = visibility_labels(density, points, cam, INTR, TrainConfig(label_samples=400, label_margin=margin))
         average[margin] = float((weights * v).sum() / weights.sum())
     assert 0.3 < average[0.0] < 0.7 and average[0.2] > 0.9
-    back = visibility_labels(density, torch.tensor([[0.0, 0.45, 0.0]]), cam, INTR, TrainConfig(label_samples=400, label_margin=0.2))
+    back = visibility_labels(
+        density, torch.tensor([[0.0, 0.45, 0.0]]), cam, INTR, TrainConfig(label_samples=400, label_margin=0.2)
+    )
     assert back.item() < 0.01

@@ -3,7 +3,6 @@ w/o Vis.'s on recorded NVF states, and the study's summary table."""
 
 import json
 import math
-
 import subprocess
 import sys
 from pathlib import Path
@@ -91,7 +90,9 @@ def test_study_on_a_smoke_record(tmp_path):
     for row in rows:
         assert row["terms"]["wo_vis"]["terms"]["unknown"]["std"] == 0.0
         assert row["same_argmax"] or math.isfinite(row["gain"])
-    assert (folder / "default_diagnostic.json").is_file() and (results / "pilots" / "visibility_study" / "summary.csv").is_file()
+    assert (folder / "default_diagnostic.json").is_file() and (
+        results / "pilots" / "visibility_study" / "summary.csv"
+    ).is_file()
     before = (folder / "decisions.jsonl").read_text()
     visibility_study.main(["budget=smoke", f"paths.results={results}", "--setting", "smoke", "--scenes", "default",
                            "--seeds", "100", "--steps", "0,1", "--sets", "2", "--records", str(records)])  # fmt: skip

@@ -33,9 +33,7 @@ def mixture_entropy_upper_bound(mix: RayMixture, logdet_coeff: float = 0.5) -> F
     ``c = logdet_coeff`` (0.5: S7; 1.0: the reference, D1). A NaN bracket counts as 0.
     """
     bracket = (
-        -torch.log(mix.weights + LOG_EPS)
-        + 1.5 * LOG_2PIE
-        + logdet_coeff * torch.log(mix.variances + LOG_EPS).sum(-1)
+        -torch.log(mix.weights + LOG_EPS) + 1.5 * LOG_2PIE + logdet_coeff * torch.log(mix.variances + LOG_EPS).sum(-1)
     )
     bracket = torch.where(torch.isnan(bracket), 0.0, bracket)
     return ray_sum(mix.weights * bracket, mix.ray_idx, mix.n_rays)
@@ -119,7 +117,9 @@ def entropy_terms(
     else:
         seen_gauss = 1.5 * LOG_2PIE + c * torch.log(variance + LOG_EPS).sum(-1)
     mass = ray_sum(eq_weights, ray_idx, n_rays)
-    unknown = torch.zeros_like(mass) if visibility is None else ray_sum(eq_weights * (1.0 - visibility), ray_idx, n_rays)
+    unknown = (
+        torch.zeros_like(mass) if visibility is None else ray_sum(eq_weights * (1.0 - visibility), ray_idx, n_rays)
+    )
     background = (1.0 - mass).clamp(0.0, 1.0)
 
     def gauss_excess(var: float) -> Float[Tensor, ""]:

@@ -41,7 +41,12 @@ class NVFEntropyScorer:
     name: ClassVar[str] = "nvf"
 
     def __post_init__(self) -> None:
-        for key, allowed in (("bound", BOUNDS), ("corr", CORRELATIONS), ("depth_mode", DEPTH_MODES), ("sampler", SAMPLERS)):
+        for key, allowed in (
+            ("bound", BOUNDS),
+            ("corr", CORRELATIONS),
+            ("depth_mode", DEPTH_MODES),
+            ("sampler", SAMPLERS),
+        ):
             if getattr(self.cfg, key) not in allowed:
                 raise ValueError(f"nvf.entropy.{key}={getattr(self.cfg, key)!r} not in {allowed}")
         if self.d0 < 0:
@@ -89,7 +94,9 @@ class NVFEntropyScorer:
         scores = corrected_entropy(entropy, depth, self.d0, cfg.corr, floor)
         return torch.where(counts == 0, floor, scores)
 
-    def pixel_terms(self, result: RenderResult, pixel_index: Int[Tensor, "R"] | None = None) -> dict[str, Float[Tensor, "R"]]:
+    def pixel_terms(
+        self, result: RenderResult, pixel_index: Int[Tensor, "R"] | None = None
+    ) -> dict[str, Float[Tensor, "R"]]:
         """``H' [R]`` of ``pixel_scores`` split into additive terms (nats):
         ``H' = H_min + seen + unknown + background + mixing + correction``.
 

@@ -22,7 +22,11 @@ def available() -> list[str]:
 
 def help_page(names: list[str]) -> str:
     """Usage, what the command does, and each benchmark's first docstring paragraph (read without importing it)."""
-    lines = [f"usage: python -m pipeline.bench {{{','.join(names)}}} [args]", "", *textwrap.wrap(description(__doc__), 100)]
+    lines = [
+        f"usage: python -m pipeline.bench {{{','.join(names)}}} [args]",
+        "",
+        *textwrap.wrap(description(__doc__), 100),
+    ]
     lines += ["", "benchmarks:"]
     for name in names:
         doc = ast.get_docstring(ast.parse((Path(__file__).parent / f"{name}.py").read_text(encoding="utf-8")))

@@ -16,12 +16,12 @@ from pathlib import Path
 import torch
 from hydra import compose, initialize_config_dir
 
-from pipeline.cli import ArgumentParser, description
 from pipeline.bench._report import report_path, write_report
+from pipeline.cli import ArgumentParser, description
 from pipeline.config.schema import register_configs
+from pipeline.episode.runner import run_episode
 from pipeline.records.store import RunRecord
 from pipeline.repo import CONF
-from pipeline.episode.runner import run_episode
 
 
 def step_summary(row: dict) -> dict:
@@ -37,8 +37,12 @@ def step_summary(row: dict) -> dict:
 def main(argv: list[str]) -> None:
     parser = ArgumentParser(prog="python -m pipeline.bench episode", description=description(__doc__))
     parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. method=random")
-    parser.add_argument("--out", type=Path, default=None, help="JSON report path (default: ${paths.results}/bench/episode.json)")
-    parser.add_argument("--outputs", type=Path, default=None, help="keep the run records here (default: a temporary directory)")
+    parser.add_argument(
+        "--out", type=Path, default=None, help="JSON report path (default: ${paths.results}/bench/episode.json)"
+    )
+    parser.add_argument(
+        "--outputs", type=Path, default=None, help="keep the run records here (default: a temporary directory)"
+    )
     args = parser.parse_intermixed_args(argv)
     register_configs()
     with tempfile.TemporaryDirectory() as tmp, initialize_config_dir(str(CONF), version_base="1.3"):

@@ -27,8 +27,8 @@ from torch import Tensor
 from nvf.config import FieldConfig
 from nvf.encoding import cpp_extension
 from nvf.field import HEADS, RadianceField, spherical_harmonics
-from pipeline.cli import ArgumentParser, description, fail
 from pipeline.bench._report import report_path, write_report
+from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.paths import paths_from_args
 
 AABB = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
@@ -181,7 +181,9 @@ def main(argv: list[str]) -> None:
     parser.add_argument("--samples-per-ray", type=int, default=25)
     parser.add_argument("--chunk", type=int, default=8192)
     parser.add_argument("--only", nargs="*", default=None, help="variant names to run (default: all)")
-    parser.add_argument("--out", type=Path, default=None, help="JSON report path (default: ${paths.results}/bench/field.json)")
+    parser.add_argument(
+        "--out", type=Path, default=None, help="JSON report path (default: ${paths.results}/bench/field.json)"
+    )
     parser.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="paths overrides, e.g. paths.results=results")
     args = parser.parse_intermixed_args(argv)
     try:  # bad input is one line before the benchmark runs, not after

@@ -46,12 +46,12 @@ from nvf.cameras import Intrinsics, camera_directions, pose_to_matrix, rays_from
 from nvf.config import STAGES
 from nvf.field import INFERENCE_BLOCK, VIS_POSITION_WIDTH
 from nvf.planning import score_poses
-from pipeline.cli import ArgumentParser, description
-from pipeline.bench._report import report_path, write_report
-from pipeline.bench.field import matmul_gflops, mlp_flops
 from nvf.precision import precision_dtype
 from pipeline.bench._paired import IterationClock, ratio_spread
+from pipeline.bench._report import report_path, write_report
+from pipeline.bench.field import matmul_gflops, mlp_flops
 from pipeline.bench.train import RGB, CountingModel, InitialViewModel, held_out_poses, parse_precisions, view_psnr
+from pipeline.cli import ArgumentParser, description
 from pipeline.config.catalog import method_configs
 from pipeline.config.method import build_method
 from pipeline.config.validation import compose_config
@@ -148,7 +148,9 @@ def timed(fn: Callable[[], object]) -> tuple[float, float]:
 def main(argv: list[str]) -> None:
     parser = ArgumentParser(prog="python -m pipeline.bench plan", description=description(__doc__))
     parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. budget=smoke")
-    parser.add_argument("--out", type=Path, default=None, help="JSON report path (default: ${paths.results}/bench/plan.json)")
+    parser.add_argument(
+        "--out", type=Path, default=None, help="JSON report path (default: ${paths.results}/bench/plan.json)"
+    )
     parser.add_argument("--repeats", type=int, default=1, help="timed passes over all candidates")
     parser.add_argument("--blocks", type=int, default=8, help="candidate blocks per pass (ratio = median over blocks)")
     parser.add_argument("--precisions", help="train.precision values compared, first the reference (default: fp32,bf16 "

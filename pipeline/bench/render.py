@@ -19,14 +19,14 @@ import time
 from pathlib import Path
 
 from nvf.cameras import Intrinsics
-from pipeline.cli import ArgumentParser, description, fail
 from pipeline.bench._report import report_path, write_report
-from pipeline.config.validation import compose_config
+from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.schema import RenderConfig
+from pipeline.config.validation import compose_config
 from pipeline.scenes.blender import BlenderRenderer, blender_python
+from pipeline.scenes.loading import load_scene
 from pipeline.scenes.render import GroundTruthRenderer
 from pipeline.scenes.scene import SceneError
-from pipeline.scenes.loading import load_scene
 
 
 def _median_seconds(fn, poses) -> float:
@@ -47,7 +47,9 @@ def main(argv: list[str]) -> None:
     parser.add_argument("--scenes", nargs="+", default=["default", "hotdog", "room"])
     parser.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="config overrides, e.g. paths.assets=DIR")
     parser.add_argument("--backends", nargs="+", choices=["pyrender", "blender"], default=["pyrender", "blender"])
-    parser.add_argument("--out", type=Path, default=None, help="JSON report path (default: ${paths.results}/bench/render.json)")
+    parser.add_argument(
+        "--out", type=Path, default=None, help="JSON report path (default: ${paths.results}/bench/render.json)"
+    )
     args = parser.parse_args(argv)
     if min(args.res) < 8 or not 1 <= args.views <= 20 or args.samples < 1:
         fail("--res must be >= 8, --views in 1..20 and --samples >= 1")
@@ -61,12 +63,20 @@ def main(argv: list[str]) -> None:
             with contextlib.ExitStack() as stack:
                 flat = stack.enter_context(GroundTruthRenderer(scene.mesh))
                 start = time.perf_counter()
-                blender = stack.enter_context(BlenderRenderer(scene, args.samples, python, threads)) if use_blender else None
+                blender = (
+                    stack.enter_context(BlenderRenderer(scene, args.samples, python, threads)) if use_blender else None
+                )
                 start_s = time.perf_counter() - start
                 for res in sorted(set(args.res)):
                     intr = Intrinsics.from_fov(res, res)
-                    row = {"scene": name, "source": scene.source, "faces": len(scene.mesh.faces), "resolution": res,
-                           "views": len(poses), "pyrender_platform": flat.backend}
+                    row = {
+                        "scene": name,
+                        "source": scene.source,
+                        "faces": len(scene.mesh.faces),
+                        "resolution": res,
+                        "views": len(poses),
+                        "pyrender_platform": flat.backend,
+                    }
                     if "pyrender" in args.backends:
                         row["pyrender_rgba_ms"] = 1e3 * _median_seconds(lambda p: flat.render_rgba(p, intr), poses)
                     if blender is not None:
@@ -79,16 +89,27 @@ def main(argv: list[str]) -> None:
                     rows.append(row)
     except SceneError as exc:
         fail(str(exc))
-    report = {"benchmark": "render", "statistic": "median ms per view", "machine": platform.platform(),
-              "processor": platform.processor(), "cores": threads, "cycles_samples": args.samples,
-              "blender": version, "load_average_1_5_15_min": {"start": load_start, "end": os.getloadavg()},
-              "rows": rows}
+    report = {
+        "benchmark": "render",
+        "statistic": "median ms per view",
+        "machine": platform.platform(),
+        "processor": platform.processor(),
+        "cores": threads,
+        "cycles_samples": args.samples,
+        "blender": version,
+        "load_average_1_5_15_min": {"start": load_start, "end": os.getloadavg()},
+        "rows": rows,
+    }
     args.out = report_path(args.out, cfg.paths.results, "render")
     write_report(report, args.out)
-    print(f"{'scene':<9}{'faces':>7}{'res':>5}{'pyrender ms':>13}{'Blender ms':>12}{'ratio':>8}{'ray cast ms':>13}"
-          f"  (Cycles {args.samples} spp, {threads} threads)")
+    print(
+        f"{'scene':<9}{'faces':>7}{'res':>5}{'pyrender ms':>13}{'Blender ms':>12}{'ratio':>8}{'ray cast ms':>13}"
+        f"  (Cycles {args.samples} spp, {threads} threads)"
+    )
     nan = float("nan")
     for r in rows:
-        print(f"{r['scene']:<9}{r['faces']:>7}{r['resolution']:>5}{r.get('pyrender_rgba_ms', nan):>13.1f}"
-              f"{r.get('blender_rgba_ms', nan):>12.1f}{r.get('blender_over_pyrender', nan):>8.1f}{r['ray_cast_ms']:>13.1f}")
+        print(
+            f"{r['scene']:<9}{r['faces']:>7}{r['resolution']:>5}{r.get('pyrender_rgba_ms', nan):>13.1f}"
+            f"{r.get('blender_rgba_ms', nan):>12.1f}{r.get('blender_over_pyrender', nan):>8.1f}{r['ray_cast_ms']:>13.1f}"
+        )
     print(f"wrote {args.out}")

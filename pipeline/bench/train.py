@@ -60,23 +60,23 @@ from nvf.encoding import cpp_extension
 from nvf.field import HEADS, FieldOutput
 from nvf.model import RenderResult, SceneModel
 from nvf.planning import candidate_poses
-from nvf.seeding import seeded_generator
-from nvf.rendering import Samples
 from nvf.precision import PRECISIONS, precision_dtype, supported_precisions, unsupported_reason
+from nvf.rendering import Samples
+from nvf.seeding import seeded_generator
 from nvf.training import Observations, train_backbone, train_model
 from pipeline.bench._paired import IterationClock, Turn, lockstep, ratio_spread
-from pipeline.cli import ArgumentParser, description, fail
 from pipeline.bench._report import report_path, write_report
 from pipeline.bench.field import matmul_gflops, median_seconds, mlp_flops
+from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.validation import compose_config
-from pipeline.episode.settings import EpisodeSettings
 from pipeline.episode.evaluation import RENDER_CHUNK
+from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.image import off_edge_psnr, psnr
-from pipeline.scenes.render import GroundTruthRenderer
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.ground_truth import Renderer, ground_truth_info, open_renderer
-from pipeline.scenes.scene import Scene, SceneError
 from pipeline.scenes.loading import load_scene
+from pipeline.scenes.render import GroundTruthRenderer
+from pipeline.scenes.scene import Scene, SceneError
 
 GOALS = {"train_samples_per_s": 1e6, "infer_samples_per_s": 3e6}
 # A low precision against the reference (fp32), paired in one run: training throughput (median over
@@ -175,7 +175,9 @@ class InitialViewModel:
         s = EpisodeSettings.of(cfg, scene)
         size = int(cfg.budget.image_size)
         renderer = GroundTruthRenderer(scene.mesh)
-        poses = scene.init_poses if extra_poses is None else torch.cat([scene.init_poses, extra_poses.to(scene.init_poses)])
+        poses = (
+            scene.init_poses if extra_poses is None else torch.cat([scene.init_poses, extra_poses.to(scene.init_poses)])
+        )
         obs = observations(renderer, poses, Intrinsics.from_fov(size, size))
         torch.manual_seed(int(cfg.seed))
         model = model_cls(scene.object_aabb, s.field, s.sampler)
@@ -420,8 +422,7 @@ def print_report(report: dict, update_every: int) -> None:
             f"infer {spread(ratio['infer_samples_per_s'])}, infer rgb {spread(ratio['infer_rgb_samples_per_s'])}, "
             f"floors (same model): field {ratio['train_samples_per_s_field_floor']:.2f}, "
             f"MLP {ratio['train_samples_per_s_mlp_floor']:.2f}; held-out PSNR {ratio['heldout_psnr_diff']:+.2f} dB; "
-            "goals "
-            + ", ".join(f"{goal} {'met' if ok else 'not met'}" for goal, ok in met.items())
+            "goals " + ", ".join(f"{goal} {'met' if ok else 'not met'}" for goal, ok in met.items())
         )
 
 
@@ -491,7 +492,9 @@ def train_side_by_side(
 def main(argv: list[str]) -> None:
     parser = ArgumentParser(prog="python -m pipeline.bench train", description=description(__doc__))
     parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. budget=smoke")
-    parser.add_argument("--out", type=Path, default=None, help="JSON report path (default: ${paths.results}/bench/train.json)")
+    parser.add_argument(
+        "--out", type=Path, default=None, help="JSON report path (default: ${paths.results}/bench/train.json)"
+    )
     parser.add_argument("--repeats", type=int, default=3, help="timed inference passes (median)")
     parser.add_argument("--precisions", help="train.precision values compared, first the reference (default: fp32,bf16 "
                         "where the CPU has bfloat16, else fp32)")  # fmt: skip

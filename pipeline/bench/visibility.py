@@ -51,8 +51,8 @@ from pipeline.bench._report import report_path, write_report
 from pipeline.bench.train import InitialViewModel
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.validation import compose_config
-from pipeline.tables.load import load_run
 from pipeline.metrics.ranking import auc, render_for_terms, spearman, term_attribution, ties_at_max, view_terms
+from pipeline.tables.load import load_run
 
 SURFACE_OFFSET = 0.01  # scene units: the surface point moves this far towards the candidate camera
 MIN_ACCUMULATION = 0.5  # PROTOCOL 4.2's surface rule
@@ -86,7 +86,10 @@ def _seen_surface(setup: InitialViewModel, origins: Tensor, dirs: Tensor, pixels
 
 
 def candidate_view(
-    setup: InitialViewModel, c2w: Tensor, intr: Intrinsics, scorers: tuple[NVFEntropyScorer, NVFEntropyScorer],
+    setup: InitialViewModel,
+    c2w: Tensor,
+    intr: Intrinsics,
+    scorers: tuple[NVFEntropyScorer, NVFEntropyScorer],
     functions: dict[str, SourceFn | None],
 ) -> dict:
     """One candidate view: per source its NVF reward terms and per-object-pixel visibility, w/o Vis.'s
@@ -101,7 +104,9 @@ def candidate_view(
     t_hit, _ = setup.renderer.cast_rays(origins.numpy(), dirs.numpy())
     pixels = torch.from_numpy(np.isfinite(t_hit)) & (acc > MIN_ACCUMULATION)
     safe = acc.clamp_min(1e-12)
-    spread = ray_sum(result.weights * (samples.t_mid - result.depth[samples.ray_idx]).square(), samples.ray_idx, samples.n_rays)
+    spread = ray_sum(
+        result.weights * (samples.t_mid - result.depth[samples.ray_idx]).square(), samples.ray_idx, samples.n_rays
+    )
     view = {
         "nvf": {name: view_terms(nvf, result, values) for name, values in v.items()},
         "wo_vis": view_terms(blind, result),
@@ -204,7 +209,9 @@ def recorded_poses(record: Path, step: int) -> Float[Tensor, "k 4 4"]:
     _, rows = load_run(record)
     if step > len(rows):
         raise ValueError(f"{record} has {len(rows)} steps; --step {step} needs that many")
-    return pose_to_matrix(torch.tensor([row["selected_pose"] for row in rows[:step]], dtype=torch.float32).reshape(-1, 7))
+    return pose_to_matrix(
+        torch.tensor([row["selected_pose"] for row in rows[:step]], dtype=torch.float32).reshape(-1, 7)
+    )
 
 
 def visibility_report(cfg: DictConfig, sets: int, sources: list[str], extra: Tensor | None = None) -> dict:
@@ -218,7 +225,9 @@ def visibility_report(cfg: DictConfig, sets: int, sources: list[str], extra: Ten
     blind = dataclasses.replace(s.entropy, use_visibility=False)
     scorers = (NVFEntropyScorer(s.entropy, d0), NVFEntropyScorer(blind, d0))
     functions = source_functions(setup, sources)
-    reports = [{"set": k, **candidate_set_report(setup, setup.candidates(k), intr, scorers, functions)} for k in range(sets)]
+    reports = [
+        {"set": k, **candidate_set_report(setup, setup.candidates(k), intr, scorers, functions)} for k in range(sets)
+    ]
     return {
         **summarise(reports, sources),
         "sets": reports,
@@ -264,11 +273,17 @@ def print_report(report: dict) -> None:
 def main(argv: list[str]) -> None:
     parser = ArgumentParser(prog="python -m pipeline.bench visibility", description=description(__doc__))
     parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. train.label_margin=0.05")
-    parser.add_argument("--out", type=Path, default=None, help="JSON report path (default: ${paths.results}/bench/visibility.json)")
+    parser.add_argument(
+        "--out", type=Path, default=None, help="JSON report path (default: ${paths.results}/bench/visibility.json)"
+    )
     parser.add_argument("--sets", type=int, default=3, help="candidate sets (the planner's draws at steps 0..N-1)")
-    parser.add_argument("--sources", default=",".join(SOURCES), help=f"visibility sources, a subset of {','.join(SOURCES)}")
+    parser.add_argument(
+        "--sources", default=",".join(SOURCES), help=f"visibility sources, a subset of {','.join(SOURCES)}"
+    )
     parser.add_argument("--record", type=Path, default=None, help="a recorded episode whose state at --step to measure")
-    parser.add_argument("--step", type=int, default=0, help="with --record: the state before this step (its views so far)")
+    parser.add_argument(
+        "--step", type=int, default=0, help="with --record: the state before this step (its views so far)"
+    )
     args = parser.parse_intermixed_args(argv)
     sources = args.sources.split(",")
     if args.sets < 1:

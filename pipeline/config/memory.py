@@ -90,7 +90,9 @@ def allocations(cfg: DictConfig) -> list[Allocation]:
     ]  # fmt: skip
     if f.kind == "densegrid":
         voxels = int(f.dense_resolution) ** 3 * int(f.dense_features)
-        found.append(Allocation("field.dense_resolution", FLOAT32 * voxels, "the dense feature grid (float32)", on_device=True))
+        found.append(
+            Allocation("field.dense_resolution", FLOAT32 * voxels, "the dense feature grid (float32)", on_device=True)
+        )
     else:
         finest = min(2 ** int(f.log2_hashmap_size), (int(f.max_resolution) + 1) ** 3)
         coarsest = min(2 ** int(f.log2_hashmap_size), (int(f.base_resolution) + 1) ** 3)
@@ -106,7 +108,9 @@ def allocations(cfg: DictConfig) -> list[Allocation]:
                                 "one hidden layer's outputs for a visibility batch (float32)", on_device=True,
                                 also=("train.visibility.batch",)))  # fmt: skip
     else:
-        found.append(Allocation("field.hidden_dim", FLOAT32 * hidden**2, "one hidden layer's weights (float32)", on_device=True))
+        found.append(
+            Allocation("field.hidden_dim", FLOAT32 * hidden**2, "one hidden layer's weights (float32)", on_device=True)
+        )
     if "visibility" in stages or cfg.nvf.entropy.visibility_source == "labels":  # M17: stage 3's labels, or the scores'
         found.append(Allocation("train.label_samples", SEGMENT_BYTES * (int(t.label_samples) - 1),
                                 "one chunk of M17's label samples (float32 offsets, fractions, xyz and densities and "

@@ -27,7 +27,9 @@ def method_class(target: Any) -> type[Method]:
         cls = get_class(target)
     except Exception as err:  # Hydra wraps import and attribute errors alike
         cause = err.__cause__ or err
-        raise MethodError(f"method._target_: cannot import method class {target!r}: {' '.join(str(cause).split())}") from None
+        raise MethodError(
+            f"method._target_: cannot import method class {target!r}: {' '.join(str(cause).split())}"
+        ) from None
     if not issubclass(cls, Method):
         raise MethodError(f"method._target_={target!r} is not a subclass of nvf.methods.Method")
     return cls
@@ -75,4 +77,3 @@ def build_method(node: DictConfig | Mapping[str, Any]) -> Method:
     if problem is not None:
         raise MethodError(f"method.{problem}")
     return method
-

@@ -12,10 +12,10 @@ from hydra.core.global_hydra import GlobalHydra
 from hydra.errors import HydraException
 from omegaconf import OmegaConf
 
+from pipeline.config.schema import register_configs
 from pipeline.records import compat
 from pipeline.records.compat import drop_not_settings, drop_retired, with_legacy_defaults
 from pipeline.records.store import to_jsonable
-from pipeline.config.schema import register_configs
 
 GROUPS = ("scene", "method", "planner", "ablation", "budget")
 LOCATIONS = ("paths", "seed")  # where files live; the seed is an identity key
@@ -70,7 +70,9 @@ class NamedConfigs:
         config = info.get("config")
         if named is None or not isinstance(config, Mapping):
             return ()
-        recorded = {k: v for k, v in drop_not_settings(drop_retired(to_jsonable(dict(config)))).items() if k not in LOCATIONS}
+        recorded = {
+            k: v for k, v in drop_not_settings(drop_retired(to_jsonable(dict(config)))).items() if k not in LOCATIONS
+        }
         recorded = with_legacy_defaults(recorded, named)  # keys added since the run: the value it was made with
         inert = compat.inert_keys(recorded)  # settings the run's method cannot read do not make it another run
         changed = changed_settings(recorded, named)

@@ -14,9 +14,8 @@ from typing import Any
 from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING
 
-from pipeline.config.catalog import register_resolvers
-
 from nvf.config import EntropyConfig, FieldConfig, PlannerConfig, SamplerConfig, TrainConfig
+from pipeline.config.catalog import register_resolvers
 
 
 @dataclass

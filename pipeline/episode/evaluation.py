@@ -11,9 +11,9 @@ from torch import Tensor
 
 from nvf.cameras import Intrinsics, pixel_rays
 from nvf.model import SceneModel
-from nvf.visibility_source import SourcedVisibility
 from nvf.seeding import seeded_generator
 from nvf.training import Observations
+from nvf.visibility_source import SourcedVisibility
 from pipeline.config.schema import BudgetConfig, MetricsConfig
 from pipeline.metrics.correlation import uncertainty_correlation
 from pipeline.metrics.coverage import seen_faces, visual_coverage
@@ -30,7 +30,11 @@ PATCHES_PER_SIDE = 16  # PROTOCOL 4.4: 32x32 patches of a 512x512 view
 
 @torch.no_grad()
 def render_view(
-    model: SceneModel | SourcedVisibility, scorer, c2w: Float[Tensor, "4 4"], intr: Intrinsics, chunk: int = RENDER_CHUNK
+    model: SceneModel | SourcedVisibility,
+    scorer,
+    c2w: Float[Tensor, "4 4"],
+    intr: Intrinsics,
+    chunk: int = RENDER_CHUNK,
 ) -> dict[str, np.ndarray]:
     """Colour [H,W,3], expected depth [H,W], accumulation [H,W] and the scorer's per-pixel score [H,W]
     (NaN without a scorer) of one view, rendered in row-major chunks of rays (M3)."""
@@ -53,8 +57,7 @@ def render_view(
         parts["score"].append(scorer.pixel_scores(result, pixel_index=index))
     shape = (intr.height, intr.width)
     return {
-        key: torch.cat(values).reshape(*shape, -1).squeeze(-1).float().cpu().numpy()
-        for key, values in parts.items()
+        key: torch.cat(values).reshape(*shape, -1).squeeze(-1).float().cpu().numpy() for key, values in parts.items()
     }
 
 
@@ -118,7 +121,11 @@ class Evaluator:
         if psnr_only:
             shown = renders[view]
             metrics = {key: None for key in STEP_METRICS} | {"psnr": psnr(pred, self.gt)}
-            return metrics, {"gt": self.gt[view], "pred": pred[view], "score": shown["score"], "depth": shown["depth"]}, {}
+            return (
+                metrics,
+                {"gt": self.gt[view], "pred": pred[view], "score": shown["score"], "depth": shown["depth"]},
+                {},
+            )
         images = image_metrics(pred, self.gt, self.lpips, self.metrics.ssim_data_range, self.gt_lpips)
         points = reconstruct_points(
             model, obs, budget.recon_points, budget.recon_batch,

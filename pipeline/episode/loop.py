@@ -107,7 +107,9 @@ class Episode:
         t1 = time.perf_counter()
         planning = self.planning_model(model, obs)
         psnr_only = s.step_metrics == "psnr" and step < s.budget.horizon - 1
-        metrics, images, _ = self.evaluator.evaluate(planning, self.scorer, self.face_ids, obs, step, psnr_only=psnr_only)
+        metrics, images, _ = self.evaluator.evaluate(
+            planning, self.scorer, self.face_ids, obs, step, psnr_only=psnr_only
+        )
         t2 = time.perf_counter()
         current = matrix_to_pose(self.poses[-1]).to(self.device)
         selection = select_next_view(

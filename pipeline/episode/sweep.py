@@ -47,7 +47,9 @@ def summary(reports: list[dict]) -> list[str]:
     for report in reports:
         if report["status"] == "failed":
             overrides = " ".join(report.get("overrides") or []) or "no overrides"
-            lines.append(f"failed: job {report.get('num', '?')} ({overrides}): {report.get('reason') or 'no reason given'}")
+            lines.append(
+                f"failed: job {report.get('num', '?')} ({overrides}): {report.get('reason') or 'no reason given'}"
+            )
     return lines
 
 

@@ -71,7 +71,9 @@ def term_attribution(terms: dict[str, np.ndarray]) -> dict:
         name: {
             "mean": float(np.mean(values)),
             "std": float(np.std(values)),
-            "share": float(np.mean((values - values.mean()) * (reward - reward.mean())) / variance) if variance > 0 else None,
+            "share": float(np.mean((values - values.mean()) * (reward - reward.mean())) / variance)
+            if variance > 0
+            else None,
             "spearman": spearman(values, reward),
         }
         for name, values in terms.items()

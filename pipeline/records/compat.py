@@ -183,7 +183,10 @@ def drop_retired(config: Any) -> Any:
     """``config`` (a run's resolved config, as recorded) without the ``RETIRED_KEYS``, its ``baseline`` group
     moved into its method's node (``MOVED_TO_METHOD``)."""
     out = _without(config, [*RETIRED_KEYS, "baseline"])
-    baseline, method = config.get("baseline") if isinstance(config, Mapping) else None, out.get("method") if isinstance(out, Mapping) else None
+    baseline, method = (
+        config.get("baseline") if isinstance(config, Mapping) else None,
+        out.get("method") if isinstance(out, Mapping) else None,
+    )
     if isinstance(baseline, Mapping) and isinstance(method, dict):
         for old, (owner, key) in MOVED_TO_METHOD.items():
             if method.get("name") == owner and old in baseline and key not in method:

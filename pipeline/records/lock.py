@@ -66,7 +66,9 @@ class RunLock:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            holder = os.pread(fd, 512, 0).decode("utf-8", "replace").strip() or "a process that has not named itself yet"
+            holder = (
+                os.pread(fd, 512, 0).decode("utf-8", "replace").strip() or "a process that has not named itself yet"
+            )
             os.close(fd)
             raise RunLocked(
                 f"run {self.directory} is being written by {' '.join(holder.split())}; wait for it to end or stop it "

@@ -65,7 +65,9 @@ def check_key(name: str, value: object) -> str:
         shown = value if not isinstance(value, str) or len(value) <= KEY_MAX_LENGTH else f"{value[:KEY_MAX_LENGTH]}..."
         raise ValueError(f"run key {name}={shown!r} is not a plain name: use letters, digits, '_', '.', '-'")
     if len(value) > KEY_MAX_LENGTH:
-        raise ValueError(f"run key {name}={value[:KEY_MAX_LENGTH]!r}... has {len(value)} characters, more than {KEY_MAX_LENGTH}")
+        raise ValueError(
+            f"run key {name}={value[:KEY_MAX_LENGTH]!r}... has {len(value)} characters, more than {KEY_MAX_LENGTH}"
+        )
     return value
 
 

@@ -141,7 +141,10 @@ def typed_problem(info: Mapping) -> str | None:
     for key, types in TYPED.items():
         present, value = _lookup(info, key)
         if present and (not isinstance(value, types) or (isinstance(value, bool) and bool not in types)):
-            names = " or ".join("null" if t is type(None) else {"str": "text", "dict": "an object"}.get(t.__name__, t.__name__) for t in types)
+            names = " or ".join(
+                "null" if t is type(None) else {"str": "text", "dict": "an object"}.get(t.__name__, t.__name__)
+                for t in types
+            )
             shown = repr(value) if len(repr(value)) <= 40 else f"a {type(value).__name__}"
             return f"{key} is {shown}, not {names}"
     return None
@@ -157,7 +160,11 @@ def row_problem(row: dict) -> str | None:
     metrics = row.get("metrics")
     if not isinstance(metrics, dict):
         return "has no metrics object"
-    bad = [name for name, value in metrics.items() if not (value is None or isinstance(value, NUMBER)) or isinstance(value, bool)]
+    bad = [
+        name
+        for name, value in metrics.items()
+        if not (value is None or isinstance(value, NUMBER)) or isinstance(value, bool)
+    ]
     if bad:
         return f"has metric {bad[0][:40]!r} = {str(metrics[bad[0]])[:40]!r}, not a number or null"
     views = row.get("n_views")
@@ -177,7 +184,9 @@ def check_rows(path: Path, rows: list[dict]) -> None:
     for index, row in enumerate(rows):
         if row["step"] != index:
             step = row["step"] if abs(row["step"]) < 10**9 else "a huge number"
-            raise RecordError(f"{path}: line {index + 1} holds step {step}, expected step {index} (a step is missing or repeated)")
+            raise RecordError(
+                f"{path}: line {index + 1} holds step {step}, expected step {index} (a step is missing or repeated)"
+            )
         problem = row_problem(row)
         if problem is not None:
             raise RecordError(f"{path}: step {index} {problem}")
@@ -242,7 +251,9 @@ def verified(record: RunRecord) -> tuple[dict, list[dict]]:
     rows, dropped = read_steps(record.steps_path)
     present, horizon = _lookup(info, "config.budget.horizon")
     if len(rows) > (horizon if present else MAX_HORIZON):
-        raise RecordError(f"{record.steps_path}: {len(rows)} rows, more than the run's horizon of {horizon if present else MAX_HORIZON} steps")
+        raise RecordError(
+            f"{record.steps_path}: {len(rows)} rows, more than the run's horizon of {horizon if present else MAX_HORIZON} steps"
+        )
     check_rows(record.steps_path, rows)
     status = record.status()
     if status == "done":
@@ -251,7 +262,9 @@ def verified(record: RunRecord) -> tuple[dict, list[dict]]:
         if not present:
             raise RecordError(f"{record.run_json}: config.budget.horizon is missing, so the run's length is unknown")
         if len(rows) != horizon:
-            raise RecordError(f"{record.steps_path}: {len(rows)} rows, but the run is marked done with a horizon of {horizon} steps")
+            raise RecordError(
+                f"{record.steps_path}: {len(rows)} rows, but the run is marked done with a horizon of {horizon} steps"
+            )
     if status != "unfinished":
         _check_digest(record, info)
     return info, rows

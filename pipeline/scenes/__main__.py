@@ -16,8 +16,8 @@ from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.validation import compose_config
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.ground_truth import open_renderer
-from pipeline.scenes.scene import SceneError
 from pipeline.scenes.loading import load_scene, scene_names
+from pipeline.scenes.scene import SceneError
 from pipeline.scenes.show import show
 
 

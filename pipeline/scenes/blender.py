@@ -58,8 +58,10 @@ def missing_python(python: Path) -> str | None:
     """The one-line reason ``python`` cannot run the Blender backend (None when it exists)."""
     if python.is_file():
         return None
-    return (f"Blender's Python not found at {python}: {INSTALL}, or point paths.blender_python "
-            "(NVF_BLENDER_PYTHON) at a Python 3.11 with bpy installed")
+    return (
+        f"Blender's Python not found at {python}: {INSTALL}, or point paths.blender_python "
+        "(NVF_BLENDER_PYTHON) at a Python 3.11 with bpy installed"
+    )
 
 
 def _stop(process: subprocess.Popen, log) -> None:
@@ -130,7 +132,9 @@ class BlenderProcess:
             raise self._died()
         return self._exchange(header, arrays)
 
-    def _exchange(self, header: dict | None, arrays: dict[str, np.ndarray] | None) -> tuple[dict, dict[str, np.ndarray]]:
+    def _exchange(
+        self, header: dict | None, arrays: dict[str, np.ndarray] | None
+    ) -> tuple[dict, dict[str, np.ndarray]]:
         """Write ``header`` (none: only read the greeting) and read the reply, both under the watchdog."""
         watchdog = threading.Timer(self.timeout, self._kill)
         watchdog.daemon = True
@@ -164,8 +168,10 @@ def export_blend(path: Path, python: Path, timeout: float = DEFAULT_TIMEOUT) -> 
     finally:
         process.close()
     if not reply["objects"]:
-        raise SceneError(f"{path} has no render-visible mesh object (a mesh, curve or text that is renderable "
-                         "and visible to the camera); open it in Blender and check Object > Visibility")
+        raise SceneError(
+            f"{path} has no render-visible mesh object (a mesh, curve or text that is renderable "
+            "and visible to the camera); open it in Blender and check Object > Visibility"
+        )
     colors = np.clip(np.round(arrays["face_colors"] * 255.0), 0, 255).astype(np.uint8)
     return trimesh.Trimesh(vertices=arrays["vertices"], faces=arrays["faces"], face_colors=colors, process=False)
 
@@ -220,7 +226,9 @@ class BlenderRenderer(MeshRays):
         """Cycles' RGB (premultiplied: black background) and coverage alpha of the view ``c2w``. Cycles
         anti-aliases with its film filter, so there is no sub-pixel supersampling: ``samples_per_side`` must be 1."""
         if samples_per_side != 1:
-            raise ValueError(f"the Blender backend takes render.samples per pixel, not samples_per_side={samples_per_side}")
+            raise ValueError(
+                f"the Blender backend takes render.samples per pixel, not samples_per_side={samples_per_side}"
+            )
         pose = as_pose(c2w)
         in_asset = pose.copy()  # the camera moved into the asset's frame (the inverse of asset_to_scene)
         in_asset[:3, 3] = (pose[:3, 3] - self._offset) / self._scale

@@ -328,7 +328,9 @@ class Worker:
             raise RuntimeError("no scene is open (open_blend or open_mesh first)")
         scene = bpy.context.scene
         width, height, focal = int(header["width"]), int(header["height"]), float(header["focal"])
-        self.camera.matrix_world = Matrix(arrays["c2w"].astype(np.float64).tolist())  # Blender cameras look down -Z, +Y up
+        self.camera.matrix_world = Matrix(
+            arrays["c2w"].astype(np.float64).tolist()
+        )  # Blender cameras look down -Z, +Y up
         data = self.camera.data
         data.lens = focal / width * data.sensor_width
         data.clip_start, data.clip_end = float(header["near"]), float(header["far"])
@@ -372,7 +374,9 @@ def _shader_color(node, depth: int = 0) -> np.ndarray | None:
     if node is None or depth > 8:
         return None
     if node.bl_idname in ("ShaderNodeMixShader", "ShaderNodeAddShader"):
-        parts = [_shader_color(s.links[0].from_node, depth + 1) for s in node.inputs if s.is_linked and s.type == "SHADER"]
+        parts = [
+            _shader_color(s.links[0].from_node, depth + 1) for s in node.inputs if s.is_linked and s.type == "SHADER"
+        ]
         parts = [p for p in parts if p is not None]
         return np.mean(parts, axis=0) if parts else None
     for name in ("Base Color", "Color"):
@@ -409,8 +413,12 @@ def main() -> None:
         return
     worker = Worker(bpy)
     write_message(replies, {"ok": True, "blender": bpy.app.version_string})
-    handlers = {"open_blend": worker.open_blend, "open_mesh": worker.open_mesh, "export": worker.export,
-                "render": worker.render}
+    handlers = {
+        "open_blend": worker.open_blend,
+        "open_mesh": worker.open_mesh,
+        "export": worker.export,
+        "render": worker.render,
+    }
     while True:
         try:
             header, arrays = read_message(commands_in)

@@ -46,6 +46,11 @@ def ground_truth_info(scene: Scene, renderer: Renderer, assets: Path) -> dict:
         except ValueError:
             asset = scene.asset.name
     if isinstance(renderer, BlenderRenderer):
-        return {"backend": "blender", "asset": asset, "samples": renderer.samples, "device": renderer.device,
-                "blender": renderer.version}
+        return {
+            "backend": "blender",
+            "asset": asset,
+            "samples": renderer.samples,
+            "device": renderer.device,
+            "blender": renderer.version,
+        }
     return {"backend": "pyrender", "asset": asset}

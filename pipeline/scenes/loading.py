@@ -27,9 +27,9 @@ from typing import Any
 import numpy as np
 import torch
 import trimesh
-from jaxtyping import Float
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
+from jaxtyping import Float
 from omegaconf import DictConfig, OmegaConf
 from torch import Tensor
 
@@ -46,7 +46,9 @@ from pipeline.scenes.views import rig_views
 ASSET_EXTENSIONS = ("blend", "glb", "gltf", "ply", "obj")
 SOURCES = ("mesh", "proxy", "procedural")  # declared; a mesh scene whose asset is a .blend is built as "blend"
 FIT_TOLERANCE = 0.05  # of the tight box's diagonal
-Y_UP_TO_Z_UP = np.array([[1, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]], dtype=float)  # (x, y, z) -> (x, -z, y)
+Y_UP_TO_Z_UP = np.array(
+    [[1, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]], dtype=float
+)  # (x, y, z) -> (x, -z, y)
 
 __all__ = ["default_assets_dir", "find_asset", "load_scene", "read_asset", "scene_config", "scene_names"]
 
@@ -71,7 +73,11 @@ def find_asset(cfg: Mapping[str, Any], assets: Path) -> tuple[Path, str]:
         if path.is_file():
             return path, up
     expected = " or ".join(str(p) for p, _ in candidates)
-    proxy = f"; or use scene '{cfg['name']}_proxy' (a procedural analogue)" if f"{cfg['name']}_proxy" in scene_names() else ""
+    proxy = (
+        f"; or use scene '{cfg['name']}_proxy' (a procedural analogue)"
+        if f"{cfg['name']}_proxy" in scene_names()
+        else ""
+    )
     raise SceneError(
         f"scene '{cfg['name']}': asset not found, expected {expected}; set paths.assets or NVF_ASSETS to the assets "
         f"directory (the README's 'Scenes and assets' says where each scene's file comes from){proxy}"
@@ -96,9 +102,12 @@ def _placed(cfg: Mapping[str, Any], mesh: trimesh.Trimesh, up: str, tight: np.nd
         return fit @ transform
     mismatch = float(np.abs(mesh.bounds - tight).max())
     if mismatch > FIT_TOLERANCE * float(np.linalg.norm(tight[1] - tight[0])):
-        fix = ("move and scale its objects into that box in Blender (Z-up, the scene frame), or hide helper objects "
-               "from rendering" if path.suffix == ".blend" else "export it Z-up in the scene frame (Blender glTF: "
-               "untick +Y Up)")
+        fix = (
+            "move and scale its objects into that box in Blender (Z-up, the scene frame), or hide helper objects "
+            "from rendering"
+            if path.suffix == ".blend"
+            else "export it Z-up in the scene frame (Blender glTF: untick +Y Up)"
+        )
         raise SceneError(
             f"scene '{cfg['name']}': {path} has bounds {np.round(mesh.bounds, 3).tolist()} but the scene's tight box "
             f"is {tight.tolist()}; {fix}"

@@ -48,7 +48,7 @@ def _atlas(parts: list[trimesh.Trimesh], width: int = 1024) -> trimesh.Trimesh:
     atlas, uvs, top = np.zeros((total, width, 3), dtype=np.uint8), [], 0
     for image, uv in tiles:
         h = image.shape[0]
-        atlas[top:top + h] = image
+        atlas[top : top + h] = image
         uvs.append(np.stack([uv[:, 0], (total - top - h + uv[:, 1] * h) / total], axis=1))  # v measured from the bottom
         top += h
     offsets = np.cumsum([0] + [len(p.vertices) for p in parts[:-1]])
@@ -56,7 +56,8 @@ def _atlas(parts: list[trimesh.Trimesh], width: int = 1024) -> trimesh.Trimesh:
     return trimesh.Trimesh(
         vertices=np.concatenate([p.vertices for p in parts]),
         faces=np.concatenate([p.faces + o for p, o in zip(parts, offsets, strict=True)]),
-        visual=trimesh.visual.TextureVisuals(uv=np.concatenate(uvs), material=material), process=False,
+        visual=trimesh.visual.TextureVisuals(uv=np.concatenate(uvs), material=material),
+        process=False,
     )
 
 

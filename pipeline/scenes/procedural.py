@@ -47,8 +47,13 @@ def _sphere(center: Vec, radius: float, color: Color, subdivisions: int = 2) -> 
     return _paint(mesh, color)
 
 
-def _revolved(profile: Sequence[Vec], color: Color, sections: int = 32, angle: float = 2 * math.pi,
-              transform: np.ndarray | None = None) -> trimesh.Trimesh:
+def _revolved(
+    profile: Sequence[Vec],
+    color: Color,
+    sections: int = 32,
+    angle: float = 2 * math.pi,
+    transform: np.ndarray | None = None,
+) -> trimesh.Trimesh:
     """Surface of revolution of an ``(r, z)`` polyline about +z, then ``transform``."""
     mesh = trimesh.creation.revolve(np.asarray(profile, float), angle=angle, sections=sections)
     if transform is not None:
@@ -101,15 +106,27 @@ def default_object() -> trimesh.Trimesh:
     handle.remove_unreferenced_vertices()
     handle = _paint(handle, (200, 40, 40))
     # arch: half of a rectangular ring about the y axis, on two pillars; a ball sits under it
-    arch_top = _revolved([(0.2, -0.1), (0.3, -0.1), (0.3, 0.1), (0.2, 0.1), (0.2, -0.1)], (40, 80, 200),
-                         sections=16, angle=math.pi, transform=_pose((1, 0, 0), math.pi / 2, (0.35, -0.3, 0.3)))
-    pillars = [_box((0.35 + s * 0.25 - 0.05, -0.4, 0.05), (0.35 + s * 0.25 + 0.05, -0.2, 0.3), (40, 80, 200))
-               for s in (-1.0, 1.0)]
+    arch_top = _revolved(
+        [(0.2, -0.1), (0.3, -0.1), (0.3, 0.1), (0.2, 0.1), (0.2, -0.1)],
+        (40, 80, 200),
+        sections=16,
+        angle=math.pi,
+        transform=_pose((1, 0, 0), math.pi / 2, (0.35, -0.3, 0.3)),
+    )
+    pillars = [
+        _box((0.35 + s * 0.25 - 0.05, -0.4, 0.05), (0.35 + s * 0.25 + 0.05, -0.2, 0.3), (40, 80, 200))
+        for s in (-1.0, 1.0)
+    ]
     ball = _sphere((0.35, -0.3, 0.15), 0.1, (240, 200, 30))
-    bowl = _revolved([(0.0, 0.05), (0.12, 0.05), (0.28, 0.3), (0.25, 0.3), (0.1, 0.08), (0.0, 0.08)], (40, 160, 70),
-                     sections=28, transform=_pose(_Z, 0.0, (0.35, 0.4, 0.0)))
-    inner = (bowl.triangles_center[:, 2] > 0.06) & (np.einsum("ij,ij->i", bowl.face_normals[:, :2],
-                                                              bowl.triangles_center[:, :2] - [0.35, 0.4]) < 0)
+    bowl = _revolved(
+        [(0.0, 0.05), (0.12, 0.05), (0.28, 0.3), (0.25, 0.3), (0.1, 0.08), (0.0, 0.08)],
+        (40, 160, 70),
+        sections=28,
+        transform=_pose(_Z, 0.0, (0.35, 0.4, 0.0)),
+    )
+    inner = (bowl.triangles_center[:, 2] > 0.06) & (
+        np.einsum("ij,ij->i", bowl.face_normals[:, :2], bowl.triangles_center[:, :2] - [0.35, 0.4]) < 0
+    )
     bowl = _recolor(bowl, inner, (240, 240, 160))
     block = _box((-0.7, -0.65, 0.05), (-0.15, -0.5, 0.45), (120, 60, 160))
     return _assemble([plate, mug, handle, arch_top, *pillars, ball, bowl, block])
@@ -133,14 +150,17 @@ def _lego() -> trimesh.Trimesh:
     parts.append(_rod((0.0, -0.1, 0.6), (0.0, -0.1, 0.85), 0.02, red))
     # engine at the rear with studs and an exhaust
     parts.append(_box((-0.4, -0.9, 0.6), (0.4, -0.65, 0.8), grey))
-    parts += [_rod((x, y, 0.8), (x, y, 0.84), 0.04, grey, sections=12) for x in (-0.24, 0.0, 0.24) for y in (-0.84, -0.72)]
+    parts += [
+        _rod((x, y, 0.8), (x, y, 0.84), 0.04, grey, sections=12) for x in (-0.24, 0.0, 0.24) for y in (-0.84, -0.72)
+    ]
     parts.append(_rod((0.3, -0.78, 0.8), (0.3, -0.78, 1.1), 0.035, dark))
     # arms and the concave blade (a curved shell opening forward, +y)
     parts += [_box((s * 0.35 - 0.04, 0.5, 0.3), (s * 0.35 + 0.04, 0.95, 0.38), yellow) for s in (-1, 1)]
     parts.append(_rod((-0.35, 0.55, 0.45), (-0.35, 0.9, 0.4), 0.03, grey))
     parts.append(_rod((0.35, 0.55, 0.45), (0.35, 0.9, 0.4), 0.03, grey))
-    blade = _revolved([(0.4, -0.6), (0.43, -0.6), (0.43, 0.6), (0.4, 0.6), (0.4, -0.6)], yellow, sections=14,
-                      angle=math.radians(110))
+    blade = _revolved(
+        [(0.4, -0.6), (0.43, -0.6), (0.43, 0.6), (0.4, 0.6), (0.4, -0.6)], yellow, sections=14, angle=math.radians(110)
+    )
     blade.apply_transform(_pose(_Z, math.radians(-145), (0, 0, 0)))
     blade.apply_transform(_pose((0, 1, 0), math.pi / 2, (0.0, 1.35, 0.32)))
     parts.append(blade)
@@ -151,8 +171,10 @@ def _ficus(rng: np.random.Generator) -> trimesh.Trimesh:
     """Potted plant: hollow pot, soil, thin trunk and branches, a dense canopy of small two-sided leaves."""
     pot = _revolved([(0.0, 0.0), (0.17, 0.0), (0.23, 0.42), (0.21, 0.42), (0.155, 0.03), (0.0, 0.03)], (190, 90, 50))
     soil = _revolved([(0.0, 0.36), (0.215, 0.36), (0.0, 0.36)], (70, 45, 25))
-    trunk = [_rod((0, 0, 0.35), (0.02, -0.05, 0.9), 0.025, (110, 80, 50)),
-             _rod((0.02, -0.05, 0.9), (0.0, -0.1, 1.35), 0.018, (110, 80, 50))]
+    trunk = [
+        _rod((0, 0, 0.35), (0.02, -0.05, 0.9), 0.025, (110, 80, 50)),
+        _rod((0.02, -0.05, 0.9), (0.0, -0.1, 1.35), 0.018, (110, 80, 50)),
+    ]
     parts = [pot, soil, *trunk]
     n_branches, leaves_per_branch = 16, 45
     for _ in range(n_branches):
@@ -168,8 +190,9 @@ def _ficus(rng: np.random.Generator) -> trimesh.Trimesh:
             v -= u * (u @ v)
             v /= np.linalg.norm(v)
             a, b = 0.045 * u, 0.02 * v
-            quad = trimesh.Trimesh(np.array([c - a, c + b, c + a, c - b]), np.array([[0, 1, 2], [0, 2, 3]]),
-                                   process=False)
+            quad = trimesh.Trimesh(
+                np.array([c - a, c + b, c + a, c - b]), np.array([[0, 1, 2], [0, 2, 3]]), process=False
+            )
             green = (int(rng.integers(30, 70)), int(rng.integers(110, 170)), int(rng.integers(30, 60)))
             parts.append(_paint(quad, green))
     return _assemble(parts)
@@ -178,7 +201,9 @@ def _ficus(rng: np.random.Generator) -> trimesh.Trimesh:
 def _mic() -> trimesh.Trimesh:
     """Microphone on a stand: round base, thin pole, thin boom with a counterweight, one bulky head."""
     black, silver, dark = (30, 30, 30), (190, 190, 200), (60, 60, 70)
-    base = _revolved([(0.0, 0.0), (0.35, 0.0), (0.33, 0.06), (0.0, 0.06)], black, transform=_pose(_Z, 0.0, (0.55, -0.5, 0)))
+    base = _revolved(
+        [(0.0, 0.0), (0.35, 0.0), (0.33, 0.06), (0.0, 0.06)], black, transform=_pose(_Z, 0.0, (0.55, -0.5, 0))
+    )
     pole = _rod((0.55, -0.5, 0.06), (0.55, -0.5, 1.0), 0.018, silver)
     joint = _sphere((0.55, -0.5, 1.0), 0.04, black, subdivisions=1)
     boom = _rod((0.95, -0.85, 0.8), (-0.45, 0.4, 1.4), 0.014, silver)
@@ -222,8 +247,12 @@ def _ship(rng: np.random.Generator) -> trimesh.Trimesh:
     across = rot[:3, :3] @ np.array([0.0, 1.0, 0.0])
     parts = [water, hull]
     cabin_c = -0.65 * along
-    parts.append(_paint(trimesh.creation.box(extents=(0.3, 0.3, 0.16), transform=_pose(_Z, math.pi / 4, cabin_c + [0, 0, 0.78])),
-                        (150, 90, 40)))
+    parts.append(
+        _paint(
+            trimesh.creation.box(extents=(0.3, 0.3, 0.16), transform=_pose(_Z, math.pi / 4, cabin_c + [0, 0, 0.78])),
+            (150, 90, 40),
+        )
+    )
     tops, feet = [], []
     for offset, height in ((-0.45, 1.1), (0.05, 1.25), (0.55, 1.05)):
         foot = offset * along + [0, 0, 0.7]
@@ -236,8 +265,12 @@ def _ship(rng: np.random.Generator) -> trimesh.Trimesh:
             centre = offset * along + [0, 0, z]
             parts.append(_rod(centre - width * across, centre + width * across, 0.008, (90, 60, 30), sections=6))
         low, high = foot[2] + 0.45 * (height - 0.7) - 0.02, foot[2] + 0.8 * (height - 0.7)
-        corners = [offset * along - 0.3 * across + [0, 0, low + 0.02], offset * along + 0.3 * across + [0, 0, low + 0.02],
-                   offset * along + 0.22 * across + [0, 0, high], offset * along - 0.22 * across + [0, 0, high]]
+        corners = [
+            offset * along - 0.3 * across + [0, 0, low + 0.02],
+            offset * along + 0.3 * across + [0, 0, low + 0.02],
+            offset * along + 0.22 * across + [0, 0, high],
+            offset * along - 0.22 * across + [0, 0, high],
+        ]
         corners = np.array(corners)
         corners[2:] += 0.04 * np.cross(across, _Z)  # the upper edge bulges: the sail is not planar
         sail = trimesh.Trimesh(corners, [[0, 1, 2], [0, 2, 3]], process=False)
@@ -274,8 +307,15 @@ def _stand(foot: Vec, top: Vec) -> list[trimesh.Trimesh]:
     parts = [_rod(foot + [0, 0, 0.2], top, 0.01, (170, 170, 180), sections=6)]
     for k in range(3):
         angle = 2 * math.pi * k / 3
-        parts.append(_rod(foot + [0, 0, 0.2], foot + [0.18 * math.cos(angle), 0.18 * math.sin(angle), 0.0], 0.008,
-                          (170, 170, 180), sections=6))
+        parts.append(
+            _rod(
+                foot + [0, 0, 0.2],
+                foot + [0.18 * math.cos(angle), 0.18 * math.sin(angle), 0.0],
+                0.008,
+                (170, 170, 180),
+                sections=6,
+            )
+        )
     return parts
 
 
@@ -286,9 +326,16 @@ def _drums() -> trimesh.Trimesh:
     parts += [_drum((s * 0.2, 0.05, 0.82), (0, -0.4, 1), 0.15, 0.14, red) for s in (-1, 1)]
     parts.append(_rod((0, 0.1, 0.66), (0, 0.05, 0.76), 0.015, (170, 170, 180)))
     parts.append(_drum((0.65, -0.2, 0.5), (0, 0, 1), 0.22, 0.3, red))
-    parts += [_rod((0.65 + 0.25 * math.cos(a), -0.2 + 0.25 * math.sin(a), 0.0),
-                   (0.65 + 0.22 * math.cos(a), -0.2 + 0.22 * math.sin(a), 0.5), 0.008, (170, 170, 180), sections=6)
-              for a in (0.5, 2.6, 4.7)]
+    parts += [
+        _rod(
+            (0.65 + 0.25 * math.cos(a), -0.2 + 0.25 * math.sin(a), 0.0),
+            (0.65 + 0.22 * math.cos(a), -0.2 + 0.22 * math.sin(a), 0.5),
+            0.008,
+            (170, 170, 180),
+            sections=6,
+        )
+        for a in (0.5, 2.6, 4.7)
+    ]
     parts.append(_drum((-0.55, -0.3, 0.6), (0.1, 0, 1), 0.18, 0.12, (220, 220, 225)))
     parts += _stand((-0.55, -0.3, 0.0), (-0.55, -0.3, 0.54))
     parts += _stand((-0.95, 0.05, 0.0), (-0.95, 0.05, 0.9))
@@ -325,9 +372,23 @@ def _chair() -> trimesh.Trimesh:
 def _materials() -> trimesh.Trimesh:
     """Slab with three rows of five spheres of different colours."""
     parts = [_box((-1.1, -0.85, 0.0), (1.1, 0.85, 0.08), (60, 60, 65))]
-    palette = [(200, 40, 40), (230, 160, 30), (240, 240, 240), (40, 150, 70), (60, 90, 200),
-               (150, 150, 160), (210, 180, 60), (120, 40, 150), (20, 20, 20), (220, 120, 150),
-               (90, 200, 210), (180, 90, 40), (230, 230, 120), (100, 120, 130), (170, 210, 90)]
+    palette = [
+        (200, 40, 40),
+        (230, 160, 30),
+        (240, 240, 240),
+        (40, 150, 70),
+        (60, 90, 200),
+        (150, 150, 160),
+        (210, 180, 60),
+        (120, 40, 150),
+        (20, 20, 20),
+        (220, 120, 150),
+        (90, 200, 210),
+        (180, 90, 40),
+        (230, 230, 120),
+        (100, 120, 130),
+        (170, 210, 90),
+    ]
     for i, colour in enumerate(palette):
         row, col = divmod(i, 5)
         parts.append(_sphere((-0.8 + 0.4 * col, -0.5 + 0.5 * row, 0.08 + 0.17), 0.17, colour))

@@ -69,22 +69,36 @@ def show(scene: Scene, renderer, out_dir: Path, res: int) -> Path:
         row, col = divmod(i, cols) if i < len(init) else (init_rows + (i - len(init)) // cols, (i - len(init)) % cols)
         ax = fig.add_subplot(grid[row, col])
         ax.imshow(image)
-        ax.set_title(f"init {i}" if i < len(init) else f"eval {i - len(init)}", fontsize=8,
-                     color="tab:red" if i < len(init) else "tab:blue")
+        ax.set_title(
+            f"init {i}" if i < len(init) else f"eval {i - len(init)}",
+            fontsize=8,
+            color="tab:red" if i < len(init) else "tab:blue",
+        )
         ax.axis("off")
     ax = fig.add_subplot(grid[:, cols:])
     ax.imshow(top, extent=extent)
     cam, tight = scene.camera_box.numpy(), scene.tight_box.numpy()
     ax.add_patch(Rectangle(cam[0, :2], *(cam[1, :2] - cam[0, :2]), fill=False, ec="k", lw=1.2, label="camera box"))
-    ax.add_patch(Rectangle(tight[0, :2], *(tight[1, :2] - tight[0, :2]), fill=False, ec="gray", ls="--",
-                           label="tight box"))
+    ax.add_patch(
+        Rectangle(tight[0, :2], *(tight[1, :2] - tight[0, :2]), fill=False, ec="gray", ls="--", label="tight box")
+    )
     arrow = 0.06 * float(np.max(cam[1, :2] - cam[0, :2]))
     for poses, color, label in ((scene.eval_poses, "tab:blue", "eval"), (scene.init_poses, "tab:red", "init")):
         p = poses.double().numpy()
         ax.scatter(p[:, 0, 3], p[:, 1, 3], s=18, c=color, label=f"{label} cameras", zorder=3)
         view = -p[:, :2, 2]
-        ax.quiver(p[:, 0, 3], p[:, 1, 3], arrow * view[:, 0], arrow * view[:, 1], color=color, angles="xy",
-                  scale_units="xy", scale=1, width=0.004, zorder=3)
+        ax.quiver(
+            p[:, 0, 3],
+            p[:, 1, 3],
+            arrow * view[:, 0],
+            arrow * view[:, 1],
+            color=color,
+            angles="xy",
+            scale_units="xy",
+            scale=1,
+            width=0.004,
+            zorder=3,
+        )
     ax.set_xlabel("x")
     ax.set_ylabel("y")
     ax.legend(fontsize=7, loc="upper right")

@@ -40,7 +40,10 @@ def direction(theta_deg: float | int, phi_deg: float | int) -> np.ndarray:
 
 
 def ring_views(
-    centre: Vec, centre_target: Vec, radius: float, thetas_deg: Vec,
+    centre: Vec,
+    centre_target: Vec,
+    radius: float,
+    thetas_deg: Vec,
     targets: Sequence[Vec],
 ) -> Float[Tensor, "n 4 4"]:
     """Views at ``P0 (r cos theta_i, r sin theta_i, 0, 1)^T`` looking at ``targets[i]`` (PROTOCOL 2.3)."""

@@ -88,7 +88,9 @@ def main(argv: list[str]) -> int:
         print(f"pipeline.tables: {' '.join(line.split())}", file=sys.stderr)
     if not outputs.is_dir():
         read = " and ".join(str(root) for root in roots)
-        print(f"pipeline.tables: note: paths.outputs={outputs} is not a directory; only {read} was read", file=sys.stderr)
+        print(
+            f"pipeline.tables: note: paths.outputs={outputs} is not a directory; only {read} was read", file=sys.stderr
+        )
     print(f"pipeline.tables: wrote {len(written)} files under {results} (runs.csv, tables/, figures/, site/); "
           f"open {results / 'site' / 'index.html'}")  # fmt: skip
     return 0

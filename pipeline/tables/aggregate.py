@@ -18,7 +18,6 @@ from pipeline.tables.labels import METRIC_KEYS, OBJECT_MEAN
 from pipeline.tables.load import GROUP, Runs
 from pipeline.tables.stats import paired
 
-
 MESH_LOS_MARK = "‡"
 MESH_LOS_NOTE = (
     f"{MESH_LOS_MARK} Planned with an oracle: M29's line-of-sight filter used the scene mesh's exact segment test "
@@ -150,7 +149,10 @@ def _mark_best(rows: pd.DataFrame, samples: Samples) -> pd.DataFrame:
             if i != reference[0]:
                 interval = paired(samples[keys[i]]["psnr"], samples[keys[reference[0]]]["psnr"])
                 rows.loc[i, ["psnr_vs_nvf_mean", "psnr_vs_nvf_low", "psnr_vs_nvf_high", "psnr_vs_nvf_n"]] = (
-                    interval.mean, interval.low, interval.high, interval.n
+                    interval.mean,
+                    interval.low,
+                    interval.high,
+                    interval.n,
                 )
     return rows
 
@@ -196,7 +198,10 @@ def experiment_selection(experiment: str | None, conf_dir: Path = CONF) -> dict[
         return dict.fromkeys(SWEPT)
     listed = OmegaConf.to_container(OmegaConf.load(Path(conf_dir) / "config.yaml").defaults)
     defaults = {k: v for d in listed if isinstance(d, dict) for k, v in d.items()}
-    params = OmegaConf.select(OmegaConf.load(Path(conf_dir) / "experiment" / f"{experiment}.yaml"), "hydra.sweeper.params") or {}
+    params = (
+        OmegaConf.select(OmegaConf.load(Path(conf_dir) / "experiment" / f"{experiment}.yaml"), "hydra.sweeper.params")
+        or {}
+    )
     selection: dict[str, tuple[str, ...] | None] = {}
     for key in SWEPT:
         value = str(params.get(key, defaults[key]))

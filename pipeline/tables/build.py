@@ -70,7 +70,12 @@ def build_tables(
         grid = image_grid(run_directory, path, title)
         written += [grid] if grid is not None else []
     pictures, problems = run_pictures_of(runs, results / "site", assets)
-    written += [p for found in pictures.values() for p in (found.grid, found.trajectory) if p is not None and results in p.parents]
+    written += [
+        p
+        for found in pictures.values()
+        for p in (found.grid, found.trajectory)
+        if p is not None and results in p.parents
+    ]
     written += write_site(runs, pictures, results)
     return written, (*runs.skipped, *runs.conflicts, *problems)
 

@@ -7,7 +7,6 @@ from pipeline.tables.labels import METRIC_KEYS, OBJECT_MEAN
 from pipeline.tables.load import Runs
 from pipeline.tables.paper import paper_numbers
 
-
 COMPARISONS = (  # (our table, section, paper tables, our object-scene-mean rows only)
     ("table34_nerf_assets", "S3/S4", ("S3", "S4"), False),
     ("table34_nerf_assets", "8-scene mean", ("mean8",), True),

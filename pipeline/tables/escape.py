@@ -12,10 +12,23 @@ import re
 CONTROL = re.compile(r"[\x00-\x1f\x7f]")
 MARKDOWN_SPECIALS = (("\\", "\\\\"), ("|", "\\|"), ("<", "&lt;"))
 TEX_SPECIALS = (
-    ("\\", r"\textbackslash{}"), ("&", r"\&"), ("%", r"\%"), ("$", r"\$"), ("#", r"\#"), ("_", r"\_"),
-    ("{", r"\{"), ("}", r"\}"), ("~", r"\textasciitilde{}"), ("^", r"\textasciicircum{}"),
-    ("±", r"$\pm$"), ("↑", r"$\uparrow$"), ("↓", r"$\downarrow$"), ("†", r"$^\dagger$"), ("‡", r"$^\ddagger$"),
-    ("≈", r"$^\approx$"), ("Δ", r"$\Delta$"),
+    ("\\", r"\textbackslash{}"),
+    ("&", r"\&"),
+    ("%", r"\%"),
+    ("$", r"\$"),
+    ("#", r"\#"),
+    ("_", r"\_"),
+    ("{", r"\{"),
+    ("}", r"\}"),
+    ("~", r"\textasciitilde{}"),
+    ("^", r"\textasciicircum{}"),
+    ("±", r"$\pm$"),
+    ("↑", r"$\uparrow$"),
+    ("↓", r"$\downarrow$"),
+    ("†", r"$^\dagger$"),
+    ("‡", r"$^\ddagger$"),
+    ("≈", r"$^\approx$"),
+    ("Δ", r"$\Delta$"),
 )
 
 

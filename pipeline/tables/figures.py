@@ -14,9 +14,9 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 from PIL import Image
 
+from pipeline.metrics.info import PAPER_METRICS
 from pipeline.records.files import is_plain_file
 from pipeline.records.images import MAP_COLORMAPS, map_range, save_figure
-from pipeline.metrics.info import PAPER_METRICS
 from pipeline.tables.escape import plot_text
 from pipeline.tables.load import Runs
 

@@ -49,7 +49,9 @@ def row_name(config: Mapping[str, Any]) -> RowName:
 def scene_name(config: Mapping[str, Any]) -> SceneName:
     """The scene name of a run from its (effective) config."""
     scene = config["scene"]
-    return SceneName((scene.get("rank", LAST - 1), scene["name"]), scene.get("paper_scene"), bool(scene.get("nerf_asset")))
+    return SceneName(
+        (scene.get("rank", LAST - 1), scene["name"]), scene.get("paper_scene"), bool(scene.get("nerf_asset"))
+    )
 
 
 MEAN_SCENE = SceneName((LAST, OBJECT_MEAN), None, False)

@@ -22,17 +22,43 @@ from pipeline.records.verify import verified
 from pipeline.repo import CONF
 from pipeline.tables.labels import LAST, MEAN_SCENE, METRIC_KEYS, OBJECT_MEAN, RowName, SceneName, row_name, scene_name
 
-
 LONG_COLUMNS = (
-    "scene", "scene_source", "method", "planner", "ablation", "budget", "seed", "step", "n_views", "metric", "value"
+    "scene",
+    "scene_source",
+    "method",
+    "planner",
+    "ablation",
+    "budget",
+    "seed",
+    "step",
+    "n_views",
+    "metric",
+    "value",
 )
 FINAL_COLUMNS = (
-    *IDENTITY_KEYS, "scene_source", "asset", "ground_truth", "status", "failure_reason", "lpips_missing_reason",
-    "mesh_los", "mesh_visibility", "directory", "step", "n_views",
+    *IDENTITY_KEYS,
+    "scene_source",
+    "asset",
+    "ground_truth",
+    "status",
+    "failure_reason",
+    "lpips_missing_reason",
+    "mesh_los",
+    "mesh_visibility",
+    "directory",
+    "step",
+    "n_views",
 )
 GROUP = ("budget", "scene", "method", "planner", "ablation")
 # run.json keys besides the settings that reach a table (``collect_runs``'s final frame)
-TABULATED = ("scene_source", "ground_truth", "failure_reason", "lpips_missing_reason", "collision_free", "candidate_filters")
+TABULATED = (
+    "scene_source",
+    "ground_truth",
+    "failure_reason",
+    "lpips_missing_reason",
+    "collision_free",
+    "candidate_filters",
+)
 
 
 def ground_truth_label(info: dict) -> tuple[str, str]:
@@ -58,7 +84,9 @@ class Runs:
     final: pd.DataFrame
     skipped: tuple[str, ...]
     conflicts: tuple[str, ...] = ()
-    rows: Mapping[tuple[str, str, str], RowName] = dataclasses.field(default_factory=dict)  # (method, planner, ablation)
+    rows: Mapping[tuple[str, str, str], RowName] = dataclasses.field(
+        default_factory=dict
+    )  # (method, planner, ablation)
     scenes: Mapping[str, SceneName] = dataclasses.field(default_factory=dict)
 
     def row(self, method: str, planner: str, ablation: str) -> RowName:
@@ -117,7 +145,11 @@ def used_mesh_visibility(info: dict) -> bool:
     """Whether NVF's scores read the visibility from the scene mesh (``nvf.entropy.visibility_source=mesh``
     with the visibility in use): an oracle, marked in the tables."""
     config = info.get("config")
-    entropy = config.get("nvf", {}).get("entropy") if isinstance(config, dict) and isinstance(config.get("nvf"), dict) else None
+    entropy = (
+        config.get("nvf", {}).get("entropy")
+        if isinstance(config, dict) and isinstance(config.get("nvf"), dict)
+        else None
+    )
     method = config.get("method") if isinstance(config, dict) else None
     return (
         isinstance(entropy, dict) and isinstance(method, dict) and method.get("name") == "nvf"
@@ -173,7 +205,9 @@ def _choose(copies: list[dict], conflicts: list[str]) -> dict | None:
     for copy in copies:
         changed = None if copy is kept else run_difference(copy["info"], kept["info"], labels=("here", "there"))
         if changed is not None:
-            conflicts.append(f"left out {copy['directory']}: the same run as {kept['directory']} but a different {changed}")
+            conflicts.append(
+                f"left out {copy['directory']}: the same run as {kept['directory']} but a different {changed}"
+            )
     same = [copy for copy in finished if run_difference(copy["info"], kept["info"]) is None]
     distinct = [copy for i, copy in enumerate(same) if all(copy_difference(copy, other) for other in same[:i])]
     if len(distinct) < 2:

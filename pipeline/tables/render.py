@@ -12,7 +12,6 @@ from pipeline.metrics.info import PAPER_METRICS
 from pipeline.tables.aggregate import MESH_LOS_MARK, ORACLE_FLAGS, Table
 from pipeline.tables.escape import markdown, plain, tex_escape
 
-
 TIE_MARK = "≈"
 
 
@@ -64,7 +63,8 @@ def render(table: Table, label_header: str, experiment: str | None) -> dict[str,
         command = f"python -m pipeline.run -m experiment={experiment}" if experiment else "python -m pipeline.run"
         message = f"No runs yet for {table.name}: run `{command}`, then `python -m pipeline.tables`."
         return {
-            "md": "\n".join([f"# {table.title}", "", message, "", *(f"- {markdown(n)}" for n in table.notes)]).rstrip() + "\n",
+            "md": "\n".join([f"# {table.title}", "", message, "", *(f"- {markdown(n)}" for n in table.notes)]).rstrip()
+            + "\n",
             "csv": pd.DataFrame({"note": [message, *map(plain, table.notes)]}).to_csv(index=False),
             "tex": "\n".join([f"% {table.title}", tex_escape(message), *(tex_escape(n) for n in table.notes)]) + "\n",
         }
@@ -78,7 +78,10 @@ def render(table: Table, label_header: str, experiment: str | None) -> dict[str,
     tex = [
         f"% {table.title}",
         *(f"% {plain(line)}" for line in table.header),
-        r"\begin{tabular}{" + "l" * (columns.index("Scene") + 2) + "c" * (len(columns) - columns.index("Scene") - 3) + "r}",
+        r"\begin{tabular}{"
+        + "l" * (columns.index("Scene") + 2)
+        + "c" * (len(columns) - columns.index("Scene") - 3)
+        + "r}",
         r"\toprule",
         " & ".join(map(tex_escape, columns)) + r" \\",
         r"\midrule",

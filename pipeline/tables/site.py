@@ -148,7 +148,11 @@ def psnr_bands(runs: Runs, scene: str, budget: str) -> list[tuple[str, pd.DataFr
             v = values.to_numpy(float)
             v = v[np.isfinite(v)]
             mean = float(v.mean()) if len(v) else math.nan
-            half = float(stats.t.ppf(0.5 + LEVEL / 2, len(v) - 1) * v.std(ddof=1) / math.sqrt(len(v))) if len(v) > 1 else math.nan
+            half = (
+                float(stats.t.ppf(0.5 + LEVEL / 2, len(v) - 1) * v.std(ddof=1) / math.sqrt(len(v)))
+                if len(v) > 1
+                else math.nan
+            )
             rows.append({"step": int(step), "mean": mean, "low": mean - half, "high": mean + half, "n": len(v)})
         out.append((runs.row(*key).label, pd.DataFrame(rows)))
     return out
@@ -194,8 +198,18 @@ def psnr_figure(runs: Runs, scene: str, budget: str) -> go.Figure:
     return fig
 
 
-COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22",
-          "#17becf")  # matplotlib's, as the PNG curves
+COLORS = (
+    "#1f77b4",
+    "#ff7f0e",
+    "#2ca02c",
+    "#d62728",
+    "#9467bd",
+    "#8c564b",
+    "#e377c2",
+    "#7f7f7f",
+    "#bcbd22",
+    "#17becf",
+)  # matplotlib's, as the PNG curves
 
 
 def _alpha(color: str, alpha: float) -> str:
@@ -216,7 +230,7 @@ def scene_page(
 ) -> str:
     """One scene at one budget: table, curves, each run's pictures."""
     table = scene_table(runs, scene, budget)
-    parts = [f"<h2>Final step, every metric</h2><div class=\"wide\">{html_table(table, 'Method')}</div>"]
+    parts = [f'<h2>Final step, every metric</h2><div class="wide">{html_table(table, "Method")}</div>']
     parts.append(f'<p class="note">{html.escape(" ".join(table.header))}</p>')
     parts.append('<p class="note">' + "<br>".join(html.escape(n) for n in table.notes) + "</p>")
     chart = psnr_figure(runs, scene, budget).to_html(full_html=False, include_plotlyjs=False, div_id="psnr-curves")
@@ -227,7 +241,7 @@ def scene_page(
         "Click a legend entry to hide a method.</p><h2>Runs</h2>"
     )
     for key, group in sorted(frame.groupby(["method", "planner", "ablation"]), key=lambda kv: runs.row(*kv[0]).order):
-        parts.append(f"<h3>{html.escape(runs.row(*key).label)}</h3><div class=\"runs\">")
+        parts.append(f'<h3>{html.escape(runs.row(*key).label)}</h3><div class="runs">')
         for _, run in group.sort_values("seed").iterrows():
             found = pictures.get(str(run["directory"]), RunPictures(None, None, None))
             parts.append(_run_card(run, found, page))
@@ -236,7 +250,7 @@ def scene_page(
 
 
 def _run_card(run: pd.Series, found: RunPictures, page: Path) -> str:
-    lines = [f"<div class=\"run\"><strong>seed {int(run['seed'])}</strong>: final PSNR {run['psnr']:.2f} dB"]
+    lines = [f'<div class="run"><strong>seed {int(run["seed"])}</strong>: final PSNR {run["psnr"]:.2f} dB']
     if found.summary is not None:
         lines.append(f' (<a href="{link(found.summary, page)}">per-step table</a>)')
     for picture, what in ((found.trajectory, "cameras"), (found.grid, "images")):

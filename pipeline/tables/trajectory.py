@@ -131,7 +131,9 @@ def _surface(ax, outline: SceneOutline, axes: tuple[int, int], lo, hi) -> None:
         points = points[np.abs(outline.normals[:, third]) < FACE_ON]
     span = hi - lo
     bins = (max(8, int(BINS * span[0] / span.max())), max(8, int(BINS * span[1] / span.max())))
-    counts, _, _ = np.histogram2d(points[:, axes[0]], points[:, axes[1]], bins=bins, range=[[lo[0], hi[0]], [lo[1], hi[1]]])
+    counts, _, _ = np.histogram2d(
+        points[:, axes[0]], points[:, axes[1]], bins=bins, range=[[lo[0], hi[0]], [lo[1], hi[1]]]
+    )
     shade = np.log1p(counts.T) / max(np.log1p(counts.max()), 1e-9)
     image = np.where(shade > 0, 0.85 - 0.55 * shade, 1.0)
     ax.imshow(image, origin="lower", extent=(lo[0], hi[0], lo[1], hi[1]), cmap="gray", vmin=0.0, vmax=1.0,
@@ -179,7 +181,10 @@ def trajectory_figure(outline: SceneOutline, rows: list[dict], title: str, out_p
         Rectangle((0, 0), 1, 1, fill=False, ec="0.35", ls="--", label="tight box"),
     ]
     panels[0].legend(handles=legend, loc="upper left", fontsize=7, framealpha=0.85)
-    fig.suptitle(f"{plot_text(title)}\n{outline.note}; a wedge opens along its camera's view direction, a disc looks "
-                 "along the third axis", fontsize=10)
+    fig.suptitle(
+        f"{plot_text(title)}\n{outline.note}; a wedge opens along its camera's view direction, a disc looks "
+        "along the third axis",
+        fontsize=10,
+    )
     save_figure(fig, Path(out_path), colors=PNG_COLORS)
     return Path(out_path)
