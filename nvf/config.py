@@ -2,18 +2,98 @@
 
 These are plain dataclasses: Hydra's structured configs in ``pipeline.config.schema`` embed them, so every
 value has exactly one home and one default. Defaults are the ``paper`` budget; smaller budgets
-override resolutions and iteration counts only.
+override resolutions and iteration counts only. A setting with a fixed set of values is a ``StrEnum``
+field: OmegaConf refuses any other value when a config is composed, and a member compares equal to its
+name (``entropy.bound == "huber"``). A method's own settings are its class's fields (``nvf.methods``).
 """
 
 import math
 from dataclasses import dataclass, field
+from enum import StrEnum
+
+
+class FieldKind(StrEnum):
+    hashgrid = "hashgrid"  # Instant-NGP, the paper's
+    densegrid = "densegrid"  # DVGO-style, cheap on CPU
+
+
+class HashBackend(StrEnum):
+    auto = "auto"
+    torch = "torch"
+    cpp = "cpp"
+
+
+class Bound(StrEnum):
+    huber = "huber"  # M10
+    moment_matched = "moment_matched"  # M12, "Loose"
+
+
+class Correlation(StrEnum):
+    quadratic = "quadratic"
+    exp = "exp"
+
+
+class DepthMode(StrEnum):
+    pixel = "pixel"
+    chunk = "chunk"  # D3, the reference's bug
+
+
+class EntropySampler(StrEnum):
+    occupancy = "occupancy"
+    uniform = "uniform"
+
+
+class VisibilitySource(StrEnum):
+    """Where NVF's score reads ``v`` (METHOD 9.3, ``nvf.visibility_source``)."""
+
+    head = "head"  # the visibility head (METHOD)
+    labels = "labels"  # M17-M18 at the scored samples
+    mesh = "mesh"  # the scene mesh's line of sight (an oracle)
+
+
+class Schedule(StrEnum):
+    paper = "paper"
+    reference = "reference"  # D5-D7
+
+
+class StageOrder(StrEnum):
+    var_first = "var_first"
+    vis_first = "vis_first"
+
+
+class VarianceBackground(StrEnum):
+    random = "random"
+    black = "black"
+
+
+class Precision(StrEnum):
+    """The MLPs' layers in training (``nvf.precision``)."""
+
+    fp32 = "fp32"
+    bf16 = "bf16"
+    fp16 = "fp16"
+
+
+class Planner(StrEnum):
+    argmax = "argmax"
+    opt = "opt"  # -OPT, METHOD 14
+
+
+class PoseParam(StrEnum):
+    quat_raw = "quat_raw"
+    se3 = "se3"
+
+
+class LineOfSightSource(StrEnum):
+    model = "model"  # METHOD's M29
+    mesh = "mesh"  # deviation: the scene mesh's exact line of sight
 
 
 @dataclass
 class FieldConfig:
     """Backbone and heads (METHOD.md section 3)."""
 
-    kind: str = "hashgrid"  # hashgrid (Instant-NGP, the paper's) | densegrid (DVGO-style, cheap on CPU)
+    kind: FieldKind = FieldKind.hashgrid
     num_levels: int = 16
     features_per_level: int = 2
     log2_hashmap_size: int = 19
@@ -25,7 +105,7 @@ class FieldConfig:
     geo_feat_dim: int = 15
     mlp_bias: bool = False  # tiny-cuda-nn fused MLPs have no biases
     appearance_embedding: bool = False  # D8: the reference's per-image embedding
-    backend: str = "auto"  # hash-grid gather/scatter: auto | torch | cpp
+    backend: HashBackend = HashBackend.auto  # hash-grid gather/scatter
 
 
 @dataclass
@@ -55,34 +135,20 @@ class EntropyConfig:
     """NVF view entropy and its ablation switches (METHOD.md sections 5-8, 11)."""
 
     logdet_coeff: float = 0.5  # D1: the reference uses 1.0
-    bound: str = "huber"  # huber (M10) | moment_matched (M12, "Loose")
+    bound: Bound = Bound.huber
     use_visibility: bool = True  # false: w/o Vis.
     use_variance: bool = True  # false: w/o Var.
     d0: float | int | str | None = None  # M13: None = the scene's (1.0, Room 6.0); 0 disables (Ind. Rays); "auto"
-    corr: str = "quadratic"  # quadratic | exp (M13)
-    depth_mode: str = "pixel"  # pixel | chunk (D3, reference bug)
+    corr: Correlation = Correlation.quadratic  # M13
+    depth_mode: DepthMode = DepthMode.pixel
     chunk_rays: int = 4096  # depth_mode=chunk: row-major chunk size
-    sampler: str = "occupancy"  # occupancy | uniform
+    sampler: EntropySampler = EntropySampler.occupancy
     beta: float = 0.95
     alpha_un: float = 1.0 - math.exp(-0.01)
     mu_un: float = 0.5
     var_un: float = 1.0
     var_bg: float = 1e-4
-    visibility_source: str = (
-        "head"  # v of M7/M9: head (METHOD) | labels (M17-M18 at the scored samples) | mesh (oracle)
-    )
-
-
-@dataclass
-class BaselineConfig:
-    """Options of the baselines (METHOD.md section 12)."""
-
-    rmap_occlusion_weighted: bool = False  # M23 alternative
-    air_reduce: str = "mean"  # mean | sum (M24)
-    air_view_score: str = "pixel_mean"  # pixel_mean | topk
-    activenerf_variant: str = "A"  # A | B (M25)
-    neurar_loss: str = "residual_mse"  # residual_mse (M27) | nll
-    neurar_detach: bool = True
+    visibility_source: VisibilitySource = VisibilitySource.head  # v of M7/M9
 
 
 @dataclass
@@ -104,17 +170,17 @@ class TrainConfig:
     backbone: StageBudget = field(default_factory=lambda: StageBudget(5000, 4096, 1e-2))
     variance: StageBudget = field(default_factory=lambda: StageBudget(500, 4096, 1e-3))
     visibility: StageBudget = field(default_factory=lambda: StageBudget(500, 65536, 1e-3))
-    schedule: str = "paper"  # paper | reference (D5-D7)
+    schedule: Schedule = Schedule.paper
     target_samples: int = 1 << 18  # schedule=reference: kept samples per batch of the dynamic batch (D5)
-    stage_order: str = "var_first"  # var_first | vis_first
-    var_loss_background: str = "random"  # random | black (M21)
+    stage_order: StageOrder = StageOrder.var_first
+    var_loss_background: VarianceBackground = VarianceBackground.random  # M21
     ablation_affects_training: bool = False
     lr_decay_horizon: int = 10000  # backbone lr(k) = lr * 0.01 ** (k / horizon)
     label_samples: int = 200  # M17: samples on each camera-to-point segment
     label_max_depth: float = 10.0
     label_margin: float = 0.0  # M17 deviation: the camera-to-point segment stops this far (scene units) short of x
     warm_start: bool = False  # deviation: reuse the previous step's weights instead of retraining
-    precision: str = "fp32"  # fp32 | bf16 | fp16: the MLPs' layers in training (nvf.precision)
+    precision: Precision = Precision.fp32
 
 
 @dataclass
@@ -126,14 +192,14 @@ class OptConfig:
     lr: float = 1e-4
     ray_fraction: float = 0.1
     chunk_rays: int = 4096
-    param: str = "quat_raw"  # quat_raw | se3
+    param: PoseParam = PoseParam.quat_raw
 
 
 @dataclass
 class PlannerConfig:
     """Candidate poses, filters and selection (METHOD.md section 13)."""
 
-    name: str = "argmax"  # argmax | opt
+    name: Planner = Planner.argmax
     num_candidates: int = 512
     oversample: float = 1.2  # base sampler draws floor(1.2 N); collision-free draws 3 N
     resolution: int = 300  # planning image side (f = W / 2)
@@ -142,7 +208,7 @@ class PlannerConfig:
     los_samples: int = 200
     los_threshold: float = 0.95
     los_unobserved_free: bool = False  # M29 deviation: density 0 in cells no training sample reached
-    los_source: str = "model"  # M29: model (METHOD) | mesh (deviation: the scene mesh's exact line of sight)
+    los_source: LineOfSightSource = LineOfSightSource.model  # M29
     random_filters: bool = False
     score_chunk_rays: int = 8192
     opt: OptConfig = field(default_factory=OptConfig)

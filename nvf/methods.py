@@ -1,15 +1,19 @@
 """Next-best-view methods (METHOD.md section 12): a method is its view scorer and, where it has one, the
-auxiliary loss it adds to stage 1. One class per method; ``conf/method/<name>.yaml`` names the class by
-import path (``implementation``) and holds everything else (table label and order, training stages).
+auxiliary loss it adds to stage 1.
 
-Adding a method is adding a ``Method`` subclass (here or in any importable module) and one yaml file.
+One frozen dataclass per method: its fields are what ``conf/method/<name>.yaml`` declares. Every method
+has a name, a table label and row order (``rank``), the training stages it needs (``stages``; a method
+whose score reads the variance or visibility head trains it there) and the paper tables and experiments
+it belongs to (``experiments``); a subclass adds its own settings as fields, a fixed set of values as a
+``Literal``. Fields have no defaults: the yaml is their one default. The yaml names the class in
+``_target_`` and the pipeline builds it with Hydra's ``instantiate`` (``pipeline.config.method``), so
+adding a method is one subclass (here or in any importable module) and one yaml file.
 """
 
-import importlib
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Any, ClassVar, Literal
 
-from nvf.config import BaselineConfig, EntropyConfig
+from nvf.config import EntropyConfig
 from nvf.training import AuxLoss, activenerf_loss, neurar_loss
 from nvf.uncertainty.baselines import ActiveRMAPScorer, AIRScorer, RenderedVarianceScorer, WDScorer
 from nvf.uncertainty.fisher import FisherRFScorer
@@ -17,110 +21,140 @@ from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
 from nvf.uncertainty.scorers import StepScorer, ViewScorer
 
 
+@dataclass(frozen=True, kw_only=True)
 class Method:
     """A method with no scorer (the planner then picks uniformly, as Random) and no auxiliary loss.
-    ``score_unit``: the unit of its per-pixel score (labels the score map's colour bar)."""
+
+    ``score_unit``: the unit of its per-pixel score (labels the score map's colour bar).
+    ``not_implemented``: settings of METHOD 12 named but not implemented, ``field -> (value, recommended)``.
+    """
+
+    name: str
+    label: str  # as printed in tables
+    rank: int  # row order in tables
+    stages: list[str]  # a subsequence of nvf.config.STAGES starting with backbone
+    experiments: list[str]  # the conf/experiment sweeps (and pipeline.discriminate) it joins
 
     aux_loss: ClassVar[AuxLoss | None] = None
     score_unit: ClassVar[str] = ""
+    not_implemented: ClassVar[dict[str, tuple[Any, Any]]] = {}
 
-    def scorer(self, entropy: EntropyConfig, baseline: BaselineConfig, d0: float) -> ViewScorer | StepScorer | None:
+    def scorer(self, entropy: EntropyConfig, d0: float) -> ViewScorer | StepScorer | None:
         """The per-pixel view scorer (M16 averages it over the planning image), or a ``StepScorer`` that scores
         whole views once prepared from the step's model (FisherRF); ``d0`` is NVF's resolved correlation
         length (M13), which the baselines ignore."""
         return None
 
+    def unsupported(self) -> str | None:
+        """Why these settings cannot run (one line naming the field), or None."""
+        for name, (value, recommended) in self.not_implemented.items():
+            if getattr(self, name) == value:
+                return (
+                    f"{name}={value!r} (a METHOD.md section 12 alternative) is not implemented; drop the override "
+                    f"to use the recommended {recommended!r}"
+                )
+        return None
 
+
+@dataclass(frozen=True, kw_only=True)
 class Random(Method):
     """Uniform choice among unfiltered candidates, stage 1 only (METHOD 12, D25)."""
 
 
+@dataclass(frozen=True, kw_only=True)
 class WD(Method):
     """Weight-distribution entropy (M22)."""
 
-    score_unit = "nats"  # an entropy
+    score_unit: ClassVar[str] = "nats"  # an entropy
 
-    def scorer(self, entropy: EntropyConfig, baseline: BaselineConfig, d0: float) -> ViewScorer:
+    def scorer(self, entropy: EntropyConfig, d0: float) -> ViewScorer:
         return WDScorer()
 
 
+@dataclass(frozen=True, kw_only=True)
 class ActiveRMAP(Method):
-    """Binary opacity entropy summed along the ray (M23; ``baseline.rmap_occlusion_weighted``)."""
+    """Binary opacity entropy summed along the ray (M23)."""
 
-    score_unit = "nats"  # an entropy
+    occlusion_weighted: bool  # M23's alternative: each sample's entropy weighted by its transmittance
 
-    def scorer(self, entropy: EntropyConfig, baseline: BaselineConfig, d0: float) -> ViewScorer:
-        return ActiveRMAPScorer(occlusion_weighted=baseline.rmap_occlusion_weighted)
+    score_unit: ClassVar[str] = "nats"  # an entropy
+
+    def scorer(self, entropy: EntropyConfig, d0: float) -> ViewScorer:
+        return ActiveRMAPScorer(occlusion_weighted=self.occlusion_weighted)
 
 
+@dataclass(frozen=True, kw_only=True)
 class AIR(Method):
-    """Occlusion-aware opacity entropy, mean over the ray's samples (M24; ``baseline.air_reduce``)."""
+    """Occlusion-aware opacity entropy, mean over the ray's samples (M24, the recommended variant)."""
 
-    score_unit = "nats"  # an entropy
+    reduce: Literal["mean", "sum"]  # over the ray's samples
+    view_score: Literal["pixel_mean", "topk"]  # topk: the paper's alternative, not implemented
 
-    def scorer(self, entropy: EntropyConfig, baseline: BaselineConfig, d0: float) -> ViewScorer:
-        if baseline.air_view_score != "pixel_mean":
-            raise NotImplementedError(f"AIR view score {baseline.air_view_score!r}: only pixel_mean is implemented")
-        return AIRScorer(reduce=baseline.air_reduce)
+    score_unit: ClassVar[str] = "nats"  # an entropy
+    not_implemented: ClassVar[dict[str, tuple[Any, Any]]] = {"view_score": ("topk", "pixel_mean")}
+
+    def scorer(self, entropy: EntropyConfig, d0: float) -> ViewScorer:
+        return AIRScorer(reduce=self.reduce)
 
 
+@dataclass(frozen=True, kw_only=True)
 class ActiveNeRF(Method):
     """Rendered variance (M26) of a variance head trained in stage 1 on its NLL (M25, variant A)."""
 
-    score_unit = "colour variance"  # of colours in [0, 1]
+    variant: Literal["A", "B"]  # M25; B is not implemented
 
-    aux_loss = staticmethod(activenerf_loss)
+    score_unit: ClassVar[str] = "colour variance"  # of colours in [0, 1]
+    aux_loss: ClassVar[AuxLoss | None] = staticmethod(activenerf_loss)
+    not_implemented: ClassVar[dict[str, tuple[Any, Any]]] = {"variant": ("B", "A")}
 
-    def scorer(self, entropy: EntropyConfig, baseline: BaselineConfig, d0: float) -> ViewScorer:
-        if baseline.activenerf_variant != "A":
-            raise NotImplementedError(
-                f"ActiveNeRF variant {baseline.activenerf_variant!r}: only A (the NVF variance head, M26) is implemented"
-            )
+    def scorer(self, entropy: EntropyConfig, d0: float) -> ViewScorer:
         return RenderedVarianceScorer(name="activenerf")
 
 
+@dataclass(frozen=True, kw_only=True)
 class NeurAR(Method):
     """Rendered variance (M26) of a variance head regressed in stage 1 on the squared residual (M27)."""
 
-    score_unit = "colour variance"  # of colours in [0, 1]
+    loss: Literal["residual_mse", "nll"]  # M27; nll is not implemented
+    detach: bool  # M27's target detached from the backbone; False is not implemented
 
-    aux_loss = staticmethod(neurar_loss)
+    score_unit: ClassVar[str] = "colour variance"  # of colours in [0, 1]
+    aux_loss: ClassVar[AuxLoss | None] = staticmethod(neurar_loss)
+    not_implemented: ClassVar[dict[str, tuple[Any, Any]]] = {
+        "loss": ("nll", "residual_mse"),
+        "detach": (False, True),
+    }
 
-    def scorer(self, entropy: EntropyConfig, baseline: BaselineConfig, d0: float) -> ViewScorer:
+    def scorer(self, entropy: EntropyConfig, d0: float) -> ViewScorer:
         return RenderedVarianceScorer(name="neurar")
 
 
+@dataclass(frozen=True, kw_only=True)
 class NVF(Method):
-    """Neural Visibility Field: the corrected view entropy of the visibility-aware ray mixture (M7-M16)."""
+    """Neural Visibility Field: the corrected view entropy of the visibility-aware ray mixture (M7-M16);
+    its settings are ``nvf.entropy``, which the variance head's loss (M21) reads too."""
 
-    score_unit = "nats"  # an entropy
+    score_unit: ClassVar[str] = "nats"  # an entropy
 
-    def scorer(self, entropy: EntropyConfig, baseline: BaselineConfig, d0: float) -> ViewScorer:
+    def scorer(self, entropy: EntropyConfig, d0: float) -> ViewScorer:
         return NVFEntropyScorer(entropy, d0)
 
 
-@dataclass
+@dataclass(frozen=True, kw_only=True)
 class FisherRF(Method):
-    """FisherRF (Jiang et al., ECCV 2024) on NVF's backbone: a view's expected information gain about the
-    backbone's parameters, ``sum_j diag(H_c)_j / (diag(H_D)_j + lambda)`` (METHOD 17, M30-M32); stage 1 only,
-    argmax planning only (no per-pixel score to refine). ``probes``: Rademacher probes per view (M31, K;
-    docs/BUDGETS.md says why 4); ``prior_precision``: lambda, FisherRF's code default."""
+    """FisherRF (Jiang, Lei and Daniilidis, ECCV 2024; not in the NVF paper) on NVF's backbone: a view's
+    expected information gain about the backbone's parameters, ``sum_j diag(H_c)_j / (diag(H_D)_j + lambda)``
+    (METHOD 17, M30-M32). Stage 1 only; it scores whole views, so argmax planning only (-OPT is n/a)."""
 
-    probes: int = 4
-    prior_precision: float = 1e-6
+    probes: int  # K, Rademacher probes per view (M31); docs/BUDGETS.md says why its value
+    prior_precision: float  # lambda (M32); FisherRF's code default
 
-    def scorer(self, entropy: EntropyConfig, baseline: BaselineConfig, d0: float) -> StepScorer:
+    def scorer(self, entropy: EntropyConfig, d0: float) -> StepScorer:
         return FisherRFScorer(self.probes, self.prior_precision)
 
-
-def load_method(path: str) -> Method:
-    """An instance of the ``Method`` subclass at import path ``package.module.Class``; ValueError (one
-    line) when it cannot be imported or is not a ``Method``."""
-    module_name, _, class_name = path.rpartition(".")
-    try:
-        cls = getattr(importlib.import_module(module_name), class_name) if module_name else None
-    except (ImportError, AttributeError) as err:
-        raise ValueError(f"cannot import method class {path!r}: {err}") from None
-    if not (isinstance(cls, type) and issubclass(cls, Method)):
-        raise ValueError(f"{path!r} is not a subclass of nvf.methods.Method")
-    return cls()
+    def unsupported(self) -> str | None:
+        if self.probes < 1:
+            return f"probes={self.probes} must be at least 1 (Rademacher probes per view, docs/METHOD.md M31)"
+        if not self.prior_precision > 0:
+            return f"prior_precision={self.prior_precision} must be > 0 (lambda, docs/METHOD.md M32)"
+        return None

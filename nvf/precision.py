@@ -12,8 +12,10 @@ import platform
 
 import torch
 
-DTYPES = {"fp32": torch.float32, "bf16": torch.bfloat16, "fp16": torch.float16}
-PRECISIONS = tuple(DTYPES)
+from nvf.config import Precision
+
+DTYPES = {Precision.fp32: torch.float32, Precision.bf16: torch.bfloat16, Precision.fp16: torch.float16}
+PRECISIONS = tuple(Precision)
 # What a device needs to run a low precision natively, for error messages.
 REQUIREMENTS = {
     ("cpu", "bf16"): "bfloat16 dot products (AVX512_BF16 or AMX on x86, BF16 on Arm)",

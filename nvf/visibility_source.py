@@ -18,11 +18,11 @@ from jaxtyping import Float, Int
 from torch import Tensor, nn
 
 from nvf.cameras import Intrinsics
-from nvf.config import TrainConfig
+from nvf.config import TrainConfig, VisibilitySource
 from nvf.model import RenderResult, SceneModel
 from nvf.visibility import visibility_labels
 
-SOURCES = ("head", "labels", "mesh")
+SOURCES = tuple(VisibilitySource)
 
 # sample positions [S, 3] -> v [S] in [0, 1]
 VisibilityFn = Callable[[Float[Tensor, "S 3"]], Float[Tensor, " S"]]

@@ -1,7 +1,7 @@
 """Entry point: ``python -m pipeline.run [overrides]`` runs one episode; ``-m`` sweeps (Hydra).
 
-``pipeline.episode.runner`` validates, locks, verifies, records and resumes. Expected failures print
-one line. Exit status 2: the run was refused before it started (a bad config or override, an unusable
+``pipeline.episode.runner`` validates, locks, verifies, records and resumes; a finished run's summary and
+pictures are drawn here (``pipeline.tables.summary.finish_run``). Expected failures print one line. Exit status 2: the run was refused before it started (a bad config or override, an unusable
 ``paths.outputs``, a scene that cannot load, another process writing the run, a record that fails a
 check or holds other settings). Exit status 1: the run failed, now or when it last ran (its record
 says why), or stopped because Blender's worker did not answer within ``render.timeout`` (left to resume). In a sweep every job runs; each failure is reported by the job and the sweep ends with a
@@ -25,6 +25,7 @@ from pipeline.episode.runner import RunRefused, StepFailed, run_episode
 from pipeline.records.lock import RunLocked
 from pipeline.records.store import RecordError
 from pipeline.scenes.scene import SceneError
+from pipeline.tables.summary import finish_run
 
 register_configs()
 
@@ -48,6 +49,8 @@ def main(cfg: DictConfig) -> dict:
             raise
         traceback.print_exc()  # an unexpected error: its traceback in the job's log, the sweep goes on
         return {"status": "failed", "reason": f"{type(err).__name__}: {' '.join(str(err).split())}"}
+    if outcome.status == "done" and outcome.scene is not None:
+        finish_run(outcome.directory, outcome.scene, outcome.scene_kind)
     if not multirun:
         directory = outcome.directory
         print(f"images:  {directory / 'images'} (every step), {directory / 'grid.png'} (labelled)")

@@ -38,13 +38,13 @@ from torch import Tensor
 from tqdm import tqdm
 
 from nvf.cameras import look_at
-from nvf.config import BaselineConfig, EntropyConfig
-from nvf.methods import load_method
+from nvf.config import EntropyConfig
 from nvf.model import SceneModel
 from nvf.training import Observations
 from nvf.uncertainty import ViewScorer
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.catalog import ablation_configs, method_configs
+from pipeline.config.method import build_method
 from pipeline.config.named import GROUPS, NamedConfigs
 from pipeline.config.validation import compose_config, resolve_device
 from pipeline.episode.loop import Episode
@@ -72,8 +72,11 @@ def all_entries() -> tuple[tuple[str, str], ...]:
     ablations = [a for a in ablation_configs().values() if a["name"] != "none"]
     ablated = {a["of"] for a in ablations}
     entries = [(method, "none") for method in ablated] + [(a["of"], a["name"]) for a in ablations]
-    scoring = [name for name, m in method_configs().items() if isinstance(load_method(m["implementation"]).scorer(
-        EntropyConfig(), BaselineConfig(), 1.0), ViewScorer)]  # fmt: skip
+    scoring = [
+        name
+        for name, m in method_configs().items()
+        if isinstance(build_method(m).scorer(EntropyConfig(), 1.0), ViewScorer)
+    ]
     return (*entries, *((name, "none") for name in scoring if name not in ablated))
 
 
@@ -181,11 +184,11 @@ def score_seed(
         cfg = compose_config([*overrides, f"seed={seed}", f"method={method}", f"ablation={ablation}"])
         key = (method, ablation if cfg.train.ablation_affects_training else "none")
         if key not in trained:  # an ablation scored on NVF's model shares its episode (renders, evaluator)
-            episode = Episode(cfg, partial, resolve_device(cfg.device), lpips)
+            episode = Episode(EpisodeSettings.of(cfg, partial), partial, resolve_device(cfg.device), lpips)
             obs = episode.observations()
             trained[key] = (episode, obs, episode.train(obs, 0)[0])
         episode, obs, model = trained[key]
-        scorer = EpisodeSettings.of(cfg, partial).scorer(load_method(cfg.method.implementation))
+        scorer = EpisodeSettings.of(cfg, partial).scorer()
         metrics, images, view_sums = episode.evaluator.evaluate(model, scorer, episode.face_ids, obs, 0, view)
         label = row_name(OmegaConf.to_container(cfg, resolve=True)).label
         results.append({"seed": seed, "label": label, "trained_as": "/".join(key), **metrics} | view_sums)

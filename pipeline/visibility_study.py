@@ -45,8 +45,9 @@ from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
 from pipeline.bench.visibility import visibility_report
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.validation import compose_config, resolve_device
+from pipeline.episode.evaluation import render_view
 from pipeline.episode.loop import Episode
-from pipeline.metrics.evaluation import render_view
+from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.image import LpipsMetric, psnr
 from pipeline.metrics.ranking import render_for_terms, spearman, term_attribution, ties_at_max, view_terms
 from pipeline.records.store import atomic_write_text, run_dir
@@ -74,9 +75,7 @@ def recorded_rows(records: Path, scene: str, seed: int, budget: str) -> list[dic
 def scorer_pair(episode: Episode) -> tuple[NVFEntropyScorer, NVFEntropyScorer]:
     """NVF's scorer with the run's settings and the same with ``use_visibility=False`` (w/o Vis.)."""
     s = episode.settings
-    blind = dataclasses.replace(s.entropy, use_visibility=False)
-    d0 = float(s.entropy.d0)
-    return episode.method.scorer(s.entropy, s.baseline, d0), episode.method.scorer(blind, s.baseline, d0)
+    return s.scorer(), s.scorer(dataclasses.replace(s.entropy, use_visibility=False))
 
 
 def candidate_set(episode: Episode, model, k: int, index: int) -> torch.Tensor:
@@ -185,7 +184,7 @@ def study_scene(
             continue
         rows = recorded_rows(records, scene_name, seed, cfg.budget.name)
         seeded = compose_config([f"scene={scene_name}", f"seed={seed}", *overrides])
-        episode = Episode(seeded, scene, resolve_device(seeded.device), lpips)
+        episode = Episode(EpisodeSettings.of(seeded, scene), scene, resolve_device(seeded.device), lpips)
         try:
             for k in todo:
                 episode.replay(rows[len(episode.poses) - len(scene.init_poses) : k])

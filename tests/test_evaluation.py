@@ -10,7 +10,7 @@ from nvf.cameras import Intrinsics, look_at
 from nvf.config import FieldConfig, SamplerConfig
 from nvf.model import SceneModel
 from nvf.training import Observations
-from pipeline.metrics.evaluation import reconstruct_points
+from pipeline.episode.evaluation import reconstruct_points
 from pipeline.metrics.geometry import points_from_rays
 
 AABB = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])

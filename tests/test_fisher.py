@@ -1,7 +1,7 @@
 """FisherRF on NVF's backbone (METHOD 17, M30-M32): the probe estimate of a view's Fisher diagonal against
 the exact one, its independence of ray order and chunking, the score's seen/unseen order on the embedded
-scene, and its place in planning (argmax only) and evaluation (no per-pixel map). The scorer is built
-directly from its class, ``nvf.methods.FisherRF``."""
+scene, and its place in planning (argmax only) and evaluation (no per-pixel map). The method is built from
+its declaration, ``conf/method/fisherrf.yaml``."""
 
 import math
 
@@ -10,8 +10,8 @@ import pytest
 import torch
 
 from nvf.cameras import Intrinsics, look_at, matrix_to_pose, pixel_rays
-from nvf.config import BaselineConfig, EntropyConfig
-from nvf.methods import NVF, FisherRF
+from nvf.config import EntropyConfig
+from nvf.methods import FisherRF
 from nvf.model import SceneModel
 from nvf.planning import argmax_first, prepare_scorer, score_poses, select_next_view
 from nvf.seeding import generator_factory
@@ -26,9 +26,10 @@ from nvf.uncertainty.fisher import (
     view_fisher_diagonal,
 )
 from pipeline.bench.train import observations
-from pipeline.config.validation import ConfigError, compose_config
+from pipeline.config.method import build_method
+from pipeline.config.validation import compose_config
+from pipeline.episode.evaluation import Evaluator
 from pipeline.episode.settings import EpisodeSettings
-from pipeline.metrics.evaluation import Evaluator
 from pipeline.metrics.image import LpipsMetric
 from pipeline.scenes.loading import load_scene
 from pipeline.scenes.render import GroundTruthRenderer
@@ -36,9 +37,16 @@ from pipeline.scenes.render import GroundTruthRenderer
 CHUNK = 8192
 
 
+def declared() -> FisherRF:
+    """FisherRF as ``conf/method/fisherrf.yaml`` declares it."""
+    method = build_method(compose_config(["method=fisherrf"]).method)
+    assert isinstance(method, FisherRF)
+    return method
+
+
 def fisher_scorer() -> FisherRFScorer:
-    """FisherRF's scorer with its class's settings (it reads neither NVF's nor the baselines' keys)."""
-    return FisherRF().scorer(EntropyConfig(), BaselineConfig(), 1.0)
+    """FisherRF's scorer with its declared settings (it reads none of NVF's keys)."""
+    return declared().scorer(EntropyConfig(), 1.0)
 
 
 @pytest.fixture(scope="module")
@@ -156,7 +164,17 @@ def test_a_repeated_training_view_scores_below_the_unseen_side(smoke):
     assert scores.dtype == torch.float64 and scores[:2].max() < scores[2:].min()
 
 
-def test_argmax_planning_only(smoke):
+def refusal(capsys, *overrides: str) -> str:
+    """The one line (exit status 2) a run with ``overrides`` is refused with before it starts."""
+    with pytest.raises(SystemExit) as exit_:
+        compose_config(list(overrides))
+    assert exit_.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1
+    return lines[0]
+
+
+def test_argmax_planning_only(smoke, capsys):
     """The prepared scorer plans by argmax over the candidates' full-image scores; -OPT is refused, by the
     planner and, before a run starts, by the run's settings (one line naming planner=opt)."""
     cfg, settings, scene, _, obs, model = smoke
@@ -174,11 +192,11 @@ def test_argmax_planning_only(smoke):
     opt = EpisodeSettings.of(compose_config(["budget=smoke", "scene=default", "planner=opt"]), scene)
     with pytest.raises(ValueError, match="fisherrf scores whole views"):
         select_next_view(model, prepared, opt.planner, *args)
-    with pytest.raises(ConfigError, match=r"^planner=opt: fisherrf scores whole views") as err:
-        opt.scorer(FisherRF())
-    assert "\n" not in str(err.value)
-    nvf = opt.scorer(NVF())
-    assert prepare_scorer(nvf, model, obs, generators, CHUNK) is nvf
+    assert refusal(capsys, "budget=smoke", "method=fisherrf", "planner=opt").startswith(
+        "error: planner=opt: fisherrf scores whole views"
+    )
+    nvf = opt.scorer()  # NVF, the default method, with -OPT: a per-pixel scorer, used as it is
+    assert isinstance(nvf, ViewScorer) and prepare_scorer(nvf, model, obs, generators, CHUNK) is nvf
     assert prepare_scorer(None, model, obs, generators, CHUNK) is None
 
 
@@ -193,7 +211,15 @@ def test_evaluation_has_no_score_map(smoke):
     assert all(math.isnan(metrics[key]) for key in ("patch_pearson", "view_pearson", "ause"))
 
 
-@pytest.mark.parametrize("probes, prior, needle", [(0, 1e-6, "at least one probe"), (4, 0.0, "must be > 0")])
-def test_invalid_settings(probes, prior, needle):
-    with pytest.raises(ValueError, match=needle):
-        FisherRFScorer(probes, prior)
+@pytest.mark.parametrize(
+    "override, needle",
+    [
+        ("method.probes=0", "error: method.probes=0 must be at least 1"),
+        ("method.prior_precision=0.0", "error: method.prior_precision=0.0 must be > 0"),
+    ],
+)
+def test_invalid_settings_are_refused_in_one_line(capsys, override, needle):
+    """FisherRF's own settings are checked when its declaration is built, before a run starts."""
+    assert needle in refusal(capsys, "method=fisherrf", override)
+    with pytest.raises(ValueError, match="at least one probe"):
+        FisherRFScorer(0, 1e-6)

@@ -35,8 +35,8 @@ once on the reference model (``prepare_seconds``, ``prepare_seconds_per_view``: 
 training views), then timed like the others. ``seconds_per_step`` is, per method, what one planning step
 spends scoring the candidate set: its preparation plus its summed block times over one pass.
 
-``--probes 1,2,4,8,16`` compares FisherRF's probe counts ``K`` (M31; its other settings its class's
-defaults) on the same model and candidates, whether or not ``conf/method`` declares it: per ``K`` the
+``--probes 1,2,4,8,16`` compares FisherRF's probe counts ``K`` (M31; lambda as ``conf/method/fisherrf.yaml``
+declares it) on the same model and candidates: per ``K`` the
 preparation and scoring seconds, ``seconds_per_step``, and against a reference (the largest ``K``, drawn
 from an independent generator: seed + 1) the Spearman correlation of the candidates' scores and whether
 both pick the same candidate; the largest ``K``'s own row is the noise floor, two independent draws.
@@ -57,7 +57,7 @@ from tqdm import tqdm
 from nvf.cameras import Intrinsics, camera_directions, pose_to_matrix, rays_from_camera_dirs
 from nvf.config import STAGES
 from nvf.field import INFERENCE_BLOCK, VIS_POSITION_WIDTH
-from nvf.methods import FisherRF, load_method
+from nvf.methods import FisherRF
 from nvf.planning import argmax_first, prepare_scorer, score_poses
 from nvf.precision import precision_dtype
 from nvf.seeding import generator_factory
@@ -69,6 +69,7 @@ from pipeline.bench.field import matmul_gflops, mlp_flops
 from pipeline.bench.train import RGB, CountingModel, InitialViewModel, held_out_poses, parse_precisions, view_psnr
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.catalog import method_configs
+from pipeline.config.method import build_method
 from pipeline.config.validation import compose_config
 from pipeline.metrics.ranking import spearman
 
@@ -155,17 +156,21 @@ def precision_comparison(
 
 
 def probes_study(
-    setup: InitialViewModel, poses: Float[Tensor, "m 7"], intr: Intrinsics, chunk: int, probes: list[int]
+    setup: InitialViewModel,
+    poses: Float[Tensor, "m 7"],
+    intr: Intrinsics,
+    chunk: int,
+    probes: list[int],
+    prior_precision: float,
 ) -> dict:
-    """FisherRF at each ``K`` of ``probes`` (sorted) on ``setup``'s model and ``poses``: seconds (prepare, score,
-    per step) and the agreement of the candidates' scores with the largest ``K``'s drawn with seed + 1."""
-    seed, defaults = int(setup.cfg.seed), FisherRF()
+    """FisherRF (lambda ``prior_precision``) at each ``K`` of ``probes`` (sorted) on ``setup``'s model and
+    ``poses``: seconds (prepare, score, per step) and the agreement of the candidates' scores with the largest
+    ``K``'s drawn with seed + 1."""
+    seed = int(setup.cfg.seed)
 
     def run(k: int, seed: int) -> tuple[Tensor, float, float]:
         start = time.perf_counter()
-        scorer = FisherRFScorer(k, defaults.prior_precision).prepare(
-            setup.model, setup.obs, generator_factory(seed, 0), chunk
-        )
+        scorer = FisherRFScorer(k, prior_precision).prepare(setup.model, setup.obs, generator_factory(seed, 0), chunk)
         prepared = time.perf_counter()
         scores = score_poses(setup.model, scorer, poses, intr, chunk)
         return scores, prepared - start, time.perf_counter() - prepared
@@ -180,7 +185,7 @@ def probes_study(
             "spearman_to_reference": spearman(scores.cpu().numpy(), reference.cpu().numpy()),
             "same_choice_as_reference": argmax_first(scores) == argmax_first(reference),
         })  # fmt: skip
-    return {"reference_probes": max(probes), "prior_precision": defaults.prior_precision, "rows": rows}
+    return {"reference_probes": max(probes), "prior_precision": prior_precision, "rows": rows}
 
 
 def parse_probes(value: str) -> list[int]:
@@ -219,6 +224,10 @@ def main(argv: list[str]) -> None:
     start = time.perf_counter()
     cfg = compose_config([f"planner.num_candidates={CANDIDATES}", *args.overrides])
     precisions = parse_precisions(args.precisions)
+    methods = {name: build_method(m) for name, m in method_configs().items()}
+    fisher = next((method for method in methods.values() if isinstance(method, FisherRF)), None)
+    if probes is not None and fisher is None:
+        fail("--probes: no method in conf/method is FisherRF (nvf.methods.FisherRF); declare it or drop --probes")
     setups, clocks = InitialViewModel.train_side_by_side(cfg, precisions)
     base = precisions[0]
     setup = setups[base]  # scoring: the reference precision's model with its MLPs in each precision
@@ -229,8 +238,11 @@ def main(argv: list[str]) -> None:
     res = int(planner.resolution)
     intr = Intrinsics.from_fov(res, res)
     chunk = int(planner.score_chunk_rays)
-    methods = {name: load_method(m["implementation"]) for name, m in method_configs().items()}
-    scorers = {name: scorer for name, method in methods.items() if (scorer := s.scorer(method)) is not None}
+    scorers = {
+        name: scorer
+        for name, method in methods.items()
+        if (scorer := method.scorer(s.entropy, float(s.entropy.d0))) is not None
+    }
     prepare_seconds = {}
     for name in [name for name, scorer in scorers.items() if isinstance(scorer, StepScorer)]:
         began = time.perf_counter()
@@ -279,7 +291,7 @@ def main(argv: list[str]) -> None:
         "prepare_seconds_per_view": {method: t / obs.num_images for method, t in prepare_seconds.items()},
         "seconds_per_step": {method: prepare_seconds.get(method, 0.0) + sum(wall[method]) / args.repeats
                              for method in scorers},
-        "fisherrf_probes": None if probes is None else probes_study(setup, poses, intr, chunk, probes),
+        "fisherrf_probes": None if probes is None else probes_study(setup, poses, intr, chunk, probes, fisher.prior_precision),
         "goal_nvf_over_plain_render": GOAL_NVF_OVER_PLAIN,
         "goal_met": ratio <= GOAL_NVF_OVER_PLAIN,
         "goal_within_limit": report["nvf_over_plain_render_at_limit"] <= GOAL_NVF_OVER_PLAIN,

@@ -69,8 +69,8 @@ from pipeline.bench._report import report_path, write_report
 from pipeline.bench.field import matmul_gflops, median_seconds, mlp_flops
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.validation import compose_config
+from pipeline.episode.evaluation import RENDER_CHUNK
 from pipeline.episode.settings import EpisodeSettings
-from pipeline.metrics.evaluation import RENDER_CHUNK
 from pipeline.metrics.image import off_edge_psnr, psnr
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.ground_truth import Renderer, ground_truth_info, open_renderer
@@ -509,7 +509,7 @@ def main(argv: list[str]) -> None:
     s = EpisodeSettings.of(cfg, scene)
     size = int(cfg.budget.image_size)
     intr = Intrinsics.from_fov(size, size)
-    renderer = open_renderer(scene, cfg)  # render.backend: pyrender's or Blender's ground truth
+    renderer = open_renderer(scene, s.render, s.blender_python)  # render.backend: pyrender's or Blender's ground truth
     gt_samples = int(cfg.budget.gt_samples)
     obs = observations(renderer, scene.eval_poses, intr, gt_samples)
 

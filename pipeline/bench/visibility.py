@@ -44,7 +44,6 @@ from omegaconf import DictConfig
 from torch import Tensor
 
 from nvf.cameras import Intrinsics, pose_to_matrix
-from nvf.methods import NVF
 from nvf.rendering import ray_sum
 from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
 from nvf.visibility_source import SOURCES, label_visibility
@@ -224,7 +223,7 @@ def visibility_report(cfg: DictConfig, sets: int, sources: list[str], extra: Ten
     intr = Intrinsics.from_fov(res, res)
     d0 = float(s.entropy.d0)
     blind = dataclasses.replace(s.entropy, use_visibility=False)
-    scorers = (NVF().scorer(s.entropy, s.baseline, d0), NVF().scorer(blind, s.baseline, d0))
+    scorers = (NVFEntropyScorer(s.entropy, d0), NVFEntropyScorer(blind, d0))
     functions = source_functions(setup, sources)
     reports = [
         {"set": k, **candidate_set_report(setup, setup.candidates(k), intr, scorers, functions)} for k in range(sets)

@@ -1,7 +1,9 @@
 """What ``conf/`` declares: the methods, ablations and scenes, one yaml each. Commands that need "every
 method" or "every ablation" (the uncertainty experiment, the benchmarks, tests) read them here instead of
-keeping lists of their own. No heavy imports."""
+keeping lists of their own, and the experiments sweep the methods and scenes that declare them
+(``${declared:GROUP,EXPERIMENT}``, ``members``). No heavy imports."""
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -27,3 +29,37 @@ def ablation_configs(conf_dir: Path = CONF) -> dict[str, dict[str, Any]]:
     configs = {name: OmegaConf.to_container(OmegaConf.load(Path(conf_dir) / "ablation" / f"{name}.yaml"))["ablation"]
                for name in declared("ablation", conf_dir)}  # fmt: skip
     return dict(sorted(configs.items(), key=lambda item: (item[1].get("rank", 100), item[0])))
+
+
+def conf_dirs(searchpath: Sequence[str] = ()) -> list[Path]:
+    """``conf/`` and the config directories of a Hydra ``hydra.searchpath`` (its ``file://DIR`` entries), in the
+    order Hydra looks in them."""
+    return [CONF, *(Path(entry.removeprefix("file://")) for entry in searchpath if entry.startswith("file://"))]
+
+
+def members(group: str, experiment: str, dirs: Sequence[Path] = (CONF,)) -> list[str]:
+    """The options of ``group`` (``method`` or ``scene``) whose yaml lists ``experiment`` under ``experiments``
+    (an option found in an earlier directory of ``dirs`` hides one of the same name in a later one), sorted."""
+    found: dict[str, bool] = {}
+    for conf_dir in dirs:
+        for name in declared(group, conf_dir):
+            if name not in found:
+                node = OmegaConf.load(Path(conf_dir) / group / f"{name}.yaml")
+                found[name] = experiment in (node.get("experiments") or [])
+    return sorted(name for name, joins in found.items() if joins)
+
+
+def _declared_members(group: str, experiment: str, *, _root_: Any) -> str:
+    """The resolver ``${declared:GROUP,EXPERIMENT}``: ``members`` as a Hydra sweep's comma-separated values,
+    read from ``conf/`` and the run's ``hydra.searchpath``."""
+    searchpath = OmegaConf.select(_root_, "hydra.searchpath", default=None) or []
+    found = members(group, experiment, conf_dirs(list(searchpath)))
+    if not found:
+        raise ValueError(f"no {group} declares experiments: [{experiment}] (conf/{group}/<name>.yaml)")
+    return ",".join(found)
+
+
+def register_resolvers() -> None:
+    """Register ``${declared:GROUP,EXPERIMENT}`` (the experiments' sweeps) with OmegaConf, once."""
+    if not OmegaConf.has_resolver("declared"):
+        OmegaConf.register_new_resolver("declared", _declared_members)

@@ -7,14 +7,16 @@ from pathlib import Path
 
 from omegaconf import OmegaConf
 
+from pipeline.config.schema import PathsConfig
 from pipeline.repo import CONF
 
 
 def configured_paths(overrides: Mapping[str, str]) -> dict[str, Path]:
-    """``conf/paths/default.yaml`` with ``paths.<key>=value`` overrides applied and its interpolations
-    (``${paths.outputs}/results``, ``NVF_ASSETS``) resolved, without composing the whole config; a key the
-    group does not have is a ValueError naming the keys it has."""
-    node = OmegaConf.create({"paths": OmegaConf.load(Path(CONF) / "paths" / "default.yaml")})
+    """The ``paths`` group (the schema's ``PathsConfig`` and ``conf/paths/default.yaml``) with ``paths.<key>=value``
+    overrides applied and its interpolations (``${paths.outputs}/results``, ``NVF_ASSETS``) resolved, without
+    composing the whole config; a key the group does not have is a ValueError naming the keys it has."""
+    declared = OmegaConf.load(Path(CONF) / "paths" / "default.yaml") or {}
+    node = OmegaConf.create({"paths": OmegaConf.merge(OmegaConf.structured(PathsConfig), declared)})
     for key, value in overrides.items():
         if OmegaConf.select(node, key, default=None) is None and key.split(".", 1)[-1] not in node.paths:
             raise ValueError(f"unknown key {key!r}: use {', '.join(f'paths.{k}=DIR' for k in node.paths)}")

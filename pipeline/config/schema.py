@@ -1,33 +1,43 @@
-"""Structured Hydra schema of one run (``RunConfig``), registered as ``run_schema``.
+"""Structured Hydra schema of one run (``RunConfig``), registered as ``run_schema``: every key's one default.
 
 It embeds the method library's own dataclasses (``nvf.config``), so every value has one home, and
-imports nothing heavier than them: tables can compose configs without loading torch.
+imports nothing heavier than them: tables can compose configs without loading torch. The conf files set
+only what differs from these defaults. The method's node is its yaml: the keys of its own dataclass
+(``nvf.methods``), checked when the method is built (``pipeline.config.method``).
 """
 
 import dataclasses
 from dataclasses import dataclass
+from enum import StrEnum
 from typing import Any
 
 from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING
 
-from nvf.config import (
-    STAGES,
-    BaselineConfig,
-    EntropyConfig,
-    FieldConfig,
-    PlannerConfig,
-    SamplerConfig,
-    TrainConfig,
-)
+from nvf.config import EntropyConfig, FieldConfig, PlannerConfig, SamplerConfig, TrainConfig
+from pipeline.config.catalog import register_resolvers
 
 
 @dataclass
 class PathsConfig:
-    assets: str = MISSING
+    """Where scene assets are read from, where runs are recorded, where tables, figures and benchmark reports
+    go (the user's own folder beside the runs: the committed ``results/`` is rewritten only when asked for,
+    ``paths.results=results``), and Blender's Python (relative to the repository root)."""
+
+    assets: str = "${oc.env:NVF_ASSETS,data/assets}"
     outputs: str = "outputs"
-    results: str = "results"
-    blender_python: str = ".venv-blender/bin/python"  # Blender's Python (bpy); relative to the repository root
+    results: str = "${paths.outputs}/results"
+    blender_python: str = "${oc.env:NVF_BLENDER_PYTHON,.venv-blender/bin/python}"  # Blender's Python (bpy)
+
+
+class RenderBackend(StrEnum):
+    pyrender = "pyrender"
+    blender = "blender"
+
+
+class StepMetrics(StrEnum):
+    all = "all"  # every metric at every step
+    psnr = "psnr"  # steps before the last record PSNR alone (the last step every metric)
 
 
 @dataclass
@@ -36,7 +46,7 @@ class RenderConfig:
     squared samples per pixel) or ``blender`` (Cycles, ``samples`` samples per pixel, lit; pipeline.scenes.blender).
     Depth, hit mask and face ids come from the same ray cast with either."""
 
-    backend: str = "pyrender"
+    backend: RenderBackend = RenderBackend.pyrender
     samples: int = 64  # Cycles samples per pixel (blender only)
     # seconds Blender's worker may take to answer one request (a view, opening a scene; blender only) before the
     # run stops, left to resume: a 512-px view takes 24-75 s at 64 samples on a 2-core CPU (docs/BUDGETS.md)
@@ -63,6 +73,7 @@ class SceneConfig:
     paper_scene: str | None = None  # the paper scene it is or stands in for (tables set the paper's numbers beside it)
     nerf_asset: bool = False  # one of the paper's eight NeRF-asset scenes: averaged into the object-scene mean
     rank: int = 100  # order in tables
+    experiments: list[str] = dataclasses.field(default_factory=list)  # the paper tables (conf/experiment) it joins
     files: list[AssetFile] = dataclasses.field(default_factory=list)
     fit_tight_box: bool = False  # scale the mesh uniformly into the tight box (Hubble)
     object_aabb: list[list[float]] = MISSING  # normalises the field, bounds the occupancy grid and labels
@@ -74,18 +85,6 @@ class SceneConfig:
     collision_free: bool = False  # M29's collision-free candidate sampler (Room)
     init_views: dict[str, Any] = dataclasses.field(default_factory=dict)  # a rig of pipeline.scenes.views
     eval_views: dict[str, Any] = dataclasses.field(default_factory=dict)
-
-
-@dataclass
-class MethodConfig:
-    """One next-best-view method (``conf/method/<name>.yaml``): its class in ``nvf.methods`` (scorer and
-    stage-1 loss), the stages it trains, and how tables print and order it."""
-
-    name: str = MISSING
-    label: str = MISSING
-    rank: int = 100
-    implementation: str = MISSING  # import path of an nvf.methods.Method subclass
-    stages: list[str] = dataclasses.field(default_factory=lambda: list(STAGES))
 
 
 @dataclass
@@ -136,7 +135,8 @@ class RunConfig:
 
     paths: PathsConfig = dataclasses.field(default_factory=PathsConfig)
     scene: SceneConfig = dataclasses.field(default_factory=SceneConfig)
-    method: MethodConfig = dataclasses.field(default_factory=MethodConfig)
+    # the method's own dataclass (nvf.methods), built by pipeline.config.method from its yaml's _target_
+    method: dict[str, Any] = dataclasses.field(default_factory=dict)
     ablation: AblationConfig = dataclasses.field(default_factory=AblationConfig)
     planner: PlannerConfig = dataclasses.field(default_factory=PlannerConfig)
     budget: BudgetConfig = dataclasses.field(default_factory=BudgetConfig)
@@ -145,15 +145,16 @@ class RunConfig:
     sampler: SamplerConfig = dataclasses.field(default_factory=SamplerConfig)
     train: TrainConfig = dataclasses.field(default_factory=TrainConfig)
     nvf: NvfConfig = dataclasses.field(default_factory=NvfConfig)
-    baseline: BaselineConfig = dataclasses.field(default_factory=BaselineConfig)
     metrics: MetricsConfig = dataclasses.field(default_factory=MetricsConfig)
     diagnostics: DiagnosticsConfig = dataclasses.field(default_factory=DiagnosticsConfig)
     seed: int = 100
     device: str = "auto"  # auto | cpu | cuda | cuda:N
     save_images: bool = True
-    step_metrics: str = "all"  # all | psnr: steps before the last record PSNR alone (the last step every metric)
+    step_metrics: StepMetrics = StepMetrics.all
 
 
 def register_configs() -> None:
-    """Register the schema under the name ``run_schema`` (first entry of conf/config.yaml's defaults)."""
+    """Register the schema under the name ``run_schema`` (first entry of conf/config.yaml's defaults) and the
+    experiments' resolver (``pipeline.config.catalog.register_resolvers``)."""
     ConfigStore.instance().store(name="run_schema", node=RunConfig)
+    register_resolvers()

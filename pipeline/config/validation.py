@@ -15,12 +15,12 @@ from hydra import compose, initialize_config_dir
 from hydra.errors import HydraException
 from omegaconf import DictConfig, OmegaConf
 
-from nvf.config import STAGES
-from nvf.methods import load_method
-from nvf.precision import PRECISIONS, unsupported_reason
-from nvf.visibility_source import SOURCES as VISIBILITY_SOURCES
+from nvf.config import EntropyConfig
+from nvf.precision import unsupported_reason
+from nvf.uncertainty import StepScorer
 from pipeline.config.catalog import declared
 from pipeline.config.memory import host_memory, too_large
+from pipeline.config.method import MethodError, build_method
 from pipeline.config.named import changed_settings
 from pipeline.config.paths import unwritable
 from pipeline.config.schema import RunConfig, register_configs
@@ -33,37 +33,8 @@ class ConfigError(ValueError):
     """An impossible configuration value; the message is one line naming the key."""
 
 
-_CHOICES: dict[str, tuple[Any, ...]] = {
-    "planner.name": ("argmax", "opt"),
-    "planner.opt.param": ("quat_raw", "se3"),
-    "planner.los_source": ("model", "mesh"),
-    "field.kind": ("hashgrid", "densegrid"),
-    "field.backend": ("auto", "torch", "cpp"),
-    "nvf.entropy.bound": ("huber", "moment_matched"),
-    "nvf.entropy.corr": ("quadratic", "exp"),
-    "nvf.entropy.depth_mode": ("pixel", "chunk"),
-    "nvf.entropy.sampler": ("occupancy", "uniform"),
-    "nvf.entropy.visibility_source": VISIBILITY_SOURCES,
-    "nvf.entropy.logdet_coeff": (0.5, 1.0),
-    "train.schedule": ("paper", "reference"),
-    "train.stage_order": ("var_first", "vis_first"),
-    "train.var_loss_background": ("random", "black"),
-    "train.precision": PRECISIONS,
-    "baseline.air_reduce": ("mean", "sum"),
-    "baseline.air_view_score": ("pixel_mean", "topk"),
-    "baseline.activenerf_variant": ("A", "B"),
-    "baseline.neurar_loss": ("residual_mse", "nll"),
-    "render.backend": ("pyrender", "blender"),
-    "step_metrics": ("all", "psnr"),
-}
-
-# METHOD 12 alternatives named in the config but not implemented: key -> (alternative, recommended default).
-_NOT_IMPLEMENTED: dict[str, tuple[Any, Any]] = {
-    "baseline.air_view_score": ("topk", "pixel_mean"),
-    "baseline.activenerf_variant": ("B", "A"),
-    "baseline.neurar_loss": ("nll", "residual_mse"),
-    "baseline.neurar_detach": (False, True),
-}
+# D1: the corrected entropy's log-determinant coefficient, the paper's 0.5 or the reference code's 1.0
+LOGDET_COEFFS = (0.5, 1.0)
 
 _POSITIVE = (
     "budget.image_size", "budget.eval_size", "budget.horizon", "budget.gt_points", "budget.recon_points",
@@ -195,24 +166,20 @@ def _check_memory(cfg: DictConfig) -> None:
 
 def validate(cfg: DictConfig) -> None:
     """Reject impossible values before any work starts (one line naming the key): keys the schema declares
-    (``+key`` too), the seed and run names, values a run record can hold, choices, finite floats, positive
+    (``+key`` too; a choice outside its ``StrEnum`` is refused when the config is composed), the seed and run
+    names, values a run record can hold, the method's own settings, finite floats, positive
     and bounded sizes, sizes that fit in memory, a device torch can see and a writable ``paths.outputs``."""
     _check_known_keys(cfg)
+    _check_method(cfg)
     _check_run_keys(cfg)
     _check_finite(cfg)
-    for key, choices in _CHOICES.items():
-        value = OmegaConf.select(cfg, key)
-        if value not in choices:
-            raise ConfigError(f"{key}={value!r} is not one of {', '.join(map(str, choices))}")
+    if cfg.nvf.entropy.logdet_coeff not in LOGDET_COEFFS:
+        raise ConfigError(
+            f"nvf.entropy.logdet_coeff={cfg.nvf.entropy.logdet_coeff!r} is not one of {', '.join(map(str, LOGDET_COEFFS))}"
+        )
     if cfg.ablation.name not in declared("ablation"):
         raise ConfigError(f"ablation.name={cfg.ablation.name!r} is not one of {', '.join(declared('ablation'))}")
     _check_ablation(cfg)
-    for key, (alternative, recommended) in _NOT_IMPLEMENTED.items():
-        if OmegaConf.select(cfg, key) == alternative:
-            raise ConfigError(
-                f"{key}={alternative!r} (a METHOD.md section 12 alternative) is not implemented; "
-                f"drop the override to use the recommended {recommended!r}"
-            )
     for key in _POSITIVE:
         value = OmegaConf.select(cfg, key)
         if value is None or value <= 0:
@@ -228,13 +195,6 @@ def validate(cfg: DictConfig) -> None:
             f"budget.horizon={cfg.budget.horizon} is more than {MAX_HORIZON} steps (every step rewrites the run's "
             f"steps.jsonl, and records of more steps are refused when read); lower budget.horizon"
         )
-    try:
-        load_method(cfg.method.implementation)
-    except ValueError as err:
-        raise ConfigError(f"method.implementation: {err} (conf/method/{cfg.method.name}.yaml)") from None
-    stages = list(cfg.method.stages)
-    if not stages or stages[0] != "backbone" or any(s not in STAGES for s in stages):
-        raise ConfigError(f"method.stages={stages} must start with 'backbone' and use only {', '.join(STAGES)}")
     if cfg.train.label_margin < 0:
         raise ConfigError(f"train.label_margin={cfg.train.label_margin} must be >= 0 (scene units; 0 = METHOD's M17)")
     if not 0.0 < cfg.planner.opt.ray_fraction <= 1.0:
@@ -263,8 +223,24 @@ def validate(cfg: DictConfig) -> None:
     check_paths(cfg)
 
 
+def _check_method(cfg: DictConfig) -> None:
+    """The method node builds its class (``pipeline.config.method``): every key one its dataclass declares, of
+    the field's type (a ``Literal``'s choices), no alternative that is not implemented, and no -OPT for a
+    method that scores whole views."""
+    try:
+        method = build_method(cfg.method)
+    except MethodError as err:
+        raise ConfigError(f"{err} (conf/method/{cfg.method.get('name')}.yaml)") from None
+    if cfg.planner.name == "opt" and isinstance(method.scorer(EntropyConfig(), 1.0), StepScorer):
+        raise ConfigError(
+            f"planner=opt: {method.name} scores whole views, without the per-pixel score -OPT refines "
+            "(docs/METHOD.md 17); use planner=argmax"
+        )
+
+
 def _check_render(cfg: DictConfig) -> None:
-    """The Blender backend anti-aliases with Cycles' samples, and needs Blender's Python."""
+    """The Blender backend anti-aliases with Cycles' samples (whether Blender's Python is there is the
+    renderer's check, ``pipeline.scenes.ground_truth.renderer_problem``)."""
     if cfg.render.backend != "blender":
         return
     if cfg.budget.gt_samples != 1:
@@ -272,11 +248,6 @@ def _check_render(cfg: DictConfig) -> None:
             f"budget.gt_samples={cfg.budget.gt_samples} supersamples the pyrender ground truth; with render.backend=blender "
             "Cycles filters each pixel over render.samples samples: set budget.gt_samples=1"
         )
-    from pipeline.scenes.blender import blender_python, missing_python
-
-    reason = missing_python(blender_python(cfg.paths.blender_python))
-    if reason:
-        raise ConfigError(f"render.backend=blender: {reason}")
 
 
 def _check_precision(precision: str, device: str) -> None:

@@ -13,21 +13,18 @@ from collections.abc import Callable
 
 import numpy as np
 import torch
-from omegaconf import DictConfig, OmegaConf
 from scipy import stats
 
 from nvf.cameras import Intrinsics, matrix_to_pose, pose_to_matrix
-from nvf.methods import load_method
 from nvf.model import SceneModel
 from nvf.planning import Selection, argmax_first, prepare_scorer, score_poses, select_next_view
 from nvf.seeding import GeneratorFactory, generator_factory, seeded_generator
 from nvf.training import Observations, TrainStats, train_model
 from nvf.uncertainty import StepScorer, ViewScorer
 from nvf.visibility_source import SourcedVisibility, label_visibility
+from pipeline.episode.evaluation import Evaluator
 from pipeline.episode.settings import EpisodeSettings
-from pipeline.metrics.evaluation import Evaluator
 from pipeline.metrics.image import LpipsMetric
-from pipeline.repo import CONF
 from pipeline.scenes.ground_truth import open_renderer
 from pipeline.scenes.scene import Scene
 
@@ -37,20 +34,20 @@ TrainProgress = Callable[[str, int, int, float], None]
 
 class Episode:
     """The state of one episode: the scene, its ground-truth renderer (one per episode: for
-    ``render.backend=blender`` one Blender process; ``close`` ends it), the observed views and the evaluator."""
+    ``render.backend=blender`` one Blender process; ``close`` ends it), the observed views and the evaluator.
+    It reads its settings (``EpisodeSettings``) alone."""
 
-    def __init__(self, cfg: DictConfig, scene: Scene, device: torch.device, lpips: LpipsMetric):
-        self.cfg = cfg
+    def __init__(self, settings: EpisodeSettings, scene: Scene, device: torch.device, lpips: LpipsMetric):
         self.scene = scene
         self.device = device
-        self.settings = EpisodeSettings.of(cfg, scene)
-        s = self.settings
+        self.settings = s = settings
         self.intrinsics = Intrinsics.from_fov(s.budget.image_size, s.budget.image_size)
         self.plan_intrinsics = Intrinsics.from_fov(s.planner.resolution, s.planner.resolution)
-        self.method = load_method(cfg.method.implementation)
-        self.scorer = self.settings.scorer(self.method)
-        self.rival = self.rival_scorer(cfg.diagnostics.rank_against)
-        self.renderer = open_renderer(scene, cfg)  # last: a Blender renderer is a process, closed by close()
+        self.method = s.method
+        self.scorer = s.scorer()
+        self.rival = None if s.rival is None else (s.rival[0], s.scorer(s.rival[1]))
+        # last: a Blender renderer is a process, closed by close()
+        self.renderer = open_renderer(scene, s.render, s.blender_python)
         self.poses: list[torch.Tensor] = []
         self.images: list[np.ndarray] = []  # RGBA [H, W, 4] training images, budget.gt_samples^2 per pixel
         self.face_ids: list[np.ndarray] = []  # [H, W] face hit by each pixel-centre ray, for Vis. (PROTOCOL 4.3)
@@ -62,14 +59,6 @@ class Episode:
             self.close()
             raise
         self.previous_model: SceneModel | None = None
-
-    def rival_scorer(self, ablation: str | None) -> tuple[str, ViewScorer | StepScorer] | None:
-        """``(name, scorer)`` of ``ablation`` (its ``conf/ablation`` switches on this run's config) for
-        ``rank_agreement``; None when no ablation is named."""
-        if ablation is None:
-            return None
-        rival_cfg = OmegaConf.merge(self.cfg, OmegaConf.load(CONF / "ablation" / f"{ablation}.yaml"))
-        return ablation, EpisodeSettings.of(rival_cfg, self.scene).scorer(self.method)
 
     def close(self) -> None:
         """Release the ground-truth renderer (for Blender, end its process)."""
@@ -90,7 +79,7 @@ class Episode:
         """A freshly initialised model, seeded from (seed, step) (METHOD 10: retrained from scratch)."""
         s = self.settings
         with torch.random.fork_rng(devices=[]):
-            torch.manual_seed(int(seeded_generator(self.cfg.seed, step, "init").initial_seed()))
+            torch.manual_seed(int(seeded_generator(s.seed, step, "init").initial_seed()))
             model = SceneModel(self.scene.object_aabb, s.field, s.sampler, num_images=len(self.poses))
         model = model.to(self.device)
         if s.train.warm_start and self.previous_model is not None:
@@ -103,29 +92,27 @@ class Episode:
         self, obs: Observations, step: int, progress: TrainProgress | None = None
     ) -> tuple[SceneModel, TrainStats]:
         """A fresh model (``new_model``) trained on ``obs`` with the method's stages, as step ``step`` trains it."""
-        cfg, s = self.cfg, self.settings
+        s = self.settings
         model = self.new_model(step)
-        stats = train_model(
-            model, obs, s.train, list(cfg.method.stages), s.entropy,
-            seeded_generator(cfg.seed, step, "train", self.device), self.method.aux_loss, progress,
-        )  # fmt: skip
+        generator = seeded_generator(s.seed, step, "train", self.device)
+        stats = train_model(model, obs, s.train, s.method.stages, s.entropy, generator, s.method.aux_loss, progress)
         return model, stats
 
     def step(self, step: int, progress: TrainProgress | None = None) -> tuple[dict, dict]:
         """Run step ``step``; returns the step row and the images to save (name -> HxWx{1,3} array)."""
-        cfg, s = self.cfg, self.settings
+        s = self.settings
         obs = self.observations()
         t0 = time.perf_counter()
         model, stats = self.train(obs, step, progress)
         t1 = time.perf_counter()
         planning = self.planning_model(model, obs)
-        psnr_only = cfg.step_metrics == "psnr" and step < s.budget.horizon - 1
+        psnr_only = s.step_metrics == "psnr" and step < s.budget.horizon - 1
         metrics, images, _ = self.evaluator.evaluate(
             planning, self.scorer, self.face_ids, obs, step, psnr_only=psnr_only
         )
         t2 = time.perf_counter()
         current = matrix_to_pose(self.poses[-1]).to(self.device)
-        generators = generator_factory(cfg.seed, step, self.device)
+        generators = generator_factory(s.seed, step, self.device)
         scorer = prepare_scorer(self.scorer, planning, obs, generators, s.planner.score_chunk_rays)
         selection = select_next_view(
             planning, scorer, s.planner, self.scene.camera_box.to(self.device), current,

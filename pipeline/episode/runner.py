@@ -4,8 +4,13 @@ run's keys, take the run's lock (one writer per run), verify what is recorded th
 at its first missing step, and record every step atomically; a step that cannot complete marks the run
 failed with a one-line reason. A Blender worker that does not answer in time (``render.timeout``) stops
 the run with a one-line reason and leaves it to resume.
+
+The composed config is read here once: its resolved form is recorded (run.json), and the episode gets
+the typed settings built from it (``pipeline.episode.settings``). The summary and pictures of a finished
+run are the entry point's (``pipeline.run``), from the ``Outcome``.
 """
 
+import dataclasses
 import os
 import time
 from dataclasses import dataclass
@@ -18,19 +23,20 @@ from omegaconf import DictConfig, OmegaConf
 
 from nvf.planning import NoCandidatesError
 from nvf.training import TrainingDiverged
-from pipeline.config.validation import resolve_device, validate
+from pipeline.config.schema import RunConfig
+from pipeline.config.validation import ConfigError, resolve_device, validate
 from pipeline.episode.loop import Episode
 from pipeline.episode.progress import EpisodeProgress
+from pipeline.episode.settings import EpisodeSettings, run_config
 from pipeline.metrics.image import LpipsMetric
 from pipeline.records.images import save_step_images
 from pipeline.records.lock import RunLock
 from pipeline.records.store import RunRecord, run_dir
 from pipeline.records.verify import verified
 from pipeline.scenes.blender import BlenderTimeout, blender_python
-from pipeline.scenes.ground_truth import ground_truth_info
+from pipeline.scenes.ground_truth import ground_truth_info, renderer_problem
 from pipeline.scenes.loading import load_scene
-from pipeline.tables.summary import run_pictures, summarize_run
-from pipeline.tables.trajectory import outline_of_scene
+from pipeline.scenes.scene import Scene
 
 
 class StepFailed(RuntimeError):
@@ -44,10 +50,13 @@ class RunRefused(ValueError):
 
 @dataclass(frozen=True)
 class Outcome:
-    """What ``run_episode`` did: ``done`` (ran to its horizon) or ``skipped`` (had finished before)."""
+    """What ``run_episode`` did: ``done`` (ran to its horizon; ``scene`` is the scene it observed, of
+    ``scene_kind``) or ``skipped`` (had finished before)."""
 
     directory: Path
     status: str
+    scene: Scene | None = None
+    scene_kind: str = "object"
 
 
 def torch_threads() -> int:
@@ -61,37 +70,37 @@ def torch_threads() -> int:
     return max(1, cores // jobs)
 
 
-def record_dir(cfg: DictConfig) -> Path:
-    return run_dir(
-        Path(cfg.paths.outputs), cfg.scene.name, cfg.method.name, cfg.planner.name, cfg.ablation.name,
-        cfg.budget.name, int(cfg.seed),
-    )  # fmt: skip
+def record_dir(run: RunConfig) -> Path:
+    names = (run.scene.name, str(run.method["name"]), run.planner.name, run.ablation.name, run.budget.name)
+    return run_dir(Path(run.paths.outputs), *names, int(run.seed))
 
 
 def run_settings(cfg: DictConfig) -> dict:
     """The run's identity keys and resolved config: what makes two records the same run."""
+    config = OmegaConf.to_container(cfg, resolve=True, enum_to_str=True)
     return {
         "scene": cfg.scene.name,
         "method": cfg.method.name,
-        "planner": cfg.planner.name,
+        "planner": str(cfg.planner.name),
         "ablation": cfg.ablation.name,
         "budget": cfg.budget.name,
         "seed": int(cfg.seed),
-        "config": OmegaConf.to_container(cfg, resolve=True),
+        "config": config,
     }
 
 
-def run_info(cfg: DictConfig, episode: Episode, lpips_reason: str | None, ground_truth: dict) -> dict:
-    """run.json's content: the run's settings, the scene's source, ``ground_truth`` (backend and asset file:
-    ``pipeline.scenes.ground_truth.ground_truth_info``), the resolved collision-free choice, device, threads
-    and why LPIPS is missing (if it is)."""
+def run_info(settings: dict, episode: Episode, lpips_reason: str | None, ground_truth: dict) -> dict:
+    """run.json's content: the run's ``settings`` (``run_settings``), the scene's source, ``ground_truth``
+    (backend and asset file: ``pipeline.scenes.ground_truth.ground_truth_info``), the resolved collision-free
+    choice, device, threads and why LPIPS is missing (if it is)."""
+    s = episode.settings
     return {
-        **run_settings(cfg),
+        **settings,
         "scene_source": episode.scene.source,
         "ground_truth": ground_truth,
-        "collision_free": episode.settings.collision_free,  # M29's candidate sampler, as resolved for the scene
-        "candidate_filters": episode.scorer is not None or episode.settings.planner.random_filters,  # M28, M29
-        "field": cfg.field.kind,
+        "collision_free": s.collision_free,  # M29's candidate sampler, as resolved for the scene
+        "candidate_filters": episode.scorer is not None or s.planner.random_filters,  # M28, M29
+        "field": str(s.field.kind),
         "device": str(episode.device),
         "torch_threads": torch.get_num_threads(),
         "lpips_missing_reason": lpips_reason,
@@ -107,16 +116,21 @@ def run_episode(cfg: DictConfig) -> Outcome:
     stopped (``BlenderTimeout``: left unfinished).
     """
     validate(cfg)
-    directory = record_dir(cfg)
-    with RunLock(directory, root=Path(cfg.paths.outputs)):
-        return _run_locked(cfg, directory)
+    run = run_config(cfg)
+    problem = renderer_problem(run.render, blender_python(run.paths.blender_python))
+    if problem is not None:
+        raise ConfigError(problem)
+    directory = record_dir(run)
+    with RunLock(directory, root=Path(run.paths.outputs)):
+        return _run_locked(cfg, run, directory)
 
 
-def _run_locked(cfg: DictConfig, directory: Path) -> Outcome:
+def _run_locked(cfg: DictConfig, run: RunConfig, directory: Path) -> Outcome:
     record = RunRecord(directory)
     previous, _ = verified(record)
     status = record.status()
-    changed = record.difference(run_settings(cfg)) if previous else None
+    settings = run_settings(cfg)
+    changed = record.difference(settings) if previous else None
     if changed is not None:
         verb = {"done": "finished", "failed": "failed"}.get(status, "was started")
         raise RunRefused(
@@ -130,15 +144,15 @@ def _run_locked(cfg: DictConfig, directory: Path) -> Outcome:
         raise StepFailed(f"run {directory} failed: {record.failure()} (delete it to run it again)")
     print(f"run {directory}: building the scene and its ground truth (the step bar follows)", flush=True)
     torch.set_num_threads(torch_threads())
-    torch.manual_seed(int(cfg.seed))
-    np.random.seed(int(cfg.seed) % 2**32)
-    scene = load_scene(cfg.scene, Path(cfg.paths.assets), blender_python(cfg.paths.blender_python))
-    device = resolve_device(cfg.device)
+    torch.manual_seed(int(run.seed))
+    np.random.seed(int(run.seed) % 2**32)
+    scene = load_scene(dataclasses.asdict(run.scene), Path(run.paths.assets), blender_python(run.paths.blender_python))
+    device = resolve_device(run.device)
     lpips = LpipsMetric()
     try:
-        episode = Episode(cfg, scene, device, lpips)
+        episode = Episode(EpisodeSettings.of(cfg, scene), scene, device, lpips)
         try:
-            return _run_steps(cfg, directory, record, episode, lpips)
+            _run_steps(settings, Path(run.paths.assets), directory, record, episode, lpips)
         finally:
             episode.close()
     except BlenderTimeout as err:
@@ -146,18 +160,21 @@ def _run_locked(cfg: DictConfig, directory: Path) -> Outcome:
             f"run {directory} stopped at step {len(record.completed_steps())}: {err}; every finished step is "
             "recorded: run the same command again to resume"
         ) from None
+    return Outcome(directory, "done", scene, run.scene.kind)
 
 
-def _run_steps(cfg: DictConfig, directory: Path, record: RunRecord, episode: Episode, lpips: LpipsMetric) -> Outcome:
-    """Record and run the steps of ``episode`` not yet in ``record``."""
+def _run_steps(
+    settings: dict, assets: Path, directory: Path, record: RunRecord, episode: Episode, lpips: LpipsMetric
+) -> None:
+    """Record and run the steps of ``episode`` not yet in ``record`` (``settings``: ``run_settings``)."""
     done_rows = record.completed_steps()
-    ground_truth = ground_truth_info(episode.scene, episode.renderer, Path(cfg.paths.assets))
-    record.start(run_info(cfg, episode, lpips.missing, ground_truth))
+    ground_truth = ground_truth_info(episode.scene, episode.renderer, assets)
+    record.start(run_info(settings, episode, lpips.missing, ground_truth))
     try:
         episode.replay(done_rows)
         if done_rows:
-            print(f"resuming {directory} at step {len(done_rows)} of {int(cfg.budget.horizon)}")
-        _record_steps(cfg, directory, episode, record, len(done_rows))
+            print(f"resuming {directory} at step {len(done_rows)} of {episode.settings.budget.horizon}")
+        _record_steps(directory, episode, record, len(done_rows))
     except (TrainingDiverged, NoCandidatesError, FloatingPointError) as err:
         reason = f"step {len(record.completed_steps())}: {err}"
         record.mark_failed(reason)
@@ -168,20 +185,17 @@ def _run_steps(cfg: DictConfig, directory: Path, record: RunRecord, episode: Epi
         record.mark_failed(f"step {len(record.completed_steps())}: {type(err).__name__}: {' '.join(str(err).split())}")
         raise
     record.mark_done()
-    summarize_run(directory)
-    run_pictures(directory, outline_of_scene(episode.scene, str(cfg.scene.kind)))
-    return Outcome(directory, "done")
 
 
-def _record_steps(cfg: DictConfig, directory: Path, episode: Episode, record: RunRecord, first: int) -> None:
+def _record_steps(directory: Path, episode: Episode, record: RunRecord, first: int) -> None:
     """Steps ``first`` .. horizon - 1, each row (and the step's images) written once the step is complete."""
-    label = f"{cfg.scene.name}/{cfg.method.name} {cfg.budget.name} seed {int(cfg.seed)}"
-    stages = list(cfg.method.stages)
-    with EpisodeProgress(label, first, int(cfg.budget.horizon), stages) as progress:
-        for step in range(first, int(cfg.budget.horizon)):
+    s = episode.settings
+    label = f"{episode.scene.name}/{s.method.name} {s.budget.name} seed {s.seed}"
+    with EpisodeProgress(label, first, s.budget.horizon, s.method.stages) as progress:
+        for step in range(first, s.budget.horizon):
             start = time.perf_counter()
             row, images = episode.step(step, progress.train)
-            if cfg.save_images:
+            if s.save_images:
                 save_step_images(directory / "images", step, images, episode.method.score_unit)
             record.append_step(row)
             episode.observe_pose(row["selected_pose"])

@@ -1,23 +1,22 @@
-"""The typed, resolved settings of one run: the nvf dataclasses built from the Hydra config, with the
-scene's defaults filled in (NVF's d0, the density threshold, the collision-free sampler)."""
+"""The typed, resolved settings of one run: built once from the composed Hydra config, and the only settings
+the episode and everything under it read. The method is built from its yaml (``pipeline.config.method``),
+and the scene's defaults are filled in (NVF's d0, the density threshold, the collision-free sampler)."""
 
 import dataclasses
 from dataclasses import dataclass
+from pathlib import Path
 
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from nvf.config import BaselineConfig, EntropyConfig, FieldConfig, PlannerConfig, SamplerConfig, TrainConfig
+from nvf.config import EntropyConfig, FieldConfig, PlannerConfig, SamplerConfig, TrainConfig
 from nvf.methods import Method
 from nvf.uncertainty import StepScorer, ViewScorer
-from pipeline.config.schema import BudgetConfig, MetricsConfig
-from pipeline.config.validation import ConfigError
+from pipeline.config.method import build_method
+from pipeline.config.schema import BudgetConfig, MetricsConfig, RenderConfig, RunConfig, StepMetrics
+from pipeline.repo import CONF
+from pipeline.scenes.blender import blender_python
 from pipeline.scenes.scene import Scene
-
-
-def typed(cfg: DictConfig, cls: type):
-    """A plain dataclass instance of ``cls`` from a config node (nvf/ never sees OmegaConf)."""
-    return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(cls), cfg))
 
 
 def resolved_d0(d0: float | int | str | None, scene: Scene) -> float:
@@ -30,50 +29,70 @@ def resolved_d0(d0: float | int | str | None, scene: Scene) -> float:
     return float(d0)
 
 
+def run_config(cfg: DictConfig) -> RunConfig:
+    """The composed config as the schema's typed objects (interpolations resolved)."""
+    run = OmegaConf.to_object(cfg)
+    assert isinstance(run, RunConfig), f"a composed run config, not {type(run).__name__}"
+    return run
+
+
 @dataclass
 class EpisodeSettings:
-    """The resolved, typed settings of one run, with scene defaults filled in."""
+    """The resolved, typed settings of one run, with scene defaults filled in (``entropy.d0`` resolved).
+    ``rival``: the ``diagnostics.rank_against`` ablation's name and entropy settings, or None."""
 
+    method: Method
     field: FieldConfig
     sampler: SamplerConfig
     train: TrainConfig
     entropy: EntropyConfig
-    baseline: BaselineConfig
     planner: PlannerConfig
     budget: BudgetConfig
     metrics: MetricsConfig
+    render: RenderConfig
+    blender_python: Path
     seed: int
+    step_metrics: StepMetrics
+    save_images: bool
     tau: float
     collision_free: bool
+    rival: tuple[str, EntropyConfig] | None
 
-    def scorer(self, method: Method) -> ViewScorer | StepScorer | None:
-        """``method``'s view scorer with these settings (NVF's resolved ``d0``); None for a method without one
-        (Random). ``ConfigError`` for ``planner=opt`` with a scorer of whole views (FisherRF, METHOD 17)."""
-        scorer = method.scorer(self.entropy, self.baseline, float(self.entropy.d0))
-        if self.planner.name == "opt" and scorer is not None and not isinstance(scorer, ViewScorer):
-            raise ConfigError(
-                f"planner=opt: {scorer.name} scores whole views, without the per-pixel score -OPT refines "
-                "(docs/METHOD.md 17); use planner=argmax"
-            )
-        return scorer
+    def scorer(self, entropy: EntropyConfig | None = None) -> ViewScorer | StepScorer | None:
+        """The method's view scorer with these settings' (or ``entropy``'s) NVF entropy settings (a
+        ``StepScorer`` for a method that scores whole views, FisherRF); None for a method without one
+        (Random)."""
+        entropy = self.entropy if entropy is None else entropy
+        return self.method.scorer(entropy, float(entropy.d0))
 
     @staticmethod
     def of(cfg: DictConfig, scene: Scene) -> "EpisodeSettings":
-        entropy = typed(cfg.nvf.entropy, EntropyConfig)
-        entropy = dataclasses.replace(entropy, d0=resolved_d0(entropy.d0, scene))
-        planner = typed(cfg.planner, PlannerConfig)
+        """The settings of the composed config ``cfg`` (validated) on ``scene``."""
+        run = run_config(cfg)
+        entropy = dataclasses.replace(run.nvf.entropy, d0=resolved_d0(run.nvf.entropy.d0, scene))
+        rival = None
+        if run.diagnostics.rank_against is not None:
+            name = run.diagnostics.rank_against
+            ablated = run_config(OmegaConf.merge(cfg, OmegaConf.load(CONF / "ablation" / f"{name}.yaml")))
+            rival = name, dataclasses.replace(ablated.nvf.entropy, d0=resolved_d0(ablated.nvf.entropy.d0, scene))
+        planner = run.planner
         tau = planner.density_threshold if planner.density_threshold is not None else scene.density_threshold
         collision_free = planner.collision_free if planner.collision_free is not None else scene.collision_free
         return EpisodeSettings(
-            field=typed(cfg.field, FieldConfig),
-            sampler=typed(cfg.sampler, SamplerConfig),
-            train=typed(cfg.train, TrainConfig),
+            method=build_method(run.method),
+            field=run.field,
+            sampler=run.sampler,
+            train=run.train,
             entropy=entropy,
-            baseline=typed(cfg.baseline, BaselineConfig),
             planner=planner,
-            budget=typed(cfg.budget, BudgetConfig),
-            metrics=typed(cfg.metrics, MetricsConfig),
-            seed=int(cfg.seed),
+            budget=run.budget,
+            metrics=run.metrics,
+            render=run.render,
+            blender_python=blender_python(run.paths.blender_python),
+            seed=int(run.seed),
+            step_metrics=run.step_metrics,
+            save_images=run.save_images,
             tau=float(tau),
             collision_free=bool(collision_free),
+            rival=rival,
         )

@@ -14,7 +14,7 @@ class, a scene's boxes and views) is what its name stood for: a record lacking s
 other config's value when both name the same option.
 
 A retired key (``RETIRED_KEYS``) is dropped before records are compared: its value is implied by keys that
-remain. ``NOT_SETTINGS`` are config groups and keys that never change a run's views or metrics.
+remain; a moved key (``MOVED_TO_METHOD``) is read where it lives now. ``NOT_SETTINGS`` are config groups and keys that never change a run's views or metrics.
 """
 
 import copy
@@ -40,6 +40,17 @@ LEGACY_DEFAULTS: dict[str, Any] = {
 DEFINED_BY_NAME = ("method", "ablation", "scene")  # groups whose keys other than name describe the named option
 RETIRED_KEYS = {
     "method.aux_loss": "implied by method.name: a method's stage-1 loss belongs to its class (nvf.methods)",
+    "method.implementation": "implied by method.name: the method's class is method._target_",
+}
+# The baselines' settings shared one group, ``baseline``, before each method's dataclass held its own: a
+# record's ``baseline.<key>`` is read as ``method.<field>`` of the method it names, and dropped for the others.
+MOVED_TO_METHOD: dict[str, tuple[str, str]] = {
+    "air_reduce": ("air", "reduce"),
+    "air_view_score": ("air", "view_score"),
+    "rmap_occlusion_weighted": ("activermap", "occlusion_weighted"),
+    "activenerf_variant": ("activenerf", "variant"),
+    "neurar_loss": ("neurar", "loss"),
+    "neurar_detach": ("neurar", "detach"),
 }
 # what never changes a run's views or metrics (added measurements, whether images are saved, how long Blender may
 # take for a view): not part of its identity; groups or dotted keys
@@ -124,28 +135,28 @@ VARIANCE_HEAD_KEYS = ("train.variance", "train.var_loss_background")
 
 
 def inert_keys(config: Mapping) -> tuple[str, ...]:
-    """Dotted keys (or key prefixes) that cannot change a run's views or metrics, given what its method reads:
-    a setting there does not make it another run, so its records are tabulated with the plain budget's.
+    """Dotted keys (or key prefixes) that cannot change a run's views or metrics, given what its method
+    declares it reads: the heads its ``method.stages`` train (a method trains a head because its score or
+    loss reads it). A setting there does not make it another run, so its records are tabulated with the
+    plain budget's.
 
-    - ``nvf.entropy``: read by NVF's score and by the variance head's loss (M21) only: inert for a method
-      with neither (every baseline);
+    - ``nvf.entropy``: read by the variance head's loss (M21) and by the score that reads that head (NVF's):
+      inert for a method that does not train the variance head (every baseline);
     - the visibility head's keys (``VISIBILITY_HEAD_KEYS``) and ``nvf.entropy.visibility_source``: inert
-      where no score reads ``v`` (every method but NVF, and NVF's w/o Vis.), unless the head is trained
-      before the variance head that reads it (``train.stage_order=vis_first``);
-    - the variance head's keys: inert for a method that does not train it (``method.stages``).
+      where no score reads ``v`` (a method that does not train the visibility head, and NVF's w/o Vis.,
+      ``nvf.entropy.use_visibility=false``), unless the head is trained before the variance head that reads
+      it (``train.stage_order=vis_first``);
+    - the variance head's keys: inert for a method that does not train it.
     """
     stages = _get(config, "method.stages")
     stages = list(stages) if isinstance(stages, list) else []
-    nvf_score = _get(config, "method.name") == "nvf"
-    reads_v = nvf_score and _get(config, "nvf.entropy.use_visibility") is not False
+    reads_v = "visibility" in stages and _get(config, "nvf.entropy.use_visibility") is not False
     feeds_variance = _get(config, "train.stage_order") == "vis_first" and "variance" in stages
     inert: list[str] = []
-    if not nvf_score and "variance" not in stages:
-        inert.append("nvf.entropy")
+    if "variance" not in stages:
+        inert += ["nvf.entropy", *VARIANCE_HEAD_KEYS]
     if not reads_v and not feeds_variance:
         inert += [*VISIBILITY_HEAD_KEYS, "nvf.entropy.visibility_source"]
-    if "variance" not in stages:
-        inert += VARIANCE_HEAD_KEYS
     return tuple(inert)
 
 
@@ -169,8 +180,18 @@ def _without(config: Any, dotted_keys: Collection[str]) -> Any:
 
 
 def drop_retired(config: Any) -> Any:
-    """``config`` (a run's resolved config, as recorded) without the ``RETIRED_KEYS``."""
-    return _without(config, RETIRED_KEYS)
+    """``config`` (a run's resolved config, as recorded) without the ``RETIRED_KEYS``, its ``baseline`` group
+    moved into its method's node (``MOVED_TO_METHOD``)."""
+    out = _without(config, [*RETIRED_KEYS, "baseline"])
+    baseline, method = (
+        config.get("baseline") if isinstance(config, Mapping) else None,
+        out.get("method") if isinstance(out, Mapping) else None,
+    )
+    if isinstance(baseline, Mapping) and isinstance(method, dict):
+        for old, (owner, key) in MOVED_TO_METHOD.items():
+            if method.get("name") == owner and old in baseline and key not in method:
+                method[key] = baseline[old]
+    return out
 
 
 def drop_not_settings(config: Any) -> Any:

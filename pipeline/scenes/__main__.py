@@ -10,6 +10,8 @@ is one line on stderr and exit status 2.
 import os
 from pathlib import Path
 
+from omegaconf import OmegaConf
+
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.validation import compose_config
 from pipeline.scenes.blender import blender_python
@@ -34,8 +36,10 @@ def main(argv: list[str] | None = None) -> None:
     cfg = compose_config(args.overrides)
     out = args.out or Path(cfg.paths.results) / "figures" / "scenes"
     try:
-        scene = load_scene(args.scene, Path(cfg.paths.assets), blender_python(cfg.paths.blender_python))
-        with open_renderer(scene, cfg, threads=os.cpu_count()) as renderer:
+        python = blender_python(cfg.paths.blender_python)
+        scene = load_scene(args.scene, Path(cfg.paths.assets), python)
+        render = OmegaConf.to_object(cfg.render)
+        with open_renderer(scene, render, python, threads=os.cpu_count()) as renderer:
             path = show(scene, renderer, out, args.res)
     except SceneError as exc:
         fail(str(exc))

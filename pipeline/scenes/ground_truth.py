@@ -4,25 +4,35 @@ about it: which backend, which asset file, and for Blender the samples, device a
 from pathlib import Path
 
 import torch
-from omegaconf import DictConfig
 
-from pipeline.scenes.blender import BlenderRenderer, blender_python
+from pipeline.config.schema import RenderConfig
+from pipeline.scenes.blender import BlenderRenderer, missing_python
 from pipeline.scenes.render import GroundTruthRenderer
-from pipeline.scenes.scene import Scene
+from pipeline.scenes.scene import Scene, SceneError
 
 Renderer = GroundTruthRenderer | BlenderRenderer
 
 
-def open_renderer(scene: Scene, cfg: DictConfig, threads: int | None = None) -> Renderer:
-    """pyrender's ``GroundTruthRenderer`` or a ``BlenderRenderer`` (one Blender worker, ``render.samples``
-    samples per pixel, ``threads`` render threads, default torch's thread count, ``render.timeout`` seconds
-    per view); close it when done."""
-    if cfg.render.backend == "blender":
-        python = blender_python(cfg.paths.blender_python)
+def renderer_problem(render: RenderConfig, python: Path) -> str | None:
+    """Why ``render`` cannot run here (one line: the Blender backend without Blender's Python ``python``),
+    or None."""
+    if render.backend != "blender":
+        return None
+    reason = missing_python(python)
+    return None if reason is None else f"render.backend=blender: {reason}"
+
+
+def open_renderer(scene: Scene, render: RenderConfig, python: Path, threads: int | None = None) -> Renderer:
+    """pyrender's ``GroundTruthRenderer`` or a ``BlenderRenderer`` (one Blender worker run by ``python``,
+    ``render.samples`` samples per pixel, ``threads`` render threads, default torch's thread count,
+    ``render.timeout`` seconds per view); close it when done. ``SceneError`` (``renderer_problem``) when the
+    backend cannot run here."""
+    problem = renderer_problem(render, python)
+    if problem is not None:
+        raise SceneError(problem)
+    if render.backend == "blender":
         threads = threads or torch.get_num_threads()
-        return BlenderRenderer(
-            scene, int(cfg.render.samples), python, threads=threads, timeout=float(cfg.render.timeout)
-        )
+        return BlenderRenderer(scene, int(render.samples), python, threads=threads, timeout=float(render.timeout))
     return GroundTruthRenderer(scene.mesh)
 
 

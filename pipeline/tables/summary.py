@@ -14,7 +14,7 @@ from pipeline.tables.figures import image_grid, step_curve
 from pipeline.tables.labels import METRIC_KEYS
 from pipeline.tables.load import describe, ground_truth_label, load_run, metric_value
 from pipeline.tables.paper import paper_numbers
-from pipeline.tables.trajectory import SceneOutline, trajectory_figure
+from pipeline.tables.trajectory import SceneOutline, outline_of_scene, trajectory_figure
 
 
 def summarize_run(run_dir: Path) -> Path:
@@ -68,3 +68,10 @@ def run_pictures(run_dir: Path, outline: SceneOutline) -> list[Path]:
         step_curve(rows, title, Path(run_dir) / "psnr.png"),
         trajectory_figure(outline, rows, title, Path(run_dir) / "trajectory.png"),
     ]
+
+
+def finish_run(run_dir: Path, scene, kind: str) -> None:
+    """What a run leaves beside its records once it is done: ``summary.md`` and its pictures (``run_pictures``)
+    over the outline of ``scene`` (the ``pipeline.scenes.scene.Scene`` it observed, of ``kind``)."""
+    summarize_run(run_dir)
+    run_pictures(run_dir, outline_of_scene(scene, kind))
