@@ -38,8 +38,10 @@ spends scoring the candidate set: its preparation plus its summed block times ov
 ``--probes 1,2,4,8,16`` compares FisherRF's probe counts ``K`` (M31; lambda as ``conf/method/fisherrf.yaml``
 declares it) on the same model and candidates: per ``K`` the
 preparation and scoring seconds, ``seconds_per_step``, and against a reference (the largest ``K``, drawn
-from an independent generator: seed + 1) the Spearman correlation of the candidates' scores and whether
-both pick the same candidate; the largest ``K``'s own row is the noise floor, two independent draws.
+from an independent generator: seed + 1) the Spearman correlation of the candidates' scores, whether
+both pick the same candidate, and the reference's score of the candidate ``K`` picks over the reference's
+best (1: as good a choice by the reference's measure); the largest ``K``'s own row is the noise floor, two
+independent draws.
 Writes ``results/bench/plan.json`` (or ``--out``) and prints a table.
 """
 
@@ -184,6 +186,7 @@ def probes_study(
             "score_seconds": score, "seconds_per_step": prepare + score,
             "spearman_to_reference": spearman(scores.cpu().numpy(), reference.cpu().numpy()),
             "same_choice_as_reference": argmax_first(scores) == argmax_first(reference),
+            "choice_over_best_in_reference": float(reference[argmax_first(scores)] / reference.max()),
         })  # fmt: skip
     return {"reference_probes": max(probes), "prior_precision": prior_precision, "rows": rows}
 
@@ -353,6 +356,7 @@ def main(argv: list[str]) -> None:
             print(
                 f"  K = {row['probes']:>3}: {row['seconds_per_step']:7.2f} s per step "
                 f"(H_D {row['prepare_seconds_per_view']:.2f} s per training view), Spearman "
-                f"{'n/a' if rho is None else f'{rho:.3f}'}, same choice {row['same_choice_as_reference']}"
+                f"{'n/a' if rho is None else f'{rho:.3f}'}, same choice {row['same_choice_as_reference']} "
+                f"(its choice scores {row['choice_over_best_in_reference']:.4f} of the reference's best)"
             )
     print(f"wrote {args.out}")
