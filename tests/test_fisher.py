@@ -152,7 +152,8 @@ def ring_pose(scene, obs, azimuth_offset_deg: float) -> torch.Tensor:
 def test_a_repeated_training_view_scores_below_the_unseen_side(smoke):
     """(M32) A candidate at a training camera adds little information the training views do not hold; views
     of the side no training view saw add parameters the training rays never constrained (measured at the
-    smoke budget with the declared K: 1.0e4 and 1.1e4 for two training cameras, 2.4e4-3.5e4 for the unseen side)."""
+    smoke budget with the declared K: 1.0e4 and 1.1e4 for two training cameras, 2.4e4-3.5e4 for the unseen
+    side)."""
     cfg, _, scene, _, obs, model = smoke
     scorer = prepare_scorer(fisher_scorer(), model, obs, generator_factory(0, 0), CHUNK)
     assert isinstance(scorer, WholeViewScorer)
