@@ -289,12 +289,14 @@ def main(argv: list[str]) -> None:
     report["nvf_over_plain_render_at_limit"] = 1.0 + extra_seconds_at_limit / plain_seconds
     extra_seconds = sum(wall["nvf"]) - plain_seconds
     report["nvf_extra_fraction_of_limit"] = extra_seconds_at_limit / extra_seconds if extra_seconds > 0 else None
+    study = None if probes is None else probes_study(setup, poses, intr, chunk, probes, fisher.prior_precision)
+    per_pixel = {method: scorer for method, scorer in scorers.items() if isinstance(scorer, ViewScorer)}
     report.update({
         "prepare_seconds": prepare_seconds,
         "prepare_seconds_per_view": {method: t / obs.num_images for method, t in prepare_seconds.items()},
         "seconds_per_step": {method: prepare_seconds.get(method, 0.0) + sum(wall[method]) / args.repeats
                              for method in scorers},
-        "fisherrf_probes": None if probes is None else probes_study(setup, poses, intr, chunk, probes, fisher.prior_precision),
+        "fisherrf_probes": study,
         "goal_nvf_over_plain_render": GOAL_NVF_OVER_PLAIN,
         "goal_met": ratio <= GOAL_NVF_OVER_PLAIN,
         "goal_within_limit": report["nvf_over_plain_render_at_limit"] <= GOAL_NVF_OVER_PLAIN,
@@ -310,8 +312,8 @@ def main(argv: list[str]) -> None:
             "train_iters": {stage: getattr(s.train, stage).iters for stage in STAGES},
             "train_seconds": setup.train_seconds, "candidates": m, "candidates_requested": planner.num_candidates,
             "resolution": res, "chunk_rays": chunk, "tau": s.tau, "collision_free": s.collision_free,
-            "heads": {method: sorted(scorer.heads) for method, scorer in scorers.items() if isinstance(scorer, ViewScorer)},
-            "samplers": {method: scorer.sampler for method, scorer in scorers.items() if isinstance(scorer, ViewScorer)},
+            "heads": {method: sorted(scorer.heads) for method, scorer in per_pixel.items()},
+            "samplers": {method: scorer.sampler for method, scorer in per_pixel.items()},
             "plain_render_samples_per_ray": kept["plain_render"] / (args.repeats * m * intr.num_pixels),
             "repeats": args.repeats, "blocks": args.blocks, "torch_threads": torch.get_num_threads(),
             "precisions": precisions,
