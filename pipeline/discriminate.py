@@ -5,7 +5,8 @@ For each scene and seed it runs (through ``python -m pipeline.run -m``, scene by
 per entry, ``hydra/launcher=joblib`` with ``J`` one-thread jobs; finished runs are skipped, so a killed
 experiment resumes; ``step_metrics=psnr``: the steps before the last record the PSNR alone) full NVF
 (recording, at every step, how w/o Vis.'s score ranks the same candidates: ``diagnostics.rank_against=wo_vis``),
-its ablations w/o Vis. and Ind. Rays, and the baselines WD, ActiveNeRF and NeurAR. An entry the overrides
+its ablations w/o Vis. and Ind. Rays, and the baselines: every other method whose yaml lists ``discriminate``
+under ``experiments`` (WD, ActiveNeRF, NeurAR), on every scene whose yaml lists it (default, hotdog, hubble). An entry the overrides
 cannot change (``pipeline.records.compat.inert_keys``: ``nvf.entropy.logdet_coeff=1.0`` on WD) is not run
 again where ``--reuse DIR`` (default ``results/runs``) holds its finished records of the plain budget. Then, per scene, the paired (same seed) differences of final PSNR and of PSNR
 averaged over the steps: NVF - w/o Vis., NVF - Ind. Rays and NVF - the best baseline (the baseline with
@@ -32,6 +33,7 @@ import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
 from pipeline.cli import ArgumentParser, description, fail
+from pipeline.config.catalog import members, method_configs
 from pipeline.config.named import GROUPS, NamedConfigs
 from pipeline.config.validation import compose_config
 from pipeline.records.store import RunRecord, atomic_write_text, record_status, run_dir
@@ -41,10 +43,16 @@ from pipeline.scenes.scene import SceneError
 from pipeline.tables.load import collect_runs
 from pipeline.tables.stats import Interval
 
-SCENES = ("hotdog", "hubble", "default")
+EXPERIMENT = "discriminate"  # what a method or scene lists under ``experiments`` to join this one
+SCENES = tuple(members("scene", EXPERIMENT))  # every scene that declares it, by name
 SEEDS = (100, 101, 102)
 NVF, WO_VIS, IND_RAYS = ("nvf", "none"), ("nvf", "wo_vis"), ("nvf", "ind_rays")
-BASELINES = (("wd", "none"), ("activenerf", "none"), ("neurar", "none"))
+# NVF's rivals: every other method that declares the experiment, in table order (``rank``)
+BASELINES = tuple(
+    (name, "none")
+    for name, node in method_configs().items()
+    if EXPERIMENT in node.get("experiments", []) and name != NVF[0]
+)
 ENTRIES = (NVF, WO_VIS, IND_RAYS, *BASELINES)
 EXTRA = {NVF: "diagnostics.rank_against=wo_vis"}  # an entry's measurement beyond the run
 COMPARISONS = (("nvf-wo_vis", WO_VIS), ("nvf-ind_rays", IND_RAYS), ("nvf-best_baseline", None))

@@ -53,8 +53,15 @@ MOVED_TO_METHOD: dict[str, tuple[str, str]] = {
     "neurar_detach": ("neurar", "detach"),
 }
 # what never changes a run's views or metrics (added measurements, whether images are saved, how long Blender may
-# take for a view): not part of its identity; groups or dotted keys
-NOT_SETTINGS = ("diagnostics", "save_images", "step_metrics", "render.timeout")
+# take for a view, which experiments a method or scene joins): not part of its identity; groups or dotted keys
+NOT_SETTINGS = (
+    "diagnostics",
+    "save_images",
+    "step_metrics",
+    "render.timeout",
+    "method.experiments",
+    "scene.experiments",
+)
 
 
 def _get(config: Any, dotted: str) -> Any:

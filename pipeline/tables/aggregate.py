@@ -189,30 +189,40 @@ SPECS = (
     Spec("all_runs", "All runs: every scene and method, per scene", None, "all", False),
 )
 SWEPT = ("method", "planner", "ablation")
+DECLARED = "declared"  # a sweep over the options that declare the experiment (``${declared:GROUP,EXPERIMENT}``)
 
 
-def experiment_selection(experiment: str | None, conf_dir: Path = CONF) -> dict[str, tuple[str, ...] | None]:
+def experiment_selection(experiment: str | None, conf_dir: Path = CONF) -> dict[str, tuple[str, ...] | str | None]:
     """The options of each of ``SWEPT`` an experiment runs: the values its sweep lists, None (any) for
-    ``glob(*)``, and the default choice (``conf/config.yaml``) for a group it does not sweep."""
+    ``glob(*)``, ``DECLARED`` for ``${declared:GROUP,EXPERIMENT}`` (the runs whose own config declares the
+    experiment) and the default choice (``conf/config.yaml``) for a group it does not sweep."""
     if experiment is None:
         return dict.fromkeys(SWEPT)
     listed = OmegaConf.to_container(OmegaConf.load(Path(conf_dir) / "config.yaml").defaults)
     defaults = {k: v for d in listed if isinstance(d, dict) for k, v in d.items()}
-    params = (
-        OmegaConf.select(OmegaConf.load(Path(conf_dir) / "experiment" / f"{experiment}.yaml"), "hydra.sweeper.params")
-        or {}
+    node = OmegaConf.select(
+        OmegaConf.load(Path(conf_dir) / "experiment" / f"{experiment}.yaml"), "hydra.sweeper.params"
     )
-    selection: dict[str, tuple[str, ...] | None] = {}
+    params = OmegaConf.to_container(node, resolve=False) if node is not None else {}
+    selection: dict[str, tuple[str, ...] | str | None] = {}
     for key in SWEPT:
         value = str(params.get(key, defaults[key]))
-        selection[key] = None if value.startswith("glob(") else tuple(v.strip() for v in value.split(","))
+        if value.startswith("glob("):
+            selection[key] = None
+        elif key == "method" and value.replace(" ", "") == f"${{declared:method,{experiment}}}":
+            selection[key] = DECLARED
+        else:
+            selection[key] = tuple(v.strip() for v in value.split(","))
     return selection
 
 
 def _select(final: pd.DataFrame, spec: Spec, runs: Runs) -> pd.DataFrame:
     keep = pd.Series(True, index=final.index)
     for column, allowed in experiment_selection(spec.experiment).items():
-        if allowed is not None:
+        if allowed == DECLARED:
+            rows = zip(final["method"], final["planner"], final["ablation"], strict=True)
+            keep &= np.array([spec.experiment in runs.row(*row).experiments for row in rows], dtype=bool)
+        elif allowed is not None:
             keep &= final[column].isin(allowed)
     if spec.scenes == "objects":
         keep &= np.array([runs.scene(scene).nerf_asset for scene in final["scene"]], dtype=bool)

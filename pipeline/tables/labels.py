@@ -16,11 +16,13 @@ LAST = 10**6  # order of the object-scene mean: after every scene
 
 @dataclass(frozen=True)
 class RowName:
-    """A (method, planner, ablation) row: its label (``NVF``, ``w/o Vis.``, ``AIR-OPT``) and sort key
-    (plain before refined planners, ablations as in Table S2, methods as in Tables S3-S4)."""
+    """A (method, planner, ablation) row: its label (``NVF``, ``w/o Vis.``, ``AIR-OPT``), sort key (plain
+    before refined planners, ablations as in Table S2, methods as in Tables S3-S4) and the experiments its
+    method declares (``method.experiments``: the paper tables it joins)."""
 
     label: str
     order: tuple
+    experiments: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -43,7 +45,7 @@ def row_name(config: Mapping[str, Any]) -> RowName:
     if planner != "argmax":
         label = f"{label}-{planner.upper()}"
     order = (planner != "argmax", planner, ablation.get("rank", LAST), method.get("rank", LAST), method["name"])
-    return RowName(label, order)
+    return RowName(label, order, tuple(method.get("experiments") or ()))
 
 
 def scene_name(config: Mapping[str, Any]) -> SceneName:
