@@ -17,8 +17,9 @@ browser:
 run: setup
 	$(PY) -m pipeline.run $(ARGS)
 
-lint: setup  # import layers and format (pyproject.toml's [tool.importlinter], [tool.ruff])
+lint: setup  # import layers, lint and format (pyproject.toml's [tool.importlinter], [tool.ruff])
 	.venv/bin/lint-imports
+	$(PY) -m ruff check nvf pipeline
 	$(PY) -m ruff format --check nvf pipeline tests scripts
 
 test: setup blender lint

@@ -89,7 +89,7 @@ def _quiet_import_load():
     return load
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def cpp_extension() -> ModuleType | None:
     """The compiled hash-grid kernels, built once per process; ``None`` if they cannot be built."""
     try:
@@ -103,8 +103,10 @@ def cpp_extension() -> ModuleType | None:
             build_directory=str(_build_dir(cflags)),
             verbose=False,
         )
-    except Exception as error:  # noqa: BLE001 - any build failure (no compiler, no ninja, ...) means fallback
-        warnings.warn(f"nvf: hash-grid C++ kernel unavailable ({type(error).__name__}: {error}); using torch")
+    except Exception as error:  # any build failure (no compiler, no ninja, ...) means fallback
+        warnings.warn(
+            f"nvf: hash-grid C++ kernel unavailable ({type(error).__name__}: {error}); using torch", stacklevel=2
+        )
         return None
 
 

@@ -120,7 +120,7 @@ class SceneModel(nn.Module):
         train: bool = False,
         generator: torch.Generator | None = None,
         sampler: str = "occupancy",
-        image_idx: Int[Tensor, "R"] | None = None,
+        image_idx: Int[Tensor, " R"] | None = None,
     ) -> RenderResult:
         """Render rays ``o + t d`` (unit ``d``): sample, then M1-M3 on the kept samples.
 

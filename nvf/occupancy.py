@@ -244,7 +244,7 @@ class OccupancyGrid(nn.Module):
         if not outputs:
             empty = torch.zeros(0, device=device)
             return torch.zeros(0, dtype=torch.long, device=device), empty, empty, empty, empty
-        unit, t_start, t_end, k_start, k_end = (torch.cat(parts) for parts in zip(*outputs))
+        unit, t_start, t_end, k_start, k_end = (torch.cat(parts) for parts in zip(*outputs, strict=True))
         return unit, t_start, t_end, k_start, k_end
 
     @torch.no_grad()

@@ -45,9 +45,17 @@ def test_field_bench_writes_its_variant_and_refuses_a_bad_argument_before_runnin
 def test_train_bench_writes_rates_fractions_and_psnr(tmp_path):
     out = tmp_path / "train.json"
     train.main(["budget=smoke", "--repeats", "1", "--out", str(out)])
-    keys = ["train_samples_per_s", "infer_samples_per_s", "infer_rgb_samples_per_s", "train_fraction_of_limit",
-            "infer_fraction_of_limit", "matmul_gflops", "heldout_psnr", "train_view_psnr",
-            "heldout_psnr_off_edges"]  # fmt: skip
+    keys = [
+        "train_samples_per_s",
+        "infer_samples_per_s",
+        "infer_rgb_samples_per_s",
+        "train_fraction_of_limit",
+        "infer_fraction_of_limit",
+        "matmul_gflops",
+        "heldout_psnr",
+        "train_view_psnr",
+        "heldout_psnr_off_edges",
+    ]
     report = _assert_positive(out, [*keys, "train_samples_per_s_at_limit", "infer_samples_per_s_at_limit"])
     assert report["settings"]["budget"] == "smoke" and report["settings"]["training_views"] == 20
     for key in ("train", "infer"):  # the limit is the matmul rate over the MLP FLOPs per sample
@@ -102,8 +110,12 @@ def test_bench_precisions_the_cpu_lacks_are_one_line(monkeypatch, capsys):
 def test_plan_bench_writes_every_scorer_against_a_plain_render(tmp_path):
     out = tmp_path / "plan.json"
     plan.main(["budget=smoke", "planner.num_candidates=16", "--repeats", "1", "--out", str(out)])
-    keys = ["nvf_over_plain_render", "nvf_over_plain_mlp_flops", "candidates_per_s_plain_render",
-            *(f"candidates_per_s_{m}" for m in SCORING)]  # fmt: skip
+    keys = [
+        "nvf_over_plain_render",
+        "nvf_over_plain_mlp_flops",
+        "candidates_per_s_plain_render",
+        *(f"candidates_per_s_{m}" for m in SCORING),
+    ]
     report = _assert_positive(out, [*keys, "matmul_gflops"])
     seconds = {name: sum(block) for name, block in report["seconds_per_block"].items()}
     extra = seconds["nvf"] - seconds["plain_render"]  # below timing noise at this size: may be <= 0
@@ -164,8 +176,9 @@ def test_visibility_bench_writes_separation_ranking_and_terms(tmp_path):
     assert report["sources"]["head"]["same_argmax_sets"] in (0, 1)
 
 
-@pytest.mark.parametrize("argv, says", [(["--sources", "head,oracle"], "--sources='head,oracle'"),
-                                        (["--step", "3"], "needs --record")])  # fmt: skip
+@pytest.mark.parametrize(
+    "argv, says", [(["--sources", "head,oracle"], "--sources='head,oracle'"), (["--step", "3"], "needs --record")]
+)
 def test_visibility_bench_refuses_bad_arguments(argv, says, capsys):
     with pytest.raises(SystemExit) as exit_:
         visibility.main(argv)

@@ -35,7 +35,7 @@ class OpacityScorer:
     heads: ClassVar[frozenset[str]] = frozenset()
     sampler: ClassVar[str] = "occupancy"
 
-    def pixel_scores(self, result: RenderResult, pixel_index: Int[Tensor, "R"] | None = None) -> Float[Tensor, "R"]:
+    def pixel_scores(self, result: RenderResult, pixel_index: Int[Tensor, " R"] | None = None) -> Float[Tensor, " R"]:
         return result.acc**self.power
 
 

@@ -83,12 +83,18 @@ class ToyModel(nn.Module):
         weights, trans = weights_from_alpha(alpha, samples.ray_idx, n_rays)
         rgb_s = torch.sigmoid(x + dirs[samples.ray_idx])
         return RenderResult(
-            samples=samples, sigma=sigma, alpha=alpha, weights=weights, trans=trans, rgb_s=rgb_s,
-            variance=0.01 + 0.05 * torch.sigmoid(x), visibility=torch.sigmoid(x.sum(-1)),
+            samples=samples,
+            sigma=sigma,
+            alpha=alpha,
+            weights=weights,
+            trans=trans,
+            rgb_s=rgb_s,
+            variance=0.01 + 0.05 * torch.sigmoid(x),
+            visibility=torch.sigmoid(x.sum(-1)),
             rgb=ray_sum(weights[:, None] * rgb_s, samples.ray_idx, n_rays),
             depth=expected_depth(weights, samples.t_mid, samples.ray_idx, n_rays),
             acc=ray_sum(weights, samples.ray_idx, n_rays),
-        )  # fmt: skip
+        )
 
 
 class AccScorer:
@@ -262,10 +268,12 @@ def test_a_tie_is_a_seeded_random_pick():
     """METHOD 13: candidates are drawn i.i.d. (positions uniform in the box), so the first of tied candidates
     is a uniform pick among them, seeded from (seed, step): over steps it lands all over the camera box."""
     box = torch.tensor([[1.0, 1.0, 1.0], [1.9, 1.9, 1.9]])  # outside the blob: the density filter keeps all
-    picks = torch.stack([
-        select_next_view(blob_model(), ConstScorer(), cfg(n=8), box, None, INTR, 1e-4, False, gens(step=s)).pose[4:]
-        for s in range(24)
-    ])  # fmt: skip
+    picks = torch.stack(
+        [
+            select_next_view(blob_model(), ConstScorer(), cfg(n=8), box, None, INTR, 1e-4, False, gens(step=s)).pose[4:]
+            for s in range(24)
+        ]
+    )
     assert len({tuple(p.tolist()) for p in picks}) == 24
     middle = box.mean(0)
     assert ((picks < middle).any(0) & (picks > middle).any(0)).all()  # both halves of the box on every axis

@@ -342,9 +342,14 @@ def test_train_model_runs_stages_in_order():
     )
     seen = []
     stats = train_model(
-        model, obs, cfg, ["backbone", "variance", "visibility"], EntropyConfig(), torch.Generator().manual_seed(0),
+        model,
+        obs,
+        cfg,
+        ["backbone", "variance", "visibility"],
+        EntropyConfig(),
+        torch.Generator().manual_seed(0),
         progress=lambda stage, k, total, loss: seen.append(stage),
-    )  # fmt: skip
+    )
     assert list(stats.stages) == ["backbone", "visibility", "variance"]
     assert seen == ["backbone"] * 4 + ["visibility"] * 2 + ["variance"] * 2
     with pytest.raises(ValueError, match="unknown training stages"):

@@ -117,13 +117,6 @@ class IterationClock:
             out[stage] = out.get(stage, 0.0) + self.wall[i] - (self.wall[i - 1] if i else 0.0)
         return out
 
-    def stage_seconds(self) -> dict[str, float]:
-        """Own wall seconds per training stage (an iteration's time goes to the stage that reported it)."""
-        out: dict[str, float] = {}
-        for i, stage in enumerate(self.stages):
-            out[stage] = out.get(stage, 0.0) + self.wall[i] - (self.wall[i - 1] if i else 0.0)
-        return out
-
     def windows(self, first: int, count: int) -> list[tuple[int, int]]:
         """``count`` consecutive iteration ranges ``(first, last)`` covering ``first..end`` (fewer if
         there are fewer iterations)."""

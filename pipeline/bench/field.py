@@ -122,7 +122,7 @@ def bench_variant(cfg: FieldConfig, rays: int, per_ray: int, chunk: int, iters: 
         t3 = time.perf_counter()
         optimizer.step()
         t4 = time.perf_counter()
-        for key, seconds in zip(phases, (t1 - t0, t3 - t2, t2 - t1, t4 - t3)):
+        for key, seconds in zip(phases, (t1 - t0, t3 - t2, t2 - t1, t4 - t3), strict=True):
             phases[key].append(seconds)
 
     def full_train_step() -> None:

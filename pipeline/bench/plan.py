@@ -91,7 +91,7 @@ def time_in_blocks(
     for i, block in enumerate(tqdm(split, desc="blocks", leave=False, disable=not sys.stderr.isatty())):
         for key in keys[i % len(keys) :] + keys[: i % len(keys)]:
             before = model.samples
-            w, c = timed(lambda key=key: jobs[key](poses[block]))
+            w, c = timed(lambda key=key, block=block: jobs[key](poses[block]))
             kept[key] += model.samples - before
             wall[key].append(w)
             cpu[key].append(c)
@@ -153,8 +153,11 @@ def main(argv: list[str]) -> None:
     )
     parser.add_argument("--repeats", type=int, default=1, help="timed passes over all candidates")
     parser.add_argument("--blocks", type=int, default=8, help="candidate blocks per pass (ratio = median over blocks)")
-    parser.add_argument("--precisions", help="train.precision values compared, first the reference (default: fp32,bf16 "
-                        "where the CPU has bfloat16, else fp32)")  # fmt: skip
+    parser.add_argument(
+        "--precisions",
+        help="train.precision values compared, first the reference (default: fp32,bf16 "
+        "where the CPU has bfloat16, else fp32)",
+    )
     args = parser.parse_intermixed_args(argv)
     if args.repeats < 1 or args.blocks < 1:
         parser.error("--repeats and --blocks must be >= 1")
@@ -213,31 +216,44 @@ def main(argv: list[str]) -> None:
     report["nvf_over_plain_render_at_limit"] = 1.0 + extra_seconds_at_limit / plain_seconds
     extra_seconds = sum(wall["nvf"]) - plain_seconds
     report["nvf_extra_fraction_of_limit"] = extra_seconds_at_limit / extra_seconds if extra_seconds > 0 else None
-    report.update({
-        "goal_nvf_over_plain_render": GOAL_NVF_OVER_PLAIN,
-        "goal_met": ratio <= GOAL_NVF_OVER_PLAIN,
-        "goal_within_limit": report["nvf_over_plain_render_at_limit"] <= GOAL_NVF_OVER_PLAIN,
-        "nvf_over_plain_mlp_flops": nvf_flops / plain_flops,
-        "seconds_per_block": {name: wall[name] for name in work},
-        "precision": base,
-        "precisions": per,
-        "ratios": ratios,
-        "settings": {
-            "budget": cfg.budget.name, "scene": cfg.scene.name, "field_kind": s.field.kind,
-            "field_backend": s.field.backend, "log2_hashmap_size": s.field.log2_hashmap_size,
-            "training_views": obs.num_images, "image_size": size,
-            "train_iters": {stage: getattr(s.train, stage).iters for stage in STAGES},
-            "train_seconds": setup.train_seconds, "candidates": m, "candidates_requested": planner.num_candidates,
-            "resolution": res, "chunk_rays": chunk, "tau": s.tau, "collision_free": s.collision_free,
-            "heads": {method: sorted(scorer.heads) for method, scorer in scorers.items()},
-            "samplers": {method: scorer.sampler for method, scorer in scorers.items()},
-            "plain_render_samples_per_ray": kept["plain_render"] / (args.repeats * m * intr.num_pixels),
-            "repeats": args.repeats, "blocks": args.blocks, "torch_threads": torch.get_num_threads(),
-            "precisions": precisions,
-            "overrides": args.overrides,
-        },
-        "seconds": time.perf_counter() - start,
-    })  # fmt: skip
+    report.update(
+        {
+            "goal_nvf_over_plain_render": GOAL_NVF_OVER_PLAIN,
+            "goal_met": ratio <= GOAL_NVF_OVER_PLAIN,
+            "goal_within_limit": report["nvf_over_plain_render_at_limit"] <= GOAL_NVF_OVER_PLAIN,
+            "nvf_over_plain_mlp_flops": nvf_flops / plain_flops,
+            "seconds_per_block": {name: wall[name] for name in work},
+            "precision": base,
+            "precisions": per,
+            "ratios": ratios,
+            "settings": {
+                "budget": cfg.budget.name,
+                "scene": cfg.scene.name,
+                "field_kind": s.field.kind,
+                "field_backend": s.field.backend,
+                "log2_hashmap_size": s.field.log2_hashmap_size,
+                "training_views": obs.num_images,
+                "image_size": size,
+                "train_iters": {stage: getattr(s.train, stage).iters for stage in STAGES},
+                "train_seconds": setup.train_seconds,
+                "candidates": m,
+                "candidates_requested": planner.num_candidates,
+                "resolution": res,
+                "chunk_rays": chunk,
+                "tau": s.tau,
+                "collision_free": s.collision_free,
+                "heads": {method: sorted(scorer.heads) for method, scorer in scorers.items()},
+                "samplers": {method: scorer.sampler for method, scorer in scorers.items()},
+                "plain_render_samples_per_ray": kept["plain_render"] / (args.repeats * m * intr.num_pixels),
+                "repeats": args.repeats,
+                "blocks": args.blocks,
+                "torch_threads": torch.get_num_threads(),
+                "precisions": precisions,
+                "overrides": args.overrides,
+            },
+            "seconds": time.perf_counter() - start,
+        }
+    )
     args.out = report_path(args.out, cfg.paths.results, "plan")
     write_report(report, args.out)
     print(f"{'':14}{'cand/s':>10}{'(cpu)':>10}{'x plain':>9}")

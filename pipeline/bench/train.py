@@ -199,8 +199,15 @@ class InitialViewModel:
 
         def train(name: str, model: CountingModel, progress: IterationClock) -> None:
             generator = torch.Generator().manual_seed(int(cfg.seed))
-            train_model(model, obs, dataclasses.replace(s.train, precision=name), STAGES, s.entropy, generator,
-                        progress=progress)  # fmt: skip
+            train_model(
+                model,
+                obs,
+                dataclasses.replace(s.train, precision=name),
+                STAGES,
+                s.entropy,
+                generator,
+                progress=progress,
+            )
 
         clocks = train_in_lockstep(models, sum(getattr(s.train, stage).iters for stage in STAGES), train)
         setups = {
@@ -215,9 +222,15 @@ class InitialViewModel:
         s = self.settings
         current = matrix_to_pose(self.obs.c2w[-1].to(torch.float32))
         return candidate_poses(
-            self.model, s.planner, self.scene.camera_box, current, s.tau, s.collision_free,
-            seeded_generator(int(self.cfg.seed), step, "candidates"), line_of_sight=self.renderer.unoccluded,
-        )  # fmt: skip
+            self.model,
+            s.planner,
+            self.scene.camera_box,
+            current,
+            s.tau,
+            s.collision_free,
+            seeded_generator(int(self.cfg.seed), step, "candidates"),
+            line_of_sight=self.renderer.unoccluded,
+        )
 
 
 def held_out_poses(
@@ -278,8 +291,13 @@ def inference_rates(
     for name, timed in rounds.items():
         wall = [n / w for w, _, n in timed]
         cpu = [n / c for _, c, n in timed]
-        out[name] = {"wall": wall, "cpu": cpu, "samples_per_pass": timed[0][2],
-                     "samples_per_s": statistics.median(wall), "samples_per_s_cpu": statistics.median(cpu)}  # fmt: skip
+        out[name] = {
+            "wall": wall,
+            "cpu": cpu,
+            "samples_per_pass": timed[0][2],
+            "samples_per_s": statistics.median(wall),
+            "samples_per_s_cpu": statistics.median(cpu),
+        }
     return out
 
 
@@ -381,9 +399,11 @@ def print_report(report: dict, update_every: int) -> None:
     for key, label in (("train", "train step"), ("infer", "infer all"), ("infer_rgb", "infer rgb")):
         goal = GOALS.get(f"{key}_samples_per_s")
         mark = "" if goal is None else ("met" if r[f"{key}_samples_per_s"] >= goal else f"<{goal:.0e}")
-        print(f"{label:14}{r[f'{key}_samples_per_s']:>12.3e}{r[f'{key}_samples_per_s_cpu']:>12.3e}"
-              f"{r[f'{key}_samples_per_s_at_limit']:>12.3e}{r[f'{key}_fraction_of_limit']:>13.3f}"
-              f"{mark:>9}")  # fmt: skip
+        print(
+            f"{label:14}{r[f'{key}_samples_per_s']:>12.3e}{r[f'{key}_samples_per_s_cpu']:>12.3e}"
+            f"{r[f'{key}_samples_per_s_at_limit']:>12.3e}{r[f'{key}_fraction_of_limit']:>13.3f}"
+            f"{mark:>9}"
+        )
     print(
         f"matmul [{rows}x{width}]x[{width}x{width}]: {r['matmul_gflops']:.1f} GFLOP/s; "
         f"PSNR held-out {r['heldout_psnr']:.2f} dB ({r['heldout_psnr_off_edges']:.2f} off edges), "
@@ -403,13 +423,17 @@ def print_report(report: dict, update_every: int) -> None:
         f"forward+backward {r['mlp_floor_fwd_bwd_ms']:.1f} ms, skipping pass {r['mlp_floor_skip_density_ms']:.1f} ms, "
         f"grid update {r['mlp_floor_grid_update_ms']:.0f} ms / {update_every})"
     )
-    print(f"{'precision':10}{'train/s':>11}{'(cpu)':>11}{'ms/iter':>9}{'infer/s':>11}{'rgb/s':>11}{'held-out':>10}"
-          f"{'field floor':>13}{'MLP floor':>11}")  # fmt: skip
+    print(
+        f"{'precision':10}{'train/s':>11}{'(cpu)':>11}{'ms/iter':>9}{'infer/s':>11}{'rgb/s':>11}{'held-out':>10}"
+        f"{'field floor':>13}{'MLP floor':>11}"
+    )
     for name, p in r["precisions"].items():
-        print(f"{name:10}{p['train_samples_per_s']:>11.3e}{p['train_samples_per_s_cpu']:>11.3e}"
-              f"{p['train_ms_per_iter']:>9.1f}{p['infer_samples_per_s']:>11.3e}{p['infer_rgb_samples_per_s']:>11.3e}"
-              f"{p['heldout_psnr']:>10.2f}{p['train_samples_per_s_field_floor']:>13.3e}"
-              f"{p['train_samples_per_s_mlp_floor']:>11.3e}")  # fmt: skip
+        print(
+            f"{name:10}{p['train_samples_per_s']:>11.3e}{p['train_samples_per_s_cpu']:>11.3e}"
+            f"{p['train_ms_per_iter']:>9.1f}{p['infer_samples_per_s']:>11.3e}{p['infer_rgb_samples_per_s']:>11.3e}"
+            f"{p['heldout_psnr']:>10.2f}{p['train_samples_per_s_field_floor']:>13.3e}"
+            f"{p['train_samples_per_s_mlp_floor']:>11.3e}"
+        )
 
     def spread(x: dict) -> str:
         return f"{x['median']:.2f} [{x['min']:.2f}-{x['max']:.2f}]"
@@ -466,9 +490,11 @@ def parse_precisions(value: str | None) -> list[str]:
     value = default_precisions() if value is None else value
     names = [name.strip() for name in value.split(",") if name.strip()]
     for name in names:
-        reason = unsupported_reason(name, torch.device("cpu")) if name in PRECISIONS else (
-            f"unknown precision; choose from {', '.join(PRECISIONS)}"
-        )  # fmt: skip
+        reason = (
+            unsupported_reason(name, torch.device("cpu"))
+            if name in PRECISIONS
+            else (f"unknown precision; choose from {', '.join(PRECISIONS)}")
+        )
         if reason is not None:
             fail(f"--precisions {name}: {reason}")
     if not names or len(set(names)) != len(names):
@@ -496,8 +522,11 @@ def main(argv: list[str]) -> None:
         "--out", type=Path, default=None, help="JSON report path (default: ${paths.results}/bench/train.json)"
     )
     parser.add_argument("--repeats", type=int, default=3, help="timed inference passes (median)")
-    parser.add_argument("--precisions", help="train.precision values compared, first the reference (default: fp32,bf16 "
-                        "where the CPU has bfloat16, else fp32)")  # fmt: skip
+    parser.add_argument(
+        "--precisions",
+        help="train.precision values compared, first the reference (default: fp32,bf16 "
+        "where the CPU has bfloat16, else fp32)",
+    )
     parser.add_argument("--windows", type=int, default=5, help="iteration windows of the paired training ratios")
     args = parser.parse_intermixed_args(argv)
     if args.repeats < 1 or args.windows < 1:
@@ -577,20 +606,33 @@ def main(argv: list[str]) -> None:
         "train_goal_within_field_floor": r["train_samples_per_s_field_floor"] >= GOALS["train_samples_per_s"],
         "train_goal_within_mlp_floor": r["train_samples_per_s_mlp_floor"] >= GOALS["train_samples_per_s"],
         "settings": {
-            "budget": cfg.budget.name, "scene": cfg.scene.name, "field_kind": s.field.kind,
+            "budget": cfg.budget.name,
+            "scene": cfg.scene.name,
+            "field_kind": s.field.kind,
             "field_backend": s.field.backend,
             "field_backend_resolved": "cpp" if s.field.backend != "torch" and cpp_extension() is not None else "torch",
-            "log2_hashmap_size": s.field.log2_hashmap_size, "hidden_dim": width, "image_size": size,
-            "training_views": obs.num_images, "iterations": s.train.backbone.iters, "warmup_iterations": warmup,
-            "rays_per_batch": s.train.backbone.batch, "torch_threads": torch.get_num_threads(),
+            "log2_hashmap_size": s.field.log2_hashmap_size,
+            "hidden_dim": width,
+            "image_size": size,
+            "training_views": obs.num_images,
+            "iterations": s.train.backbone.iters,
+            "warmup_iterations": warmup,
+            "rays_per_batch": s.train.backbone.batch,
+            "torch_threads": torch.get_num_threads(),
             "train_samples_per_ray": r["train_samples_per_iter"] / s.train.backbone.batch,
             "infer_samples_per_ray": rounds["infer"][base]["samples_per_pass"] / (obs.num_images * intr.num_pixels),
-            "infer_chunk": RENDER_CHUNK, "matmul_rows": rows, "precisions": precisions, "ratio_windows": args.windows,
-            "inference_repeats": args.repeats, "heldout_views": HELD_OUT_VIEWS, "gt_samples_per_side": gt_samples,
-            "ground_truth": ground_truth_info(scene, renderer, Path(cfg.paths.assets)), "overrides": args.overrides,
+            "infer_chunk": RENDER_CHUNK,
+            "matmul_rows": rows,
+            "precisions": precisions,
+            "ratio_windows": args.windows,
+            "inference_repeats": args.repeats,
+            "heldout_views": HELD_OUT_VIEWS,
+            "gt_samples_per_side": gt_samples,
+            "ground_truth": ground_truth_info(scene, renderer, Path(cfg.paths.assets)),
+            "overrides": args.overrides,
         },
         "seconds": time.perf_counter() - start,
-    }  # fmt: skip
+    }
     args.out = report_path(args.out, cfg.paths.results, "train")
     write_report(report, args.out)
     print_report(report, s.sampler.update_every)

@@ -20,7 +20,6 @@ from nvf.model import SceneModel
 from nvf.planning import Selection, argmax_first, score_poses, select_next_view
 from nvf.seeding import generator_factory, seeded_generator
 from nvf.training import Observations, TrainStats, train_model
-from nvf.uncertainty import ViewScorer
 from nvf.visibility_source import SourcedVisibility, label_visibility
 from pipeline.episode.evaluation import Evaluator
 from pipeline.episode.settings import EpisodeSettings
@@ -113,10 +112,17 @@ class Episode:
         t2 = time.perf_counter()
         current = matrix_to_pose(self.poses[-1]).to(self.device)
         selection = select_next_view(
-            planning, self.scorer, s.planner, self.scene.camera_box.to(self.device), current,
-            self.plan_intrinsics, s.tau, s.collision_free, generator_factory(s.seed, step, self.device),
+            planning,
+            self.scorer,
+            s.planner,
+            self.scene.camera_box.to(self.device),
+            current,
+            self.plan_intrinsics,
+            s.tau,
+            s.collision_free,
+            generator_factory(s.seed, step, self.device),
             self.renderer.unoccluded,
-        )  # fmt: skip
+        )
         t3 = time.perf_counter()
         self.previous_model = model if s.train.warm_start else None
         row = {
@@ -128,11 +134,19 @@ class Episode:
             "selected_index": selection.index,
             "selected_score": selection.score,
             "refined": selection.refined,
-            "candidate_scores": dataclasses.asdict(selection.candidate_scores) if selection.candidate_scores else
-            {"count": selection.num_candidates, "min": None, "mean": None, "max": None, "std": None, "ties_at_max": None},
+            "candidate_scores": dataclasses.asdict(selection.candidate_scores)
+            if selection.candidate_scores
+            else {
+                "count": selection.num_candidates,
+                "min": None,
+                "mean": None,
+                "max": None,
+                "std": None,
+                "ties_at_max": None,
+            },
             "train": stats.stages,
             "seconds": {"train": t1 - t0, "eval": t2 - t1, "plan": t3 - t2},
-        }  # fmt: skip
+        }
         if selection.opt is not None:
             row["opt"] = {
                 "original_scores": selection.opt.original_scores.tolist(),

@@ -14,7 +14,8 @@ class, a scene's boxes and views) is what its name stood for: a record lacking s
 other config's value when both name the same option.
 
 A retired key (``RETIRED_KEYS``) is dropped before records are compared: its value is implied by keys that
-remain; a moved key (``MOVED_TO_METHOD``) is read where it lives now. ``NOT_SETTINGS`` are config groups and keys that never change a run's views or metrics.
+remain; a moved key (``MOVED_TO_METHOD``) is read where it lives now. ``NOT_SETTINGS`` are config groups and keys that
+never change a run's views or metrics.
 """
 
 import copy

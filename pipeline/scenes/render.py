@@ -141,7 +141,7 @@ class MeshRays:
 
     def cast_rays(
         self, origins: Float[np.ndarray, "N 3"], dirs: Float[np.ndarray, "N 3"]
-    ) -> tuple[Float[np.ndarray, "N"], Int[np.ndarray, "N"]]:
+    ) -> tuple[Float[np.ndarray, " N"], Int[np.ndarray, " N"]]:
         """Exact ray casting (open3d): hit distance along ``dirs`` (inf = miss) and face id (-1 = miss)."""
         rays = np.concatenate([origins, dirs], axis=-1).astype(np.float32)
         hits = self._raycaster.cast_rays(self._o3d.core.Tensor(rays))
@@ -152,7 +152,7 @@ class MeshRays:
 
     def line_of_sight(
         self, points: Float[Tensor, "N 3"], c2w: Float[Tensor, "M 4 4"], intr: Intrinsics, margin: float = 0.0
-    ) -> Bool[Tensor, "N"]:
+    ) -> Bool[Tensor, " N"]:
         """Exact visibility of ``points`` from the cameras ``c2w``: some camera has the point in its
         image (M17's frustum, no depth limit) and an unoccluded line of sight to it (open3d ray cast
         from the camera centre, 1e-4 tolerance). The limit of a depth test at infinite resolution.
@@ -170,7 +170,7 @@ class MeshRays:
             visible |= frustum_mask(points, pose, intr, math.inf) & self.unoccluded(origin, ends)
         return visible
 
-    def unoccluded(self, origin: Float[Tensor, "3"], points: Float[Tensor, "N 3"]) -> Bool[Tensor, "N"]:
+    def unoccluded(self, origin: Float[Tensor, "3"], points: Float[Tensor, "N 3"]) -> Bool[Tensor, " N"]:
         """Whether the segment from ``origin`` to each point crosses no face (open3d ray cast, 1e-4
         tolerance; a point at the origin is unoccluded). On ``points``' device."""
         device = points.device
@@ -181,7 +181,7 @@ class MeshRays:
         t_hit, _ = self.cast_rays(origin.expand_as(to_point).numpy(), dirs.numpy())
         return (torch.from_numpy(t_hit >= distance.numpy() - 1e-4) | (distance == 0)).to(device)
 
-    def inside(self, points: Float[Tensor, "N 3"]) -> Bool[Tensor, "N"]:
+    def inside(self, points: Float[Tensor, "N 3"]) -> Bool[Tensor, " N"]:
         """Whether each point lies inside the mesh (open3d's occupancy query, which assumes a
         watertight mesh: near an open edge a point can be misjudged). On ``points``' device."""
         query = self._o3d.core.Tensor(points.detach().cpu().to(torch.float32).numpy())
