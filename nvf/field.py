@@ -182,6 +182,8 @@ def make_encoding(cfg: FieldConfig) -> HashEncoding:
 class RadianceField(nn.Module):
     """NVF field over the object AABB ``[2,3]`` (min, max) with colour, variance and visibility heads."""
 
+    aabb: Tensor
+
     def __init__(self, aabb: Float[Tensor, "2 3"], cfg: FieldConfig, num_images: int = 0) -> None:
         super().__init__()
         if cfg.appearance_embedding and num_images < 1:

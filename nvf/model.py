@@ -35,6 +35,8 @@ class RenderResult:
 class SceneModel(nn.Module):
     """``RadianceField`` over the object AABB and its ``OccupancyGrid``."""
 
+    aabb: Tensor
+
     def __init__(
         self, aabb: Float[Tensor, "2 3"], field_cfg: FieldConfig, sampler_cfg: SamplerConfig, num_images: int = 0
     ):

@@ -46,6 +46,11 @@ class OccupancyGrid(nn.Module):
     the first :meth:`update`.
     """
 
+    aabb: Tensor  # buffers (typed here: nn.Module's attribute lookup does not know them)
+    occ: Tensor
+    occupied: Tensor
+    observed: Tensor
+
     def __init__(self, aabb: Float[Tensor, "2 3"], cfg: SamplerConfig):
         super().__init__()
         self.cfg = cfg

@@ -70,7 +70,7 @@ def valid_pose_mask(poses: Float[Tensor, "n 7"]) -> Bool[Tensor, " n"]:
 @torch.no_grad()
 def density_mask(model: nn.Module, positions: Float[Tensor, "n 3"], tau: float) -> Bool[Tensor, " n"]:
     """(M28) Keep a camera centre if ``sigma(x) < tau``; the field returns 0 outside the AABB."""
-    sigma = model.density(positions)
+    sigma = model.density(positions)  # type: ignore[operator]  # a duck-typed nn.Module's attribute
     return sigma < tau
 
 
@@ -98,7 +98,7 @@ def candidate_poses(
     """
     n = cfg.num_candidates
     drawn = 3 * n if collision_free else math.floor(cfg.oversample * n)
-    poses = sample_poses(drawn, camera_box, generator).to(model.aabb.device)
+    poses = sample_poses(drawn, camera_box, generator).to(model.aabb.device)  # type: ignore[arg-type]  # a duck-typed nn.Module's attribute
     stages: list[tuple[str, Callable[[Tensor], Tensor]]] = [("quaternion filter", valid_pose_mask)]
     if apply_filters:
         stages.append((f"density filter M28 (tau={tau:g})", lambda p: density_mask(model, p[:, 4:], tau)))
@@ -114,7 +114,7 @@ def candidate_poses(
                 los_density = model.observed_density if cfg.los_unobserved_free else model.density
 
                 def los(p: Tensor) -> Tensor:
-                    trans = segment_transmittance(los_density, origin, p[:, 4:], cfg.los_samples, generator, model.aabb)
+                    trans = segment_transmittance(los_density, origin, p[:, 4:], cfg.los_samples, generator, model.aabb)  # type: ignore[arg-type]  # a duck-typed nn.Module's attribute
                     return trans > cfg.los_threshold
 
                 stages.append((f"line-of-sight filter M29 (T > {cfg.los_threshold:g})", los))
@@ -161,7 +161,7 @@ def score_poses(
         origins, dirs = rays_from_camera_dirs(c2w, cam_dirs)
         for start in range(0, num_pixels, chunk_rays):
             index = torch.arange(start, min(start + chunk_rays, num_pixels), device=poses.device)
-            result = model.render(origins[index], dirs[index], heads=scorer.heads, train=False, sampler=scorer.sampler)
+            result = model.render(origins[index], dirs[index], heads=scorer.heads, train=False, sampler=scorer.sampler)  # type: ignore[operator]  # a duck-typed nn.Module's attribute
             scores[i] += scorer.pixel_scores(result, pixel_index=index).to(torch.float64).sum()
     scores = scores / num_pixels
     _check_finite(scores, "pose")
@@ -296,7 +296,7 @@ def refine_poses(
                 continue  # diverged: never rendered again, dropped at the end
             with torch.enable_grad():
                 origins, dirs = rays_from_camera_dirs(c2w_of(i), cam_dirs[index])
-                result = model.render(origins, dirs, heads=scorer.heads, train=False, sampler=scorer.sampler)
+                result = model.render(origins, dirs, heads=scorer.heads, train=False, sampler=scorer.sampler)  # type: ignore[operator]  # a duck-typed nn.Module's attribute
                 loss = -scorer.pixel_scores(result, pixel_index=index).mean()
                 if loss.requires_grad:
                     (g,) = torch.autograd.grad(loss, [leaf], allow_unused=True)

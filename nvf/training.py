@@ -287,12 +287,12 @@ class _Recorder:
         mean = sum(window) / len(window)
         lowest = self.lowest_mean
         full = len(window) == COLLAPSE_WINDOW and lowest is not None and lowest > 0
-        if full and mean > COLLAPSE_FACTOR * lowest and mean > self.losses[0]:
+        if full and lowest is not None and mean > COLLAPSE_FACTOR * lowest and mean > self.losses[0]:
             raise TrainingDiverged(
                 f"{self.stage} stage collapsed at iteration {iteration}: mean loss {mean:.4g} over the last "
                 f"{COLLAPSE_WINDOW} iterations, {mean / lowest:.3g} times its lowest earlier mean {lowest:.4g} and "
-                "above "
-                f"the first iteration's {self.losses[0]:.4g} (limit {COLLAPSE_FACTOR:g}x; a learning rate too high?)"
+                f"above the first iteration's {self.losses[0]:.4g} (limit {COLLAPSE_FACTOR:g}x; a learning rate too "
+                "high?)"
             )
         self.lowest_mean = mean if lowest is None else min(lowest, mean)
 
@@ -379,6 +379,7 @@ def train_backbone(
         loss = ((pred - gt) ** 2).mean()  # M20
         value = rec.check(loss, k)
         if aux_loss is not None:
+            assert result.variance is not None, "stage 1 with an auxiliary loss renders the variance head"
             samples = result.samples
             ray_var = ray_sum(result.weights.detach()[:, None] * result.variance, samples.ray_idx, samples.n_rays)
             sq_residual = (gt - pred).detach() ** 2
@@ -447,6 +448,7 @@ def train_variance_head(
             samples = result.samples
             rec.count(samples)
             batch.update(samples.num_samples)
+            assert result.rgb_s is not None and result.variance is not None and result.visibility is not None
             mixture, _ = ray_mixture(
                 result.alpha.detach(),
                 result.rgb_s.detach(),

@@ -86,5 +86,6 @@ class RenderedVarianceScorer:
     sampler: ClassVar[str] = "occupancy"
 
     def pixel_scores(self, result: RenderResult, pixel_index: Int[Tensor, " R"] | None = None) -> Float[Tensor, " R"]:
+        assert result.variance is not None, "rendered with the variance head (heads)"
         per_sample = (result.weights * result.variance.mean(-1)).clamp(min=VAR_SCORE_FLOOR)
         return ray_sum(per_sample, result.samples.ray_idx, result.samples.n_rays)

@@ -88,6 +88,7 @@ class NVFEntropyScorer:
             eq_weights = equivalent_weights(result.alpha, visibility, ray_idx, counts, cfg)
             entropy, depth = upper_bound_and_depth(eq_weights, visibility, variance, t_mid, ray_idx, n_rays, cfg)
         else:
+            assert result.rgb_s is not None, "rendered with the variance head (its per-sample colours)"
             mixture, eq_weights = ray_mixture(
                 result.alpha, result.rgb_s, result.variance, result.visibility, ray_idx, n_rays, cfg
             )
