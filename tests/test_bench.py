@@ -4,13 +4,21 @@ quality numbers within bounds set below what smoke reaches today (stated where a
 
 import json
 import math
+import time
 from pathlib import Path
 
 import pytest
+import torch
 
+from nvf.cameras import Intrinsics
+from nvf.training import train_backbone
 from pipeline.bench import __main__ as bench
 from pipeline.bench import episode, field, plan, train, visibility
+from pipeline.bench._models import CountingModel, load, observations
 from pipeline.config.catalog import method_configs
+from pipeline.config.validation import compose_config
+from pipeline.episode.settings import EpisodeSettings
+from pipeline.scenes.ground_truth import open_renderer
 
 SCORING = [name for name in method_configs() if name != "random"]  # every method with a view score
 
@@ -91,6 +99,36 @@ def test_train_bench_writes_rates_fractions_and_psnr(tmp_path):
         met = report["precision_goals_met"][f"{name}_over_fp32"]
         assert met["train_samples_per_s"] == (ratio["train_samples_per_s"]["median"] >= 1.5)
         assert met["heldout_psnr_drop_db"] == (ratio["heldout_psnr_diff"] >= -0.2)
+
+
+@pytest.mark.slow
+def test_train_bench_measures_what_an_episode_trains(tmp_path):
+    """One precision trains on the main thread, as the episode does: the bench's samples/s agrees within 15%
+    with ``train_backbone`` of the same settings timed directly (the same warm-up iterations left out)."""
+    overrides = ["budget=smoke", "train.backbone.iters=60"]
+    out = tmp_path / "train.json"
+    train.main([*overrides, "--precisions", "fp32", "--repeats", "1", "--out", str(out)])
+    report = json.loads(out.read_text())
+    warmup = report["settings"]["warmup_iterations"]
+    cfg = compose_config(overrides)
+    scene = load(cfg)
+    s = EpisodeSettings.of(cfg, scene)
+    size = int(cfg.budget.image_size)
+    renderer = open_renderer(scene, s.render, s.blender_python)
+    obs = observations(renderer, scene.eval_poses, Intrinsics.from_fov(size, size), int(cfg.budget.gt_samples))
+    renderer.close()
+    torch.manual_seed(int(cfg.seed))
+    model = CountingModel(scene.object_aabb, s.field, s.sampler)
+    seconds: list[float] = []
+    samples: list[int] = []
+
+    def progress(stage: str, iteration: int, total: int, loss: float) -> None:
+        seconds.append(time.perf_counter())
+        samples.append(model.samples)
+
+    train_backbone(model, obs, s.train, torch.Generator().manual_seed(int(cfg.seed)), progress=progress)
+    direct = (samples[-1] - samples[warmup - 1]) / (seconds[-1] - seconds[warmup - 1])
+    assert report["train_samples_per_s"] == pytest.approx(direct, rel=0.15)
 
 
 def test_bench_precisions_the_cpu_lacks_are_one_line(monkeypatch, capsys):

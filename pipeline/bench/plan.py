@@ -45,16 +45,19 @@ from tqdm import tqdm
 from nvf.cameras import Intrinsics, camera_directions, pose_to_matrix, rays_from_camera_dirs
 from nvf.config import STAGES
 from nvf.field import INFERENCE_BLOCK, VIS_POSITION_WIDTH
+from nvf.model import SceneModel
 from nvf.planning import score_poses
 from nvf.precision import precision_dtype
+from nvf.uncertainty import ViewScorer
+from pipeline.bench._models import RGB, CountingModel, InitialViewModel, held_out_poses, parse_precisions, view_psnr
 from pipeline.bench._paired import IterationClock, ratio_spread
 from pipeline.bench._report import report_path, write_report
 from pipeline.bench.field import matmul_gflops, mlp_flops
-from pipeline.bench.train import RGB, CountingModel, InitialViewModel, held_out_poses, parse_precisions, view_psnr
 from pipeline.cli import ArgumentParser, description
 from pipeline.config.catalog import method_configs
 from pipeline.config.method import build_method
 from pipeline.config.validation import compose_config
+from pipeline.episode.settings import EpisodeSettings
 
 CANDIDATES = 512  # the paper's N; a later planner.num_candidates=... override wins
 WARMUP_CANDIDATES = 8
@@ -145,7 +148,7 @@ def timed(fn: Callable[[], object]) -> tuple[float, float]:
     return time.perf_counter() - start, (time.process_time() - start_cpu) / torch.get_num_threads()
 
 
-def main(argv: list[str]) -> None:
+def parse_args(argv: list[str]):
     parser = ArgumentParser(prog="python -m pipeline.bench plan", description=description(__doc__))
     parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. budget=smoke")
     parser.add_argument(
@@ -161,19 +164,65 @@ def main(argv: list[str]) -> None:
     args = parser.parse_intermixed_args(argv)
     if args.repeats < 1 or args.blocks < 1:
         parser.error("--repeats and --blocks must be >= 1")
-    start = time.perf_counter()
-    cfg = compose_config([f"planner.num_candidates={CANDIDATES}", *args.overrides])
-    precisions = parse_precisions(args.precisions)
-    setups, clocks = InitialViewModel.train_side_by_side(cfg, precisions)
-    base = precisions[0]
-    setup = setups[base]  # scoring: the reference precision's model with its MLPs in each precision
-    s, obs, model = setup.settings, setup.obs, setup.model
-    size = int(cfg.budget.image_size)
-    planner = s.planner
-    poses = setup.candidates(0)
-    res = int(planner.resolution)
-    intr = Intrinsics.from_fov(res, res)
-    chunk = int(planner.score_chunk_rays)
+    return args
+
+
+def scoring_rates(
+    wall: dict[str, list[float]], cpu: dict[str, list[float]], work: list[str], methods: list[str], candidates: int
+) -> dict:
+    """Candidates per second of each job, and each method's scoring time over the plain render's (the median
+    over blocks of the paired ratios)."""
+    report: dict = {}
+    for name in work:
+        report[f"candidates_per_s_{name}"] = candidates / sum(wall[name])
+        report[f"candidates_per_s_{name}_cpu"] = candidates / sum(cpu[name])
+    for method in methods:
+        report[f"{method}_over_plain_render"] = statistics.median(
+            w / p for w, p in zip(wall[method], wall["plain_render"], strict=True)
+        )
+        report[f"{method}_over_plain_render_cpu"] = statistics.median(
+            c / p for c, p in zip(cpu[method], cpu["plain_render"], strict=True)
+        )
+    return report
+
+
+def print_report(
+    report: dict, work: list[str], precisions: list[str], per: dict, ratios: dict, train_seconds: float, res: int
+) -> None:
+    base, m, ratio = precisions[0], report["settings"]["candidates"], report["nvf_over_plain_render"]
+    print(f"{'':14}{'cand/s':>10}{'(cpu)':>10}{'x plain':>9}")
+    for name in work:
+        x = 1.0 if name == "plain_render" else report[f"{name}_over_plain_render"]
+        rate, rate_cpu = report[f"candidates_per_s_{name}"], report[f"candidates_per_s_{name}_cpu"]
+        print(f"{name:14}{rate:>10.1f}{rate_cpu:>10.1f}{x:>9.2f}")
+    fraction = report["nvf_extra_fraction_of_limit"]
+    print(
+        f"NVF / plain render = {ratio:.2f} (goal <= {GOAL_NVF_OVER_PLAIN}: "
+        f"{'met' if report['goal_met'] else 'not met'}; MLP FLOPs {report['nvf_over_plain_mlp_flops']:.1f}x; "
+        f"{report['nvf_over_plain_render_at_limit']:.2f} with the extra heads at "
+        f"{report['matmul_gflops']:.0f} GFLOP/s, they run at "
+        f"{'an unmeasurable fraction' if fraction is None else f'{fraction:.0%}'} of it); "
+        f"{m} candidates at {res}x{res}; training {train_seconds:.0f} s; {report['seconds']:.0f} s"
+    )
+    for name in precisions[1:]:
+        ratio = ratios[f"{name}_over_{base}"]
+
+        def spread(x: dict) -> str:
+            return f"{x['median']:.2f} [{x['min']:.2f}-{x['max']:.2f}]"
+
+        print(
+            f"{name} over {base} (speed-ups, median [min-max], paired): training {spread(ratio['train_speedup'])} "
+            f"({per[base]['train_seconds']:.0f} s vs {per[name]['train_seconds']:.0f} s, all stages), held-out PSNR "
+            f"{ratio['heldout_psnr_diff']:+.2f} dB; scoring with the MLPs in {name}: "
+            + ", ".join(f"{job} {spread(x)}" for job, x in ratio["scoring_speedup"].items())
+        )
+
+
+def scoring_jobs(
+    model: SceneModel, s: EpisodeSettings, intr: Intrinsics, chunk: int, precisions: list[str]
+) -> tuple[dict[str, ViewScorer], dict[str, Callable[[Tensor], object]], dict]:
+    """Every declared method's scorer, the work timed (a plain render, each scorer) and one job per work and
+    precision (the model's MLPs inferring in that precision)."""
     methods = {name: build_method(m) for name, m in method_configs().items()}
     scorers = {
         name: scorer for name, method in methods.items() if (scorer := method.scorer(s.entropy, float(s.entropy.d0)))
@@ -190,23 +239,32 @@ def main(argv: list[str]) -> None:
         return run
 
     jobs = {(name, precision): in_precision(fn, precision) for precision in precisions for name, fn in work.items()}
+    return scorers, work, jobs
+
+
+def main(argv: list[str]) -> None:
+    args = parse_args(argv)
+    start = time.perf_counter()
+    cfg = compose_config([f"planner.num_candidates={CANDIDATES}", *args.overrides])
+    precisions = parse_precisions(args.precisions)
+    setups, clocks = InitialViewModel.train_side_by_side(cfg, precisions)
+    base = precisions[0]
+    setup = setups[base]  # scoring: the reference precision's model with its MLPs in each precision
+    s, obs, model = setup.settings, setup.obs, setup.model
+    size = int(cfg.budget.image_size)
+    planner = s.planner
+    poses = setup.candidates(0)
+    res = int(planner.resolution)
+    intr = Intrinsics.from_fov(res, res)
+    chunk = int(planner.score_chunk_rays)
+    scorers, work, jobs = scoring_jobs(model, s, intr, chunk, precisions)
     timings = time_in_blocks(jobs, poses, model, args.blocks, args.repeats)
     candidates = poses.shape[0] * args.repeats
     per, ratios = precision_comparison(setups, clocks, timings[0], list(work), candidates, args.blocks)
     wall, cpu, kept = ({job: by_job[(job, base)] for job in work} for by_job in timings)  # the reference's
 
     m = poses.shape[0]
-    report: dict = {}
-    for name in work:
-        report[f"candidates_per_s_{name}"] = m * args.repeats / sum(wall[name])
-        report[f"candidates_per_s_{name}_cpu"] = m * args.repeats / sum(cpu[name])
-    for method in scorers:
-        report[f"{method}_over_plain_render"] = statistics.median(
-            w / p for w, p in zip(wall[method], wall["plain_render"], strict=True)
-        )
-        report[f"{method}_over_plain_render_cpu"] = statistics.median(
-            c / p for c, p in zip(cpu[method], cpu["plain_render"], strict=True)
-        )
+    report: dict = scoring_rates(wall, cpu, list(work), list(scorers), m * args.repeats)
     ratio = report["nvf_over_plain_render"]
     nvf_flops, plain_flops = mlp_flops(model.field, scorers["nvf"].heads, False), mlp_flops(model.field, RGB, False)
     extra_flops = nvf_flops - plain_flops
@@ -256,30 +314,5 @@ def main(argv: list[str]) -> None:
     )
     args.out = report_path(args.out, cfg.paths.results, "plan")
     write_report(report, args.out)
-    print(f"{'':14}{'cand/s':>10}{'(cpu)':>10}{'x plain':>9}")
-    for name in work:
-        x = 1.0 if name == "plain_render" else report[f"{name}_over_plain_render"]
-        rate, rate_cpu = report[f"candidates_per_s_{name}"], report[f"candidates_per_s_{name}_cpu"]
-        print(f"{name:14}{rate:>10.1f}{rate_cpu:>10.1f}{x:>9.2f}")
-    fraction = report["nvf_extra_fraction_of_limit"]
-    print(
-        f"NVF / plain render = {ratio:.2f} (goal <= {GOAL_NVF_OVER_PLAIN}: "
-        f"{'met' if report['goal_met'] else 'not met'}; MLP FLOPs {report['nvf_over_plain_mlp_flops']:.1f}x; "
-        f"{report['nvf_over_plain_render_at_limit']:.2f} with the extra heads at "
-        f"{report['matmul_gflops']:.0f} GFLOP/s, they run at "
-        f"{'an unmeasurable fraction' if fraction is None else f'{fraction:.0%}'} of it); "
-        f"{m} candidates at {res}x{res}; training {setup.train_seconds:.0f} s; {report['seconds']:.0f} s"
-    )
-    for name in precisions[1:]:
-        ratio = ratios[f"{name}_over_{base}"]
-
-        def spread(x: dict) -> str:
-            return f"{x['median']:.2f} [{x['min']:.2f}-{x['max']:.2f}]"
-
-        print(
-            f"{name} over {base} (speed-ups, median [min-max], paired): training {spread(ratio['train_speedup'])} "
-            f"({per[base]['train_seconds']:.0f} s vs {per[name]['train_seconds']:.0f} s, all stages), held-out PSNR "
-            f"{ratio['heldout_psnr_diff']:+.2f} dB; scoring with the MLPs in {name}: "
-            + ", ".join(f"{job} {spread(x)}" for job, x in ratio["scoring_speedup"].items())
-        )
+    print_report(report, list(work), precisions, per, ratios, setup.train_seconds, res)
     print(f"wrote {args.out}")

@@ -47,8 +47,8 @@ from nvf.cameras import Intrinsics, pose_to_matrix
 from nvf.rendering import ray_sum
 from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
 from nvf.visibility_source import SOURCES, label_visibility
+from pipeline.bench._models import InitialViewModel
 from pipeline.bench._report import report_path, write_report
-from pipeline.bench.train import InitialViewModel
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.validation import compose_config
 from pipeline.metrics.ranking import auc, render_for_terms, spearman, term_attribution, ties_at_max, view_terms
