@@ -18,6 +18,7 @@ import math
 import os
 import sys
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch
@@ -77,7 +78,7 @@ class CornerColors:
 def corner_colors(part: trimesh.Trimesh) -> CornerColors:
     """Vertex/face colours or a base-colour texture of ``part``, unrolled to its triangles' corners
     (``C = 3 F``, in face order), as both ground-truth backends draw them."""
-    visual = part.visual
+    visual: Any = part.visual  # trimesh's visual kinds (texture, vertex, face) have their own attributes: read by kind
     colors = uv = texture = None
     factor = np.ones(4)
     if visual.kind == "texture" and getattr(visual.material, "baseColorTexture", None) is not None:
@@ -110,9 +111,11 @@ def _as_opaque_primitive(pyrender, part: trimesh.Trimesh):
 
 def base_color_texture_mesh(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     """Textured meshes with a non-PBR material get a PBR copy so the base-colour texture is found."""
-    if mesh.visual.kind == "texture" and not isinstance(mesh.visual.material, trimesh.visual.material.PBRMaterial):
+    visual: Any = mesh.visual  # trimesh's visual kinds (texture, vertex, face) have their own attributes: read by kind
+    if visual.kind == "texture" and not isinstance(visual.material, trimesh.visual.material.PBRMaterial):
         mesh = mesh.copy()
-        mesh.visual.material = mesh.visual.material.to_pbr()
+        copied: Any = mesh.visual
+        copied.material = visual.material.to_pbr()
     return mesh
 
 
