@@ -1,10 +1,10 @@
 # Two entry points for a fresh machine: `make run` (one NVF episode on the embedded scene) and
-# `make test` (the default test suite). Each installs what it needs first (scripts/setup.sh): `run` the
+# `make test` (`make lint`, then the default test suite). Each installs what it needs first (scripts/setup.sh): `run` the
 # main environment, `test` also Blender (its tests render with it); `make blender` installs Blender alone.
 PY := .venv/bin/python
 ARGS ?=
 
-.PHONY: setup blender browser run test test-slow bench
+.PHONY: setup blender browser run lint test test-slow bench
 setup:
 	@bash scripts/setup.sh
 
@@ -17,7 +17,13 @@ browser:
 run: setup
 	$(PY) -m pipeline.run $(ARGS)
 
-test: setup blender
+lint: setup  # import layers, lint, format and types (pyproject.toml's [tool.importlinter], [tool.ruff], [tool.mypy])
+	.venv/bin/lint-imports
+	$(PY) -m ruff check nvf pipeline
+	$(PY) -m ruff format --check nvf pipeline tests scripts
+	$(PY) -m mypy nvf
+
+test: setup blender lint
 	$(PY) -m pytest -n 2 $(ARGS)
 
 test-slow: setup blender browser

@@ -94,7 +94,7 @@ def pixel_rays(
 
 def project(
     points: Float[Tensor, "N 3"], c2w: Float[Tensor, "4 4"], intrinsics: Intrinsics
-) -> tuple[Float[Tensor, "N 2"], Float[Tensor, "N"]]:
+) -> tuple[Float[Tensor, "N 2"], Float[Tensor, " N"]]:
     """Pixel coordinates ``(u, v)`` (continuous, top-left origin) and camera depth (> 0 in front)."""
     rot, pos = c2w[:3, :3], c2w[:3, 3]
     cam = (points - pos) @ rot  # world -> camera: R^T (x - p)
@@ -113,10 +113,16 @@ def quat_to_matrix(quat: Float[Tensor, "*B 4"]) -> Float[Tensor, "*B 3 3"]:
     """
     x, y, z, w = quat.unbind(-1)
     rows = [
-        1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
-        2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
-        2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y),
-    ]  # fmt: skip
+        1 - 2 * (y * y + z * z),
+        2 * (x * y - z * w),
+        2 * (x * z + y * w),
+        2 * (x * y + z * w),
+        1 - 2 * (x * x + z * z),
+        2 * (y * z - x * w),
+        2 * (x * z - y * w),
+        2 * (y * z + x * w),
+        1 - 2 * (x * x + y * y),
+    ]
     return torch.stack(rows, dim=-1).reshape(*quat.shape[:-1], 3, 3)
 
 

@@ -89,7 +89,7 @@ def _quiet_import_load():
     return load
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def cpp_extension() -> ModuleType | None:
     """The compiled hash-grid kernels, built once per process; ``None`` if they cannot be built."""
     try:
@@ -103,8 +103,10 @@ def cpp_extension() -> ModuleType | None:
             build_directory=str(_build_dir(cflags)),
             verbose=False,
         )
-    except Exception as error:  # noqa: BLE001 - any build failure (no compiler, no ninja, ...) means fallback
-        warnings.warn(f"nvf: hash-grid C++ kernel unavailable ({type(error).__name__}: {error}); using torch")
+    except Exception as error:  # any build failure (no compiler, no ninja, ...) means fallback
+        warnings.warn(
+            f"nvf: hash-grid C++ kernel unavailable ({type(error).__name__}: {error}); using torch", stacklevel=2
+        )
         return None
 
 
@@ -156,7 +158,9 @@ class _CppHashGrid(torch.autograd.Function):
         ctx.meta = (n_dense, hash_mask)
         if known is not None:
             return known.clone()
-        return cpp_extension().forward(u, table, levels, offsets, n_dense, hash_mask)
+        ext = cpp_extension()
+        assert ext is not None, "the C++ kernel is used only once it has built"
+        return ext.forward(u, table, levels, offsets, n_dense, hash_mask)
 
     @staticmethod
     def backward(ctx, grad_out: Tensor):
@@ -164,6 +168,7 @@ class _CppHashGrid(torch.autograd.Function):
         n_dense, hash_mask = ctx.meta
         grad_out = grad_out.contiguous()
         ext = cpp_extension()
+        assert ext is not None, "the C++ kernel is used only once it has built"
         grad_table = grad_u = None
         if ctx.needs_input_grad[0]:
             grad_table = ext.backward(grad_out, u, table.shape[0], levels, offsets, n_dense, hash_mask)
@@ -174,6 +179,14 @@ class _CppHashGrid(torch.autograd.Function):
 
 class HashEncoding(nn.Module):
     """Hash-grid encoding ``[N,3] -> [N, num_levels * features_per_level]`` (METHOD section 3)."""
+
+    _levels: Tensor
+    _offsets: Tensor
+    _scale: Tensor
+    _strides: Tensor
+    _primes: Tensor
+    _corner: Tensor
+    _offsets32: Tensor
 
     def __init__(
         self,

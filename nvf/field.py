@@ -45,12 +45,12 @@ class FieldOutput:
     set to 1 outside the AABB.
     """
 
-    sigma: Float[Tensor, "S"]
+    sigma: Float[Tensor, " S"]
     geo: Float[Tensor, "S G"]
     rgb: Float[Tensor, "S 3"] | None = None
     variance: Float[Tensor, "S 3"] | None = None
-    visibility: Float[Tensor, "S"] | None = None
-    vis_logit: Float[Tensor, "S"] | None = None
+    visibility: Float[Tensor, " S"] | None = None
+    vis_logit: Float[Tensor, " S"] | None = None
 
 
 class _TruncExp(torch.autograd.Function):
@@ -118,7 +118,7 @@ class MLP(nn.Sequential):
 
     def __init__(self, sizes: list[int], bias: bool):
         layers: list[nn.Module] = []
-        for i, (fan_in, fan_out) in enumerate(zip(sizes[:-1], sizes[1:])):
+        for i, (fan_in, fan_out) in enumerate(zip(sizes[:-1], sizes[1:], strict=True)):
             layers.append(nn.Linear(fan_in, fan_out, bias=bias))
             if i < len(sizes) - 2:
                 layers.append(nn.ReLU(inplace=True))
@@ -182,6 +182,8 @@ def make_encoding(cfg: FieldConfig) -> HashEncoding:
 class RadianceField(nn.Module):
     """NVF field over the object AABB ``[2,3]`` (min, max) with colour, variance and visibility heads."""
 
+    aabb: Tensor
+
     def __init__(self, aabb: Float[Tensor, "2 3"], cfg: FieldConfig, num_images: int = 0) -> None:
         super().__init__()
         if cfg.appearance_embedding and num_images < 1:
@@ -210,7 +212,7 @@ class RadianceField(nn.Module):
         try:
             yield
         finally:
-            for mlp, (previous_train, previous_infer) in zip(mlps, before):
+            for mlp, (previous_train, previous_infer) in zip(mlps, before, strict=True):
                 mlp.train_dtype, mlp.infer_dtype = previous_train, previous_infer
 
     def normalize(self, x: Float[Tensor, "S 3"]) -> Float[Tensor, "S 3"]:
@@ -218,25 +220,25 @@ class RadianceField(nn.Module):
         return (x - self.aabb[0]) / (self.aabb[1] - self.aabb[0])
 
     @staticmethod
-    def inside(u: Float[Tensor, "S 3"]) -> Bool[Tensor, "S"]:
+    def inside(u: Float[Tensor, "S 3"]) -> Bool[Tensor, " S"]:
         """Whether every coordinate of ``u`` lies in the open interval ``(0,1)``."""
         return ((u > 0.0) & (u < 1.0)).all(dim=-1)
 
     def _density(
-        self, u: Float[Tensor, "S 3"], inside: Bool[Tensor, "S"], encoded: Tensor | None = None
+        self, u: Float[Tensor, "S 3"], inside: Bool[Tensor, " S"], encoded: Tensor | None = None
     ) -> tuple[Tensor, Tensor, Tensor]:
         """``sigma``, ``g`` and the encoding of ``u`` (``encoded``: its known value, see ``forward``)."""
         encoded = self.encoding(u, known=encoded)
         h = self.density_mlp(encoded)
         return torch.where(inside, trunc_exp(h[:, 0]), 0.0), h[:, 1:], encoded
 
-    def density(self, x: Float[Tensor, "S 3"]) -> tuple[Float[Tensor, "S"], Float[Tensor, "S G"]]:
+    def density(self, x: Float[Tensor, "S 3"]) -> tuple[Float[Tensor, " S"], Float[Tensor, "S G"]]:
         """Density ``sigma >= 0`` (0 outside the AABB) and geometry feature ``g``."""
         return self.density_and_encoding(x)[:2]
 
     def density_and_encoding(
         self, x: Float[Tensor, "S 3"]
-    ) -> tuple[Float[Tensor, "S"], Float[Tensor, "S G"], Float[Tensor, "S E"]]:
+    ) -> tuple[Float[Tensor, " S"], Float[Tensor, "S G"], Float[Tensor, "S E"]]:
         """``density(x)`` plus the encoding of ``x``, which ``forward(..., encoded=)`` can reuse."""
         u = self.normalize(x)
         return self._density(u, self.inside(u))
@@ -246,7 +248,7 @@ class RadianceField(nn.Module):
         x: Float[Tensor, "S 3"],
         d: Float[Tensor, "S 3"],
         heads: frozenset[str] = frozenset({"rgb"}),
-        image_idx: Int[Tensor, "S"] | None = None,
+        image_idx: Int[Tensor, " S"] | None = None,
         density: FieldOutput | None = None,
         encoded: Float[Tensor, "S E"] | None = None,
     ) -> FieldOutput:

@@ -35,6 +35,8 @@ class RenderResult:
 class SceneModel(nn.Module):
     """``RadianceField`` over the object AABB and its ``OccupancyGrid``."""
 
+    aabb: Tensor
+
     def __init__(
         self, aabb: Float[Tensor, "2 3"], field_cfg: FieldConfig, sampler_cfg: SamplerConfig, num_images: int = 0
     ):
@@ -120,7 +122,7 @@ class SceneModel(nn.Module):
         train: bool = False,
         generator: torch.Generator | None = None,
         sampler: str = "occupancy",
-        image_idx: Int[Tensor, "R"] | None = None,
+        image_idx: Int[Tensor, " R"] | None = None,
     ) -> RenderResult:
         """Render rays ``o + t d`` (unit ``d``): sample, then M1-M3 on the kept samples.
 

@@ -46,6 +46,11 @@ class OccupancyGrid(nn.Module):
     the first :meth:`update`.
     """
 
+    aabb: Tensor  # buffers (typed here: nn.Module's attribute lookup does not know them)
+    occ: Tensor
+    occupied: Tensor
+    observed: Tensor
+
     def __init__(self, aabb: Float[Tensor, "2 3"], cfg: SamplerConfig):
         super().__init__()
         self.cfg = cfg
@@ -244,7 +249,7 @@ class OccupancyGrid(nn.Module):
         if not outputs:
             empty = torch.zeros(0, device=device)
             return torch.zeros(0, dtype=torch.long, device=device), empty, empty, empty, empty
-        unit, t_start, t_end, k_start, k_end = (torch.cat(parts) for parts in zip(*outputs))
+        unit, t_start, t_end, k_start, k_end = (torch.cat(parts) for parts in zip(*outputs, strict=True))
         return unit, t_start, t_end, k_start, k_end
 
     @torch.no_grad()

@@ -35,7 +35,7 @@ from nvf.uncertainty import StepScorer, ViewScorer, WholeViewScorer
 from nvf.visibility import segment_transmittance
 
 # (origin [3], points [n,3]) -> [n] True where the segment from origin to the point is free (M29, los_source=mesh)
-LineOfSight = Callable[[Float[Tensor, "3"], Float[Tensor, "n 3"]], Bool[Tensor, "n"]]
+LineOfSight = Callable[[Float[Tensor, "3"], Float[Tensor, "n 3"]], Bool[Tensor, " n"]]
 
 _QUAT_EPS = 1e-9  # METHOD 13 step 2
 
@@ -64,15 +64,15 @@ def sample_poses(n: int, camera_box: Float[Tensor, "2 3"], generator: torch.Gene
     return torch.cat([quats, positions], dim=-1).to(camera_box.device)
 
 
-def valid_pose_mask(poses: Float[Tensor, "n 7"]) -> Bool[Tensor, "n"]:
+def valid_pose_mask(poses: Float[Tensor, "n 7"]) -> Bool[Tensor, " n"]:
     """Quaternion filter (METHOD 13 step 2): quaternion norm > 1e-9 and no NaN in the pose."""
     return (torch.linalg.norm(poses[:, :4], dim=-1) > _QUAT_EPS) & ~poses.isnan().any(dim=-1)
 
 
 @torch.no_grad()
-def density_mask(model: nn.Module, positions: Float[Tensor, "n 3"], tau: float) -> Bool[Tensor, "n"]:
+def density_mask(model: nn.Module, positions: Float[Tensor, "n 3"], tau: float) -> Bool[Tensor, " n"]:
     """(M28) Keep a camera centre if ``sigma(x) < tau``; the field returns 0 outside the AABB."""
-    sigma = model.density(positions)
+    sigma = model.density(positions)  # type: ignore[operator]  # a duck-typed nn.Module's attribute
     return sigma < tau
 
 
@@ -100,7 +100,7 @@ def candidate_poses(
     """
     n = cfg.num_candidates
     drawn = 3 * n if collision_free else math.floor(cfg.oversample * n)
-    poses = sample_poses(drawn, camera_box, generator).to(model.aabb.device)
+    poses = sample_poses(drawn, camera_box, generator).to(model.aabb.device)  # type: ignore[arg-type]  # a duck-typed nn.Module's attribute
     stages: list[tuple[str, Callable[[Tensor], Tensor]]] = [("quaternion filter", valid_pose_mask)]
     if apply_filters:
         stages.append((f"density filter M28 (tau={tau:g})", lambda p: density_mask(model, p[:, 4:], tau)))
@@ -116,7 +116,7 @@ def candidate_poses(
                 los_density = model.observed_density if cfg.los_unobserved_free else model.density
 
                 def los(p: Tensor) -> Tensor:
-                    trans = segment_transmittance(los_density, origin, p[:, 4:], cfg.los_samples, generator, model.aabb)
+                    trans = segment_transmittance(los_density, origin, p[:, 4:], cfg.los_samples, generator, model.aabb)  # type: ignore[arg-type]  # a duck-typed nn.Module's attribute
                     return trans > cfg.los_threshold
 
                 stages.append((f"line-of-sight filter M29 (T > {cfg.los_threshold:g})", los))
@@ -162,7 +162,7 @@ def score_poses(
     poses: Float[Tensor, "m 7"],
     intrinsics: Intrinsics,
     chunk_rays: int,
-) -> Float[Tensor, "m"]:
+) -> Float[Tensor, " m"]:
     """(M16) View reward ``R(p)`` of each pose: mean of ``scorer.pixel_scores`` over the full image; for a
     ``WholeViewScorer``, its ``view_score`` of the full image (METHOD 17).
 
@@ -183,7 +183,7 @@ def score_poses(
         origins, dirs = rays_from_camera_dirs(c2w, cam_dirs)
         for start in range(0, num_pixels, chunk_rays):
             index = torch.arange(start, min(start + chunk_rays, num_pixels), device=poses.device)
-            result = model.render(origins[index], dirs[index], heads=scorer.heads, train=False, sampler=scorer.sampler)
+            result = model.render(origins[index], dirs[index], heads=scorer.heads, train=False, sampler=scorer.sampler)  # type: ignore[operator]  # a duck-typed nn.Module's attribute
             scores[i] += scorer.pixel_scores(result, pixel_index=index).to(torch.float64).sum()
     scores = scores / num_pixels
     _check_finite(scores, "pose")
@@ -204,7 +204,7 @@ class ScoreSummary:
     ties_at_max: int
 
     @staticmethod
-    def of(scores: Float[Tensor, "m"]) -> "ScoreSummary":
+    def of(scores: Float[Tensor, " m"]) -> "ScoreSummary":
         s = scores.to(torch.float64)
         top = s.max()
         return ScoreSummary(
@@ -216,11 +216,11 @@ class ScoreSummary:
 class OptTrace:
     """What -OPT did (METHOD 14): the top-k candidates and the refined poses, re-scored."""
 
-    original_indices: Int[Tensor, "k"]  # candidate indices of the top-k, best first
-    original_scores: Float[Tensor, "k"]  # their full-image scores (re-scored)
+    original_indices: Int[Tensor, " k"]  # candidate indices of the top-k, best first
+    original_scores: Float[Tensor, " k"]  # their full-image scores (re-scored)
     refined_poses: Float[Tensor, "j 7"]  # refined poses without NaN
-    refined_from: Int[Tensor, "j"]  # candidate index each refined pose started from
-    refined_scores: Float[Tensor, "j"]  # their full-image scores
+    refined_from: Int[Tensor, " j"]  # candidate index each refined pose started from
+    refined_scores: Float[Tensor, " j"]  # their full-image scores
 
 
 @dataclass
@@ -235,15 +235,15 @@ class Selection:
     refined: bool = False  # -OPT: the pose is a refined one
     opt: OptTrace | None = None
     candidates: Float[Tensor, "m 7"] | None = None  # every candidate pose, in draw order
-    scores: Float[Tensor, "m"] | None = None  # their full-image R(p); None for Random
+    scores: Float[Tensor, " m"] | None = None  # their full-image R(p); None for Random
 
 
-def argmax_first(scores: Float[Tensor, "m"]) -> int:
+def argmax_first(scores: Float[Tensor, " m"]) -> int:
     """Index of the maximum; ties go to the lowest index (METHOD 13)."""
     return int((scores == scores.max()).nonzero()[0, 0])
 
 
-def top_k_first(scores: Float[Tensor, "m"], k: int) -> Int[Tensor, "k2"]:
+def top_k_first(scores: Float[Tensor, " m"], k: int) -> Int[Tensor, " k2"]:
     """Indices of the ``min(k, m)`` best scores, best first; ties keep the lower index first."""
     return torch.sort(scores, descending=True, stable=True).indices[: min(k, scores.shape[0])]
 
@@ -253,7 +253,7 @@ def top_k_first(scores: Float[Tensor, "m"], k: int) -> Int[Tensor, "k2"]:
 # ----------------------------------------------------------------------------------------------
 
 
-def ray_subset(num_pixels: int, chunk_rays: int, fraction: float, generator: torch.Generator) -> Int[Tensor, "n"]:
+def ray_subset(num_pixels: int, chunk_rays: int, fraction: float, generator: torch.Generator) -> Int[Tensor, " n"]:
     """Sorted row-major pixel ids: a random ``floor(fraction * n)`` of each ``chunk_rays`` chunk
     of ``n`` pixels (METHOD 14; 8,987 of a 300x300 image at 10 %). On the generator's device."""
     parts = []
@@ -272,7 +272,7 @@ def refine_poses(
     intrinsics: Intrinsics,
     opt: OptConfig,
     generators: GeneratorFactory,
-) -> tuple[Float[Tensor, "j 7"], Int[Tensor, "j"]]:
+) -> tuple[Float[Tensor, "j 7"], Int[Tensor, " j"]]:
     """-OPT gradient refinement (METHOD 14, Alg. S2) of the ``k`` starting poses.
 
     One Adam (``opt.lr``) for ``opt.iters`` iterations over all poses. Iteration ``i`` renders,
@@ -318,7 +318,7 @@ def refine_poses(
                 continue  # diverged: never rendered again, dropped at the end
             with torch.enable_grad():
                 origins, dirs = rays_from_camera_dirs(c2w_of(i), cam_dirs[index])
-                result = model.render(origins, dirs, heads=scorer.heads, train=False, sampler=scorer.sampler)
+                result = model.render(origins, dirs, heads=scorer.heads, train=False, sampler=scorer.sampler)  # type: ignore[operator]  # a duck-typed nn.Module's attribute
                 loss = -scorer.pixel_scores(result, pixel_index=index).mean()
                 if loss.requires_grad:
                     (g,) = torch.autograd.grad(loss, [leaf], allow_unused=True)
@@ -394,6 +394,7 @@ def select_next_view(
             candidates[index], index, scores[index].item(), m, summary, candidates=candidates, scores=scores
         )
 
+    assert isinstance(scorer, ViewScorer)  # -OPT with a WholeViewScorer was refused above
     top = top_k_first(scores, cfg.opt.top_k)
     refined, kept = refine_poses(model, scorer, candidates[top], camera_box, intrinsics, cfg.opt, generators)
     pool = torch.cat([candidates[top], refined])

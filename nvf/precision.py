@@ -14,7 +14,11 @@ import torch
 
 from nvf.config import Precision
 
-DTYPES = {Precision.fp32: torch.float32, Precision.bf16: torch.bfloat16, Precision.fp16: torch.float16}
+DTYPES: dict[str, torch.dtype] = {
+    Precision.fp32: torch.float32,
+    Precision.bf16: torch.bfloat16,
+    Precision.fp16: torch.float16,
+}
 PRECISIONS = tuple(Precision)
 # What a device needs to run a low precision natively, for error messages.
 REQUIREMENTS = {

@@ -78,7 +78,7 @@ def weights_from_alpha(
     return trans * alpha, trans
 
 
-def ray_sum(values: Float[Tensor, "S *C"], ray_idx: Int[Tensor, " S"], n_rays: int) -> Float[Tensor, "R *C"]:
+def ray_sum(values: Float[Tensor, " S *C"], ray_idx: Int[Tensor, " S"], n_rays: int) -> Float[Tensor, " R *C"]:
     """Per-ray sum of packed ``values`` (zero for rays without samples); differentiable."""
     out = torch.zeros((n_rays, *values.shape[1:]), dtype=values.dtype, device=values.device)
     return out.index_add(0, ray_idx, values)

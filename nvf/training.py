@@ -75,7 +75,7 @@ class Observations:
 
     def sample_rays(
         self, batch: int, generator: torch.Generator
-    ) -> tuple[Float[Tensor, "B 3"], Float[Tensor, "B 3"], Float[Tensor, "B 4"], Int[Tensor, "B"]]:
+    ) -> tuple[Float[Tensor, "B 3"], Float[Tensor, "B 3"], Float[Tensor, "B 4"], Int[Tensor, " B"]]:
         """``batch`` pixels drawn uniformly (with replacement) over all pixels of all images:
         world-frame origins, unit directions, the RGBA ground truth and each ray's image index."""
         _require_images(self)
@@ -111,7 +111,7 @@ def backbone_lr(cfg: TrainConfig, iteration: int) -> float:
 
 
 def composite(
-    rgb: Float[Tensor, "R 3"], opacity: Float[Tensor, "R"], background: Float[Tensor, "R 3"]
+    rgb: Float[Tensor, "R 3"], opacity: Float[Tensor, " R"], background: Float[Tensor, "R 3"]
 ) -> Float[Tensor, "R 3"]:
     """(M4) ``rgb + (1 - opacity) b``: the prediction with ``(C_hat, A)``, the ground truth with
     ``(c_gt alpha_gt, alpha_gt)``."""
@@ -135,7 +135,7 @@ def neurar_loss(ray_variance: Float[Tensor, "R 3"], sq_residual: Float[Tensor, "
     return NEURAR_SCALE * ((ray_variance - sq_residual.detach()) ** 2).mean()
 
 
-def variance_nll(log_p: Float[Tensor, "R"]) -> Float[Tensor, ""]:
+def variance_nll(log_p: Float[Tensor, " R"]) -> Float[Tensor, ""]:
     """(M21) ``0.01 mean_{r: p_r > 0} [-ln max(p_r, 1e-7)]`` from ``ln p_r`` (``-inf`` when p_r = 0).
 
     NaN when no ray has ``p_r > 0`` (reported as divergence by the caller)."""
@@ -143,7 +143,7 @@ def variance_nll(log_p: Float[Tensor, "R"]) -> Float[Tensor, ""]:
     return VAR_LOSS_SCALE * (-log_p[valid].clamp_min(math.log(VAR_P_FLOOR))).mean()
 
 
-def balanced_bce_weights(labels: Float[Tensor, "N"]) -> Float[Tensor, "N"]:
+def balanced_bce_weights(labels: Float[Tensor, " N"]) -> Float[Tensor, " N"]:
     """(M19) ``w+ = 0.7/(2p) + 0.3``, ``w- = 0.7/(2(1-p)) + 0.3`` with ``p`` the fraction of
     ``labels > 0.5``; all ones if ``2p < 1e-7`` or ``2(1-p) < 1e-7``."""
     positive = labels > BCE_POS_THRESHOLD
@@ -154,7 +154,7 @@ def balanced_bce_weights(labels: Float[Tensor, "N"]) -> Float[Tensor, "N"]:
     return torch.where(positive, torch.full_like(labels, w_pos), torch.full_like(labels, w_neg))
 
 
-def visibility_bce(logits: Float[Tensor, "N"], labels: Float[Tensor, "N"]) -> Float[Tensor, ""]:
+def visibility_bce(logits: Float[Tensor, " N"], labels: Float[Tensor, " N"]) -> Float[Tensor, ""]:
     """(M19) ``mean_n [w_n BCEWithLogits(logit_n, V*_n)]`` (a plain mean, not normalised by sum w)."""
     bce = F.binary_cross_entropy_with_logits(logits, labels, reduction="none")
     return (balanced_bce_weights(labels) * bce).mean()
@@ -287,11 +287,12 @@ class _Recorder:
         mean = sum(window) / len(window)
         lowest = self.lowest_mean
         full = len(window) == COLLAPSE_WINDOW and lowest is not None and lowest > 0
-        if full and mean > COLLAPSE_FACTOR * lowest and mean > self.losses[0]:
+        if full and lowest is not None and mean > COLLAPSE_FACTOR * lowest and mean > self.losses[0]:
             raise TrainingDiverged(
                 f"{self.stage} stage collapsed at iteration {iteration}: mean loss {mean:.4g} over the last "
-                f"{COLLAPSE_WINDOW} iterations, {mean / lowest:.3g} times its lowest earlier mean {lowest:.4g} and above "
-                f"the first iteration's {self.losses[0]:.4g} (limit {COLLAPSE_FACTOR:g}x; a learning rate too high?)"
+                f"{COLLAPSE_WINDOW} iterations, {mean / lowest:.3g} times its lowest earlier mean {lowest:.4g} and "
+                f"above the first iteration's {self.losses[0]:.4g} (limit {COLLAPSE_FACTOR:g}x; a learning rate too "
+                "high?)"
             )
         self.lowest_mean = mean if lowest is None else min(lowest, mean)
 
@@ -378,6 +379,7 @@ def train_backbone(
         loss = ((pred - gt) ** 2).mean()  # M20
         value = rec.check(loss, k)
         if aux_loss is not None:
+            assert result.variance is not None, "stage 1 with an auxiliary loss renders the variance head"
             samples = result.samples
             ray_var = ray_sum(result.weights.detach()[:, None] * result.variance, samples.ray_idx, samples.n_rays)
             sq_residual = (gt - pred).detach() ** 2
@@ -446,6 +448,7 @@ def train_variance_head(
             samples = result.samples
             rec.count(samples)
             batch.update(samples.num_samples)
+            assert result.rgb_s is not None and result.variance is not None and result.visibility is not None
             mixture, _ = ray_mixture(
                 result.alpha.detach(),
                 result.rgb_s.detach(),

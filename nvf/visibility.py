@@ -19,7 +19,7 @@ DensityFn = Callable[[Tensor], Tensor]  # positions [S,3] -> density sigma [S] (
 
 def frustum_mask(
     points: Float[Tensor, "N 3"], c2w: Float[Tensor, "4 4"], intrinsics: Intrinsics, max_depth: float
-) -> Bool[Tensor, "N"]:
+) -> Bool[Tensor, " N"]:
     """Frustum test of M17: ``0 < camera depth < max_depth`` and projecting inside the image
     (``0 <= u < W``, ``0 <= v < H``)."""
     uv, depth = project(points, c2w, intrinsics)
@@ -37,7 +37,7 @@ def segment_transmittance(
     aabb: Float[Tensor, "2 3"] | None = None,
     chunk_samples: int = 1 << 18,
     margin: float = 0.0,
-) -> Float[Tensor, "P"]:
+) -> Float[Tensor, " P"]:
     """(M17) ``T(x) = exp(-sum_{k<K} sigma(y_k) delta)`` from ``origin`` to each point.
 
     ``K = num_samples`` stratified samples on ``[0, L]``, ``L = max(|x - o| - margin, 0)`` (``margin``
@@ -90,7 +90,7 @@ def visibility_labels(
     generator: torch.Generator | None = None,
     aabb: Float[Tensor, "2 3"] | None = None,
     chunk_samples: int = 1 << 18,
-) -> Float[Tensor, "N"]:
+) -> Float[Tensor, " N"]:
     """(M18) Soft label ``V*(x) = 1 - prod_{j in F(x)} (1 - T_j(x))`` in ``[0, 1]``.
 
     ``F(x)``: the cameras whose frustum (``cfg.label_max_depth``) contains ``x``; points outside

@@ -63,11 +63,15 @@ def settings(curve: pd.DataFrame) -> list[Setting]:
         per_scene = rule.groupby("scene")
         won = sum(len(g) == len(RULE_COMPARISONS) and bool((g["ci_low"] > 0).all()) for _, g in per_scene)
         leads = [g["mean_diff"].min() for _, g in per_scene if len(g) == len(RULE_COMPARISONS)]
-        out.append(Setting(
-            label=str(label), scenes=tuple(sorted(rows["scene"].unique())),
-            minutes=float(rows["minutes_per_episode"].mean()), scenes_won=won,
-            lead=float(sum(leads) / len(leads)) if leads else float("nan"),
-        ))  # fmt: skip
+        out.append(
+            Setting(
+                label=str(label),
+                scenes=tuple(sorted(rows["scene"].unique())),
+                minutes=float(rows["minutes_per_episode"].mean()),
+                scenes_won=won,
+                lead=float(sum(leads) / len(leads)) if leads else float("nan"),
+            )
+        )
     return out
 
 
@@ -87,7 +91,8 @@ def choose(candidates: list[Setting]) -> tuple[Setting | None, str]:
     best = min(complete, key=lambda s: s.minutes)
     return (
         best,
-        "no setting meets the rule and none has a positive lead over both w/o Vis. and the best baseline; this is the cheapest",
+        "no setting meets the rule and none has a positive lead over both w/o Vis. and the best baseline; this is "
+        "the cheapest",
     )
 
 
@@ -96,17 +101,20 @@ def plot(curve: pd.DataFrame) -> Figure:
     comparisons = list(dict.fromkeys(curve["comparison"]))
     figure = Figure(figsize=(4.2 * len(comparisons), 3.6))
     axes = figure.subplots(1, len(comparisons), sharey=True, squeeze=False)[0]
-    markers = dict(zip(SCENES, "osD"))
-    for ax, comparison in zip(axes, comparisons):
+    markers = dict(zip(SCENES, "osD", strict=True))
+    for ax, comparison in zip(axes, comparisons, strict=True):
         rows = curve[curve["comparison"] == comparison]
         for i, (label, group) in enumerate(rows.groupby("label", sort=True)):
             for _, row in group.iterrows():
                 ax.errorbar(
-                    row["minutes_per_episode"], row["mean_diff"],
+                    row["minutes_per_episode"],
+                    row["mean_diff"],
                     yerr=[[row["mean_diff"] - row["ci_low"]], [row["ci_high"] - row["mean_diff"]]],
-                    fmt=markers.get(row["scene"], "^"), color=f"C{i}", capsize=3,
+                    fmt=markers.get(row["scene"], "^"),
+                    color=f"C{i}",
+                    capsize=3,
                     label=f"{label} / {row['scene']}",
-                )  # fmt: skip
+                )
         ax.axhline(0.0, color="grey", linewidth=0.8)
         ax.set_title(comparison)
         ax.set_xlabel("minutes per episode")
@@ -118,16 +126,20 @@ def plot(curve: pd.DataFrame) -> Figure:
 
 def report(candidates: list[Setting], chosen: Setting | None, why: str) -> str:
     lines = [
-        "# Budget curve", "",
+        "# Budget curve",
+        "",
         f"Rule: among settings measured on {', '.join(SCENES)}, the cheapest where NVF beats w/o Vis. and the best "
         f"baseline with the paired 95% interval above zero on at least two scenes, within {MAX_MINUTES:g} minutes per "
-        "episode; else the widest positive lead per minute.", "",
+        "episode; else the widest positive lead per minute.",
+        "",
         "| setting | scenes | min/episode | scenes won | lead (dB) | lead per minute |",
         "|:--|:--|--:|--:|--:|--:|",
-    ]  # fmt: skip
+    ]
     for s in candidates:
-        lines.append(f"| {s.label} | {', '.join(s.scenes)} | {s.minutes:.1f} | {s.scenes_won} | {s.lead:+.2f} | "
-                     f"{s.lead / s.minutes:+.3f} |")  # fmt: skip
+        lines.append(
+            f"| {s.label} | {', '.join(s.scenes)} | {s.minutes:.1f} | {s.scenes_won} | {s.lead:+.2f} | "
+            f"{s.lead / s.minutes:+.3f} |"
+        )
     verdict = f"Chosen: **{chosen.label}** ({why})." if chosen else f"Chosen: none ({why})."
     return "\n".join([*lines, "", verdict, ""])
 

@@ -5,9 +5,12 @@ For each scene and seed it runs (through ``python -m pipeline.run -m``, scene by
 per entry, ``hydra/launcher=joblib`` with ``J`` one-thread jobs; finished runs are skipped, so a killed
 experiment resumes; ``step_metrics=psnr``: the steps before the last record the PSNR alone) full NVF
 (recording, at every step, how w/o Vis.'s score ranks the same candidates: ``diagnostics.rank_against=wo_vis``),
-its ablations w/o Vis. and Ind. Rays, and the baselines WD, ActiveNeRF and NeurAR. An entry the overrides
+its ablations w/o Vis. and Ind. Rays, and the baselines: every other method whose yaml lists ``discriminate``
+under ``experiments`` (WD, ActiveNeRF, NeurAR), on every scene whose yaml lists it (default, hotdog, hubble). An entry
+the overrides
 cannot change (``pipeline.records.compat.inert_keys``: ``nvf.entropy.logdet_coeff=1.0`` on WD) is not run
-again where ``--reuse DIR`` (default ``results/runs``) holds its finished records of the plain budget. Then, per scene, the paired (same seed) differences of final PSNR and of PSNR
+again where ``--reuse DIR`` (default ``results/runs``) holds its finished records of the plain budget. Then, per
+scene, the paired (same seed) differences of final PSNR and of PSNR
 averaged over the steps: NVF - w/o Vis., NVF - Ind. Rays and NVF - the best baseline (the baseline with
 the highest mean final PSNR on that scene), each with a 95% Student-t interval over the seeds, the
 Spearman correlation of NVF's and w/o Vis.'s candidate scores, and minutes per episode.
@@ -32,6 +35,7 @@ import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
 from pipeline.cli import ArgumentParser, description, fail
+from pipeline.config.catalog import members, method_configs
 from pipeline.config.named import GROUPS, NamedConfigs
 from pipeline.config.validation import compose_config
 from pipeline.records.store import RunRecord, atomic_write_text, record_status, run_dir
@@ -41,10 +45,16 @@ from pipeline.scenes.scene import SceneError
 from pipeline.tables.load import collect_runs
 from pipeline.tables.stats import Interval
 
-SCENES = ("hotdog", "hubble", "default")
+EXPERIMENT = "discriminate"  # what a method or scene lists under ``experiments`` to join this one
+SCENES = tuple(members("scene", EXPERIMENT))  # every scene that declares it, by name
 SEEDS = (100, 101, 102)
 NVF, WO_VIS, IND_RAYS = ("nvf", "none"), ("nvf", "wo_vis"), ("nvf", "ind_rays")
-BASELINES = (("wd", "none"), ("activenerf", "none"), ("neurar", "none"))
+# NVF's rivals: every other method that declares the experiment, in table order (``rank``)
+BASELINES = tuple(
+    (name, "none")
+    for name, node in method_configs().items()
+    if EXPERIMENT in node.get("experiments", []) and name != NVF[0]
+)
 ENTRIES = (NVF, WO_VIS, IND_RAYS, *BASELINES)
 EXTRA = {NVF: "diagnostics.rank_against=wo_vis"}  # an entry's measurement beyond the run
 COMPARISONS = (("nvf-wo_vis", WO_VIS), ("nvf-ind_rays", IND_RAYS), ("nvf-best_baseline", None))
@@ -60,8 +70,10 @@ def budget_label(cfg: DictConfig) -> str:
 
 def entry_labels(overrides: list[str]) -> dict[tuple[str, str], str]:
     """Each entry's budget label under ``overrides`` (the plain budget's where they cannot act on it)."""
-    return {entry: budget_label(compose_config([f"method={entry[0]}", f"ablation={entry[1]}", *overrides]))
-            for entry in ENTRIES}  # fmt: skip
+    return {
+        entry: budget_label(compose_config([f"method={entry[0]}", f"ablation={entry[1]}", *overrides]))
+        for entry in ENTRIES
+    }
 
 
 def reusable(reuse: Path | None, entry: tuple[str, str], label: str, plain: str, scene: str, seeds) -> bool:
@@ -79,13 +91,26 @@ def sweep_commands(
     """One ``python -m pipeline.run -m`` per (scene, entry) in ``entries``, scene by scene, so that each
     scene's comparisons are complete before the next scene starts."""
     common = [
-        f"seed={','.join(map(str, seeds))}", f"paths.outputs='{outputs}'", "save_images=false",  # quoted: '=' in labels
-        "step_metrics=psnr", "hydra/launcher=joblib", f"hydra.launcher.n_jobs={jobs}", *overrides,
-    ]  # fmt: skip
+        f"seed={','.join(map(str, seeds))}",
+        f"paths.outputs='{outputs}'",
+        "save_images=false",  # quoted: '=' in labels
+        "step_metrics=psnr",
+        "hydra/launcher=joblib",
+        f"hydra.launcher.n_jobs={jobs}",
+        *overrides,
+    ]
     commands = []
     for scene, (method, ablation) in entries:
-        command = [sys.executable, "-m", "pipeline.run", "-m", f"scene={scene}", f"method={method}",
-                   f"ablation={ablation}", *common]  # fmt: skip
+        command = [
+            sys.executable,
+            "-m",
+            "pipeline.run",
+            "-m",
+            f"scene={scene}",
+            f"method={method}",
+            f"ablation={ablation}",
+            *common,
+        ]
         extra = EXTRA.get((method, ablation))
         commands.append(command + ([extra] if extra else []))
     return commands
@@ -93,27 +118,47 @@ def sweep_commands(
 
 def per_seed(
     roots: list[Path], labels: dict[tuple[str, str], str], planner: str, scenes: tuple[str, ...], seeds: tuple[int, ...]
-) -> pd.DataFrame:  # fmt: skip
+) -> pd.DataFrame:
     """One row per finished run of the experiment under ``roots`` (each entry's budget label in ``labels``,
     ``planner``): scene, method, ablation, seed, final PSNR, PSNR averaged over the steps, minutes (the steps'
     train + eval + plan seconds), mean Spearman and same-choice fraction."""
     runs = collect_runs(roots)
     final = runs.final[(runs.final["status"] == "done") & (runs.final["planner"] == planner)]
-    mine = np.array([labels.get((m, a)) == b for m, a, b in zip(final["method"], final["ablation"], final["budget"])],
-                    dtype=bool)  # fmt: skip
+    mine = np.array(
+        [labels.get((m, a)) == b for m, a, b in zip(final["method"], final["ablation"], final["budget"], strict=True)],
+        dtype=bool,
+    )
     rows = []
     for _, run in final[final["scene"].isin(scenes) & final["seed"].isin(seeds) & mine].iterrows():
         steps = [json.loads(line) for line in (Path(run["directory"]) / "steps.jsonl").read_text().splitlines()]
         agreement = [s["rank_agreement"] for s in steps if "rank_agreement" in s]
-        rows.append({
-            "scene": run["scene"], "method": run["method"], "ablation": run["ablation"], "seed": int(run["seed"]),
-            "final_psnr": run["psnr"], "mean_psnr": float(np.mean([s["metrics"]["psnr"] for s in steps])),
-            "minutes": sum(sum(s["seconds"].values()) for s in steps) / 60.0,
-            "spearman": float(np.nanmean([a["spearman"] for a in agreement])) if agreement else math.nan,
-            "same_choice": float(np.mean([a["same_choice"] for a in agreement])) if agreement else math.nan,
-        })  # fmt: skip
-    return pd.DataFrame(rows, columns=["scene", "method", "ablation", "seed", "final_psnr", "mean_psnr", "minutes",
-                                       "spearman", "same_choice"])  # fmt: skip
+        rows.append(
+            {
+                "scene": run["scene"],
+                "method": run["method"],
+                "ablation": run["ablation"],
+                "seed": int(run["seed"]),
+                "final_psnr": run["psnr"],
+                "mean_psnr": float(np.mean([s["metrics"]["psnr"] for s in steps])),
+                "minutes": sum(sum(s["seconds"].values()) for s in steps) / 60.0,
+                "spearman": float(np.nanmean([a["spearman"] for a in agreement])) if agreement else math.nan,
+                "same_choice": float(np.mean([a["same_choice"] for a in agreement])) if agreement else math.nan,
+            }
+        )
+    return pd.DataFrame(
+        rows,
+        columns=[
+            "scene",
+            "method",
+            "ablation",
+            "seed",
+            "final_psnr",
+            "mean_psnr",
+            "minutes",
+            "spearman",
+            "same_choice",
+        ],
+    )
 
 
 def compare(runs: pd.DataFrame) -> pd.DataFrame:
@@ -134,35 +179,55 @@ def compare(runs: pd.DataFrame) -> pd.DataFrame:
             for measure in ("final_psnr", "mean_psnr"):
                 diffs = (entry[NVF].loc[seeds, measure] - entry[other].loc[seeds, measure]).to_numpy(float)
                 interval = Interval.of(diffs)
-                rows.append({
-                    "scene": scene, "comparison": name, "measure": measure, "against": "-".join(other),
-                    "mean_diff": interval.mean, "ci_low": interval.low, "ci_high": interval.high, "n": interval.n,
-                    "minutes_per_episode": minutes, "diffs": " ".join(f"{d:.3f}" for d in diffs),
-                    "seeds": " ".join(map(str, seeds)),
-                })  # fmt: skip
+                rows.append(
+                    {
+                        "scene": scene,
+                        "comparison": name,
+                        "measure": measure,
+                        "against": "-".join(other),
+                        "mean_diff": interval.mean,
+                        "ci_low": interval.low,
+                        "ci_high": interval.high,
+                        "n": interval.n,
+                        "minutes_per_episode": minutes,
+                        "diffs": " ".join(f"{d:.3f}" for d in diffs),
+                        "seeds": " ".join(map(str, seeds)),
+                    }
+                )
     return pd.DataFrame(rows)
 
 
 def markdown(label: str, details: pd.DataFrame, runs: pd.DataFrame) -> str:
     """The experiment's table: every comparison with both PSNR measures, then the rank agreement."""
     lines = [
-        f"# Discrimination experiment: {label}", "",
+        f"# Discrimination experiment: {label}",
+        "",
         "Paired (same seed) differences in dB, mean [95% Student-t interval] over n seeds; a lead is "
         "established where the interval lies above zero. Best baseline: the one of WD, ActiveNeRF, NeurAR with "
-        "the highest mean final PSNR on the scene.", "",
+        "the highest mean final PSNR on the scene.",
+        "",
         "| scene | comparison | against | final PSNR | PSNR over steps | n | min/episode |",
         "|:--|:--|:--|--:|--:|--:|--:|",
-    ]  # fmt: skip
+    ]
     for (scene, name), group in details.groupby(["scene", "comparison"], sort=False):
-        cells = {row["measure"]: f"{row['mean_diff']:+.2f} [{row['ci_low']:+.2f}, {row['ci_high']:+.2f}]"
-                 for _, row in group.iterrows()}  # fmt: skip
+        cells = {
+            row["measure"]: f"{row['mean_diff']:+.2f} [{row['ci_low']:+.2f}, {row['ci_high']:+.2f}]"
+            for _, row in group.iterrows()
+        }
         first = group.iloc[0]
-        lines.append(f"| {scene} | {name} | {first['against']} | {cells.get('final_psnr', '-')} | "
-                     f"{cells.get('mean_psnr', '-')} | {first['n']} | {first['minutes_per_episode']:.1f} |")  # fmt: skip
+        lines.append(
+            f"| {scene} | {name} | {first['against']} | {cells.get('final_psnr', '-')} | "
+            f"{cells.get('mean_psnr', '-')} | {first['n']} | {first['minutes_per_episode']:.1f} |"
+        )
     nvf = runs[(runs["method"] == NVF[0]) & (runs["ablation"] == NVF[1])]
-    lines += ["", "NVF vs w/o Vis. on NVF's own candidates (mean over steps, then over seeds; '-': records made "
-              "without `diagnostics.rank_against=wo_vis`):", "",
-              "| scene | Spearman | same choice | seeds |", "|:--|--:|--:|--:|"]  # fmt: skip
+    lines += [
+        "",
+        "NVF vs w/o Vis. on NVF's own candidates (mean over steps, then over seeds; '-': records made "
+        "without `diagnostics.rank_against=wo_vis`):",
+        "",
+        "| scene | Spearman | same choice | seeds |",
+        "|:--|--:|--:|--:|",
+    ]
     for scene, group in nvf.groupby("scene", sort=False):
         spearman, same = group["spearman"].dropna(), group["same_choice"].dropna()
         cells = [f"{spearman.mean():.3f}" if len(spearman) else "-", f"{same.mean():.2f}" if len(same) else "-"]
@@ -171,14 +236,21 @@ def markdown(label: str, details: pd.DataFrame, runs: pd.DataFrame) -> str:
 
 
 def summarize(
-    roots: list[Path], out: Path, label: str, labels: dict[tuple[str, str], str], planner: str,
-    scenes: tuple[str, ...], seeds: tuple[int, ...],
-) -> list[Path]:  # fmt: skip
+    roots: list[Path],
+    out: Path,
+    label: str,
+    labels: dict[tuple[str, str], str],
+    planner: str,
+    scenes: tuple[str, ...],
+    seeds: tuple[int, ...],
+) -> list[Path]:
     """Write summary.csv, details.csv, per_seed.csv and summary.md for the runs under ``roots``."""
     runs = per_seed(roots, labels, planner, scenes, seeds)
     if runs.empty:
-        fail(f"no finished {label} runs of scenes {', '.join(scenes)} under {', '.join(map(str, roots))}; "
-             "run without --summarize-only")  # fmt: skip
+        fail(
+            f"no finished {label} runs of scenes {', '.join(scenes)} under {', '.join(map(str, roots))}; "
+            "run without --summarize-only"
+        )
     details = compare(runs)
     summary = details[details["measure"] == "final_psnr"].loc[:, list(SUMMARY_COLUMNS)]
     files = [out / "summary.csv", out / "details.csv", out / "per_seed.csv", out / "summary.md"]
@@ -209,9 +281,13 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--jobs", type=int, default=2, help="parallel one-thread jobs (default 2)")
     parser.add_argument("--label", default=None, help="the experiment's folder name (default: its budget label)")
     parser.add_argument("--summarize-only", action="store_true", help="only summarise existing runs")
-    parser.add_argument("--reuse", type=Path, default=Path("results/runs"),
-                        help="finished plain-budget records of the entries the overrides cannot change (default "
-                             "results/runs; 'none' runs every entry)")  # fmt: skip
+    parser.add_argument(
+        "--reuse",
+        type=Path,
+        default=Path("results/runs"),
+        help="finished plain-budget records of the entries the overrides cannot change (default "
+        "results/runs; 'none' runs every entry)",
+    )
     args = parser.parse_intermixed_args(argv)
     scenes, seeds = parse_list(args.scenes, str, "--scenes"), parse_list(args.seeds, int, "--seeds")
     if any(o.split("=")[0].lstrip("+~") in ("method", "ablation", "scene", "seed") for o in args.overrides):
@@ -236,8 +312,12 @@ def main(argv: list[str]) -> int:
                 fail(str(err))
         out.mkdir(parents=True, exist_ok=True)
         plain = cfg.budget.name
-        entries = [(scene, entry) for scene in scenes for entry in ENTRIES
-                   if not reusable(reuse, entry, labels[entry], plain, scene, seeds)]  # fmt: skip
+        entries = [
+            (scene, entry)
+            for scene in scenes
+            for entry in ENTRIES
+            if not reusable(reuse, entry, labels[entry], plain, scene, seeds)
+        ]
         commands = sweep_commands(args.overrides, entries, seeds, outputs.resolve(), args.jobs)
         atomic_write_text(out / "command.txt", "".join(shlex.join(["python", *c[1:]]) + "\n" for c in commands))
         for command in commands:

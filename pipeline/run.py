@@ -1,10 +1,12 @@
 """Entry point: ``python -m pipeline.run [overrides]`` runs one episode; ``-m`` sweeps (Hydra).
 
 ``pipeline.episode.runner`` validates, locks, verifies, records and resumes; a finished run's summary and
-pictures are drawn here (``pipeline.tables.summary.finish_run``). Expected failures print one line. Exit status 2: the run was refused before it started (a bad config or override, an unusable
+pictures are drawn here (``pipeline.tables.summary.finish_run``). Expected failures print one line. Exit status 2: the
+run was refused before it started (a bad config or override, an unusable
 ``paths.outputs``, a scene that cannot load, another process writing the run, a record that fails a
 check or holds other settings). Exit status 1: the run failed, now or when it last ran (its record
-says why), or stopped because Blender's worker did not answer within ``render.timeout`` (left to resume). In a sweep every job runs; each failure is reported by the job and the sweep ends with a
+says why), or stopped because Blender's worker did not answer within ``render.timeout`` (left to resume). In a sweep
+every job runs; each failure is reported by the job and the sweep ends with a
 summary and exits 1 if any job failed (``pipeline.episode.sweep``).
 """
 

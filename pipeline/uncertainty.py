@@ -85,7 +85,7 @@ SEEDS = (100, 101, 102)  # one model per entry and seed, as the tables' three se
 COLUMNS = (("patch_pearson", "patch r ↑"), ("view_pearson", "view r ↑"), ("ause", "AUSE ↓"), ("psnr", "PSNR ↑"))
 
 
-def _directions(theta: Float[Tensor, "n"], phi: Float[Tensor, "n"]) -> Float[Tensor, "n 3"]:
+def _directions(theta: Float[Tensor, " n"], phi: Float[Tensor, " n"]) -> Float[Tensor, "n 3"]:
     """``(sin phi cos theta, sin phi sin theta, cos phi)``, phi from +z (PROTOCOL 2.4)."""
     return torch.stack([phi.sin() * theta.cos(), phi.sin() * theta.sin(), phi.cos()], -1)
 
@@ -117,7 +117,7 @@ def partial_views(scene: Scene, generator: torch.Generator) -> Float[Tensor, "n 
         positions = torch.tensor([1.5, 1.5, 1.7]) * _directions(theta, phi)
         targets = torch.tensor([-0.5, -0.5, 0.0]) + uniform(n, 3) * torch.tensor([1.0, 1.0, 0.5])
     ups = uniform(n, 3)
-    return torch.stack([look_at(p, t, tuple(u.tolist())) for p, t, u in zip(positions, targets, ups)])
+    return torch.stack([look_at(p, t, tuple(u.tolist())) for p, t, u in zip(positions, targets, ups, strict=True)])
 
 
 def least_seen_view(eval_poses: Float[Tensor, "e 4 4"], train_poses: Float[Tensor, "t 4 4"]) -> int:
@@ -246,21 +246,35 @@ def run(
             save_seed(path, results, arrays, time.perf_counter() - start)
         per_seed[seed] = load_seed(path)
     rows = [
-        {"label": per_seed[seeds[0]][0][i]["label"], "method": method, "ablation": ablation,
-         "trained_as": per_seed[seeds[0]][0][i]["trained_as"], **summary([per_seed[s][0][i] for s in seeds])}
+        {
+            "label": per_seed[seeds[0]][0][i]["label"],
+            "method": method,
+            "ablation": ablation,
+            "trained_as": per_seed[seeds[0]][0][i]["trained_as"],
+            **summary([per_seed[s][0][i] for s in seeds]),
+        }
         for i, (method, ablation) in enumerate(entries)
-    ]  # fmt: skip
+    ]
     arrays = per_seed[seeds[0]][1]
     labels = [row["label"] for row in rows]
     shown = {"gt": arrays["gt"], "pred": arrays["pred"], "label": labels[0], "view": view}
     settings = [o for o in overrides if not o.startswith("paths.")]  # where files live is not a setting
     report = {
-        "scene": base.scene.name, "scene_source": scene.source, "budget": label, "field": base.field.kind,
-        "partial_views": len(partial.init_poses), "partial_seed": PARTIAL_SEED, "seeds": list(seeds),
-        "torch_threads": torch.get_num_threads(), "figure_view": view, "figure_seed": seeds[0],
-        "overrides": settings, "rows": rows, "seconds": sum(saved[2] for saved in per_seed.values()),
+        "scene": base.scene.name,
+        "scene_source": scene.source,
+        "budget": label,
+        "field": base.field.kind,
+        "partial_views": len(partial.init_poses),
+        "partial_seed": PARTIAL_SEED,
+        "seeds": list(seeds),
+        "torch_threads": torch.get_num_threads(),
+        "figure_view": view,
+        "figure_seed": seeds[0],
+        "overrides": settings,
+        "rows": rows,
+        "seconds": sum(saved[2] for saved in per_seed.values()),
         "lpips_missing_reason": lpips.missing,
-    }  # fmt: skip
+    }
     atomic_write_text(out / f"{name}.json", json.dumps(to_jsonable(report), indent=2) + "\n")
     atomic_write_text(out / f"{name}.md", markdown(report))
     save_figure(figure(shown, {label: arrays[f"score:{label}"] for label in labels}), out / f"{name}.png")
@@ -315,7 +329,7 @@ def figure(shown: dict, maps: dict[str, np.ndarray]) -> Figure:
     axes = np.asarray(fig.subplots(rows, cols, squeeze=False)).ravel()
     for ax in axes:
         ax.set_axis_off()
-    for ax, (title, image) in zip(axes, panels):
+    for ax, (title, image) in zip(axes, panels, strict=False):  # the grid's last row may have empty axes
         ax.imshow(np.clip(image, 0.0, 1.0))
         ax.set_title(title, fontsize=9)
     return fig

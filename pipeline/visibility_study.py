@@ -27,7 +27,6 @@ step and set; a killed study resumes after its last complete row), ``<scene>_dia
 
 import dataclasses
 import json
-import math
 import shlex
 import sys
 import time
@@ -88,9 +87,15 @@ def candidate_set(episode: Episode, model, k: int, index: int) -> torch.Tensor:
     )
     current = matrix_to_pose(episode.poses[-1]).to(episode.device)
     return candidate_poses(
-        model, s.planner, episode.scene.camera_box.to(episode.device), current, s.tau, s.collision_free,
-        generator, line_of_sight=episode.renderer.unoccluded,
-    )  # fmt: skip
+        model,
+        s.planner,
+        episode.scene.camera_box.to(episode.device),
+        current,
+        s.tau,
+        s.collision_free,
+        generator,
+        line_of_sight=episode.renderer.unoccluded,
+    )
 
 
 def terms_of(planning, scorers: dict[str, NVFEntropyScorer], candidates: torch.Tensor, intr: Intrinsics) -> dict:
@@ -112,8 +117,12 @@ def heldout_psnr(episode: Episode, obs: Observations, step: int) -> tuple[float,
     train_model(model, obs, s.train, ["backbone"], s.entropy, seeded_generator(s.seed, step, "train", episode.device))
     seconds = time.perf_counter() - start
     evaluator = episode.evaluator
-    pred = np.stack([render_view(model, None, c2w.to(episode.device), evaluator.intrinsics)["rgb"]
-                     for c2w in episode.scene.eval_poses]).clip(0.0, 1.0)  # fmt: skip
+    pred = np.stack(
+        [
+            render_view(model, None, c2w.to(episode.device), evaluator.intrinsics)["rgb"]
+            for c2w in episode.scene.eval_poses
+        ]
+    ).clip(0.0, 1.0)
     return psnr(pred, evaluator.gt), seconds
 
 
@@ -131,19 +140,27 @@ def decision(episode: Episode, planning, candidates: torch.Tensor, scorers, obs:
     s = episode.settings
     nvf, blind = scorers
     start = time.perf_counter()
-    scores = {name: score_poses(planning, scorer, candidates, episode.plan_intrinsics, s.planner.score_chunk_rays)
-              for name, scorer in (("nvf", nvf), ("wo_vis", blind))}  # fmt: skip
+    scores = {
+        name: score_poses(planning, scorer, candidates, episode.plan_intrinsics, s.planner.score_chunk_rays)
+        for name, scorer in (("nvf", nvf), ("wo_vis", blind))
+    }
     plan_seconds = time.perf_counter() - start
     own, rival = (scores[name].cpu().numpy() for name in ("nvf", "wo_vis"))
     picks = {name: argmax_first(values) for name, values in scores.items()}
     row = {
-        "candidates": int(candidates.shape[0]), "spearman": spearman(own, rival),
-        "same_argmax": picks["nvf"] == picks["wo_vis"], "picks": picks,
+        "candidates": int(candidates.shape[0]),
+        "spearman": spearman(own, rival),
+        "same_argmax": picks["nvf"] == picks["wo_vis"],
+        "picks": picks,
         "ties_at_max": {"nvf": ties_at_max(own), "wo_vis": ties_at_max(rival)},
-        "terms": {name: term_attribution(terms) for name, terms in
-                  terms_of(planning, {"nvf": nvf, "wo_vis": blind}, candidates, episode.plan_intrinsics).items()},
+        "terms": {
+            name: term_attribution(terms)
+            for name, terms in terms_of(
+                planning, {"nvf": nvf, "wo_vis": blind}, candidates, episode.plan_intrinsics
+            ).items()
+        },
         "plan_seconds": plan_seconds,
-    }  # fmt: skip
+    }
     if not row["same_argmax"]:
         outcomes = {
             name: heldout_psnr(episode, with_view(obs, episode, candidates[i]), k + 1) for name, i in picks.items()
@@ -170,9 +187,14 @@ class Decisions:
 
 
 def study_scene(
-    cfg: DictConfig, overrides: list[str], seeds: list[int], steps: list[int], sets: int, records: Path,
+    cfg: DictConfig,
+    overrides: list[str],
+    seeds: list[int],
+    steps: list[int],
+    sets: int,
+    records: Path,
     decisions: Decisions,
-) -> None:  # fmt: skip
+) -> None:
     """Every missing (seed, step) state of one scene (``cfg``: the scene's config with the setting's
     ``overrides``)."""
     scene_name = cfg.scene.name
@@ -198,8 +220,16 @@ def study_scene(
                 for index in range(sets):
                     candidates = candidate_set(episode, model, k, index)
                     row = decision(episode, planning, candidates, scorers, obs, k)
-                    found.append({"scene": scene_name, "seed": seed, "step": k, "set": index,
-                                  "train_seconds": train_seconds, **row})  # fmt: skip
+                    found.append(
+                        {
+                            "scene": scene_name,
+                            "seed": seed,
+                            "step": k,
+                            "set": index,
+                            "train_seconds": train_seconds,
+                            **row,
+                        }
+                    )
                 decisions.add(found)
                 print(
                     f"{scene_name} seed {seed} step {k}: "
@@ -243,8 +273,14 @@ def main(argv: list[str] | None = None) -> None:
     command = ["python", "-m", "pipeline.visibility_study", *(sys.argv[1:] if argv is None else argv)]
     atomic_write_text(out / "command.txt", shlex.join(command) + "\n")
     entropy, train = cfg.nvf.entropy, cfg.train
-    setting = {"name": args.setting, "overrides": args.overrides, "visibility_source": entropy.visibility_source,
-               "logdet_coeff": entropy.logdet_coeff, "label_margin": train.label_margin, "budget": cfg.budget.name}  # fmt: skip
+    setting = {
+        "name": args.setting,
+        "overrides": args.overrides,
+        "visibility_source": entropy.visibility_source,
+        "logdet_coeff": entropy.logdet_coeff,
+        "label_margin": train.label_margin,
+        "budget": cfg.budget.name,
+    }
     atomic_write_text(out / "setting.json", json.dumps(setting, indent=2) + "\n")
     decisions = Decisions(out / "decisions.jsonl")
     for scene in args.scenes.split(","):

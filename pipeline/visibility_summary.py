@@ -25,10 +25,24 @@ from pipeline.tables.stats import Interval
 
 STUDY = "visibility_study"
 COLUMNS = (
-    "setting", "scene", "visibility_source", "label_auc", "head_auc", "spearman_nvf_wo_vis", "onestep_gain_mean",
-    "onestep_ci_low", "onestep_ci_high", "n", "minutes_per_episode", "decisions", "same_argmax_fraction",
-    "nvf_decisive_term", "nvf_unknown_share", "nvf_tied_fraction", "wo_vis_tied_fraction",
-)  # fmt: skip
+    "setting",
+    "scene",
+    "visibility_source",
+    "label_auc",
+    "head_auc",
+    "spearman_nvf_wo_vis",
+    "onestep_gain_mean",
+    "onestep_ci_low",
+    "onestep_ci_high",
+    "n",
+    "minutes_per_episode",
+    "decisions",
+    "same_argmax_fraction",
+    "nvf_decisive_term",
+    "nvf_unknown_share",
+    "nvf_tied_fraction",
+    "wo_vis_tied_fraction",
+)
 ALL_SCENES = "all"
 
 
@@ -54,18 +68,24 @@ def setting_row(setting: dict, scene: str, rows: list[dict], diagnostics: list[d
     decisive = collections.Counter(r["terms"]["nvf"]["decisive"] for r in rows)
     sources = [d.get("sources", {}) for d in diagnostics]
     return {
-        "setting": setting["name"], "scene": scene, "visibility_source": setting.get("visibility_source", "head"),
+        "setting": setting["name"],
+        "scene": scene,
+        "visibility_source": setting.get("visibility_source", "head"),
         "label_auc": _mean([s.get("labels", {}).get("auc_mean") for s in sources]),
         "head_auc": _mean([s.get("head", {}).get("auc_mean") for s in sources]),
         "spearman_nvf_wo_vis": _mean([r["spearman"] for r in rows]),
-        "onestep_gain_mean": interval.mean, "onestep_ci_low": interval.low, "onestep_ci_high": interval.high,
-        "n": interval.n, "minutes_per_episode": setting.get("minutes_per_episode", {}).get(scene, math.nan),
-        "decisions": len(rows), "same_argmax_fraction": _mean([float(r["same_argmax"]) for r in rows]),
+        "onestep_gain_mean": interval.mean,
+        "onestep_ci_low": interval.low,
+        "onestep_ci_high": interval.high,
+        "n": interval.n,
+        "minutes_per_episode": setting.get("minutes_per_episode", {}).get(scene, math.nan),
+        "decisions": len(rows),
+        "same_argmax_fraction": _mean([float(r["same_argmax"]) for r in rows]),
         "nvf_decisive_term": decisive.most_common(1)[0][0] if decisive else None,
         "nvf_unknown_share": _mean([r["terms"]["nvf"]["terms"]["unknown"]["share"] for r in rows]),
         "nvf_tied_fraction": _mean([float(r["ties_at_max"]["nvf"] > 1) for r in rows]),
         "wo_vis_tied_fraction": _mean([float(r["ties_at_max"]["wo_vis"] > 1) for r in rows]),
-    }  # fmt: skip
+    }
 
 
 def summary_frame(study: Path) -> pd.DataFrame:

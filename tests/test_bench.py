@@ -4,14 +4,21 @@ quality numbers within bounds set below what smoke reaches today (stated where a
 
 import json
 import math
+import time
 from pathlib import Path
 
-import numpy as np
 import pytest
+import torch
 
+from nvf.cameras import Intrinsics
+from nvf.training import train_backbone
 from pipeline.bench import __main__ as bench
 from pipeline.bench import episode, field, plan, train, visibility
+from pipeline.bench._models import CountingModel, load, observations
 from pipeline.config.catalog import method_configs
+from pipeline.config.validation import compose_config
+from pipeline.episode.settings import EpisodeSettings
+from pipeline.scenes.ground_truth import open_renderer
 
 SCORING = [name for name in method_configs() if name != "random"]  # every method with a view score
 
@@ -45,9 +52,17 @@ def test_field_bench_writes_its_variant_and_refuses_a_bad_argument_before_runnin
 def test_train_bench_writes_rates_fractions_and_psnr(tmp_path):
     out = tmp_path / "train.json"
     train.main(["budget=smoke", "--repeats", "1", "--out", str(out)])
-    keys = ["train_samples_per_s", "infer_samples_per_s", "infer_rgb_samples_per_s", "train_fraction_of_limit",
-            "infer_fraction_of_limit", "matmul_gflops", "heldout_psnr", "train_view_psnr",
-            "heldout_psnr_off_edges"]  # fmt: skip
+    keys = [
+        "train_samples_per_s",
+        "infer_samples_per_s",
+        "infer_rgb_samples_per_s",
+        "train_fraction_of_limit",
+        "infer_fraction_of_limit",
+        "matmul_gflops",
+        "heldout_psnr",
+        "train_view_psnr",
+        "heldout_psnr_off_edges",
+    ]
     report = _assert_positive(out, [*keys, "train_samples_per_s_at_limit", "infer_samples_per_s_at_limit"])
     assert report["settings"]["budget"] == "smoke" and report["settings"]["training_views"] == 20
     for key in ("train", "infer"):  # the limit is the matmul rate over the MLP FLOPs per sample
@@ -86,6 +101,36 @@ def test_train_bench_writes_rates_fractions_and_psnr(tmp_path):
         assert met["heldout_psnr_drop_db"] == (ratio["heldout_psnr_diff"] >= -0.2)
 
 
+@pytest.mark.slow
+def test_train_bench_measures_what_an_episode_trains(tmp_path):
+    """One precision trains on the main thread, as the episode does: the bench's samples/s agrees within 15%
+    with ``train_backbone`` of the same settings timed directly (the same warm-up iterations left out)."""
+    overrides = ["budget=smoke", "train.backbone.iters=60"]
+    out = tmp_path / "train.json"
+    train.main([*overrides, "--precisions", "fp32", "--repeats", "1", "--out", str(out)])
+    report = json.loads(out.read_text())
+    warmup = report["settings"]["warmup_iterations"]
+    cfg = compose_config(overrides)
+    scene = load(cfg)
+    s = EpisodeSettings.of(cfg, scene)
+    size = int(cfg.budget.image_size)
+    renderer = open_renderer(scene, s.render, s.blender_python)
+    obs = observations(renderer, scene.eval_poses, Intrinsics.from_fov(size, size), int(cfg.budget.gt_samples))
+    renderer.close()
+    torch.manual_seed(int(cfg.seed))
+    model = CountingModel(scene.object_aabb, s.field, s.sampler)
+    seconds: list[float] = []
+    samples: list[int] = []
+
+    def progress(stage: str, iteration: int, total: int, loss: float) -> None:
+        seconds.append(time.perf_counter())
+        samples.append(model.samples)
+
+    train_backbone(model, obs, s.train, torch.Generator().manual_seed(int(cfg.seed)), progress=progress)
+    direct = (samples[-1] - samples[warmup - 1]) / (seconds[-1] - seconds[warmup - 1])
+    assert report["train_samples_per_s"] == pytest.approx(direct, rel=0.15)
+
+
 def test_bench_precisions_the_cpu_lacks_are_one_line(monkeypatch, capsys):
     import nvf.precision
 
@@ -102,8 +147,12 @@ def test_bench_precisions_the_cpu_lacks_are_one_line(monkeypatch, capsys):
 def test_plan_bench_writes_every_scorer_against_a_plain_render(tmp_path):
     out = tmp_path / "plan.json"
     plan.main(["budget=smoke", "planner.num_candidates=16", "--repeats", "1", "--out", str(out)])
-    keys = ["nvf_over_plain_render", "nvf_over_plain_mlp_flops", "candidates_per_s_plain_render",
-            *(f"candidates_per_s_{m}" for m in SCORING)]  # fmt: skip
+    keys = [
+        "nvf_over_plain_render",
+        "nvf_over_plain_mlp_flops",
+        "candidates_per_s_plain_render",
+        *(f"candidates_per_s_{m}" for m in SCORING),
+    ]
     report = _assert_positive(out, [*keys, "matmul_gflops"])
     seconds = {name: sum(block) for name, block in report["seconds_per_block"].items()}
     extra = seconds["nvf"] - seconds["plain_render"]  # below timing noise at this size: may be <= 0
@@ -164,8 +213,9 @@ def test_visibility_bench_writes_separation_ranking_and_terms(tmp_path):
     assert report["sources"]["head"]["same_argmax_sets"] in (0, 1)
 
 
-@pytest.mark.parametrize("argv, says", [(["--sources", "head,oracle"], "--sources='head,oracle'"),
-                                        (["--step", "3"], "needs --record")])  # fmt: skip
+@pytest.mark.parametrize(
+    "argv, says", [(["--sources", "head,oracle"], "--sources='head,oracle'"), (["--step", "3"], "needs --record")]
+)
 def test_visibility_bench_refuses_bad_arguments(argv, says, capsys):
     with pytest.raises(SystemExit) as exit_:
         visibility.main(argv)

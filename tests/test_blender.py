@@ -220,11 +220,14 @@ def test_mesh_scenes_get_the_light_rig_and_their_colours(tmp_path):
     texture[:, :8] = (200, 30, 30)  # left half red, right half blue
     texture[:, 8:] = (30, 30, 200)
     quad = trimesh.Trimesh(
-        vertices=[[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], faces=[[0, 1, 2], [0, 2, 3]], process=False,
+        vertices=[[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]],
+        faces=[[0, 1, 2], [0, 2, 3]],
+        process=False,
         visual=trimesh.visual.TextureVisuals(
             uv=[[0, 0], [1, 0], [1, 1], [0, 1]],
-            material=trimesh.visual.material.PBRMaterial(baseColorTexture=Image.fromarray(texture))),
-    )  # fmt: skip
+            material=trimesh.visual.material.PBRMaterial(baseColorTexture=Image.fromarray(texture)),
+        ),
+    )
     scene = dataclasses.replace(load_scene("default"), mesh=quad)
     # north of the quad (off the key sun's mirror direction: no highlight), so image x runs along world -x
     above = look_at(torch.tensor([0.0, 1.0, 2.0]), torch.zeros(3))

@@ -11,10 +11,18 @@ SCENES = ("hotdog", "hubble", "default")
 def write_summary(root, label, diffs, minutes, scenes=SCENES):
     """One experiment's summary.csv: ``diffs[comparison] = (mean, ci_low)`` on every scene."""
     rows = [
-        {"scene": scene, "comparison": comparison, "mean_diff": mean, "ci_low": low, "ci_high": mean + 1.0, "n": 3,
-         "minutes_per_episode": minutes}
-        for scene in scenes for comparison, (mean, low) in diffs.items()
-    ]  # fmt: skip
+        {
+            "scene": scene,
+            "comparison": comparison,
+            "mean_diff": mean,
+            "ci_low": low,
+            "ci_high": mean + 1.0,
+            "n": 3,
+            "minutes_per_episode": minutes,
+        }
+        for scene in scenes
+        for comparison, (mean, low) in diffs.items()
+    ]
     folder = root / "pilots" / "discriminate" / label
     folder.mkdir(parents=True)
     pd.DataFrame(rows).to_csv(folder / "summary.csv", index=False)

@@ -27,14 +27,30 @@ def test_interval_is_the_paired_student_t_interval():
 def runs_frame() -> pd.DataFrame:
     """Two scenes, three seeds; NVF 1 dB over w/o Vis. on every seed; NeurAR the better baseline on 'a'."""
     rows = []
-    psnr = {("nvf", "none"): 20.0, ("nvf", "wo_vis"): 19.0, ("nvf", "ind_rays"): 19.5,
-            ("wd", "none"): 17.0, ("activenerf", "none"): 18.0, ("neurar", "none"): 18.5}  # fmt: skip
+    psnr = {
+        ("nvf", "none"): 20.0,
+        ("nvf", "wo_vis"): 19.0,
+        ("nvf", "ind_rays"): 19.5,
+        ("wd", "none"): 17.0,
+        ("activenerf", "none"): 18.0,
+        ("neurar", "none"): 18.5,
+    }
     for scene in ("a", "b"):
         for (method, ablation), value in psnr.items():
             for seed, noise in zip((100, 101, 102), (0.0, 0.3, -0.3)):
-                rows.append({"scene": scene, "method": method, "ablation": ablation, "seed": seed,
-                             "final_psnr": value + noise * (method == "neurar"), "mean_psnr": value - 2.0,
-                             "minutes": 5.0 + (method == "nvf"), "spearman": math.nan, "same_choice": math.nan})  # fmt: skip
+                rows.append(
+                    {
+                        "scene": scene,
+                        "method": method,
+                        "ablation": ablation,
+                        "seed": seed,
+                        "final_psnr": value + noise * (method == "neurar"),
+                        "mean_psnr": value - 2.0,
+                        "minutes": 5.0 + (method == "nvf"),
+                        "spearman": math.nan,
+                        "same_choice": math.nan,
+                    }
+                )
     return pd.DataFrame(rows)
 
 
@@ -94,7 +110,8 @@ def test_entries_a_setting_cannot_change_are_reused_not_rerun(tmp_path):
     assert discriminate.reusable(tmp_path, ("wd", "none"), "smoke", "smoke", "hotdog", (100, 101))
     assert not discriminate.reusable(tmp_path, ("wd", "none"), "smoke", "smoke", "hotdog", (100, 101, 102))
     assert not discriminate.reusable(tmp_path, ("nvf", "none"), labels[("nvf", "none")], "smoke", "hotdog", (100,))
-    commands = discriminate.sweep_commands(overrides, [("hotdog", ("nvf", "none")), ("hotdog", ("wd", "none"))],
-                                           (100,), tmp_path, 2)  # fmt: skip
+    commands = discriminate.sweep_commands(
+        overrides, [("hotdog", ("nvf", "none")), ("hotdog", ("wd", "none"))], (100,), tmp_path, 2
+    )
     assert all("step_metrics=psnr" in c for c in commands)
     assert ["diagnostics.rank_against=wo_vis" in c for c in commands] == [True, False]

@@ -40,16 +40,29 @@ def _cli(tmp_path: Path, *overrides: str, **kw) -> subprocess.Popen:
     overrides = tuple(arg for arg in overrides if arg != "-m")
     return subprocess.Popen(
         [sys.executable, "-m", "pipeline.run", *flags, *SMOKE, f"paths.outputs={tmp_path}", *overrides],
-        cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kw,
-    )  # fmt: skip
+        cwd=REPO,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        **kw,
+    )
 
 
 def assert_metrics_in_range(metrics: dict) -> None:
     """Every metric of a step row finite and within its range (NaN fails: ``isinstance(x, float)`` did not).
     PSNR of [0, 1] images lies in (0, 100) here; SSIM in [-1, 1]; RGB (MSE) in [0, 1]; Vis., C.R. and
     LPIPS in [0, 1]; Acc. and Comp. (distances) >= 0."""
-    bounds = {"psnr": (0.0, 100.0), "ssim": (-1.0, 1.0), "rgb": (0.0, 1.0), "vis": (0.0, 1.0), "cr": (0.0, 1.0),
-              "acc": (0.0, math.inf), "comp": (0.0, math.inf), "lpips": (0.0, 1.0)}  # fmt: skip
+    bounds = {
+        "psnr": (0.0, 100.0),
+        "ssim": (-1.0, 1.0),
+        "rgb": (0.0, 1.0),
+        "vis": (0.0, 1.0),
+        "cr": (0.0, 1.0),
+        "acc": (0.0, math.inf),
+        "comp": (0.0, math.inf),
+        "lpips": (0.0, 1.0),
+    }
     for metric, (low, high) in bounds.items():
         value = metrics[metric]
         if metric == "lpips" and value is None:
@@ -311,9 +324,14 @@ def test_a_sweep_through_the_submitit_local_launcher(tmp_path):
     """Hydra's submitit launcher on this machine (a real submitit executor, the code path of
     submitit_slurm): two smoke jobs run as submitit jobs, report back and are summarised."""
     proc = _cli(
-        tmp_path, "-m", "method=random,wd", "budget.horizon=1", "hydra/launcher=submitit_local",
-        f"hydra.launcher.submitit_folder={tmp_path / 'submitit'}", "hydra.launcher.timeout_min=20",
-    )  # fmt: skip
+        tmp_path,
+        "-m",
+        "method=random,wd",
+        "budget.horizon=1",
+        "hydra/launcher=submitit_local",
+        f"hydra.launcher.submitit_folder={tmp_path / 'submitit'}",
+        "hydra.launcher.timeout_min=20",
+    )
     out, err = proc.communicate(timeout=1500)
     assert proc.returncode == 0, err
     assert _sweep_lines(out + err) == ["sweep: 2 jobs: 2 done, 0 skipped, 0 failed"]

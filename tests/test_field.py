@@ -3,14 +3,14 @@
 import pytest
 import torch
 
-from nvf.config import FieldConfig
+from nvf.config import FieldConfig, FieldKind
 from nvf.field import HEADS, INFERENCE_BLOCK, MLP, RadianceField, spherical_harmonics, trunc_exp
 
 AABB = torch.tensor([[-1.0, -2.0, 0.0], [1.0, 2.0, 1.0]])
 SMALL = dict(num_levels=4, log2_hashmap_size=12, base_resolution=4, max_resolution=32)
 KINDS = {
     "hashgrid": FieldConfig(**SMALL),
-    "densegrid": FieldConfig(kind="densegrid", dense_resolution=8, dense_features=8),
+    "densegrid": FieldConfig(kind=FieldKind.densegrid, dense_resolution=8, dense_features=8),
 }
 
 

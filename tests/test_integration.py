@@ -14,7 +14,7 @@ from nvf.model import SceneModel
 from nvf.planning import score_poses
 from nvf.training import train_model
 from nvf.visibility import visibility_labels
-from pipeline.bench.train import held_out_poses, observations, view_psnr
+from pipeline.bench._models import held_out_poses, observations, view_psnr
 from pipeline.config.validation import compose_config
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.image import edge_pixels, off_edge_psnr, psnr

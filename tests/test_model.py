@@ -7,7 +7,7 @@ import torch
 from torch import Tensor, nn
 
 from nvf.cameras import Intrinsics, look_at, pixel_rays
-from nvf.config import FieldConfig, SamplerConfig
+from nvf.config import FieldConfig, HashBackend, SamplerConfig
 from nvf.model import SceneModel
 
 AABB = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
@@ -220,7 +220,9 @@ def test_density_reads_zero_in_empty_grid_cells():
     from nvf.model import SceneModel
 
     aabb = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
-    field_cfg = FieldConfig(num_levels=2, log2_hashmap_size=10, max_resolution=32, hidden_dim=16, backend="torch")
+    field_cfg = FieldConfig(
+        num_levels=2, log2_hashmap_size=10, max_resolution=32, hidden_dim=16, backend=HashBackend.torch
+    )
     model = SceneModel(aabb, field_cfg, SamplerConfig(grid_resolution=8))
     x = torch.tensor([[0.1, 0.1, 0.1], [-0.9, 0.5, 0.3], [2.0, 0.0, 0.0]])
     raw = model.field.density(x)[0]
@@ -244,7 +246,9 @@ def test_observed_density_reads_zero_in_unobserved_cells():
     from nvf.model import SceneModel
 
     aabb = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
-    field_cfg = FieldConfig(num_levels=2, log2_hashmap_size=10, max_resolution=32, hidden_dim=16, backend="torch")
+    field_cfg = FieldConfig(
+        num_levels=2, log2_hashmap_size=10, max_resolution=32, hidden_dim=16, backend=HashBackend.torch
+    )
     model = SceneModel(aabb, field_cfg, SamplerConfig(grid_resolution=8))
     model.grid.occupied[:] = True
     x = torch.tensor([[0.1, 0.1, 0.1], [-0.9, 0.5, 0.3], [2.0, 0.0, 0.0]])

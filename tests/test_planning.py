@@ -14,7 +14,15 @@ import torch
 from torch import nn
 
 from nvf.cameras import Intrinsics, look_at, matrix_to_pose
-from nvf.config import BaselineConfig, EntropyConfig, OptConfig, PlannerConfig
+from nvf.config import (
+    BaselineConfig,
+    DepthMode,
+    EntropyConfig,
+    HashBackend,
+    LineOfSightSource,
+    OptConfig,
+    PlannerConfig,
+)
 from nvf.methods import NVF, load_method
 from nvf.model import RenderResult
 from nvf.planning import (
@@ -83,12 +91,18 @@ class ToyModel(nn.Module):
         weights, trans = weights_from_alpha(alpha, samples.ray_idx, n_rays)
         rgb_s = torch.sigmoid(x + dirs[samples.ray_idx])
         return RenderResult(
-            samples=samples, sigma=sigma, alpha=alpha, weights=weights, trans=trans, rgb_s=rgb_s,
-            variance=0.01 + 0.05 * torch.sigmoid(x), visibility=torch.sigmoid(x.sum(-1)),
+            samples=samples,
+            sigma=sigma,
+            alpha=alpha,
+            weights=weights,
+            trans=trans,
+            rgb_s=rgb_s,
+            variance=0.01 + 0.05 * torch.sigmoid(x),
+            visibility=torch.sigmoid(x.sum(-1)),
             rgb=ray_sum(weights[:, None] * rgb_s, samples.ray_idx, n_rays),
             depth=expected_depth(weights, samples.t_mid, samples.ray_idx, n_rays),
             acc=ray_sum(weights, samples.ray_idx, n_rays),
-        )  # fmt: skip
+        )
 
 
 class AccScorer:
@@ -211,7 +225,7 @@ def test_collision_filter_m29_from_the_mesh_replaces_the_model():
         seen_from.append(origin)
         return points[:, 0] < 0.5
 
-    c = cfg(n=64, los_source="mesh")
+    c = cfg(n=64, los_source=LineOfSightSource.mesh)
     out = candidate_poses(model, c, BOX, current, 1e-4, True, seeded_generator(5, 2, "candidates"), True, mesh_sight)
     assert (out[:, 4] < 0.5).all() and ((out[:, 4] > 0.0) & (out[:, 4] < 0.5)).any()
     torch.testing.assert_close(seen_from[0], current[4:])
@@ -262,10 +276,12 @@ def test_a_tie_is_a_seeded_random_pick():
     """METHOD 13: candidates are drawn i.i.d. (positions uniform in the box), so the first of tied candidates
     is a uniform pick among them, seeded from (seed, step): over steps it lands all over the camera box."""
     box = torch.tensor([[1.0, 1.0, 1.0], [1.9, 1.9, 1.9]])  # outside the blob: the density filter keeps all
-    picks = torch.stack([
-        select_next_view(blob_model(), ConstScorer(), cfg(n=8), box, None, INTR, 1e-4, False, gens(step=s)).pose[4:]
-        for s in range(24)
-    ])  # fmt: skip
+    picks = torch.stack(
+        [
+            select_next_view(blob_model(), ConstScorer(), cfg(n=8), box, None, INTR, 1e-4, False, gens(step=s)).pose[4:]
+            for s in range(24)
+        ]
+    )
     assert len({tuple(p.tolist()) for p in picks}) == 24
     middle = box.mean(0)
     assert ((picks < middle).any(0) & (picks > middle).any(0)).all()  # both halves of the box on every axis
@@ -403,7 +419,7 @@ def test_planner_config_is_used_not_redefined():
     "method, entropy",
     [
         ("NVF", EntropyConfig()),
-        ("NVF", EntropyConfig(depth_mode="chunk", chunk_rays=16)),
+        ("NVF", EntropyConfig(depth_mode=DepthMode.chunk, chunk_rays=16)),
         ("WD", EntropyConfig()),
         ("AIR", EntropyConfig()),
         ("ActiveNeRF", EntropyConfig()),
@@ -429,7 +445,9 @@ def test_integration_with_the_scene_model():
     from nvf.model import SceneModel
 
     aabb = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
-    field_cfg = FieldConfig(num_levels=4, log2_hashmap_size=12, max_resolution=64, hidden_dim=16, backend="torch")
+    field_cfg = FieldConfig(
+        num_levels=4, log2_hashmap_size=12, max_resolution=64, hidden_dim=16, backend=HashBackend.torch
+    )
     model = SceneModel(aabb, field_cfg, SamplerConfig(grid_resolution=16, alpha_threshold=0.0))
     model.update_grid(0, torch.Generator().manual_seed(0))
     scorer = NVF().scorer(EntropyConfig(), BaselineConfig(), d0=1.0)

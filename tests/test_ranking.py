@@ -18,8 +18,12 @@ def test_shares_add_up_to_one_and_name_the_term_that_moves_the_reward():
     however large its mean; a term that cancels part of another has a negative share."""
     rng = np.random.default_rng(0)
     coverage = rng.uniform(0, 1, 64)
-    terms = {"unknown": 8.0 * coverage, "mixing": 2.0 * coverage + rng.normal(0, 0.01, 64),
-             "background": np.full(64, 100.0), "correction": -1.0 * coverage}  # fmt: skip
+    terms = {
+        "unknown": 8.0 * coverage,
+        "mixing": 2.0 * coverage + rng.normal(0, 0.01, 64),
+        "background": np.full(64, 100.0),
+        "correction": -1.0 * coverage,
+    }
     report = term_attribution(terms)
     shares = {name: t["share"] for name, t in report["terms"].items()}
     assert sum(shares.values()) == pytest.approx(1.0)

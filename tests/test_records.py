@@ -650,8 +650,12 @@ COMMITTED = REPO / "results" / "runs"
 
 
 def test_legacy_defaults_fill_only_keys_the_record_lacks_and_the_other_config_has():
-    now = {"budget": {"gt_samples": 2}, "planner": {"los_source": "mesh", "los_unobserved_free": True},
-           "scene": {"name": "room"}, "train": {"schedule": "paper", "target_samples": 16384}}  # fmt: skip
+    now = {
+        "budget": {"gt_samples": 2},
+        "planner": {"los_source": "mesh", "los_unobserved_free": True},
+        "scene": {"name": "room"},
+        "train": {"schedule": "paper", "target_samples": 16384},
+    }
     old = {"scene": {"name": "room"}, "train": {"schedule": "paper"}}
     filled = with_legacy_defaults(old, now)
     assert filled["budget"]["gt_samples"] == LEGACY_DEFAULTS["budget.gt_samples"] == 1  # made with 1, not 2

@@ -120,23 +120,27 @@ def test_line_of_sight_is_exact_occlusion_and_frustum(cube_renderer):
 def test_unoccluded_segments_stop_at_faces_not_beyond_the_point(cube_renderer):
     """M29 with ``planner.los_source=mesh``: a segment is blocked only by a face between its ends."""
     origin = torch.tensor([0.0, 0.0, 2.0])
-    points = torch.tensor([
-        [0.0, 0.0, 0.31],  # just above the +z face: free
-        [0.0, 0.0, -1.0],  # behind the cube: blocked
-        [1.5, 0.0, -1.0],  # beside the cube: free
-        [0.0, 0.0, 2.0],  # the origin itself: free
-    ])  # fmt: skip
+    points = torch.tensor(
+        [
+            [0.0, 0.0, 0.31],  # just above the +z face: free
+            [0.0, 0.0, -1.0],  # behind the cube: blocked
+            [1.5, 0.0, -1.0],  # beside the cube: free
+            [0.0, 0.0, 2.0],  # the origin itself: free
+        ]
+    )
     assert cube_renderer.unoccluded(origin, points).tolist() == [True, False, True, True]
 
 
 def test_inside_is_the_closed_mesh_interior(cube_renderer):
     """The exact density's support (tests/test_visibility.py): inside the box and not outside it."""
-    points = torch.tensor([
-        [0.0, 0.0, 0.0],  # centre
-        [0.49, 0.39, 0.29],  # near a corner, inside
-        [0.0, 0.0, 0.31],  # just above the +z face
-        [2.0, 0.0, 0.0],  # far outside
-    ])  # fmt: skip
+    points = torch.tensor(
+        [
+            [0.0, 0.0, 0.0],  # centre
+            [0.49, 0.39, 0.29],  # near a corner, inside
+            [0.0, 0.0, 0.31],  # just above the +z face
+            [2.0, 0.0, 0.0],  # far outside
+        ]
+    )
     assert cube_renderer.inside(points).tolist() == [True, True, False, False]
 
 

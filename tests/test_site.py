@@ -143,9 +143,14 @@ def entry_points():
     from pipeline.scenes.__main__ import main as scenes
 
     return {
-        "tables": tables_cli.main, "budget_curve": budget_curve.main, "bench": bench, "scenes": scenes,
-        "uncertainty": uncertainty.main, "discriminate": discriminate.main, "visibility_study": visibility_study.main,
-    }  # fmt: skip
+        "tables": tables_cli.main,
+        "budget_curve": budget_curve.main,
+        "bench": bench,
+        "scenes": scenes,
+        "uncertainty": uncertainty.main,
+        "discriminate": discriminate.main,
+        "visibility_study": visibility_study.main,
+    }
 
 
 @pytest.mark.parametrize(

@@ -376,8 +376,10 @@ def test_a_run_whose_run_json_was_deleted_is_listed_not_dropped(tmp_path):
     record = make_run(tmp_path / "out", seed=100)
     record.run_json.unlink()  # DONE and steps.jsonl kept
     _, skipped = build_tables(tmp_path / "out", [], tmp_path / "res", figures=False)
-    assert skipped == (f"skipped run record: {record.directory}: steps.jsonl and DONE without run.json, so the "
-                       "settings they were made with are unknown; delete the directory",)  # fmt: skip
+    assert skipped == (
+        f"skipped run record: {record.directory}: steps.jsonl and DONE without run.json, so the "
+        "settings they were made with are unknown; delete the directory",
+    )
 
 
 def test_safe_name_keeps_plain_names_and_reduces_the_rest():

@@ -9,7 +9,16 @@ import torch
 
 training = pytest.importorskip("nvf.training", reason="nvf/training.py needs nvf/model.py (not importable yet)")
 from nvf.cameras import Intrinsics, look_at, pixel_rays  # noqa: E402
-from nvf.config import EntropyConfig, FieldConfig, SamplerConfig, StageBudget, TrainConfig  # noqa: E402
+from nvf.config import (  # noqa: E402
+    EntropyConfig,
+    FieldConfig,
+    Precision,
+    SamplerConfig,
+    Schedule,
+    StageBudget,
+    StageOrder,
+    TrainConfig,
+)
 from nvf.model import SceneModel  # noqa: E402
 from nvf.training import (  # noqa: E402
     Observations,
@@ -182,9 +191,9 @@ def test_empty_training_set_raises():
 
 def test_stage_order():
     assert stage_order(TrainConfig()) == ("backbone", "variance", "visibility")
-    assert stage_order(TrainConfig(stage_order="vis_first")) == ("backbone", "visibility", "variance")
+    assert stage_order(TrainConfig(stage_order=StageOrder.vis_first)) == ("backbone", "visibility", "variance")
     with pytest.raises(ValueError):
-        stage_order(TrainConfig(stage_order="bogus"))
+        stage_order(TrainConfig(stage_order=StageOrder.bogus))
 
 
 # ------------------------------------------------------------------------------------- stages
@@ -276,7 +285,9 @@ def test_visibility_stage_bce_decreases(trained):
 def test_reference_schedule_step_counts(trained):
     model, obs = trained
     model = copy_model(model)
-    cfg = tiny_config(schedule="reference", variance=StageBudget(2, 64, 1e-3), visibility=StageBudget(2, 256, 1e-3))
+    cfg = tiny_config(
+        schedule=Schedule.reference, variance=StageBudget(2, 64, 1e-3), visibility=StageBudget(2, 256, 1e-3)
+    )
     stats = train_model(model, obs, cfg, ["variance", "visibility"], EntropyConfig(), torch.Generator().manual_seed(0))
     assert list(stats.stages) == ["variance", "visibility"]
     assert stats.stages["variance"]["steps"] == 6  # D6: 3 fresh batches per iteration
@@ -286,7 +297,7 @@ def test_reference_schedule_step_counts(trained):
 
 def test_ray_batch_follows_the_reference_dynamic_batch_d5():
     """D5: start at target // max_samples_per_ray rays, scale by target / kept samples; paper: fixed."""
-    reference = RayBatch(tiny_config(schedule="reference", target_samples=1000), 64, max_samples_per_ray=100)
+    reference = RayBatch(tiny_config(schedule=Schedule.reference, target_samples=1000), 64, max_samples_per_ray=100)
     assert reference.rays == 10
     reference.update(500)  # half the target kept: twice the rays
     assert reference.rays == 20
@@ -303,7 +314,7 @@ def test_reference_schedule_keeps_about_target_samples_per_batch(trained):
     """D5: with ``schedule=reference`` the backbone's batches adapt until they keep about ``target_samples``."""
     model, obs = trained
     target = 3000
-    cfg = tiny_config(schedule="reference", target_samples=target, backbone=StageBudget(12, 256, 1e-2))
+    cfg = tiny_config(schedule=Schedule.reference, target_samples=target, backbone=StageBudget(12, 256, 1e-2))
     kept: list[int] = []
     model = copy_model(model)
     render = model.render
@@ -335,16 +346,21 @@ def test_ablation_affects_training_wo_var_skips_variance_stage(trained):
 def test_train_model_runs_stages_in_order():
     obs, model = ball_observations(3), tiny_model()
     cfg = tiny_config(
-        stage_order="vis_first",
+        stage_order=StageOrder.vis_first,
         backbone=StageBudget(4, 64, 1e-2),
         variance=StageBudget(2, 64, 1e-3),
         visibility=StageBudget(2, 128, 1e-3),
     )
     seen = []
     stats = train_model(
-        model, obs, cfg, ["backbone", "variance", "visibility"], EntropyConfig(), torch.Generator().manual_seed(0),
+        model,
+        obs,
+        cfg,
+        ["backbone", "variance", "visibility"],
+        EntropyConfig(),
+        torch.Generator().manual_seed(0),
         progress=lambda stage, k, total, loss: seen.append(stage),
-    )  # fmt: skip
+    )
     assert list(stats.stages) == ["backbone", "visibility", "variance"]
     assert seen == ["backbone"] * 4 + ["visibility"] * 2 + ["variance"] * 2
     with pytest.raises(ValueError, match="unknown training stages"):
@@ -447,6 +463,6 @@ def test_fp16_gradients_that_overflow_unscaled_are_divergence():
     stepping. Targets of 1e8 make every gradient overflow while the float32 loss stays finite."""
     obs = ball_observations(2)
     obs.images[..., :3] *= 1e8
-    cfg = tiny_config(backbone=StageBudget(40, 64, 1e-2), precision="fp16")
+    cfg = tiny_config(backbone=StageBudget(40, 64, 1e-2), precision=Precision.fp16)
     with pytest.raises(TrainingDiverged, match=r"float16 gradients overflow at loss scale 0\.5"):
         train_backbone(tiny_model(), obs, cfg, torch.Generator().manual_seed(0))

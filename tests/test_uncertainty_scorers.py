@@ -7,7 +7,7 @@ from dataclasses import replace
 import pytest
 import torch
 
-from nvf.config import BaselineConfig, EntropyConfig
+from nvf.config import BaselineConfig, Bound, DepthMode, EntropyConfig, EntropySampler
 from nvf.methods import AIR, NVF, WD, ActiveNeRF, ActiveRMAP, NeurAR, Random, load_method
 from nvf.model import RenderResult
 from nvf.rendering import Samples, ray_sum, weights_from_alpha
@@ -157,7 +157,7 @@ def test_component_wise_bound_reads_no_means():
     assert NVFEntropyScorer(CFG, d0=1.0).heads == frozenset({"variance", "visibility"})
     got = NVFEntropyScorer(CFG, d0=1.0).pixel_scores(replace(result, rgb_s=None))
     assert torch.equal(got, NVFEntropyScorer(CFG, d0=1.0).pixel_scores(result))
-    loose = NVFEntropyScorer(replace(CFG, bound="moment_matched"), d0=1.0)
+    loose = NVFEntropyScorer(replace(CFG, bound=Bound.moment_matched), d0=1.0)
     assert loose.heads == frozenset({"rgb", "variance", "visibility"})
     shifted = replace(result, rgb_s=torch.rand_like(result.rgb_s))
     assert not torch.allclose(loose.pixel_scores(shifted), loose.pixel_scores(result), atol=1e-3)
@@ -166,7 +166,7 @@ def test_component_wise_bound_reads_no_means():
 def test_loose_bound_only_changes_h():
     """(METHOD 11, Loose) bound=moment_matched swaps M10 for M12; depth, correction, floor unchanged."""
     result = random_result()
-    cfg = replace(CFG, bound="moment_matched")
+    cfg = replace(CFG, bound=Bound.moment_matched)
     h, depth, want = nvf_reference(result, cfg)
     _, depth_default, _ = nvf_reference(result)
     assert torch.equal(depth, depth_default)
@@ -188,7 +188,7 @@ def test_other_switches_match_building_blocks(override):
 def test_chunk_depth_mode():
     """(M15, D3) depth_mode=chunk: one depth per row-major pixel chunk; needs pixel_index."""
     result = random_result()
-    cfg = replace(CFG, depth_mode="chunk", chunk_rays=2)
+    cfg = replace(CFG, depth_mode=DepthMode.chunk, chunk_rays=2)
     pixel_index = torch.tensor([6, 7, 8, 9, 10])
     _, depth, want = nvf_reference(result, cfg, pixel_index=pixel_index)
     assert depth[0] == depth[1] and depth[2] == depth[3] and depth[0] != depth[2]
@@ -240,7 +240,7 @@ def test_batch_without_samples_is_the_floor():
 
 def test_invalid_nvf_settings():
     with pytest.raises(ValueError):
-        NVFEntropyScorer(replace(CFG, bound="exact"), d0=1.0)
+        NVFEntropyScorer(replace(CFG, bound=Bound.exact), d0=1.0)
     with pytest.raises(ValueError):
         NVFEntropyScorer(CFG, d0=-1.0)
 
@@ -299,7 +299,7 @@ SCORING = (WD, ActiveRMAP, AIR, ActiveNeRF, NeurAR, NVF)
 def scorers():
     baseline_variants = [BaselineConfig(), BaselineConfig(rmap_occlusion_weighted=True, air_reduce="sum")]
     out = [m().scorer(CFG, b, 1.0) for m in SCORING for b in baseline_variants]
-    out += [NVFEntropyScorer(replace(CFG, bound="moment_matched"), 1.0), NVFEntropyScorer(CFG, 0.0)]
+    out += [NVFEntropyScorer(replace(CFG, bound=Bound.moment_matched), 1.0), NVFEntropyScorer(CFG, 0.0)]
     return out
 
 
@@ -360,7 +360,7 @@ def test_method_classes():
         assert isinstance(scorer, ViewScorer) and scorer.name == name
         assert scorer.heads == want and scorer.sampler == "occupancy"
         assert (cls.aux_loss is not None) == (cls in (ActiveNeRF, NeurAR))
-    assert NVF().scorer(replace(CFG, sampler="uniform"), base, 1.0).sampler == "uniform"
+    assert NVF().scorer(replace(CFG, sampler=EntropySampler.uniform), base, 1.0).sampler == "uniform"
     assert ActiveRMAP().scorer(CFG, BaselineConfig(rmap_occlusion_weighted=True), 1.0).occlusion_weighted
     assert AIR().scorer(CFG, BaselineConfig(air_reduce="sum"), 1.0).reduce == "sum"
     with pytest.raises(NotImplementedError):
@@ -416,4 +416,4 @@ def test_pixel_terms_of_the_table(v, unknown_weight):
 def test_pixel_terms_refuse_the_loose_bound():
     """(M12) the moment-matched bound has no per-component split."""
     with pytest.raises(ValueError, match="bound=huber"):
-        NVFEntropyScorer(replace(CFG, bound="moment_matched"), 1.0).pixel_terms(random_result())
+        NVFEntropyScorer(replace(CFG, bound=Bound.moment_matched), 1.0).pixel_terms(random_result())

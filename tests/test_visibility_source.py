@@ -1,7 +1,5 @@
 """nvf/visibility_source.py and M17's ``train.label_margin``: where NVF's scores read ``v`` from (METHOD 9.3)."""
 
-import dataclasses
-
 import pytest
 import torch
 

@@ -19,9 +19,16 @@ from pipeline.visibility_summary import COLUMNS, summary_frame, write_summary
 
 
 def decision_row(scene, step, gain=None, spearman=0.99, decisive="unknown", share=0.9):
-    row = {"scene": scene, "seed": 100, "step": step, "set": 0, "spearman": spearman, "same_argmax": gain is None,
-           "terms": {"nvf": {"decisive": decisive, "terms": {"unknown": {"share": share}}}},
-           "ties_at_max": {"nvf": 1, "wo_vis": 1 + step % 2}}  # fmt: skip
+    row = {
+        "scene": scene,
+        "seed": 100,
+        "step": step,
+        "set": 0,
+        "spearman": spearman,
+        "same_argmax": gain is None,
+        "terms": {"nvf": {"decisive": decisive, "terms": {"unknown": {"share": share}}}},
+        "ties_at_max": {"nvf": 1, "wo_vis": 1 + step % 2},
+    }
     if gain is not None:
         row["gain"] = gain
     return row
@@ -79,11 +86,38 @@ def test_study_on_a_smoke_record(tmp_path):
     """End to end at the smoke budget: a 2-step NVF record, then the study on its steps 0 and 1 with 2 candidate
     sets each: a row per state and set, every row's terms, and a finite gain wherever the picks differ."""
     records = tmp_path / "runs"
-    subprocess.run([sys.executable, "-m", "pipeline.run", "budget=smoke", "budget.horizon=2", f"paths.outputs={records}",
-                    "save_images=false"], check=True, capture_output=True)  # fmt: skip
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pipeline.run",
+            "budget=smoke",
+            "budget.horizon=2",
+            f"paths.outputs={records}",
+            "save_images=false",
+        ],
+        check=True,
+        capture_output=True,
+    )
     results = tmp_path / "results"
-    visibility_study.main(["budget=smoke", f"paths.results={results}", "--setting", "smoke", "--scenes", "default",
-                           "--seeds", "100", "--steps", "0,1", "--sets", "2", "--records", str(records)])  # fmt: skip
+    visibility_study.main(
+        [
+            "budget=smoke",
+            f"paths.results={results}",
+            "--setting",
+            "smoke",
+            "--scenes",
+            "default",
+            "--seeds",
+            "100",
+            "--steps",
+            "0,1",
+            "--sets",
+            "2",
+            "--records",
+            str(records),
+        ]
+    )
     folder = results / "pilots" / "visibility_study" / "smoke"
     rows = [json.loads(line) for line in (folder / "decisions.jsonl").read_text().splitlines()]
     assert [(r["step"], r["set"]) for r in rows] == [(0, 0), (0, 1), (1, 0), (1, 1)]
@@ -94,8 +128,24 @@ def test_study_on_a_smoke_record(tmp_path):
         results / "pilots" / "visibility_study" / "summary.csv"
     ).is_file()
     before = (folder / "decisions.jsonl").read_text()
-    visibility_study.main(["budget=smoke", f"paths.results={results}", "--setting", "smoke", "--scenes", "default",
-                           "--seeds", "100", "--steps", "0,1", "--sets", "2", "--records", str(records)])  # fmt: skip
+    visibility_study.main(
+        [
+            "budget=smoke",
+            f"paths.results={results}",
+            "--setting",
+            "smoke",
+            "--scenes",
+            "default",
+            "--seeds",
+            "100",
+            "--steps",
+            "0,1",
+            "--sets",
+            "2",
+            "--records",
+            str(records),
+        ]
+    )
     assert (folder / "decisions.jsonl").read_text() == before  # finished states are not measured again
 
 

@@ -17,7 +17,7 @@ LOG_FLOOR = 1e-6  # M22-M24
 VAR_SCORE_FLOOR = 1e-9  # M26
 
 
-def binary_entropy(a: Float[Tensor, "S"]) -> Float[Tensor, "S"]:
+def binary_entropy(a: Float[Tensor, " S"]) -> Float[Tensor, " S"]:
     """(M23) ``h(a) = -a ln(a + 1e-6) - (1 - a) ln(1 - a + 1e-6)``."""
     return -a * torch.log(a + LOG_FLOOR) - (1.0 - a) * torch.log(1.0 - a + LOG_FLOOR)
 
@@ -30,7 +30,7 @@ class WDScorer:
     heads: ClassVar[frozenset[str]] = frozenset()
     sampler: ClassVar[str] = "occupancy"
 
-    def pixel_scores(self, result: RenderResult, pixel_index: Int[Tensor, "R"] | None = None) -> Float[Tensor, "R"]:
+    def pixel_scores(self, result: RenderResult, pixel_index: Int[Tensor, " R"] | None = None) -> Float[Tensor, " R"]:
         w, samples = result.weights, result.samples
         background = 1.0 - ray_sum(w, samples.ray_idx, samples.n_rays)
         inner = ray_sum(-w * torch.log(w.clamp(min=LOG_FLOOR)), samples.ray_idx, samples.n_rays)
@@ -46,7 +46,7 @@ class ActiveRMAPScorer:
     heads: ClassVar[frozenset[str]] = frozenset()
     sampler: ClassVar[str] = "occupancy"
 
-    def pixel_scores(self, result: RenderResult, pixel_index: Int[Tensor, "R"] | None = None) -> Float[Tensor, "R"]:
+    def pixel_scores(self, result: RenderResult, pixel_index: Int[Tensor, " R"] | None = None) -> Float[Tensor, " R"]:
         per_sample = binary_entropy(result.alpha)
         if self.occlusion_weighted:
             per_sample = result.trans * per_sample
@@ -67,7 +67,7 @@ class AIRScorer:
         if self.reduce not in ("mean", "sum"):
             raise ValueError(f"baseline.air_reduce={self.reduce!r} not in ('mean', 'sum')")
 
-    def pixel_scores(self, result: RenderResult, pixel_index: Int[Tensor, "R"] | None = None) -> Float[Tensor, "R"]:
+    def pixel_scores(self, result: RenderResult, pixel_index: Int[Tensor, " R"] | None = None) -> Float[Tensor, " R"]:
         samples = result.samples
         per_sample = result.trans * (1.0 - result.alpha) * binary_entropy(result.alpha)
         total = ray_sum(per_sample, samples.ray_idx, samples.n_rays)
@@ -85,6 +85,7 @@ class RenderedVarianceScorer:
     heads: ClassVar[frozenset[str]] = frozenset({"variance"})
     sampler: ClassVar[str] = "occupancy"
 
-    def pixel_scores(self, result: RenderResult, pixel_index: Int[Tensor, "R"] | None = None) -> Float[Tensor, "R"]:
+    def pixel_scores(self, result: RenderResult, pixel_index: Int[Tensor, " R"] | None = None) -> Float[Tensor, " R"]:
+        assert result.variance is not None, "rendered with the variance head (heads)"
         per_sample = (result.weights * result.variance.mean(-1)).clamp(min=VAR_SCORE_FLOOR)
         return ray_sum(per_sample, result.samples.ray_idx, result.samples.n_rays)

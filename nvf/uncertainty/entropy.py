@@ -26,7 +26,7 @@ def entropy_floor(var_bg: float) -> float:
 H_MIN = entropy_floor(1e-4)  # M11: -9.558695 nats
 
 
-def mixture_entropy_upper_bound(mix: RayMixture, logdet_coeff: float = 0.5) -> Float[Tensor, "R"]:
+def mixture_entropy_upper_bound(mix: RayMixture, logdet_coeff: float = 0.5) -> Float[Tensor, " R"]:
     """(M10) Packed component-wise bound
     ``sum_k pi_k [-ln(pi_k + 1e-9) + (3/2) ln(2 pi e) + c sum_ch ln(q_k,ch + 1e-9)]``.
 
@@ -46,22 +46,22 @@ def _log_det(var: float, logdet_coeff: float, like: Tensor) -> Float[Tensor, ""]
 
 
 def _weighted_bracket(
-    weights: Float[Tensor, "K"], log_det: Float[Tensor, "K"] | Float[Tensor, ""]
-) -> Float[Tensor, "K"]:
+    weights: Float[Tensor, " K"], log_det: Float[Tensor, " K"] | Float[Tensor, ""]
+) -> Float[Tensor, " K"]:
     """(M10) ``pi [-ln(pi + 1e-9) + (3/2) ln(2 pi e) + log_det]`` per component; a NaN bracket counts as 0."""
     bracket = 1.5 * LOG_2PIE - torch.log(weights + LOG_EPS) + log_det
     return weights * bracket.nan_to_num(nan=0.0, posinf=math.inf, neginf=-math.inf)
 
 
 def upper_bound_and_depth(
-    eq_weights: Float[Tensor, "S"],
-    visibility: Float[Tensor, "S"] | None,
+    eq_weights: Float[Tensor, " S"],
+    visibility: Float[Tensor, " S"] | None,
     variance: Float[Tensor, "S 3"] | None,
-    t_mid: Float[Tensor, "S"],
-    ray_idx: Int[Tensor, "S"],
+    t_mid: Float[Tensor, " S"],
+    ray_idx: Int[Tensor, " S"],
     n_rays: int,
     cfg: EntropyConfig,
-) -> tuple[Float[Tensor, "R"], Float[Tensor, "R"]]:
+) -> tuple[Float[Tensor, " R"], Float[Tensor, " R"]]:
     """(M9, M10, M15) The bound ``H [R]`` of ``ray_mixture``'s mixture and the per-pixel depth ``d [R]``,
     without packing the mixture.
 
@@ -92,13 +92,13 @@ TERMS = ("seen", "unknown", "background", "mixing")  # M10's bound split per ray
 
 
 def entropy_terms(
-    eq_weights: Float[Tensor, "S"],
-    visibility: Float[Tensor, "S"] | None,
+    eq_weights: Float[Tensor, " S"],
+    visibility: Float[Tensor, " S"] | None,
     variance: Float[Tensor, "S 3"] | None,
-    ray_idx: Int[Tensor, "S"],
+    ray_idx: Int[Tensor, " S"],
     n_rays: int,
     cfg: EntropyConfig,
-) -> dict[str, Float[Tensor, "R"]]:
+) -> dict[str, Float[Tensor, " R"]]:
     """(M9, M10) The bound ``H`` of each ray split into ``TERMS``, ``H = H_min + sum of the terms``
     (``H_min`` of M11; the weights of a ray sum to 1):
 
@@ -136,7 +136,7 @@ def entropy_terms(
     }
 
 
-def mixture_moment_matched_entropy(mix: RayMixture) -> Float[Tensor, "R"]:
+def mixture_moment_matched_entropy(mix: RayMixture) -> Float[Tensor, " R"]:
     """(M12) Packed "Loose" bound: entropy ``(3/2) ln(2 pi e) + (1/2) logdet Sigma`` of the
     moment-matched Gaussian, ``Sigma = sum_k pi_k (diag q_k + (mu_k - mu_bar)(mu_k - mu_bar)^T)``
     (full 3x3, float64)."""
@@ -162,19 +162,19 @@ def gmm_entropy_upper_bound(
     means: Float[Tensor, "R K 3"],
     variances: Float[Tensor, "R K 3"],
     logdet_coeff: float = 0.5,
-) -> Float[Tensor, "R"]:
+) -> Float[Tensor, " R"]:
     """(M10) Upper bound on the entropy of ``R`` padded diagonal mixtures (means do not enter it)."""
     return mixture_entropy_upper_bound(_packed(weights, means, variances), logdet_coeff)
 
 
 def moment_matched_entropy(
     weights: Float[Tensor, "R K"], means: Float[Tensor, "R K 3"], variances: Float[Tensor, "R K 3"]
-) -> Float[Tensor, "R"]:
+) -> Float[Tensor, " R"]:
     """(M12) Moment-matched Gaussian entropy of ``R`` padded diagonal mixtures."""
     return mixture_moment_matched_entropy(_packed(weights, means, variances))
 
 
-def correlation_factor(depth: Float[Tensor, "R"], d0: float, corr: str) -> Float[Tensor, "R"]:
+def correlation_factor(depth: Float[Tensor, " R"], d0: float, corr: str) -> Float[Tensor, " R"]:
     """(M13) ``1 - rho``: ``min(d/d0, 1)^2`` (quadratic) or ``1 - exp(-d/d0)`` (exp); 1 if ``d0 = 0``."""
     if d0 < 0:
         raise ValueError(f"d0 must be >= 0 (resolve auto/scene values first), got {d0}")
@@ -188,22 +188,22 @@ def correlation_factor(depth: Float[Tensor, "R"], d0: float, corr: str) -> Float
 
 
 def corrected_entropy(
-    entropy: Float[Tensor, "R"], depth: Float[Tensor, "R"], d0: float, corr: str, h_min: float = H_MIN
-) -> Float[Tensor, "R"]:
+    entropy: Float[Tensor, " R"], depth: Float[Tensor, " R"], d0: float, corr: str, h_min: float = H_MIN
+) -> Float[Tensor, " R"]:
     """(M13, M14) ``H' = max(H_min + (1 - rho)(H - H_min), H_min)``; ``d0 = 0``: ``max(H, H_min)``."""
     corrected = h_min + correlation_factor(depth, d0, corr) * (entropy - h_min)
     return corrected.clamp(min=h_min)
 
 
 def equivalent_depth(
-    eq_weights: Float[Tensor, "S"],
-    t_mid: Float[Tensor, "S"],
-    ray_idx: Int[Tensor, "S"],
+    eq_weights: Float[Tensor, " S"],
+    t_mid: Float[Tensor, " S"],
+    ray_idx: Int[Tensor, " S"],
     n_rays: int,
     depth_mode: str = "pixel",
-    pixel_index: Int[Tensor, "R"] | None = None,
+    pixel_index: Int[Tensor, " R"] | None = None,
     chunk_rays: int = 4096,
-) -> Float[Tensor, "R"]:
+) -> Float[Tensor, " R"]:
     """(M15) ``d = sum_i w_bar_i t_m,i / (sum_i w_bar_i + 1e-10)`` with the equivalent weights (M8).
 
     ``depth_mode="pixel"``: per ray (0 for a ray without samples). ``"chunk"`` reproduces the

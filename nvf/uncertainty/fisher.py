@@ -41,15 +41,17 @@ def rademacher(probes: int, rays: int, generator: torch.Generator) -> Float[Tens
     return (2 * bits - 1).to(torch.float32)
 
 
-def _flat(grads: tuple[Tensor | None, ...], params: list[nn.Parameter]) -> Float[Tensor, "P"]:
+def _flat(grads: tuple[Tensor | None, ...], params: list[nn.Parameter]) -> Float[Tensor, " P"]:
     """Gradients flattened in ``params``' order, zeros where a parameter is unused."""
-    return torch.cat([(torch.zeros_like(p) if g is None else g).reshape(-1) for g, p in zip(grads, params)])
+    return torch.cat(
+        [(torch.zeros_like(p) if g is None else g).reshape(-1) for g, p in zip(grads, params, strict=True)]
+    )
 
 
 def _rendered_colour(model: nn.Module, origins: Float[Tensor, "R 3"], dirs: Float[Tensor, "R 3"]) -> Tensor:
     """``C [R, 3]`` as planning renders it (no jitter, image 0's appearance), with autograd."""
     with torch.enable_grad():
-        return model.render(origins, dirs, heads=RGB).rgb
+        return model.render(origins, dirs, heads=RGB).rgb  # type: ignore[operator]  # a duck-typed nn.Module's attribute
 
 
 def probe_fisher_diagonal(
@@ -59,7 +61,7 @@ def probe_fisher_diagonal(
     dirs: Float[Tensor, "R 3"],
     signs: Float[Tensor, "K R 3"],
     chunk_rays: int,
-) -> Float[Tensor, "P"]:
+) -> Float[Tensor, " P"]:
     """(M31) ``(1/K) sum_k (J^T s_k)^2``: one forward per chunk of rays and one backward per probe."""
     probes = signs.shape[0]
     sums = [torch.zeros(sum(p.numel() for p in params), device=origins.device) for _ in range(probes)]
@@ -81,7 +83,7 @@ def probe_fisher_diagonal(
 
 def exact_fisher_diagonal(
     model: nn.Module, params: list[nn.Parameter], origins: Float[Tensor, "R 3"], dirs: Float[Tensor, "R 3"]
-) -> Float[Tensor, "P"]:
+) -> Float[Tensor, " P"]:
     """(M30) ``sum_r sum_ch (dC_r,ch / dtheta)^2``: one render per ray, one backward per ray and channel."""
     total = torch.zeros(sum(p.numel() for p in params), dtype=torch.float64, device=origins.device)
     for r in range(origins.shape[0]):
@@ -102,7 +104,7 @@ def view_fisher_diagonal(
     probes: int,
     generator: torch.Generator,
     chunk_rays: int,
-) -> Float[Tensor, "P"]:
+) -> Float[Tensor, " P"]:
     """The diagonal of one view's ``J^T J``: exact (M30) when ``3 R <= probes`` (no more backward passes),
     else ``probes`` Rademacher probes drawn from ``generator`` (M31)."""
     if 3 * origins.shape[0] <= probes:
@@ -112,7 +114,7 @@ def view_fisher_diagonal(
 
 
 def information_gain(
-    candidate: Float[Tensor, "P"], train: Float[Tensor, "P"], prior_precision: float
+    candidate: Float[Tensor, " P"], train: Float[Tensor, " P"], prior_precision: float
 ) -> Float[Tensor, ""]:
     """(M32) ``sum_j H_c,j / (H_D,j + lambda)``, float64."""
     return (candidate.double() / (train.double() + prior_precision)).sum()
@@ -136,7 +138,7 @@ class FisherRFScorer:
 
     def train_diagonal(
         self, model: nn.Module, observations: Observations, generators: GeneratorFactory, chunk_rays: int
-    ) -> Float[Tensor, "P"]:
+    ) -> Float[Tensor, " P"]:
         """``diag H_D``: the sum over the training views of ``view_fisher_diagonal``, every pixel, one
         generator (``TRAIN_PROBES``) drawn view after view."""
         params = colour_parameters(model)
@@ -162,7 +164,7 @@ class FisherRFViewScorer:
     differ by their Jacobians, not by their draws."""
 
     settings: FisherRFScorer
-    train: Float[Tensor, "P"]
+    train: Float[Tensor, " P"]
     generators: GeneratorFactory
     name: ClassVar[str] = "fisherrf"
 

@@ -26,10 +26,10 @@ class RayMixture:
     ``0..R-1``, then the background component of rays ``0..R-1``; the weights of each ray sum to 1.
     """
 
-    weights: Float[Tensor, "K"]
+    weights: Float[Tensor, " K"]
     means: Float[Tensor, "K 3"]
     variances: Float[Tensor, "K 3"]
-    ray_idx: Int[Tensor, "K"]
+    ray_idx: Int[Tensor, " K"]
     n_rays: int
 
     def padded(self) -> tuple[Float[Tensor, "R N"], Float[Tensor, "R N 3"], Float[Tensor, "R N 3"]]:
@@ -51,8 +51,8 @@ class RayMixture:
 
 
 def _exclusive_transmittance(
-    alpha_bar: Float[Tensor, "S"], ray_idx: Int[Tensor, "S"], counts: Int[Tensor, "R"]
-) -> Float[Tensor, "S"]:
+    alpha_bar: Float[Tensor, " S"], ray_idx: Int[Tensor, " S"], counts: Int[Tensor, " R"]
+) -> Float[Tensor, " S"]:
     """(M8) ``T_bar_i = prod_{j<i} (1 - alpha_bar_j)`` per ray: ``exp`` of a segmented float64
     cumulative sum of ``ln(1 - min(alpha_bar, 1 - 1e-7))`` (samples sorted by ray, then ``t``;
     ``counts`` = samples per ray)."""
@@ -63,7 +63,7 @@ def _exclusive_transmittance(
     return torch.exp(exclusive - start).to(alpha_bar.dtype)
 
 
-def checked_visibility(visibility: Float[Tensor, "S"] | None, cfg: EntropyConfig) -> Float[Tensor, "S"] | None:
+def checked_visibility(visibility: Float[Tensor, " S"] | None, cfg: EntropyConfig) -> Float[Tensor, " S"] | None:
     """``v``, or None when the w/o Vis. ablation sets ``v = 1`` (METHOD.md 11)."""
     if not cfg.use_visibility:
         return None
@@ -73,8 +73,8 @@ def checked_visibility(visibility: Float[Tensor, "S"] | None, cfg: EntropyConfig
 
 
 def equivalent_alpha(
-    alpha: Float[Tensor, "S"], visibility: Float[Tensor, "S"] | None, cfg: EntropyConfig
-) -> Float[Tensor, "S"]:
+    alpha: Float[Tensor, " S"], visibility: Float[Tensor, " S"] | None, cfg: EntropyConfig
+) -> Float[Tensor, " S"]:
     """(M7) ``alpha_bar = [v + beta (1 - v)] alpha + (1 - beta)(1 - v) alpha_un``.
 
     ``cfg.use_visibility=False`` (w/o Vis.) sets ``v = 1``, i.e. ``alpha_bar = alpha``.
@@ -86,12 +86,12 @@ def equivalent_alpha(
 
 
 def equivalent_weights(
-    alpha: Float[Tensor, "S"],
-    visibility: Float[Tensor, "S"] | None,
-    ray_idx: Int[Tensor, "S"],
-    counts: Int[Tensor, "R"],
+    alpha: Float[Tensor, " S"],
+    visibility: Float[Tensor, " S"] | None,
+    ray_idx: Int[Tensor, " S"],
+    counts: Int[Tensor, " R"],
     cfg: EntropyConfig,
-) -> Float[Tensor, "S"]:
+) -> Float[Tensor, " S"]:
     """(M7, M8) ``w_bar_i = T_bar_i alpha_bar_i`` straight from ``alpha_bar`` (no
     ``-ln(1 - alpha_bar)/delta`` round trip; ``alpha_bar <= 1 - 1e-7`` inside the logs).
 
@@ -111,14 +111,14 @@ def checked_variance(variance: Float[Tensor, "S 3"] | None, cfg: EntropyConfig) 
 
 
 def ray_mixture(
-    alpha: Float[Tensor, "S"],
+    alpha: Float[Tensor, " S"],
     rgb_s: Float[Tensor, "S 3"],
     variance: Float[Tensor, "S 3"] | None,
-    visibility: Float[Tensor, "S"] | None,
-    ray_idx: Int[Tensor, "S"],
+    visibility: Float[Tensor, " S"] | None,
+    ray_idx: Int[Tensor, " S"],
     n_rays: int,
     cfg: EntropyConfig,
-) -> tuple[RayMixture, Float[Tensor, "S"]]:
+) -> tuple[RayMixture, Float[Tensor, " S"]]:
     """(M8, M9) Mixture of each ray and the equivalent weights ``w_bar [S]`` (``equivalent_weights``).
 
     Reference split (D22):
@@ -153,7 +153,7 @@ def ray_mixture(
     return mixture, eq_weights
 
 
-def mixture_log_density(mix: RayMixture, z: Float[Tensor, "R 3"]) -> Float[Tensor, "R"]:
+def mixture_log_density(mix: RayMixture, z: Float[Tensor, "R 3"]) -> Float[Tensor, " R"]:
     """``ln p_r(z_r)`` of each ray's mixture (M21), by log-sum-exp of ``ln pi + ln N`` in float64.
 
     Variances are clamped to ``>= 1e-4``; ``-inf`` where ``p_r = 0`` (all weights 0), with zero

@@ -56,15 +56,18 @@ class NVFEntropyScorer:
     def heads(self) -> frozenset[str]:
         """variance and visibility unless ablated, plus rgb (the component means) for the Loose bound
         (M12) only: the component-wise bound (M10) does not depend on the means."""
-        used = {"rgb": self.cfg.bound == "moment_matched", "variance": self.cfg.use_variance,
-                "visibility": self.cfg.use_visibility}  # fmt: skip
+        used = {
+            "rgb": self.cfg.bound == "moment_matched",
+            "variance": self.cfg.use_variance,
+            "visibility": self.cfg.use_visibility,
+        }
         return frozenset(head for head, wanted in used.items() if wanted)
 
     @property
     def sampler(self) -> str:
         return self.cfg.sampler
 
-    def pixel_scores(self, result: RenderResult, pixel_index: Int[Tensor, "R"] | None = None) -> Float[Tensor, "R"]:
+    def pixel_scores(self, result: RenderResult, pixel_index: Int[Tensor, " R"] | None = None) -> Float[Tensor, " R"]:
         """``H' [R]`` of each rendered ray (nats).
 
         The default bound (M10) goes through ``upper_bound_and_depth`` (no packed mixture); the Loose
@@ -85,6 +88,7 @@ class NVFEntropyScorer:
             eq_weights = equivalent_weights(result.alpha, visibility, ray_idx, counts, cfg)
             entropy, depth = upper_bound_and_depth(eq_weights, visibility, variance, t_mid, ray_idx, n_rays, cfg)
         else:
+            assert result.rgb_s is not None, "rendered with the variance head (its per-sample colours)"
             mixture, eq_weights = ray_mixture(
                 result.alpha, result.rgb_s, result.variance, result.visibility, ray_idx, n_rays, cfg
             )
@@ -95,8 +99,8 @@ class NVFEntropyScorer:
         return torch.where(counts == 0, floor, scores)
 
     def pixel_terms(
-        self, result: RenderResult, pixel_index: Int[Tensor, "R"] | None = None
-    ) -> dict[str, Float[Tensor, "R"]]:
+        self, result: RenderResult, pixel_index: Int[Tensor, " R"] | None = None
+    ) -> dict[str, Float[Tensor, " R"]]:
         """``H' [R]`` of ``pixel_scores`` split into additive terms (nats):
         ``H' = H_min + seen + unknown + background + mixing + correction``.
 

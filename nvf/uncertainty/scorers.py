@@ -38,7 +38,9 @@ class ViewScorer(Protocol):
     @property
     def sampler(self) -> str: ...
 
-    def pixel_scores(self, result: RenderResult, pixel_index: Int[Tensor, "R"] | None = None) -> Float[Tensor, "R"]: ...
+    def pixel_scores(
+        self, result: RenderResult, pixel_index: Int[Tensor, " R"] | None = None
+    ) -> Float[Tensor, " R"]: ...
 
 
 @runtime_checkable

@@ -2,7 +2,8 @@
 the machine, so that drifts of its load (other jobs on shared cores) fall on all of them alike.
 
 - ``lockstep``: long jobs with a per-iteration callback (training) run one at a time, handing over
-  after every iteration, each in its own thread; ``IterationClock`` counts a job's own turns only.
+  after every iteration, each in its own thread (a single job runs on the calling thread, as an episode
+  trains); ``IterationClock`` counts a job's own turns only.
 - ``ratio_spread``: the median, min and max of paired ratios (one per turn window or repeat).
 """
 
@@ -24,7 +25,10 @@ def lockstep(jobs: dict[str, Callable[[Turn], T]]) -> dict[str, T]:
     """Run the jobs side by side, one at a time, in the order given, each called with a ``turn`` callable:
     a job calls ``turn()`` at the end of every iteration, which hands over to the next unfinished job
     (round robin) and returns when it is this job's turn again. Returns each job's result; re-raises the
-    first error."""
+    first error. A single job runs on the calling thread, with a ``turn`` that returns at once."""
+    if len(jobs) == 1:
+        ((name, job),) = jobs.items()
+        return {name: job(lambda: None)}
     names = list(jobs)
     cond = threading.Condition()
     current = [0]
@@ -109,13 +113,6 @@ class IterationClock:
             "train_samples_per_iter": samples / iters,
             "train_marched_per_iter": (self.marched[last] - self.marched[first - 1]) / iters,
         }
-
-    def stage_seconds(self) -> dict[str, float]:
-        """Own wall seconds per training stage (an iteration's time goes to the stage that reported it)."""
-        out: dict[str, float] = {}
-        for i, stage in enumerate(self.stages):
-            out[stage] = out.get(stage, 0.0) + self.wall[i] - (self.wall[i - 1] if i else 0.0)
-        return out
 
     def stage_seconds(self) -> dict[str, float]:
         """Own wall seconds per training stage (an iteration's time goes to the stage that reported it)."""

@@ -60,9 +60,13 @@ def main(argv: list[str]) -> None:
         "seconds_per_step": seconds / max(1, len(rows)),
         **{f"{phase}_seconds": value for phase, value in phases.items()},
         "final_psnr": rows[-1]["metrics"]["psnr"] if rows else None,
-        "scene": cfg.scene.name, "method": cfg.method.name, "budget": cfg.budget.name, "field": cfg.field.kind,
-        "torch_threads": torch.get_num_threads(), "overrides": args.overrides,
+        "scene": cfg.scene.name,
+        "method": cfg.method.name,
+        "budget": cfg.budget.name,
+        "field": cfg.field.kind,
+        "torch_threads": torch.get_num_threads(),
+        "overrides": args.overrides,
         "per_step": [step_summary(r) for r in rows],
-    }  # fmt: skip
+    }
     write_report(report, out)
     print(json.dumps({k: v for k, v in report.items() if k != "per_step"}, indent=2))

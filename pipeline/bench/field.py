@@ -24,7 +24,7 @@ import torch
 from jaxtyping import Float
 from torch import Tensor
 
-from nvf.config import FieldConfig
+from nvf.config import FieldConfig, FieldKind, HashBackend
 from nvf.encoding import cpp_extension
 from nvf.field import HEADS, RadianceField, spherical_harmonics
 from pipeline.bench._report import report_path, write_report
@@ -38,13 +38,17 @@ CPU_BUDGET_LOG2 = 15
 def variants() -> dict[str, FieldConfig]:
     """The backbones compared: paper hash grid on both backends, the CPU-budget hash grid, dense grids."""
     return {
-        "hash2^19-torch": FieldConfig(backend="torch"),
-        "hash2^19-cpp": FieldConfig(backend="cpp"),
-        f"hash2^{CPU_BUDGET_LOG2}-torch": FieldConfig(log2_hashmap_size=CPU_BUDGET_LOG2, backend="torch"),
-        f"hash2^{CPU_BUDGET_LOG2}-cpp": FieldConfig(log2_hashmap_size=CPU_BUDGET_LOG2, backend="cpp"),
-        "hash2^17-cpp": FieldConfig(log2_hashmap_size=17, backend="cpp"),
-        "dense128x32-cpp": FieldConfig(kind="densegrid", dense_resolution=128, dense_features=32, backend="cpp"),
-        "dense64x32-cpp": FieldConfig(kind="densegrid", dense_resolution=64, dense_features=32, backend="cpp"),
+        "hash2^19-torch": FieldConfig(backend=HashBackend.torch),
+        "hash2^19-cpp": FieldConfig(backend=HashBackend.cpp),
+        f"hash2^{CPU_BUDGET_LOG2}-torch": FieldConfig(log2_hashmap_size=CPU_BUDGET_LOG2, backend=HashBackend.torch),
+        f"hash2^{CPU_BUDGET_LOG2}-cpp": FieldConfig(log2_hashmap_size=CPU_BUDGET_LOG2, backend=HashBackend.cpp),
+        "hash2^17-cpp": FieldConfig(log2_hashmap_size=17, backend=HashBackend.cpp),
+        "dense128x32-cpp": FieldConfig(
+            kind=FieldKind.densegrid, dense_resolution=128, dense_features=32, backend=HashBackend.cpp
+        ),
+        "dense64x32-cpp": FieldConfig(
+            kind=FieldKind.densegrid, dense_resolution=64, dense_features=32, backend=HashBackend.cpp
+        ),
     }
 
 
@@ -122,7 +126,7 @@ def bench_variant(cfg: FieldConfig, rays: int, per_ray: int, chunk: int, iters: 
         t3 = time.perf_counter()
         optimizer.step()
         t4 = time.perf_counter()
-        for key, seconds in zip(phases, (t1 - t0, t3 - t2, t2 - t1, t4 - t3)):
+        for key, seconds in zip(phases, (t1 - t0, t3 - t2, t2 - t1, t4 - t3), strict=True):
             phases[key].append(seconds)
 
     def full_train_step() -> None:

@@ -59,20 +59,23 @@ from tqdm import tqdm
 from nvf.cameras import Intrinsics, camera_directions, pose_to_matrix, rays_from_camera_dirs
 from nvf.config import STAGES
 from nvf.field import INFERENCE_BLOCK, VIS_POSITION_WIDTH
-from nvf.methods import FisherRF
+from nvf.methods import FisherRF, Method
+from nvf.model import SceneModel
 from nvf.planning import argmax_first, prepare_scorer, score_poses
 from nvf.precision import precision_dtype
 from nvf.seeding import generator_factory
-from nvf.uncertainty import StepScorer, ViewScorer
+from nvf.training import Observations
+from nvf.uncertainty import StepScorer, ViewScorer, WholeViewScorer
 from nvf.uncertainty.fisher import FisherRFScorer
+from pipeline.bench._models import RGB, CountingModel, InitialViewModel, held_out_poses, parse_precisions, view_psnr
 from pipeline.bench._paired import IterationClock, ratio_spread
 from pipeline.bench._report import report_path, write_report
 from pipeline.bench.field import matmul_gflops, mlp_flops
-from pipeline.bench.train import RGB, CountingModel, InitialViewModel, held_out_poses, parse_precisions, view_psnr
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.catalog import method_configs
 from pipeline.config.method import build_method
 from pipeline.config.validation import compose_config
+from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.ranking import spearman
 
 CANDIDATES = 512  # the paper's N; a later planner.num_candidates=... override wins
@@ -110,7 +113,7 @@ def time_in_blocks(
     for i, block in enumerate(tqdm(split, desc="blocks", leave=False, disable=not sys.stderr.isatty())):
         for key in keys[i % len(keys) :] + keys[: i % len(keys)]:
             before = model.samples
-            w, c = timed(lambda key=key: jobs[key](poses[block]))
+            w, c = timed(lambda key=key, block=block: jobs[key](poses[block]))
             kept[key] += model.samples - before
             wall[key].append(w)
             cpu[key].append(c)
@@ -209,7 +212,7 @@ def timed(fn: Callable[[], object]) -> tuple[float, float]:
     return time.perf_counter() - start, (time.process_time() - start_cpu) / torch.get_num_threads()
 
 
-def main(argv: list[str]) -> None:
+def parse_args(argv: list[str]):
     parser = ArgumentParser(prog="python -m pipeline.bench plan", description=description(__doc__))
     parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. budget=smoke")
     parser.add_argument(
@@ -217,118 +220,47 @@ def main(argv: list[str]) -> None:
     )
     parser.add_argument("--repeats", type=int, default=1, help="timed passes over all candidates")
     parser.add_argument("--blocks", type=int, default=8, help="candidate blocks per pass (ratio = median over blocks)")
-    parser.add_argument("--precisions", help="train.precision values compared, first the reference (default: fp32,bf16 "
-                        "where the CPU has bfloat16, else fp32)")  # fmt: skip
+    parser.add_argument(
+        "--precisions",
+        help="train.precision values compared, first the reference (default: fp32,bf16 "
+        "where the CPU has bfloat16, else fp32)",
+    )
     parser.add_argument("--probes", help="FisherRF probe counts K to compare, e.g. 1,2,4,8,16 (default: none)")
     args = parser.parse_intermixed_args(argv)
     if args.repeats < 1 or args.blocks < 1:
         parser.error("--repeats and --blocks must be >= 1")
-    probes = None if args.probes is None else parse_probes(args.probes)
-    start = time.perf_counter()
-    cfg = compose_config([f"planner.num_candidates={CANDIDATES}", *args.overrides])
-    precisions = parse_precisions(args.precisions)
-    methods = {name: build_method(m) for name, m in method_configs().items()}
-    fisher = next((method for method in methods.values() if isinstance(method, FisherRF)), None)
-    if probes is not None and fisher is None:
-        fail("--probes: no method in conf/method is FisherRF (nvf.methods.FisherRF); declare it or drop --probes")
-    setups, clocks = InitialViewModel.train_side_by_side(cfg, precisions)
-    base = precisions[0]
-    setup = setups[base]  # scoring: the reference precision's model with its MLPs in each precision
-    s, obs, model = setup.settings, setup.obs, setup.model
-    size = int(cfg.budget.image_size)
-    planner = s.planner
-    poses = setup.candidates(0)
-    res = int(planner.resolution)
-    intr = Intrinsics.from_fov(res, res)
-    chunk = int(planner.score_chunk_rays)
-    scorers = {
-        name: scorer
-        for name, method in methods.items()
-        if (scorer := method.scorer(s.entropy, float(s.entropy.d0))) is not None
-    }
-    prepare_seconds = {}
-    for name in [name for name, scorer in scorers.items() if isinstance(scorer, StepScorer)]:
-        began = time.perf_counter()
-        scorers[name] = prepare_scorer(scorers[name], model, obs, generator_factory(int(cfg.seed), 0), chunk)
-        prepare_seconds[name] = time.perf_counter() - began
-    work: dict[str, Callable[[Tensor], object]] = {"plain_render": lambda p: plain_render(model, p, intr, chunk)}
-    for method, scorer in scorers.items():
-        work[method] = lambda p, scorer=scorer: score_poses(model, scorer, p, intr, chunk)
+    args.probes = None if args.probes is None else parse_probes(args.probes)
+    return args
 
-    def in_precision(fn: Callable[[Tensor], object], name: str) -> Callable[[Tensor], object]:
-        def run(p: Tensor) -> object:
-            with model.field.mlp_precision(torch.float32, infer=precision_dtype(name)):
-                return fn(p)
 
-        return run
-
-    jobs = {(name, precision): in_precision(fn, precision) for precision in precisions for name, fn in work.items()}
-    timings = time_in_blocks(jobs, poses, model, args.blocks, args.repeats)
-    candidates = poses.shape[0] * args.repeats
-    per, ratios = precision_comparison(setups, clocks, timings[0], list(work), candidates, args.blocks)
-    wall, cpu, kept = ({job: by_job[(job, base)] for job in work} for by_job in timings)  # the reference's
-
-    m = poses.shape[0]
+def scoring_rates(
+    wall: dict[str, list[float]], cpu: dict[str, list[float]], work: list[str], methods: list[str], candidates: int
+) -> dict:
+    """Candidates per second of each job, and each method's scoring time over the plain render's (the median
+    over blocks of the paired ratios)."""
     report: dict = {}
     for name in work:
-        report[f"candidates_per_s_{name}"] = m * args.repeats / sum(wall[name])
-        report[f"candidates_per_s_{name}_cpu"] = m * args.repeats / sum(cpu[name])
-    for method in scorers:
+        report[f"candidates_per_s_{name}"] = candidates / sum(wall[name])
+        report[f"candidates_per_s_{name}_cpu"] = candidates / sum(cpu[name])
+    for method in methods:
         report[f"{method}_over_plain_render"] = statistics.median(
             w / p for w, p in zip(wall[method], wall["plain_render"], strict=True)
         )
         report[f"{method}_over_plain_render_cpu"] = statistics.median(
             c / p for c, p in zip(cpu[method], cpu["plain_render"], strict=True)
         )
-    ratio = report["nvf_over_plain_render"]
-    nvf_flops, plain_flops = mlp_flops(model.field, scorers["nvf"].heads, False), mlp_flops(model.field, RGB, False)
-    extra_flops = nvf_flops - plain_flops
-    report["matmul_gflops"], _ = matmul_gflops(INFERENCE_BLOCK, VIS_POSITION_WIDTH, 3)
-    plain_seconds = sum(wall["plain_render"])
-    extra_seconds_at_limit = extra_flops * kept["nvf"] / (report["matmul_gflops"] * 1e9)
-    report["nvf_over_plain_render_at_limit"] = 1.0 + extra_seconds_at_limit / plain_seconds
-    extra_seconds = sum(wall["nvf"]) - plain_seconds
-    report["nvf_extra_fraction_of_limit"] = extra_seconds_at_limit / extra_seconds if extra_seconds > 0 else None
-    study = None if probes is None else probes_study(setup, poses, intr, chunk, probes, fisher.prior_precision)
-    per_pixel = {method: scorer for method, scorer in scorers.items() if isinstance(scorer, ViewScorer)}
-    report.update({
-        "prepare_seconds": prepare_seconds,
-        "prepare_seconds_per_view": {method: t / obs.num_images for method, t in prepare_seconds.items()},
-        "seconds_per_step": {method: prepare_seconds.get(method, 0.0) + sum(wall[method]) / args.repeats
-                             for method in scorers},
-        "fisherrf_probes": study,
-        "goal_nvf_over_plain_render": GOAL_NVF_OVER_PLAIN,
-        "goal_met": ratio <= GOAL_NVF_OVER_PLAIN,
-        "goal_within_limit": report["nvf_over_plain_render_at_limit"] <= GOAL_NVF_OVER_PLAIN,
-        "nvf_over_plain_mlp_flops": nvf_flops / plain_flops,
-        "seconds_per_block": {name: wall[name] for name in work},
-        "precision": base,
-        "precisions": per,
-        "ratios": ratios,
-        "settings": {
-            "budget": cfg.budget.name, "scene": cfg.scene.name, "field_kind": s.field.kind,
-            "field_backend": s.field.backend, "log2_hashmap_size": s.field.log2_hashmap_size,
-            "training_views": obs.num_images, "image_size": size,
-            "train_iters": {stage: getattr(s.train, stage).iters for stage in STAGES},
-            "train_seconds": setup.train_seconds, "candidates": m, "candidates_requested": planner.num_candidates,
-            "resolution": res, "chunk_rays": chunk, "tau": s.tau, "collision_free": s.collision_free,
-            "heads": {method: sorted(scorer.heads) for method, scorer in per_pixel.items()},
-            "samplers": {method: scorer.sampler for method, scorer in per_pixel.items()},
-            "plain_render_samples_per_ray": kept["plain_render"] / (args.repeats * m * intr.num_pixels),
-            "repeats": args.repeats, "blocks": args.blocks, "torch_threads": torch.get_num_threads(),
-            "precisions": precisions,
-            "overrides": args.overrides,
-        },
-        "seconds": time.perf_counter() - start,
-    })  # fmt: skip
-    args.out = report_path(args.out, cfg.paths.results, "plan")
-    write_report(report, args.out)
+    return report
+
+
+def print_report(
+    report: dict, work: list[str], precisions: list[str], per: dict, ratios: dict, train_seconds: float, res: int
+) -> None:
+    base, m, ratio = precisions[0], report["settings"]["candidates"], report["nvf_over_plain_render"]
     print(f"{'':14}{'cand/s':>10}{'(cpu)':>10}{'x plain':>9}{'s/step':>9}")
     for name in work:
         x = 1.0 if name == "plain_render" else report[f"{name}_over_plain_render"]
         rate, rate_cpu = report[f"candidates_per_s_{name}"], report[f"candidates_per_s_{name}_cpu"]
-        per_step = sum(wall[name]) / args.repeats + prepare_seconds.get(name, 0.0)
-        print(f"{name:14}{rate:>10.1f}{rate_cpu:>10.1f}{x:>9.2f}{per_step:>9.2f}")
+        print(f"{name:14}{rate:>10.1f}{rate_cpu:>10.1f}{x:>9.2f}{report['seconds_per_step'][name]:>9.2f}")
     fraction = report["nvf_extra_fraction_of_limit"]
     print(
         f"NVF / plain render = {ratio:.2f} (goal <= {GOAL_NVF_OVER_PLAIN}: "
@@ -336,7 +268,7 @@ def main(argv: list[str]) -> None:
         f"{report['nvf_over_plain_render_at_limit']:.2f} with the extra heads at "
         f"{report['matmul_gflops']:.0f} GFLOP/s, they run at "
         f"{'an unmeasurable fraction' if fraction is None else f'{fraction:.0%}'} of it); "
-        f"{m} candidates at {res}x{res}; training {setup.train_seconds:.0f} s; {report['seconds']:.0f} s"
+        f"{m} candidates at {res}x{res}; training {train_seconds:.0f} s; {report['seconds']:.0f} s"
     )
     for name in precisions[1:]:
         ratio = ratios[f"{name}_over_{base}"]
@@ -350,10 +282,13 @@ def main(argv: list[str]) -> None:
             f"{ratio['heldout_psnr_diff']:+.2f} dB; scoring with the MLPs in {name}: "
             + ", ".join(f"{job} {spread(x)}" for job, x in ratio["scoring_speedup"].items())
         )
-    if probes is not None:
-        print(f"FisherRF by probes K ({m} candidates, {obs.num_images} training views; reference: "
-              f"K = {max(probes)} drawn independently):")  # fmt: skip
-        for row in report["fisherrf_probes"]["rows"]:
+    study = report["fisherrf_probes"]
+    if study is not None:
+        print(
+            f"FisherRF by probes K ({m} candidates, {report['settings']['training_views']} training views; "
+            f"reference: K = {study['reference_probes']} drawn independently):"
+        )
+        for row in study["rows"]:
             rho = row["spearman_to_reference"]
             print(
                 f"  K = {row['probes']:>3}: {row['seconds_per_step']:7.2f} s per step "
@@ -361,4 +296,130 @@ def main(argv: list[str]) -> None:
                 f"{'n/a' if rho is None else f'{rho:.3f}'}, same choice {row['same_choice_as_reference']} "
                 f"(its choice scores {row['choice_over_best_in_reference']:.4f} of the reference's best)"
             )
+
+
+def scoring_jobs(
+    model: SceneModel,
+    s: EpisodeSettings,
+    obs: Observations,
+    methods: dict[str, Method],
+    intr: Intrinsics,
+    precisions: list[str],
+) -> tuple[dict[str, ViewScorer | WholeViewScorer], dict[str, Callable[[Tensor], object]], dict, dict[str, float]]:
+    """Every declared method's scorer (a ``StepScorer`` prepared on ``obs``, timed: the seconds per method), the
+    work timed (a plain render, each scorer) and one job per work and precision (the model's MLPs inferring in
+    that precision)."""
+    chunk = int(s.planner.score_chunk_rays)
+    scorers: dict[str, ViewScorer | WholeViewScorer] = {}
+    prepare_seconds: dict[str, float] = {}
+    for name, method in methods.items():
+        scorer = method.scorer(s.entropy, float(s.entropy.d0))
+        if isinstance(scorer, StepScorer):
+            began = time.perf_counter()
+            scorer = prepare_scorer(scorer, model, obs, generator_factory(s.seed, 0), chunk)
+            prepare_seconds[name] = time.perf_counter() - began
+        if scorer is not None:
+            scorers[name] = scorer
+    work: dict[str, Callable[[Tensor], object]] = {"plain_render": lambda p: plain_render(model, p, intr, chunk)}
+    for method, scorer in scorers.items():
+        work[method] = lambda p, scorer=scorer: score_poses(model, scorer, p, intr, chunk)
+
+    def in_precision(fn: Callable[[Tensor], object], name: str) -> Callable[[Tensor], object]:
+        def run(p: Tensor) -> object:
+            with model.field.mlp_precision(torch.float32, infer=precision_dtype(name)):
+                return fn(p)
+
+        return run
+
+    jobs = {(name, precision): in_precision(fn, precision) for precision in precisions for name, fn in work.items()}
+    return scorers, work, jobs, prepare_seconds
+
+
+def main(argv: list[str]) -> None:
+    args = parse_args(argv)
+    start = time.perf_counter()
+    cfg = compose_config([f"planner.num_candidates={CANDIDATES}", *args.overrides])
+    precisions = parse_precisions(args.precisions)
+    methods = {name: build_method(m) for name, m in method_configs().items()}
+    fisher = next((method for method in methods.values() if isinstance(method, FisherRF)), None)
+    if args.probes is not None and fisher is None:
+        fail("--probes: no method in conf/method is FisherRF (nvf.methods.FisherRF); declare it or drop --probes")
+    setups, clocks = InitialViewModel.train_side_by_side(cfg, precisions)
+    base = precisions[0]
+    setup = setups[base]  # scoring: the reference precision's model with its MLPs in each precision
+    s, obs, model = setup.settings, setup.obs, setup.model
+    size = int(cfg.budget.image_size)
+    planner = s.planner
+    poses = setup.candidates(0)
+    res = int(planner.resolution)
+    intr = Intrinsics.from_fov(res, res)
+    chunk = int(planner.score_chunk_rays)
+    scorers, work, jobs, prepare_seconds = scoring_jobs(model, s, obs, methods, intr, precisions)
+    timings = time_in_blocks(jobs, poses, model, args.blocks, args.repeats)
+    candidates = poses.shape[0] * args.repeats
+    per, ratios = precision_comparison(setups, clocks, timings[0], list(work), candidates, args.blocks)
+    wall, cpu, kept = ({job: by_job[(job, base)] for job in work} for by_job in timings)  # the reference's
+
+    m = poses.shape[0]
+    report: dict = scoring_rates(wall, cpu, list(work), list(scorers), m * args.repeats)
+    ratio = report["nvf_over_plain_render"]
+    nvf_flops, plain_flops = mlp_flops(model.field, scorers["nvf"].heads, False), mlp_flops(model.field, RGB, False)
+    extra_flops = nvf_flops - plain_flops
+    report["matmul_gflops"], _ = matmul_gflops(INFERENCE_BLOCK, VIS_POSITION_WIDTH, 3)
+    plain_seconds = sum(wall["plain_render"])
+    extra_seconds_at_limit = extra_flops * kept["nvf"] / (report["matmul_gflops"] * 1e9)
+    report["nvf_over_plain_render_at_limit"] = 1.0 + extra_seconds_at_limit / plain_seconds
+    extra_seconds = sum(wall["nvf"]) - plain_seconds
+    report["nvf_extra_fraction_of_limit"] = extra_seconds_at_limit / extra_seconds if extra_seconds > 0 else None
+    if args.probes is not None and fisher is not None:
+        report["fisherrf_probes"] = probes_study(setup, poses, intr, chunk, args.probes, fisher.prior_precision)
+    else:
+        report["fisherrf_probes"] = None
+    per_pixel = {method: scorer for method, scorer in scorers.items() if isinstance(scorer, ViewScorer)}
+    report.update(
+        {
+            "prepare_seconds": prepare_seconds,
+            "prepare_seconds_per_view": {method: t / obs.num_images for method, t in prepare_seconds.items()},
+            "seconds_per_step": {
+                name: prepare_seconds.get(name, 0.0) + sum(wall[name]) / args.repeats for name in work
+            },
+            "goal_nvf_over_plain_render": GOAL_NVF_OVER_PLAIN,
+            "goal_met": ratio <= GOAL_NVF_OVER_PLAIN,
+            "goal_within_limit": report["nvf_over_plain_render_at_limit"] <= GOAL_NVF_OVER_PLAIN,
+            "nvf_over_plain_mlp_flops": nvf_flops / plain_flops,
+            "seconds_per_block": {name: wall[name] for name in work},
+            "precision": base,
+            "precisions": per,
+            "ratios": ratios,
+            "settings": {
+                "budget": cfg.budget.name,
+                "scene": cfg.scene.name,
+                "field_kind": s.field.kind,
+                "field_backend": s.field.backend,
+                "log2_hashmap_size": s.field.log2_hashmap_size,
+                "training_views": obs.num_images,
+                "image_size": size,
+                "train_iters": {stage: getattr(s.train, stage).iters for stage in STAGES},
+                "train_seconds": setup.train_seconds,
+                "candidates": m,
+                "candidates_requested": planner.num_candidates,
+                "resolution": res,
+                "chunk_rays": chunk,
+                "tau": s.tau,
+                "collision_free": s.collision_free,
+                "heads": {method: sorted(scorer.heads) for method, scorer in per_pixel.items()},
+                "samplers": {method: scorer.sampler for method, scorer in per_pixel.items()},
+                "plain_render_samples_per_ray": kept["plain_render"] / (args.repeats * m * intr.num_pixels),
+                "repeats": args.repeats,
+                "blocks": args.blocks,
+                "torch_threads": torch.get_num_threads(),
+                "precisions": precisions,
+                "overrides": args.overrides,
+            },
+            "seconds": time.perf_counter() - start,
+        }
+    )
+    args.out = report_path(args.out, cfg.paths.results, "plan")
+    write_report(report, args.out)
+    print_report(report, list(work), precisions, per, ratios, setup.train_seconds, res)
     print(f"wrote {args.out}")

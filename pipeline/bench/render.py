@@ -78,14 +78,14 @@ def main(argv: list[str]) -> None:
                         "pyrender_platform": flat.backend,
                     }
                     if "pyrender" in args.backends:
-                        row["pyrender_rgba_ms"] = 1e3 * _median_seconds(lambda p: flat.render_rgba(p, intr), poses)
+                        row["pyrender_rgba_ms"] = 1e3 * _median_seconds(lambda p: flat.render_rgba(p, intr), poses)  # noqa: B023 - called at once
                     if blender is not None:
-                        row["blender_rgba_ms"] = 1e3 * _median_seconds(lambda p: blender.render_rgba(p, intr), poses)
+                        row["blender_rgba_ms"] = 1e3 * _median_seconds(lambda p: blender.render_rgba(p, intr), poses)  # noqa: B023 - called at once
                         row.update(blender_start_s=start_s, cycles_device=blender.device)
                         version = blender.version
                     if "pyrender_rgba_ms" in row and "blender_rgba_ms" in row:
                         row["blender_over_pyrender"] = row["blender_rgba_ms"] / row["pyrender_rgba_ms"]
-                    row["ray_cast_ms"] = 1e3 * _median_seconds(lambda p: flat.ray_cast_view(p, intr), poses)
+                    row["ray_cast_ms"] = 1e3 * _median_seconds(lambda p: flat.ray_cast_view(p, intr), poses)  # noqa: B023 - called at once
                     rows.append(row)
     except SceneError as exc:
         fail(str(exc))
@@ -110,6 +110,7 @@ def main(argv: list[str]) -> None:
     for r in rows:
         print(
             f"{r['scene']:<9}{r['faces']:>7}{r['resolution']:>5}{r.get('pyrender_rgba_ms', nan):>13.1f}"
-            f"{r.get('blender_rgba_ms', nan):>12.1f}{r.get('blender_over_pyrender', nan):>8.1f}{r['ray_cast_ms']:>13.1f}"
+            f"{r.get('blender_rgba_ms', nan):>12.1f}{r.get('blender_over_pyrender', nan):>8.1f}"
+            f"{r['ray_cast_ms']:>13.1f}"
         )
     print(f"wrote {args.out}")

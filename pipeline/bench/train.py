@@ -41,210 +41,47 @@ to other jobs on the cores. The models run on the CPU. Writes ``results/bench/tr
 """
 
 import dataclasses
-import math
 import statistics
 import time
-from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 import torch
 from jaxtyping import Float
 from omegaconf import DictConfig
 from torch import Tensor
 
-from nvf.cameras import Intrinsics, look_at, matrix_to_pose
-from nvf.config import STAGES
+from nvf.cameras import Intrinsics
 from nvf.encoding import cpp_extension
-from nvf.field import HEADS, FieldOutput
-from nvf.model import RenderResult, SceneModel
-from nvf.planning import candidate_poses
-from nvf.precision import PRECISIONS, precision_dtype, supported_precisions, unsupported_reason
-from nvf.rendering import Samples
-from nvf.seeding import seeded_generator
-from nvf.training import Observations, train_backbone, train_model
-from pipeline.bench._paired import IterationClock, Turn, lockstep, ratio_spread
+from nvf.field import HEADS
+from nvf.model import SceneModel
+from nvf.precision import precision_dtype
+from nvf.training import Observations, train_backbone
+from pipeline.bench._models import (
+    HELD_OUT_VIEWS,
+    RGB,
+    CountingModel,
+    held_out_poses,
+    load,
+    observations,
+    parse_precisions,
+    same_initial_models,
+    train_in_lockstep,
+    view_psnr,
+)
+from pipeline.bench._paired import IterationClock, ratio_spread
 from pipeline.bench._report import report_path, write_report
 from pipeline.bench.field import matmul_gflops, median_seconds, mlp_flops
-from pipeline.cli import ArgumentParser, description, fail
+from pipeline.cli import ArgumentParser, description
 from pipeline.config.validation import compose_config
 from pipeline.episode.evaluation import RENDER_CHUNK
 from pipeline.episode.settings import EpisodeSettings
-from pipeline.metrics.image import off_edge_psnr, psnr
-from pipeline.scenes.blender import blender_python
 from pipeline.scenes.ground_truth import Renderer, ground_truth_info, open_renderer
-from pipeline.scenes.loading import load_scene
-from pipeline.scenes.render import GroundTruthRenderer
-from pipeline.scenes.scene import Scene, SceneError
+from pipeline.scenes.scene import Scene
 
 GOALS = {"train_samples_per_s": 1e6, "infer_samples_per_s": 3e6}
 # A low precision against the reference (fp32), paired in one run: training throughput (median over
 # windows), held-out PSNR (at most this far below), inference (median over rounds) never slower.
 PRECISION_GOALS = {"train_samples_per_s": 1.5, "heldout_psnr_drop_db": 0.2, "infer_samples_per_s": 1.0}
-HELD_OUT_VIEWS = 5
-RGB = frozenset({"rgb"})
-
-
-class CountingModel(SceneModel):
-    """A ``SceneModel`` counting the kept samples of every ``render`` call, and the marched samples its
-    skipping pass evaluated."""
-
-    def __init__(self, *args, **kwargs) -> None:
-        super().__init__(*args, **kwargs)
-        self.samples = 0
-        self.marched = 0
-
-    def _skip(self, samples: Samples, *args, **kwargs) -> tuple[Samples, FieldOutput | None, Tensor | None]:
-        self.marched += samples.num_samples
-        return super()._skip(samples, *args, **kwargs)
-
-    def render(self, *args, **kwargs) -> RenderResult:
-        result = super().render(*args, **kwargs)
-        self.samples += result.samples.num_samples
-        return result
-
-
-def load(cfg: DictConfig) -> Scene:
-    """The configured scene; a missing mesh exits with one line (status 2)."""
-    try:
-        return load_scene(cfg.scene, Path(cfg.paths.assets), blender_python(cfg.paths.blender_python))
-    except SceneError as err:
-        fail(str(err))
-
-
-def observations(
-    renderer: Renderer, poses: Float[Tensor, "n 4 4"], intr: Intrinsics, gt_samples: int = 1
-) -> Observations:
-    """Ground-truth RGBA views at ``poses`` (RGB black where the mask is empty), each pixel the mean of
-    ``gt_samples^2`` sub-pixel samples (``render_rgba``; Blender's: 1, Cycles' own samples)."""
-    images = np.stack([renderer.render_rgba(c2w, intr, gt_samples) for c2w in poses])
-    return Observations(torch.from_numpy(images), poses.to(torch.float32), intr)
-
-
-def same_initial_models(
-    cfg: DictConfig, scene: Scene, s: EpisodeSettings, names: list[str], model_cls: type[CountingModel]
-) -> dict[str, CountingModel]:
-    """One fresh model per name, all with the initial weights of ``torch.manual_seed(cfg.seed)``."""
-    models = {}
-    for name in names:
-        torch.manual_seed(int(cfg.seed))
-        models[name] = model_cls(scene.object_aabb, s.field, s.sampler)
-    return models
-
-
-def train_in_lockstep(
-    models: dict[str, CountingModel], iterations: int, train: Callable[[str, CountingModel, IterationClock], None]
-) -> dict[str, IterationClock]:
-    """``train(name, model, progress)`` for every model side by side (``pipeline.bench._paired.lockstep``):
-    the trainings take turns iteration by iteration. Returns each one's clock (its own turns only)."""
-    clocks: dict[str, IterationClock] = {}
-
-    def job(name: str) -> Callable[[Turn], None]:
-        def run(turn: Turn) -> None:
-            model = models[name]
-            clocks[name] = IterationClock(lambda: (model.samples, model.marched), iterations, name, turn)
-            train(name, model, clocks[name])
-            clocks[name].bar.close()
-
-        return run
-
-    lockstep({name: job(name) for name in models})
-    return clocks
-
-
-@dataclass
-class InitialViewModel:
-    """A full NVF model (all three stages, at the budget) trained on the scene's initial views (and
-    ``extra_poses`` after them: a later state of an episode): the model of an episode's first planning
-    step, shared by the ``plan`` and ``visibility`` benchmarks."""
-
-    cfg: DictConfig
-    scene: Scene
-    settings: EpisodeSettings
-    renderer: GroundTruthRenderer
-    obs: Observations
-    model: SceneModel
-    train_seconds: float
-
-    @staticmethod
-    def train(
-        cfg: DictConfig, model_cls: type[SceneModel] = SceneModel, extra_poses: Float[Tensor, "k 4 4"] | None = None
-    ) -> "InitialViewModel":
-        scene = load(cfg)
-        s = EpisodeSettings.of(cfg, scene)
-        size = int(cfg.budget.image_size)
-        renderer = GroundTruthRenderer(scene.mesh)
-        poses = (
-            scene.init_poses if extra_poses is None else torch.cat([scene.init_poses, extra_poses.to(scene.init_poses)])
-        )
-        obs = observations(renderer, poses, Intrinsics.from_fov(size, size))
-        torch.manual_seed(int(cfg.seed))
-        model = model_cls(scene.object_aabb, s.field, s.sampler)
-        stats = train_model(model, obs, s.train, STAGES, s.entropy, torch.Generator().manual_seed(int(cfg.seed)))
-        return InitialViewModel(cfg, scene, s, renderer, obs, model, stats.seconds)
-
-    @staticmethod
-    def train_side_by_side(
-        cfg: DictConfig, precisions: list[str]
-    ) -> tuple[dict[str, "InitialViewModel"], dict[str, IterationClock]]:
-        """One ``CountingModel`` per ``train.precision``, from the same initial weights and seed, all three
-        stages trained in lockstep (``train_in_lockstep``)."""
-        scene = load(cfg)
-        s = EpisodeSettings.of(cfg, scene)
-        size = int(cfg.budget.image_size)
-        renderer = GroundTruthRenderer(scene.mesh)
-        obs = observations(renderer, scene.init_poses, Intrinsics.from_fov(size, size))
-        models = same_initial_models(cfg, scene, s, precisions, CountingModel)
-
-        def train(name: str, model: CountingModel, progress: IterationClock) -> None:
-            generator = torch.Generator().manual_seed(int(cfg.seed))
-            train_model(model, obs, dataclasses.replace(s.train, precision=name), STAGES, s.entropy, generator,
-                        progress=progress)  # fmt: skip
-
-        clocks = train_in_lockstep(models, sum(getattr(s.train, stage).iters for stage in STAGES), train)
-        setups = {
-            name: InitialViewModel(cfg, scene, s, renderer, obs, models[name], clocks[name].wall[-1])
-            for name in precisions
-        }
-        return setups, clocks
-
-    def candidates(self, step: int) -> Float[Tensor, "m 7"]:
-        """The candidate poses the planner would draw at ``step`` (METHOD 13, M28/M29 filters), from
-        the last observed view."""
-        s = self.settings
-        current = matrix_to_pose(self.obs.c2w[-1].to(torch.float32))
-        return candidate_poses(
-            self.model, s.planner, self.scene.camera_box, current, s.tau, s.collision_free,
-            seeded_generator(int(self.cfg.seed), step, "candidates"), line_of_sight=self.renderer.unoccluded,
-        )  # fmt: skip
-
-
-def held_out_poses(
-    scene: Scene, n: int = HELD_OUT_VIEWS, elevation_deg: float = 40.0, azimuth0_deg: float = 17.0
-) -> Float[Tensor, "n 4 4"]:
-    """Look-at ring around the tight box's centre at the evaluation views' distance (test_integration)."""
-    centre = scene.tight_box.mean(0)
-    radius = float(torch.linalg.norm(scene.eval_poses[0, :3, 3] - centre))
-    phi = math.radians(elevation_deg)
-    poses = []
-    for i in range(n):
-        theta = math.radians(azimuth0_deg + 360.0 * i / n)
-        direction = [math.cos(theta) * math.cos(phi), math.sin(theta) * math.cos(phi), math.sin(phi)]
-        offset = radius * torch.tensor(direction)
-        poses.append(look_at(centre + offset, centre))
-    return torch.stack(poses)
-
-
-def view_psnr(
-    model: SceneModel, renderer: Renderer, poses: Float[Tensor, "n 4 4"], intr: Intrinsics, gt_samples: int
-) -> tuple[float, float]:
-    """PSNR of the model's renders of ``poses`` against the ground truth (``gt_samples^2`` samples per
-    pixel; pooled over the views), over all pixels and off the ground truth's edges
-    (``pipeline.metrics.image.off_edge_psnr``)."""
-    pred = np.stack([model.render_image(c2w, intr, chunk=RENDER_CHUNK)["rgb"].numpy() for c2w in poses])
-    gt = np.stack([renderer.render_rgba(c2w, intr, gt_samples)[..., :3] for c2w in poses])
-    return psnr(pred, gt), off_edge_psnr(pred, gt)
 
 
 def inference_rates(
@@ -278,8 +115,13 @@ def inference_rates(
     for name, timed in rounds.items():
         wall = [n / w for w, _, n in timed]
         cpu = [n / c for _, c, n in timed]
-        out[name] = {"wall": wall, "cpu": cpu, "samples_per_pass": timed[0][2],
-                     "samples_per_s": statistics.median(wall), "samples_per_s_cpu": statistics.median(cpu)}  # fmt: skip
+        out[name] = {
+            "wall": wall,
+            "cpu": cpu,
+            "samples_per_pass": timed[0][2],
+            "samples_per_s": statistics.median(wall),
+            "samples_per_s_cpu": statistics.median(cpu),
+        }
     return out
 
 
@@ -381,9 +223,11 @@ def print_report(report: dict, update_every: int) -> None:
     for key, label in (("train", "train step"), ("infer", "infer all"), ("infer_rgb", "infer rgb")):
         goal = GOALS.get(f"{key}_samples_per_s")
         mark = "" if goal is None else ("met" if r[f"{key}_samples_per_s"] >= goal else f"<{goal:.0e}")
-        print(f"{label:14}{r[f'{key}_samples_per_s']:>12.3e}{r[f'{key}_samples_per_s_cpu']:>12.3e}"
-              f"{r[f'{key}_samples_per_s_at_limit']:>12.3e}{r[f'{key}_fraction_of_limit']:>13.3f}"
-              f"{mark:>9}")  # fmt: skip
+        print(
+            f"{label:14}{r[f'{key}_samples_per_s']:>12.3e}{r[f'{key}_samples_per_s_cpu']:>12.3e}"
+            f"{r[f'{key}_samples_per_s_at_limit']:>12.3e}{r[f'{key}_fraction_of_limit']:>13.3f}"
+            f"{mark:>9}"
+        )
     print(
         f"matmul [{rows}x{width}]x[{width}x{width}]: {r['matmul_gflops']:.1f} GFLOP/s; "
         f"PSNR held-out {r['heldout_psnr']:.2f} dB ({r['heldout_psnr_off_edges']:.2f} off edges), "
@@ -403,13 +247,17 @@ def print_report(report: dict, update_every: int) -> None:
         f"forward+backward {r['mlp_floor_fwd_bwd_ms']:.1f} ms, skipping pass {r['mlp_floor_skip_density_ms']:.1f} ms, "
         f"grid update {r['mlp_floor_grid_update_ms']:.0f} ms / {update_every})"
     )
-    print(f"{'precision':10}{'train/s':>11}{'(cpu)':>11}{'ms/iter':>9}{'infer/s':>11}{'rgb/s':>11}{'held-out':>10}"
-          f"{'field floor':>13}{'MLP floor':>11}")  # fmt: skip
+    print(
+        f"{'precision':10}{'train/s':>11}{'(cpu)':>11}{'ms/iter':>9}{'infer/s':>11}{'rgb/s':>11}{'held-out':>10}"
+        f"{'field floor':>13}{'MLP floor':>11}"
+    )
     for name, p in r["precisions"].items():
-        print(f"{name:10}{p['train_samples_per_s']:>11.3e}{p['train_samples_per_s_cpu']:>11.3e}"
-              f"{p['train_ms_per_iter']:>9.1f}{p['infer_samples_per_s']:>11.3e}{p['infer_rgb_samples_per_s']:>11.3e}"
-              f"{p['heldout_psnr']:>10.2f}{p['train_samples_per_s_field_floor']:>13.3e}"
-              f"{p['train_samples_per_s_mlp_floor']:>11.3e}")  # fmt: skip
+        print(
+            f"{name:10}{p['train_samples_per_s']:>11.3e}{p['train_samples_per_s_cpu']:>11.3e}"
+            f"{p['train_ms_per_iter']:>9.1f}{p['infer_samples_per_s']:>11.3e}{p['infer_rgb_samples_per_s']:>11.3e}"
+            f"{p['heldout_psnr']:>10.2f}{p['train_samples_per_s_field_floor']:>13.3e}"
+            f"{p['train_samples_per_s_mlp_floor']:>11.3e}"
+        )
 
     def spread(x: dict) -> str:
         return f"{x['median']:.2f} [{x['min']:.2f}-{x['max']:.2f}]"
@@ -455,27 +303,6 @@ def precision_ratios(
     return ratio
 
 
-def default_precisions() -> str:
-    """``fp32,bf16`` where the CPU runs bfloat16 natively, else ``fp32``."""
-    return "fp32,bf16" if "bf16" in supported_precisions(torch.device("cpu")) else "fp32"
-
-
-def parse_precisions(value: str | None) -> list[str]:
-    """``fp32,bf16`` -> the precisions to compare (the first is the reference of the ratios; ``None``:
-    ``default_precisions()``); each must be one the CPU runs natively (one line and exit status 2 otherwise)."""
-    value = default_precisions() if value is None else value
-    names = [name.strip() for name in value.split(",") if name.strip()]
-    for name in names:
-        reason = unsupported_reason(name, torch.device("cpu")) if name in PRECISIONS else (
-            f"unknown precision; choose from {', '.join(PRECISIONS)}"
-        )  # fmt: skip
-        if reason is not None:
-            fail(f"--precisions {name}: {reason}")
-    if not names or len(set(names)) != len(names):
-        fail(f"--precisions {value!r} must name distinct precisions, e.g. fp32,bf16")
-    return names
-
-
 def train_side_by_side(
     cfg: DictConfig, s: EpisodeSettings, scene: Scene, obs: Observations, precisions: list[str]
 ) -> tuple[dict[str, CountingModel], dict[str, IterationClock]]:
@@ -489,19 +316,114 @@ def train_side_by_side(
     return models, train_in_lockstep(models, s.train.backbone.iters, train)
 
 
-def main(argv: list[str]) -> None:
+def parse_args(argv: list[str]):
     parser = ArgumentParser(prog="python -m pipeline.bench train", description=description(__doc__))
     parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. budget=smoke")
     parser.add_argument(
         "--out", type=Path, default=None, help="JSON report path (default: ${paths.results}/bench/train.json)"
     )
     parser.add_argument("--repeats", type=int, default=3, help="timed inference passes (median)")
-    parser.add_argument("--precisions", help="train.precision values compared, first the reference (default: fp32,bf16 "
-                        "where the CPU has bfloat16, else fp32)")  # fmt: skip
+    parser.add_argument(
+        "--precisions",
+        help="train.precision values compared, first the reference (default: fp32,bf16 "
+        "where the CPU has bfloat16, else fp32)",
+    )
     parser.add_argument("--windows", type=int, default=5, help="iteration windows of the paired training ratios")
     args = parser.parse_intermixed_args(argv)
     if args.repeats < 1 or args.windows < 1:
         parser.error("--repeats and --windows must be >= 1")
+    return args
+
+
+def training_results(
+    models: dict[str, CountingModel],
+    clocks: dict[str, IterationClock],
+    warmup: int,
+    renderer: Renderer,
+    scene: Scene,
+    obs: Observations,
+    intr: Intrinsics,
+    gt_samples: int,
+) -> dict[str, dict]:
+    """Each precision's training rates and its model's held-out and training-view PSNR, rendered as an
+    episode renders them (MLPs in float32)."""
+    per: dict[str, dict] = {name: clocks[name].rates(warmup) for name in models}
+    held_out = held_out_poses(scene)
+    for name, model in models.items():
+        r = per[name]
+        r["heldout_psnr"], r["heldout_psnr_off_edges"] = view_psnr(model, renderer, held_out, intr, gt_samples)
+        r["train_view_psnr"], r["train_view_psnr_off_edges"] = view_psnr(
+            model, renderer, obs.c2w[:HELD_OUT_VIEWS], intr, gt_samples
+        )
+    return per
+
+
+def same_work_rates(
+    per: dict[str, dict],
+    reference: CountingModel,
+    precisions: list[str],
+    obs: Observations,
+    intr: Intrinsics,
+    s: EpisodeSettings,
+    seed: int,
+    repeats: int,
+) -> dict[str, dict]:
+    """The same work in each precision, on the reference precision's model: inference (all heads, RGB
+    alone; added to ``per``) and the training floors. Returns the inference rounds."""
+    rounds = {}
+    for heads, key in ((HEADS, "infer"), (RGB, "infer_rgb")):
+        rounds[key] = inference_rates(reference, precisions, obs.c2w, intr, heads, repeats)
+        for name, rates in rounds[key].items():
+            per[name][f"{key}_samples_per_s"] = rates["samples_per_s"]
+            per[name][f"{key}_samples_per_s_cpu"] = rates["samples_per_s_cpu"]
+    base = precisions[0]
+    per_iter = (per[base]["train_samples_per_iter"], per[base]["train_marched_per_iter"])
+    grid = {key: value.clone() for key, value in reference.grid.state_dict().items()}
+    for name in precisions:
+        reference.grid.load_state_dict(grid)  # field_floor updates the grid once: each precision starts alike
+        generator = torch.Generator().manual_seed(seed)
+        with reference.field.mlp_precision(precision_dtype(name)):
+            floors = field_floor(
+                reference, obs, s.train.backbone.batch, per_iter, s.sampler.update_every, generator, repeats
+            )
+        per[name].update(floors)
+    return rounds
+
+
+def limits(r: dict, model: CountingModel, width: int, repeats: int) -> int:
+    """The reference precision's rates against the matmul limit of its MLPs (added to ``r``); returns the
+    matmul's rows (kept samples per iteration)."""
+    r["train_fraction_of_field_floor"] = r["train_samples_per_s"] / r["train_samples_per_s_field_floor"]
+    rows = max(1, round(r["train_samples_per_iter"]))
+    r["matmul_gflops"], r["matmul_gflops_cpu"] = matmul_gflops(rows, width, repeats)
+    flops = {
+        "train": mlp_flops(model.field, RGB, train=True),
+        "infer": mlp_flops(model.field, HEADS, train=False),
+        "infer_rgb": mlp_flops(model.field, RGB, train=False),
+    }
+    for key, value in flops.items():
+        r[f"mlp_flops_{key}"] = value
+        r[f"{key}_samples_per_s_at_limit"] = r["matmul_gflops"] * 1e9 / value
+        r[f"{key}_fraction_of_limit"] = r[f"{key}_samples_per_s"] / r[f"{key}_samples_per_s_at_limit"]
+        r[f"{key}_fraction_of_limit_cpu"] = value * r[f"{key}_samples_per_s_cpu"] / (r["matmul_gflops_cpu"] * 1e9)
+    return rows
+
+
+def goals(r: dict, ratios: dict) -> dict:
+    """The report's goals and whether the measured rates meet them."""
+    return {
+        "precision_goals": PRECISION_GOALS,
+        "precision_goals_met": {key: precision_goals_met(ratio) for key, ratio in ratios.items()},
+        "goals": GOALS,
+        "goals_met": {key: r[key] >= goal for key, goal in GOALS.items()},
+        "goals_within_limit": {key: r[f"{key}_at_limit"] >= goal for key, goal in GOALS.items()},
+        "train_goal_within_field_floor": r["train_samples_per_s_field_floor"] >= GOALS["train_samples_per_s"],
+        "train_goal_within_mlp_floor": r["train_samples_per_s_mlp_floor"] >= GOALS["train_samples_per_s"],
+    }
+
+
+def main(argv: list[str]) -> None:
+    args = parse_args(argv)
     start = time.perf_counter()
     cfg = compose_config(args.overrides)
     precisions = parse_precisions(args.precisions)
@@ -515,82 +437,50 @@ def main(argv: list[str]) -> None:
 
     models, clocks = train_side_by_side(cfg, s, scene, obs, precisions)
     warmup = max(1, min(10, s.train.backbone.iters // 10))
-    per: dict[str, dict] = {name: clocks[name].rates(warmup) for name in precisions}
-    held_out = held_out_poses(scene)
-    for name, model in models.items():  # rendered as an episode renders them: MLPs in float32
-        r = per[name]
-        r["heldout_psnr"], r["heldout_psnr_off_edges"] = view_psnr(model, renderer, held_out, intr, gt_samples)
-        r["train_view_psnr"], r["train_view_psnr_off_edges"] = view_psnr(
-            model, renderer, obs.c2w[:HELD_OUT_VIEWS], intr, gt_samples
-        )
+    per = training_results(models, clocks, warmup, renderer, scene, obs, intr, gt_samples)
     renderer.close()  # its ground truth is rendered (for Blender, this ends the worker process)
-
-    # The same work in each precision: inference and the floors on the reference precision's model.
-    base, reference = precisions[0], models[precisions[0]]
-    rounds = {}
-    for heads, key in ((HEADS, "infer"), (RGB, "infer_rgb")):
-        rounds[key] = inference_rates(reference, precisions, obs.c2w, intr, heads, args.repeats)
-        for name, rates in rounds[key].items():
-            per[name][f"{key}_samples_per_s"] = rates["samples_per_s"]
-            per[name][f"{key}_samples_per_s_cpu"] = rates["samples_per_s_cpu"]
-    per_iter = (per[base]["train_samples_per_iter"], per[base]["train_marched_per_iter"])
-    grid = {key: value.clone() for key, value in reference.grid.state_dict().items()}
-    for name in precisions:
-        reference.grid.load_state_dict(grid)  # field_floor updates the grid once: each precision starts alike
-        generator = torch.Generator().manual_seed(int(cfg.seed))
-        with reference.field.mlp_precision(precision_dtype(name)):
-            floors = field_floor(
-                reference, obs, s.train.backbone.batch, per_iter, s.sampler.update_every, generator, args.repeats
-            )
-        per[name].update(floors)
+    base = precisions[0]
+    rounds = same_work_rates(per, models[base], precisions, obs, intr, s, int(cfg.seed), args.repeats)
     windows = clocks[base].windows(warmup, args.windows)
     ratios = {
         f"{name}_over_{base}": precision_ratios(per, clocks, rounds, base, name, windows) for name in precisions[1:]
     }
-
     r = dict(per[base])
-    r["train_fraction_of_field_floor"] = r["train_samples_per_s"] / r["train_samples_per_s_field_floor"]
-    width = s.field.hidden_dim
-    rows = max(1, round(r["train_samples_per_iter"]))
-    r["matmul_gflops"], r["matmul_gflops_cpu"] = matmul_gflops(rows, width, args.repeats)
-    flops = {
-        "train": mlp_flops(models[base].field, RGB, train=True),
-        "infer": mlp_flops(models[base].field, HEADS, train=False),
-        "infer_rgb": mlp_flops(models[base].field, RGB, train=False),
-    }
-    for key, value in flops.items():
-        r[f"mlp_flops_{key}"] = value
-        r[f"{key}_samples_per_s_at_limit"] = r["matmul_gflops"] * 1e9 / value
-        r[f"{key}_fraction_of_limit"] = r[f"{key}_samples_per_s"] / r[f"{key}_samples_per_s_at_limit"]
-        r[f"{key}_fraction_of_limit_cpu"] = value * r[f"{key}_samples_per_s_cpu"] / (r["matmul_gflops_cpu"] * 1e9)
-
+    rows = limits(r, models[base], s.field.hidden_dim, args.repeats)
     report = {
         **r,
         "precision": base,
         "precisions": per,
         "ratios": ratios,
-        "precision_goals": PRECISION_GOALS,
-        "precision_goals_met": {key: precision_goals_met(ratio) for key, ratio in ratios.items()},
-        "goals": GOALS,
-        "goals_met": {key: r[key] >= goal for key, goal in GOALS.items()},
-        "goals_within_limit": {key: r[f"{key}_at_limit"] >= goal for key, goal in GOALS.items()},
-        "train_goal_within_field_floor": r["train_samples_per_s_field_floor"] >= GOALS["train_samples_per_s"],
-        "train_goal_within_mlp_floor": r["train_samples_per_s_mlp_floor"] >= GOALS["train_samples_per_s"],
+        **goals(r, ratios),
         "settings": {
-            "budget": cfg.budget.name, "scene": cfg.scene.name, "field_kind": s.field.kind,
+            "budget": cfg.budget.name,
+            "scene": cfg.scene.name,
+            "field_kind": s.field.kind,
             "field_backend": s.field.backend,
             "field_backend_resolved": "cpp" if s.field.backend != "torch" and cpp_extension() is not None else "torch",
-            "log2_hashmap_size": s.field.log2_hashmap_size, "hidden_dim": width, "image_size": size,
-            "training_views": obs.num_images, "iterations": s.train.backbone.iters, "warmup_iterations": warmup,
-            "rays_per_batch": s.train.backbone.batch, "torch_threads": torch.get_num_threads(),
+            "log2_hashmap_size": s.field.log2_hashmap_size,
+            "hidden_dim": s.field.hidden_dim,
+            "image_size": size,
+            "training_views": obs.num_images,
+            "iterations": s.train.backbone.iters,
+            "warmup_iterations": warmup,
+            "rays_per_batch": s.train.backbone.batch,
+            "torch_threads": torch.get_num_threads(),
             "train_samples_per_ray": r["train_samples_per_iter"] / s.train.backbone.batch,
             "infer_samples_per_ray": rounds["infer"][base]["samples_per_pass"] / (obs.num_images * intr.num_pixels),
-            "infer_chunk": RENDER_CHUNK, "matmul_rows": rows, "precisions": precisions, "ratio_windows": args.windows,
-            "inference_repeats": args.repeats, "heldout_views": HELD_OUT_VIEWS, "gt_samples_per_side": gt_samples,
-            "ground_truth": ground_truth_info(scene, renderer, Path(cfg.paths.assets)), "overrides": args.overrides,
+            "infer_chunk": RENDER_CHUNK,
+            "matmul_rows": rows,
+            "precisions": precisions,
+            "ratio_windows": args.windows,
+            "inference_repeats": args.repeats,
+            "heldout_views": HELD_OUT_VIEWS,
+            "gt_samples_per_side": gt_samples,
+            "ground_truth": ground_truth_info(scene, renderer, Path(cfg.paths.assets)),
+            "overrides": args.overrides,
         },
         "seconds": time.perf_counter() - start,
-    }  # fmt: skip
+    }
     args.out = report_path(args.out, cfg.paths.results, "train")
     write_report(report, args.out)
     print_report(report, s.sampler.update_every)

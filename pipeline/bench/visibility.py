@@ -47,8 +47,8 @@ from nvf.cameras import Intrinsics, pose_to_matrix
 from nvf.rendering import ray_sum
 from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
 from nvf.visibility_source import SOURCES, label_visibility
+from pipeline.bench._models import InitialViewModel
 from pipeline.bench._report import report_path, write_report
-from pipeline.bench.train import InitialViewModel
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.validation import compose_config
 from pipeline.metrics.ranking import auc, render_for_terms, spearman, term_attribution, ties_at_max, view_terms
@@ -117,7 +117,7 @@ def candidate_view(
         "seen": _seen_surface(setup, origins, dirs, pixels),
         "shell": (spread / safe).sqrt()[pixels].numpy(),
         "coverage": float((acc > MIN_ACCUMULATION).float().mean()),
-    }  # fmt: skip
+    }
     view["unseen_coverage"] = float((~view["seen"]).sum()) / acc.shape[0]
     enough = len(view["seen"]) >= MIN_OBJECT_FRACTION * acc.shape[0]
     view["novelty"] = float((~view["seen"]).mean()) if enough else math.nan
@@ -139,9 +139,12 @@ def _mean(values: np.ndarray) -> float | None:
 
 
 def candidate_set_report(
-    setup: InitialViewModel, poses: Float[Tensor, "m 7"], intr: Intrinsics,
-    scorers: tuple[NVFEntropyScorer, NVFEntropyScorer], functions: dict[str, SourceFn | None],
-) -> dict:  # fmt: skip
+    setup: InitialViewModel,
+    poses: Float[Tensor, "m 7"],
+    intr: Intrinsics,
+    scorers: tuple[NVFEntropyScorer, NVFEntropyScorer],
+    functions: dict[str, SourceFn | None],
+) -> dict:
     """Separation, ranking agreement and the decisive terms over one candidate set, per source."""
     views = [candidate_view(setup, c2w, intr, scorers, functions) for c2w in pose_to_matrix(poses)]
     seen = np.concatenate([view["seen"] for view in views])
@@ -155,23 +158,31 @@ def candidate_set_report(
         "object_pixels": int(len(seen)),
         "seen_fraction": _mean(seen.astype(np.float64)),
         "shell_median": _mean(np.array([np.median(np.concatenate([view["shell"] for view in views]))])),
-        "wo_vis": {"ties_at_max": ties_at_max(blind_reward), "coverage_spearman": spearman(blind_reward, coverage),
-                   "unseen_coverage_spearman": spearman(blind_reward, unseen),
-                   "novelty_spearman": _novelty_spearman(blind_reward, novelty), **term_attribution(blind)},
+        "wo_vis": {
+            "ties_at_max": ties_at_max(blind_reward),
+            "coverage_spearman": spearman(blind_reward, coverage),
+            "unseen_coverage_spearman": spearman(blind_reward, unseen),
+            "novelty_spearman": _novelty_spearman(blind_reward, novelty),
+            **term_attribution(blind),
+        },
         "sources": {},
-    }  # fmt: skip
+    }
     for name in functions:
         v = np.concatenate([view["pixel_v"][name] for view in views])
         terms = _stack([view["nvf"][name] for view in views])
         reward = sum(terms.values())
         report["sources"][name] = {
-            "seen_mean": _mean(v[seen]), "unseen_mean": _mean(v[~seen]), "auc": auc(v[seen], v[~seen]),
+            "seen_mean": _mean(v[seen]),
+            "unseen_mean": _mean(v[~seen]),
+            "auc": auc(v[seen], v[~seen]),
             "spearman_nvf_wo_vis": spearman(reward, blind_reward),
             "same_argmax": bool(reward.argmax() == blind_reward.argmax()),
-            "ties_at_max": ties_at_max(reward), "coverage_spearman": spearman(reward, coverage),
-            "unseen_coverage_spearman": spearman(reward, unseen), "novelty_spearman": _novelty_spearman(reward, novelty),
+            "ties_at_max": ties_at_max(reward),
+            "coverage_spearman": spearman(reward, coverage),
+            "unseen_coverage_spearman": spearman(reward, unseen),
+            "novelty_spearman": _novelty_spearman(reward, novelty),
             **term_attribution(terms),
-        }  # fmt: skip
+        }
     return report
 
 
@@ -197,11 +208,14 @@ def summarise(sets: list[dict], sources: list[str]) -> dict:
             "max_ties_at_max": max(r["ties_at_max"] for r in rows),
         }
     blind = [s["wo_vis"] for s in sets]
-    return {"sources": per_source, "wo_vis_decisive_terms": [s["decisive"] for s in blind],
-            "wo_vis_coverage_spearman_mean": _mean_of([s["coverage_spearman"] for s in blind]),
-            "wo_vis_unseen_coverage_spearman_mean": _mean_of([s["unseen_coverage_spearman"] for s in blind]),
-            "wo_vis_novelty_spearman_mean": _mean_of([s["novelty_spearman"] for s in blind]),
-            "wo_vis_max_ties_at_max": max(s["wo_vis"]["ties_at_max"] for s in sets)}  # fmt: skip
+    return {
+        "sources": per_source,
+        "wo_vis_decisive_terms": [s["decisive"] for s in blind],
+        "wo_vis_coverage_spearman_mean": _mean_of([s["coverage_spearman"] for s in blind]),
+        "wo_vis_unseen_coverage_spearman_mean": _mean_of([s["unseen_coverage_spearman"] for s in blind]),
+        "wo_vis_novelty_spearman_mean": _mean_of([s["novelty_spearman"] for s in blind]),
+        "wo_vis_max_ties_at_max": max(s["wo_vis"]["ties_at_max"] for s in sets),
+    }
 
 
 def recorded_poses(record: Path, step: int) -> Float[Tensor, "k 4 4"]:
@@ -232,14 +246,21 @@ def visibility_report(cfg: DictConfig, sets: int, sources: list[str], extra: Ten
         **summarise(reports, sources),
         "sets": reports,
         "settings": {
-            "budget": cfg.budget.name, "scene": cfg.scene.name, "field_kind": s.field.kind, "seed": int(cfg.seed),
-            "training_views": setup.obs.num_images, "image_size": int(cfg.budget.image_size), "resolution": res,
-            "candidates_requested": int(s.planner.num_candidates), "label_samples": s.train.label_samples,
-            "label_margin": s.train.label_margin, "logdet_coeff": s.entropy.logdet_coeff,
+            "budget": cfg.budget.name,
+            "scene": cfg.scene.name,
+            "field_kind": s.field.kind,
+            "seed": int(cfg.seed),
+            "training_views": setup.obs.num_images,
+            "image_size": int(cfg.budget.image_size),
+            "resolution": res,
+            "candidates_requested": int(s.planner.num_candidates),
+            "label_samples": s.train.label_samples,
+            "label_margin": s.train.label_margin,
+            "logdet_coeff": s.entropy.logdet_coeff,
             "head_iters": {stage: getattr(s.train, stage).iters for stage in ("variance", "visibility")},
             "head_lr": {stage: getattr(s.train, stage).lr for stage in ("variance", "visibility")},
         },
-    }  # fmt: skip
+    }
 
 
 def _show(value: float | None, spec: str) -> str:
@@ -249,25 +270,54 @@ def _show(value: float | None, spec: str) -> str:
 def print_report(report: dict) -> None:
     """A table per source and candidate set (rho: NVF vs w/o Vis.; rho cov / new / nov: NVF vs object coverage,
     unseen coverage and novelty)."""
-    columns = (("source", 8), ("set", 4), ("pixels", 7), ("seen", 6), ("shell", 7), ("AUC", 7), ("rho", 7),
-               ("same", 6), ("ties", 5), ("rho cov", 8), ("rho new", 8), ("rho nov", 8), ("decisive NVF", 22),
-               ("w/o Vis.", 20))  # fmt: skip
+    columns = (
+        ("source", 8),
+        ("set", 4),
+        ("pixels", 7),
+        ("seen", 6),
+        ("shell", 7),
+        ("AUC", 7),
+        ("rho", 7),
+        ("same", 6),
+        ("ties", 5),
+        ("rho cov", 8),
+        ("rho new", 8),
+        ("rho nov", 8),
+        ("decisive NVF", 22),
+        ("w/o Vis.", 20),
+    )
     print("".join(f"{name:>{width}}" for name, width in columns))
     for name in report["sources"]:
         for r in report["sets"]:
             x, blind = r["sources"][name], r["wo_vis"]
             share = x["terms"][x["decisive"]]["share"] if x["decisive"] else None
             blind_share = blind["terms"][blind["decisive"]]["share"] if blind["decisive"] else None
-            cells = (name, r["set"], r["object_pixels"], _show(r["seen_fraction"], ".2f"), _show(r["shell_median"], ".3f"),
-                     _show(x["auc"], ".3f"), _show(x["spearman_nvf_wo_vis"], ".3f"), x["same_argmax"], x["ties_at_max"],
-                     _show(x["coverage_spearman"], ".3f"), _show(x["unseen_coverage_spearman"], ".3f"),
-                     _show(x["novelty_spearman"], ".3f"),
-                     f"{x['decisive']} ({_show(share, '.2f')})", f"{blind['decisive']} ({_show(blind_share, '.2f')})")  # fmt: skip
+            cells = (
+                name,
+                r["set"],
+                r["object_pixels"],
+                _show(r["seen_fraction"], ".2f"),
+                _show(r["shell_median"], ".3f"),
+                _show(x["auc"], ".3f"),
+                _show(x["spearman_nvf_wo_vis"], ".3f"),
+                x["same_argmax"],
+                x["ties_at_max"],
+                _show(x["coverage_spearman"], ".3f"),
+                _show(x["unseen_coverage_spearman"], ".3f"),
+                _show(x["novelty_spearman"], ".3f"),
+                f"{x['decisive']} ({_show(share, '.2f')})",
+                f"{blind['decisive']} ({_show(blind_share, '.2f')})",
+            )
             print("".join(f"{str(cell):>{width}}" for cell, (_, width) in zip(cells, columns, strict=True)))
     blind = report["sets"]
-    print("w/o Vis. rho cov " + ", ".join(_show(r["wo_vis"]["coverage_spearman"], ".3f") for r in blind)
-          + "; rho new " + ", ".join(_show(r["wo_vis"]["unseen_coverage_spearman"], ".3f") for r in blind)
-          + "; rho nov " + ", ".join(_show(r["wo_vis"]["novelty_spearman"], ".3f") for r in blind))  # fmt: skip
+    print(
+        "w/o Vis. rho cov "
+        + ", ".join(_show(r["wo_vis"]["coverage_spearman"], ".3f") for r in blind)
+        + "; rho new "
+        + ", ".join(_show(r["wo_vis"]["unseen_coverage_spearman"], ".3f") for r in blind)
+        + "; rho nov "
+        + ", ".join(_show(r["wo_vis"]["novelty_spearman"], ".3f") for r in blind)
+    )
 
 
 def main(argv: list[str]) -> None:

@@ -19,15 +19,19 @@ def declared(group: str, conf_dir: Path = CONF) -> list[str]:
 
 def method_configs(conf_dir: Path = CONF) -> dict[str, dict[str, Any]]:
     """Each method's yaml (name, label, rank, implementation, stages), in table order (``rank``)."""
-    configs = {name: OmegaConf.to_container(OmegaConf.load(Path(conf_dir) / "method" / f"{name}.yaml"))
-               for name in declared("method", conf_dir)}  # fmt: skip
+    configs = {
+        name: OmegaConf.to_container(OmegaConf.load(Path(conf_dir) / "method" / f"{name}.yaml"))
+        for name in declared("method", conf_dir)
+    }
     return dict(sorted(configs.items(), key=lambda item: (item[1].get("rank", 100), item[0])))
 
 
 def ablation_configs(conf_dir: Path = CONF) -> dict[str, dict[str, Any]]:
     """Each ablation's ``ablation`` node (name, label, rank), in Table S2's order (``rank``)."""
-    configs = {name: OmegaConf.to_container(OmegaConf.load(Path(conf_dir) / "ablation" / f"{name}.yaml"))["ablation"]
-               for name in declared("ablation", conf_dir)}  # fmt: skip
+    configs = {
+        name: OmegaConf.to_container(OmegaConf.load(Path(conf_dir) / "ablation" / f"{name}.yaml"))["ablation"]
+        for name in declared("ablation", conf_dir)
+    }
     return dict(sorted(configs.items(), key=lambda item: (item[1].get("rank", 100), item[0])))
 
 

@@ -70,24 +70,57 @@ def allocations(cfg: DictConfig) -> list[Allocation]:
     view_rays = int(p.resolution) ** 2
     stages = set(cfg.method.stages)
     found = [
-        Allocation("budget.image_size", 16.0 * side**2, f"one ground-truth render of {side}x{side} RGBA float32 samples "
-                   "(budget.image_size x budget.gt_samples per side)", on_device=False),
-        Allocation("budget.eval_size", 12.0 * EVAL_VIEWS * int(b.eval_size) ** 2,
-                   f"the {EVAL_VIEWS} evaluation views' RGB float32 ground truth", on_device=False),
-        Allocation("budget.horizon", 4 * FLOAT32 * pixels * int(b.horizon),
-                   "the training images of the last step (RGBA float32, at least one per step)", on_device=True,
-                   also=("budget.image_size",)),
-        Allocation("planner.resolution", XYZ * view_rays, "one candidate view's ray directions (float32)", on_device=True),
-        Allocation("planner.num_candidates", 4 * FLOAT32 * int(p.num_candidates),
-                   "the candidate orientations drawn (float32 quaternions, at least planner.num_candidates)", on_device=True),
-        Allocation("sampler.grid_resolution", 6.0 * int(s.grid_resolution) ** 3,
-                   "the occupancy grid (float32 values and two boolean masks per cell)", on_device=True),
-        Allocation("budget.gt_points", 24.0 * int(b.gt_points), "the ground-truth surface points (float64 xyz)",
-                   on_device=False),
-        Allocation("budget.recon_points", XYZ * int(b.recon_points), "the reconstructed points (float32 xyz)", on_device=True),
-        Allocation("budget.recon_batch", XYZ * int(b.recon_batch), "one point-cloud batch's ray directions (float32 xyz)",
-                   on_device=True),
-    ]  # fmt: skip
+        Allocation(
+            "budget.image_size",
+            16.0 * side**2,
+            f"one ground-truth render of {side}x{side} RGBA float32 samples "
+            "(budget.image_size x budget.gt_samples per side)",
+            on_device=False,
+        ),
+        Allocation(
+            "budget.eval_size",
+            12.0 * EVAL_VIEWS * int(b.eval_size) ** 2,
+            f"the {EVAL_VIEWS} evaluation views' RGB float32 ground truth",
+            on_device=False,
+        ),
+        Allocation(
+            "budget.horizon",
+            4 * FLOAT32 * pixels * int(b.horizon),
+            "the training images of the last step (RGBA float32, at least one per step)",
+            on_device=True,
+            also=("budget.image_size",),
+        ),
+        Allocation(
+            "planner.resolution", XYZ * view_rays, "one candidate view's ray directions (float32)", on_device=True
+        ),
+        Allocation(
+            "planner.num_candidates",
+            4 * FLOAT32 * int(p.num_candidates),
+            "the candidate orientations drawn (float32 quaternions, at least planner.num_candidates)",
+            on_device=True,
+        ),
+        Allocation(
+            "sampler.grid_resolution",
+            6.0 * int(s.grid_resolution) ** 3,
+            "the occupancy grid (float32 values and two boolean masks per cell)",
+            on_device=True,
+        ),
+        Allocation(
+            "budget.gt_points",
+            24.0 * int(b.gt_points),
+            "the ground-truth surface points (float64 xyz)",
+            on_device=False,
+        ),
+        Allocation(
+            "budget.recon_points", XYZ * int(b.recon_points), "the reconstructed points (float32 xyz)", on_device=True
+        ),
+        Allocation(
+            "budget.recon_batch",
+            XYZ * int(b.recon_batch),
+            "one point-cloud batch's ray directions (float32 xyz)",
+            on_device=True,
+        ),
+    ]
     if f.kind == "densegrid":
         voxels = int(f.dense_resolution) ** 3 * int(f.dense_features)
         found.append(
@@ -98,40 +131,79 @@ def allocations(cfg: DictConfig) -> list[Allocation]:
         coarsest = min(2 ** int(f.log2_hashmap_size), (int(f.base_resolution) + 1) ** 3)
         features = FLOAT32 * int(f.features_per_level)
         found += [
-            Allocation("field.log2_hashmap_size", features * finest, "the finest level's hash table (float32)", on_device=True),
-            Allocation("field.num_levels", features * coarsest * int(f.num_levels),
-                       "the hash table of every level (float32; each level at least the coarsest one's entries)", on_device=True),
-        ]  # fmt: skip
+            Allocation(
+                "field.log2_hashmap_size", features * finest, "the finest level's hash table (float32)", on_device=True
+            ),
+            Allocation(
+                "field.num_levels",
+                features * coarsest * int(f.num_levels),
+                "the hash table of every level (float32; each level at least the coarsest one's entries)",
+                on_device=True,
+            ),
+        ]
     hidden = int(f.hidden_dim)
     if "visibility" in stages:
-        found.append(Allocation("field.hidden_dim", FLOAT32 * hidden * int(t.visibility.batch),
-                                "one hidden layer's outputs for a visibility batch (float32)", on_device=True,
-                                also=("train.visibility.batch",)))  # fmt: skip
+        found.append(
+            Allocation(
+                "field.hidden_dim",
+                FLOAT32 * hidden * int(t.visibility.batch),
+                "one hidden layer's outputs for a visibility batch (float32)",
+                on_device=True,
+                also=("train.visibility.batch",),
+            )
+        )
     else:
         found.append(
             Allocation("field.hidden_dim", FLOAT32 * hidden**2, "one hidden layer's weights (float32)", on_device=True)
         )
     if "visibility" in stages or cfg.nvf.entropy.visibility_source == "labels":  # M17: stage 3's labels, or the scores'
-        found.append(Allocation("train.label_samples", SEGMENT_BYTES * (int(t.label_samples) - 1),
-                                "one chunk of M17's label samples (float32 offsets, fractions, xyz and densities and "
-                                "boolean box tests, at least train.label_samples - 1 per point)", on_device=True))  # fmt: skip
+        found.append(
+            Allocation(
+                "train.label_samples",
+                SEGMENT_BYTES * (int(t.label_samples) - 1),
+                "one chunk of M17's label samples (float32 offsets, fractions, xyz and densities and "
+                "boolean box tests, at least train.label_samples - 1 per point)",
+                on_device=True,
+            )
+        )
     for stage in ("backbone", "variance", "visibility"):
         batch = int(t[stage].batch)
-        found.append(Allocation(f"train.{stage}.batch", XYZ * batch, "one batch's ray origins or points (float32 xyz)",
-                                on_device=True))  # fmt: skip
+        found.append(
+            Allocation(
+                f"train.{stage}.batch", XYZ * batch, "one batch's ray origins or points (float32 xyz)", on_device=True
+            )
+        )
     if t.schedule == "reference":
         rays = max(1, int(t.target_samples) // int(s.max_samples_per_ray))
-        found.append(Allocation("train.target_samples", XYZ * rays, "the dynamic batch's first rays (float32 xyz, "
-                                "train.target_samples / sampler.max_samples_per_ray)", on_device=True))  # fmt: skip
+        found.append(
+            Allocation(
+                "train.target_samples",
+                XYZ * rays,
+                "the dynamic batch's first rays (float32 xyz, train.target_samples / sampler.max_samples_per_ray)",
+                on_device=True,
+            )
+        )
     collision_free = p.collision_free if p.collision_free is not None else cfg.scene.collision_free
     if collision_free and p.los_source == "model":
-        found.append(Allocation("planner.los_samples", SEGMENT_BYTES * (int(p.los_samples) - 1),
-                                "one chunk of M29's line-of-sight samples (float32 offsets, fractions, xyz and densities "
-                                "and boolean box tests, at least planner.los_samples - 1 per candidate)", on_device=True))  # fmt: skip
+        found.append(
+            Allocation(
+                "planner.los_samples",
+                SEGMENT_BYTES * (int(p.los_samples) - 1),
+                "one chunk of M29's line-of-sight samples (float32 offsets, fractions, xyz and densities "
+                "and boolean box tests, at least planner.los_samples - 1 per candidate)",
+                on_device=True,
+            )
+        )
     if cfg.nvf.entropy.sampler == "uniform":
         chunk = min(int(p.score_chunk_rays), view_rays)
-        found.append(Allocation("sampler.uniform_samples", INT64 * chunk * int(s.uniform_samples),
-                                "one scoring chunk's uniform samples (their int64 ray indices)", on_device=True))  # fmt: skip
+        found.append(
+            Allocation(
+                "sampler.uniform_samples",
+                INT64 * chunk * int(s.uniform_samples),
+                "one scoring chunk's uniform samples (their int64 ray indices)",
+                on_device=True,
+            )
+        )
     return found
 
 

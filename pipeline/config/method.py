@@ -47,7 +47,8 @@ def field_problem(cls: type[Method], values: Mapping[str, Any]) -> str | None:
     fields = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(values) - fields)
     if unknown:
-        return f"unknown key 'method.{unknown[0]}': {cls.__name__} has no such setting (its keys: {', '.join(sorted(fields))})"
+        keys = ", ".join(sorted(fields))
+        return f"unknown key 'method.{unknown[0]}': {cls.__name__} has no such setting (its keys: {keys})"
     missing = sorted(fields - set(values))
     if missing:
         return f"method.{missing[0]} is missing: {cls.__name__} declares it; set it in the method's yaml"

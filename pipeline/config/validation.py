@@ -37,19 +37,51 @@ class ConfigError(ValueError):
 LOGDET_COEFFS = (0.5, 1.0)
 
 _POSITIVE = (
-    "budget.image_size", "budget.eval_size", "budget.horizon", "budget.gt_points", "budget.recon_points",
-    "budget.recon_batch", "budget.gt_samples", "render.samples", "planner.num_candidates", "planner.resolution", "planner.los_samples",
-    "planner.score_chunk_rays", "planner.opt.top_k", "planner.opt.iters", "planner.opt.chunk_rays",
-    "train.backbone.iters", "train.backbone.batch", "train.variance.iters", "train.variance.batch",
-    "train.visibility.iters", "train.visibility.batch", "train.lr_decay_horizon", "train.label_samples",
+    "budget.image_size",
+    "budget.eval_size",
+    "budget.horizon",
+    "budget.gt_points",
+    "budget.recon_points",
+    "budget.recon_batch",
+    "budget.gt_samples",
+    "render.samples",
+    "planner.num_candidates",
+    "planner.resolution",
+    "planner.los_samples",
+    "planner.score_chunk_rays",
+    "planner.opt.top_k",
+    "planner.opt.iters",
+    "planner.opt.chunk_rays",
+    "train.backbone.iters",
+    "train.backbone.batch",
+    "train.variance.iters",
+    "train.variance.batch",
+    "train.visibility.iters",
+    "train.visibility.batch",
+    "train.lr_decay_horizon",
+    "train.label_samples",
     "train.target_samples",
-    "field.num_levels", "field.features_per_level", "field.log2_hashmap_size", "field.base_resolution",
-    "field.max_resolution", "field.dense_resolution", "field.dense_features", "field.hidden_dim",
-    "sampler.grid_resolution", "sampler.step_size", "sampler.update_every", "sampler.max_samples_per_ray",
-    "sampler.uniform_samples", "sampler.uniform_far",
-    "train.backbone.lr", "train.variance.lr", "train.visibility.lr", "planner.opt.lr", "train.label_max_depth",
+    "field.num_levels",
+    "field.features_per_level",
+    "field.log2_hashmap_size",
+    "field.base_resolution",
+    "field.max_resolution",
+    "field.dense_resolution",
+    "field.dense_features",
+    "field.hidden_dim",
+    "sampler.grid_resolution",
+    "sampler.step_size",
+    "sampler.update_every",
+    "sampler.max_samples_per_ray",
+    "sampler.uniform_samples",
+    "sampler.uniform_far",
+    "train.backbone.lr",
+    "train.variance.lr",
+    "train.visibility.lr",
+    "planner.opt.lr",
+    "train.label_max_depth",
     "render.timeout",
-)  # fmt: skip
+)
 
 
 # samples per camera-to-point segment (M17's train.label_samples, M29's planner.los_samples): the paper takes 200;
@@ -175,7 +207,8 @@ def validate(cfg: DictConfig) -> None:
     _check_finite(cfg)
     if cfg.nvf.entropy.logdet_coeff not in LOGDET_COEFFS:
         raise ConfigError(
-            f"nvf.entropy.logdet_coeff={cfg.nvf.entropy.logdet_coeff!r} is not one of {', '.join(map(str, LOGDET_COEFFS))}"
+            f"nvf.entropy.logdet_coeff={cfg.nvf.entropy.logdet_coeff!r} is not one of "
+            f"{', '.join(map(str, LOGDET_COEFFS))}"
         )
     if cfg.ablation.name not in declared("ablation"):
         raise ConfigError(f"ablation.name={cfg.ablation.name!r} is not one of {', '.join(declared('ablation'))}")
@@ -203,7 +236,8 @@ def validate(cfg: DictConfig) -> None:
         raise ConfigError(f"planner.oversample={cfg.planner.oversample} must be >= 1")
     if cfg.field.max_resolution < cfg.field.base_resolution:
         raise ConfigError(
-            f"field.max_resolution={cfg.field.max_resolution} is below field.base_resolution={cfg.field.base_resolution}"
+            f"field.max_resolution={cfg.field.max_resolution} is below "
+            f"field.base_resolution={cfg.field.base_resolution}"
         )
     if cfg.budget.eval_size < 32:
         raise ConfigError(f"budget.eval_size={cfg.budget.eval_size} must be >= 32 (LPIPS' AlexNet needs 32x32 inputs)")
@@ -245,7 +279,8 @@ def _check_render(cfg: DictConfig) -> None:
         return
     if cfg.budget.gt_samples != 1:
         raise ConfigError(
-            f"budget.gt_samples={cfg.budget.gt_samples} supersamples the pyrender ground truth; with render.backend=blender "
+            f"budget.gt_samples={cfg.budget.gt_samples} supersamples the pyrender ground truth; with "
+            "render.backend=blender "
             "Cycles filters each pixel over render.samples samples: set budget.gt_samples=1"
         )
 
@@ -266,7 +301,8 @@ def _check_device(device: str) -> None:
     index, count = int(device.partition(":")[2] or 0), torch.cuda.device_count()
     if index >= count:
         raise ConfigError(
-            f"device={device} but torch sees {count} CUDA device(s) on this machine; use device=auto (CUDA when present) or device=cpu"
+            f"device={device} but torch sees {count} CUDA device(s) on this machine; use device=auto (CUDA when "
+            "present) or device=cpu"
         )
 
 

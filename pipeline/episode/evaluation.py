@@ -24,8 +24,21 @@ from pipeline.scenes.ground_truth import Renderer
 from pipeline.scenes.scene import Scene
 
 RENDER_CHUNK = 4096  # rays per model call at inference
-STEP_METRICS = ("psnr", "ssim", "lpips", "rgb", "acc", "comp", "cr", "vis", "vis_area", "num_points", "patch_pearson",
-                "view_pearson", "ause")  # what ``Evaluator.evaluate`` records, in order  # fmt: skip
+STEP_METRICS = (
+    "psnr",
+    "ssim",
+    "lpips",
+    "rgb",
+    "acc",
+    "comp",
+    "cr",
+    "vis",
+    "vis_area",
+    "num_points",
+    "patch_pearson",
+    "view_pearson",
+    "ause",
+)  # what ``Evaluator.evaluate`` records, in order
 PATCHES_PER_SIDE = 16  # PROTOCOL 4.4: 32x32 patches of a 512x512 view
 
 
@@ -88,9 +101,15 @@ class Evaluator:
     computes a step's metrics (PROTOCOL 4)."""
 
     def __init__(
-        self, scene: Scene, renderer: Renderer, budget: BudgetConfig, metrics: MetricsConfig, seed: int,
-        device: torch.device, lpips: LpipsMetric,
-    ):  # fmt: skip
+        self,
+        scene: Scene,
+        renderer: Renderer,
+        budget: BudgetConfig,
+        metrics: MetricsConfig,
+        seed: int,
+        device: torch.device,
+        lpips: LpipsMetric,
+    ):
         self.scene, self.budget, self.metrics, self.seed = scene, budget, metrics, seed
         self.device, self.lpips = device, lpips
         size = budget.eval_size
@@ -130,14 +149,19 @@ class Evaluator:
             )
         images = image_metrics(pred, self.gt, self.lpips, self.metrics.ssim_data_range, self.gt_lpips)
         points = reconstruct_points(
-            model, obs, budget.recon_points, budget.recon_batch,
+            model,
+            obs,
+            budget.recon_points,
+            budget.recon_batch,
             seeded_generator(self.seed, step, "recon_points", self.device),
-        )  # fmt: skip
+        )
         geometry = geometry_metrics(
-            points, scene.mesh, scene.cr_threshold,
+            points,
+            scene.mesh,
+            scene.cr_threshold,
             seed=int(seeded_generator(self.seed, step, "gt_points").initial_seed() % 2**32),
             num_gt_samples=budget.gt_points,
-        )  # fmt: skip
+        )
         num_faces = len(scene.mesh.faces)
         seen = np.zeros(num_faces, dtype=bool)
         for ids in face_ids:
@@ -149,11 +173,20 @@ class Evaluator:
             corr = (c.patch_pearson, c.view_pearson, c.ause)
             view_sums = {"view_error": c.view_error, "view_score": c.view_score}
         metrics = {
-            "psnr": images.psnr, "ssim": images.ssim, "lpips": images.lpips, "rgb": images.rgb,
-            "acc": geometry.acc, "comp": geometry.comp, "cr": geometry.cr, "vis": coverage.vis,
-            "vis_area": coverage.vis_area, "num_points": geometry.num_points,
-            "patch_pearson": corr[0], "view_pearson": corr[1], "ause": corr[2],
-        }  # fmt: skip
+            "psnr": images.psnr,
+            "ssim": images.ssim,
+            "lpips": images.lpips,
+            "rgb": images.rgb,
+            "acc": geometry.acc,
+            "comp": geometry.comp,
+            "cr": geometry.cr,
+            "vis": coverage.vis,
+            "vis_area": coverage.vis_area,
+            "num_points": geometry.num_points,
+            "patch_pearson": corr[0],
+            "view_pearson": corr[1],
+            "ause": corr[2],
+        }
         shown = renders[view]
         images = {"gt": self.gt[view], "pred": pred[view], "score": shown["score"], "depth": shown["depth"]}
         return metrics, images, view_sums

@@ -20,7 +20,6 @@ from nvf.model import SceneModel
 from nvf.planning import Selection, argmax_first, prepare_scorer, score_poses, select_next_view
 from nvf.seeding import GeneratorFactory, generator_factory, seeded_generator
 from nvf.training import Observations, TrainStats, train_model
-from nvf.uncertainty import StepScorer, ViewScorer
 from nvf.visibility_source import SourcedVisibility, label_visibility
 from pipeline.episode.evaluation import Evaluator
 from pipeline.episode.settings import EpisodeSettings
@@ -115,9 +114,17 @@ class Episode:
         generators = generator_factory(s.seed, step, self.device)
         scorer = prepare_scorer(self.scorer, planning, obs, generators, s.planner.score_chunk_rays)
         selection = select_next_view(
-            planning, scorer, s.planner, self.scene.camera_box.to(self.device), current,
-            self.plan_intrinsics, s.tau, s.collision_free, generators, self.renderer.unoccluded,
-        )  # fmt: skip
+            planning,
+            scorer,
+            s.planner,
+            self.scene.camera_box.to(self.device),
+            current,
+            self.plan_intrinsics,
+            s.tau,
+            s.collision_free,
+            generators,
+            self.renderer.unoccluded,
+        )
         t3 = time.perf_counter()
         self.previous_model = model if s.train.warm_start else None
         row = {
@@ -129,11 +136,19 @@ class Episode:
             "selected_index": selection.index,
             "selected_score": selection.score,
             "refined": selection.refined,
-            "candidate_scores": dataclasses.asdict(selection.candidate_scores) if selection.candidate_scores else
-            {"count": selection.num_candidates, "min": None, "mean": None, "max": None, "std": None, "ties_at_max": None},
+            "candidate_scores": dataclasses.asdict(selection.candidate_scores)
+            if selection.candidate_scores
+            else {
+                "count": selection.num_candidates,
+                "min": None,
+                "mean": None,
+                "max": None,
+                "std": None,
+                "ties_at_max": None,
+            },
             "train": stats.stages,
             "seconds": {"train": t1 - t0, "eval": t2 - t1, "plan": t3 - t2},
-        }  # fmt: skip
+        }
         if selection.opt is not None:
             row["opt"] = {
                 "original_scores": selection.opt.original_scores.tolist(),

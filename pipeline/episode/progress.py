@@ -28,9 +28,15 @@ class EpisodeProgress:
         self.label, self.last_stage = label, stages[-1]
         self.interactive = sys.stderr.isatty() if interactive is None else interactive
         self.bar = tqdm(
-            total=horizon, initial=first, desc=label, unit="step", bar_format=BAR_FORMAT,
-            disable=not self.interactive, dynamic_ncols=True, smoothing=0.0,  # ETA: mean step time so far
-        )  # fmt: skip
+            total=horizon,
+            initial=first,
+            desc=label,
+            unit="step",
+            bar_format=BAR_FORMAT,
+            disable=not self.interactive,
+            dynamic_ncols=True,
+            smoothing=0.0,  # ETA: mean step time so far
+        )
         self.bar.set_postfix_str("preparing", refresh=False)
         self.stage_start = time.perf_counter()
         self.last = ""

@@ -18,7 +18,7 @@ from pipeline.metrics.arrays import Array, as_tensor, clipped
 AUSE_FRACTIONS = 100  # removal fractions f = 0, 0.01, ..., 0.99
 
 
-def pearson(x: Float[Tensor, "N"], y: Float[Tensor, "N"]) -> float:
+def pearson(x: Float[Tensor, " N"], y: Float[Tensor, " N"]) -> float:
     """Pearson correlation of paired values; NaN if either side is constant (or ``N < 2``)."""
     x = x.to(torch.float64) - x.to(torch.float64).mean()
     y = y.to(torch.float64) - y.to(torch.float64).mean()
@@ -37,7 +37,7 @@ def patch_pearson(error: Float[Tensor, "V H W"], score: Float[Tensor, "V H W"], 
 
 def view_sums(
     error: Float[Tensor, "V H W"], score: Float[Tensor, "V H W"]
-) -> tuple[Float[Tensor, "V"], Float[Tensor, "V"]]:
+) -> tuple[Float[Tensor, " V"], Float[Tensor, " V"]]:
     """Per-view sums of ``error`` and ``score`` in float64: the ``V`` pairs of the view-level r."""
     return error.to(torch.float64).sum((1, 2)), score.to(torch.float64).sum((1, 2))
 

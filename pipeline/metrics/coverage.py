@@ -10,7 +10,7 @@ from jaxtyping import Bool, Int
 from pipeline.metrics.arrays import Array, as_numpy
 
 
-def seen_faces(face_ids: Int[Array, "*views H W"], num_faces: int) -> Bool[np.ndarray, "F"]:
+def seen_faces(face_ids: Int[Array, "*views H W"], num_faces: int) -> Bool[np.ndarray, " F"]:
     """Mask of the faces hit by at least one pixel of the face-id images (-1 = miss) (4.3)."""
     ids = as_numpy(face_ids).ravel()
     seen = np.zeros(num_faces, dtype=bool)
@@ -26,7 +26,7 @@ class Coverage:
     vis_area: float
 
 
-def visual_coverage(seen: Bool[np.ndarray, "F"], mesh: trimesh.Trimesh) -> Coverage:
+def visual_coverage(seen: Bool[np.ndarray, " F"], mesh: trimesh.Trimesh) -> Coverage:
     """Vis. = |seen faces| / |faces| and the seen fraction of the surface area (4.3).
 
     ``seen`` is the union over all observed poses, e.g. ``seen_faces(...) | seen_faces(...)``.

@@ -16,8 +16,8 @@ from pipeline.metrics.arrays import Array, as_numpy
 def points_from_rays(
     origins: Float[Array, "R 3"],
     dirs: Float[Array, "R 3"],
-    depth: Float[Array, "R"],
-    acc: Float[Array, "R"],
+    depth: Float[Array, " R"],
+    acc: Float[Array, " R"],
     min_acc: float = 0.5,
 ) -> Float[Array, "P 3"]:
     """Reconstructed points ``o + D d`` of the rays with accumulation ``A > min_acc`` (4.2, M3)."""

@@ -83,7 +83,7 @@ def ssim(
     g = _gaussian_1d(window, sigma, x)
     kernel_h, kernel_w = g.view(1, 1, window, 1).expand(3, 1, -1, -1), g.view(1, 1, 1, window).expand(3, 1, -1, -1)
     total, count = 0.0, 0
-    for a, b in zip(x, y):  # one image at a time bounds memory at 512 x 512
+    for a, b in zip(x, y, strict=True):  # one image at a time bounds memory at 512 x 512
         maps = torch.stack([a, b, a * a, b * b, a * b])  # [5, 3, H, W]
         mu_a, mu_b, e_aa, e_bb, e_ab = F.conv2d(F.conv2d(maps, kernel_h, groups=3), kernel_w, groups=3)
         var_a, var_b = (e_aa - mu_a**2).clamp_min(0.0), (e_bb - mu_b**2).clamp_min(0.0)
@@ -127,10 +127,10 @@ class LpipsMetric:
         model = self.model.to(x.device)
         return [lpips.normalize_tensor(f) for f in model.net(model.scaling_layer(2 * x.float() - 1))]
 
-    def _distances(self, a: LpipsFeatures, b: LpipsFeatures) -> Float[Tensor, "B"]:
+    def _distances(self, a: LpipsFeatures, b: LpipsFeatures) -> Float[Tensor, " B"]:
         """Per-image LPIPS: sum over layers of the spatial mean of the linear head on ``(a - b)^2``."""
         total = 0
-        for lin, fa, fb in zip(self.model.lins, a, b):
+        for lin, fa, fb in zip(self.model.lins, a, b, strict=True):
             total = total + lpips.spatial_average(lin((fa - fb) ** 2), keepdim=True)
         return total.reshape(-1)
 
@@ -141,7 +141,7 @@ class LpipsMetric:
             return None
         y = clipped(gt)
         parts = [self._features(b) for b in y.split(self._batch(y))]
-        return [torch.cat(layer) for layer in zip(*parts)]
+        return [torch.cat(layer) for layer in zip(*parts, strict=True)]
 
     @torch.inference_mode()
     def against(self, pred: Float[Array, "V H W 3"], reference: LpipsFeatures | None) -> float:
@@ -154,7 +154,7 @@ class LpipsMetric:
         n = self._batch(x)
         values = [
             self._distances(self._features(a), [f[i : i + n].to(x.device) for f in reference])
-            for i, a in zip(range(0, len(x), n), x.split(n))
+            for i, a in zip(range(0, len(x), n), x.split(n), strict=True)
         ]
         return torch.cat(values).double().mean().item()
 

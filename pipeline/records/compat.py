@@ -14,7 +14,8 @@ class, a scene's boxes and views) is what its name stood for: a record lacking s
 other config's value when both name the same option.
 
 A retired key (``RETIRED_KEYS``) is dropped before records are compared: its value is implied by keys that
-remain; a moved key (``MOVED_TO_METHOD``) is read where it lives now. ``NOT_SETTINGS`` are config groups and keys that never change a run's views or metrics.
+remain; a moved key (``MOVED_TO_METHOD``) is read where it lives now. ``NOT_SETTINGS`` are config groups and keys that
+never change a run's views or metrics.
 """
 
 import copy
@@ -53,8 +54,15 @@ MOVED_TO_METHOD: dict[str, tuple[str, str]] = {
     "neurar_detach": ("neurar", "detach"),
 }
 # what never changes a run's views or metrics (added measurements, whether images are saved, how long Blender may
-# take for a view): not part of its identity; groups or dotted keys
-NOT_SETTINGS = ("diagnostics", "save_images", "step_metrics", "render.timeout")
+# take for a view, which experiments a method or scene joins): not part of its identity; groups or dotted keys
+NOT_SETTINGS = (
+    "diagnostics",
+    "save_images",
+    "step_metrics",
+    "render.timeout",
+    "method.experiments",
+    "scene.experiments",
+)
 
 
 def _get(config: Any, dotted: str) -> Any:

@@ -252,7 +252,8 @@ def verified(record: RunRecord) -> tuple[dict, list[dict]]:
     present, horizon = _lookup(info, "config.budget.horizon")
     if len(rows) > (horizon if present else MAX_HORIZON):
         raise RecordError(
-            f"{record.steps_path}: {len(rows)} rows, more than the run's horizon of {horizon if present else MAX_HORIZON} steps"
+            f"{record.steps_path}: {len(rows)} rows, more than the run's horizon of "
+            f"{horizon if present else MAX_HORIZON} steps"
         )
     check_rows(record.steps_path, rows)
     status = record.status()

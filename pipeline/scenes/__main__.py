@@ -26,8 +26,12 @@ def main(argv: list[str] | None = None) -> None:
     sub = parser.add_subparsers(dest="command", required=True)
     show_parser = sub.add_parser("show", help="write a PNG grid of a scene's views and a top view")
     show_parser.add_argument("scene", help=f"one of: {', '.join(scene_names())}")
-    show_parser.add_argument("overrides", nargs="*", metavar="KEY=VALUE",
-                             help="config overrides, e.g. paths.assets=DIR render.backend=blender")  # fmt: skip
+    show_parser.add_argument(
+        "overrides",
+        nargs="*",
+        metavar="KEY=VALUE",
+        help="config overrides, e.g. paths.assets=DIR render.backend=blender",
+    )
     show_parser.add_argument("--out", type=Path, default=None, help="folder (default ${paths.results}/figures/scenes)")
     show_parser.add_argument("--res", type=int, default=128, help="view resolution in pixels")
     args = parser.parse_args(argv)

@@ -90,9 +90,13 @@ class BlenderProcess:
         self._log = tempfile.TemporaryFile()
         env = {**os.environ, "PYTHONPATH": str(REPO)}
         self._process = subprocess.Popen(
-            [str(python), "-m", "pipeline.scenes.blender_worker"], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-            stderr=self._log, env=env, cwd=REPO,
-        )  # fmt: skip
+            [str(python), "-m", "pipeline.scenes.blender_worker"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=self._log,
+            env=env,
+            cwd=REPO,
+        )
         self._finalizer = weakref.finalize(self, _stop, self._process, self._log)
         hello, _ = self._exchange(None, None)
         self.version = str(hello["blender"])
@@ -233,9 +237,13 @@ class BlenderRenderer(MeshRays):
         in_asset = pose.copy()  # the camera moved into the asset's frame (the inverse of asset_to_scene)
         in_asset[:3, 3] = (pose[:3, 3] - self._offset) / self._scale
         header = {
-            "cmd": "render", "width": intr.width, "height": intr.height, "focal": intr.focal,
-            "near": 1e-4 * self._diagonal / self._scale, "far": 1e3 * self._diagonal / self._scale,
-        }  # fmt: skip
+            "cmd": "render",
+            "width": intr.width,
+            "height": intr.height,
+            "focal": intr.focal,
+            "near": 1e-4 * self._diagonal / self._scale,
+            "far": 1e3 * self._diagonal / self._scale,
+        }
         _, arrays = self._process.request(header, {"c2w": in_asset})
         return arrays["rgba"].copy()
 

@@ -29,7 +29,6 @@ import torch
 import trimesh
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
-from jaxtyping import Float
 from omegaconf import DictConfig, OmegaConf
 from torch import Tensor
 
@@ -161,7 +160,8 @@ def _mesh(cfg: Mapping[str, Any], tight: np.ndarray, assets_dir: Path | None, bl
     recipe = cfg.get("recipe")
     if recipe not in procedural.RECIPES:
         raise SceneError(
-            f"scene '{cfg['name']}': recipe={recipe!r} is not one of {', '.join(procedural.RECIPES)} (pipeline.scenes.procedural)"
+            f"scene '{cfg['name']}': recipe={recipe!r} is not one of {', '.join(procedural.RECIPES)} "
+            "(pipeline.scenes.procedural)"
         )
     mesh = procedural.RECIPES[recipe]()
     return _Built(procedural.fit_into_box(mesh, tight) if source == "proxy" else mesh, source)
@@ -206,10 +206,18 @@ def load_scene(
     except (KeyError, TypeError, ValueError) as err:
         raise SceneError(f"scene '{name}': its view rigs (init_views, eval_views) are incomplete: {err}") from None
     return Scene(
-        name=name, source=built.source, mesh=built.mesh,
+        name=name,
+        source=built.source,
+        mesh=built.mesh,
         object_aabb=_tensor(_box(cfg["object_aabb"], "object_aabb", name)),
-        camera_box=_tensor(_box(cfg["camera_box"], "camera_box", name)), tight_box=_tensor(tight),
-        init_poses=init, eval_poses=evals, density_threshold=float(cfg["density_threshold"]), d0=float(cfg["d0"]),
-        cr_threshold=float(cfg["cr_threshold"]), collision_free=bool(cfg["collision_free"]),
-        asset=built.asset, asset_to_scene=built.asset_to_scene,
-    )  # fmt: skip
+        camera_box=_tensor(_box(cfg["camera_box"], "camera_box", name)),
+        tight_box=_tensor(tight),
+        init_poses=init,
+        eval_poses=evals,
+        density_threshold=float(cfg["density_threshold"]),
+        d0=float(cfg["d0"]),
+        cr_threshold=float(cfg["cr_threshold"]),
+        collision_free=bool(cfg["collision_free"]),
+        asset=built.asset,
+        asset_to_scene=built.asset_to_scene,
+    )

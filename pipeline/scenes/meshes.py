@@ -2,6 +2,7 @@
 flattened, textures kept when every part has one (packed into one atlas), colours otherwise."""
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import trimesh
@@ -16,25 +17,28 @@ def _one_line(text: object) -> str:
 
 def _has_texture(part: trimesh.Trimesh) -> bool:
     material = getattr(part.visual, "material", None)
-    return part.visual.kind == "texture" and (
+    return getattr(part.visual, "kind", None) == "texture" and (
         getattr(material, "baseColorTexture", None) is not None or getattr(material, "image", None) is not None
     )
 
 
 def _texture_tile(part: trimesh.Trimesh, width: int) -> tuple[np.ndarray, np.ndarray]:
     """A part's base-colour image (factor baked in, repetition of UVs outside [0, 1] unrolled) and UVs in [0, 1]."""
-    material = part.visual.material
+    visual: Any = part.visual  # trimesh's visual kinds (texture, vertex, face) have their own attributes: read by kind
+    material = visual.material
     if not isinstance(material, trimesh.visual.material.PBRMaterial):
         material = material.to_pbr()
     image = np.asarray(material.baseColorTexture.convert("RGB"), dtype=np.float32)
     if material.baseColorFactor is not None:
         image = image * (np.asarray(material.baseColorFactor[:3], dtype=np.float32) / 255.0)
-    uv = np.asarray(part.visual.uv, dtype=np.float64)
+    uv = np.asarray(visual.uv, dtype=np.float64)
     start = np.floor(uv.min(axis=0))
     tiles = np.maximum(np.ceil(uv.max(axis=0) - start), 1).astype(int)
     tiled = np.tile(image, (tiles[1], tiles[0], 1))
     height = max(1, min(width, round(tiled.shape[0] * width / tiled.shape[1])))
-    resized = Image.fromarray(np.clip(tiled, 0, 255).astype(np.uint8)).resize((width, height), Image.BILINEAR)
+    resized = Image.fromarray(np.clip(tiled, 0, 255).astype(np.uint8)).resize(
+        (width, height), Image.Resampling.BILINEAR
+    )
     return np.asarray(resized), (uv - start) / tiles
 
 
@@ -64,10 +68,11 @@ def _atlas(parts: list[trimesh.Trimesh], width: int = 1024) -> trimesh.Trimesh:
 def _to_colors(part: trimesh.Trimesh) -> trimesh.Trimesh:
     """Per-face colours from an untextured material's main colour, per-vertex ones sampled from a texture."""
     part = part.copy()
-    if part.visual.kind == "texture" and not _has_texture(part):
-        part.visual = trimesh.visual.ColorVisuals(part, face_colors=part.visual.material.main_color)
-    elif part.visual.kind == "texture":
-        part.visual = part.visual.to_color()
+    visual: Any = part.visual  # trimesh's visual kinds (texture, vertex, face) have their own attributes: read by kind
+    if visual.kind == "texture" and not _has_texture(part):
+        part.visual = trimesh.visual.ColorVisuals(part, face_colors=visual.material.main_color)
+    elif visual.kind == "texture":
+        part.visual = visual.to_color()
     return part
 
 
@@ -82,7 +87,7 @@ def read_mesh(path: Path) -> trimesh.Trimesh:
     except Exception as exc:  # trimesh raises many kinds for bad files
         raise SceneError(f"cannot read mesh {path}: {type(exc).__name__}: {_one_line(exc)}") from None
     parts = loaded.dump() if isinstance(loaded, trimesh.Scene) else [loaded]
-    parts = [p for p in parts if isinstance(p, trimesh.Trimesh) and len(p.faces) > 0]
+    parts: list[trimesh.Trimesh] = [p for p in parts if isinstance(p, trimesh.Trimesh) and len(p.faces) > 0]
     if not parts:
         raise SceneError(f"mesh {path} contains no triangles")
     if len(parts) == 1:

@@ -82,7 +82,8 @@ def _assemble(parts: list[trimesh.Trimesh]) -> trimesh.Trimesh:
 
 
 def fit_into_box(mesh: trimesh.Trimesh, box: Float[np.ndarray, "2 3"]) -> trimesh.Trimesh:
-    """Uniform scale ``min_k(box_extent_k / mesh_extent_k)``, centred in x and y, floor at ``box[0, 2]`` (PROTOCOL 2.2)."""
+    """Uniform scale ``min_k(box_extent_k / mesh_extent_k)``, centred in x and y, floor at ``box[0, 2]`` (PROTOCOL "
+    "2.2)."""
     extent = mesh.bounds[1] - mesh.bounds[0]
     scale = float(np.min((box[1] - box[0]) / extent))
     fitted = mesh.copy()
@@ -278,7 +279,7 @@ def _ship(rng: np.random.Generator) -> trimesh.Trimesh:
     bow, stern = 1.0 * along + [0, 0, 0.72], -0.95 * along + [0, 0, 0.72]
     parts.append(_rod(bow, bow + 0.35 * along + [0, 0, 0.15], 0.01, (90, 60, 30)))
     anchors = [bow + 0.35 * along + [0, 0, 0.15], stern]
-    for i, (top, foot) in enumerate(zip(tops, feet)):
+    for i, (top, foot) in enumerate(zip(tops, feet, strict=True)):
         for side in (-1, 1):  # shrouds to the deck edge beside the mast
             parts.append(_rod(top, foot + side * 0.27 * across + [0, 0, 0.02], 0.004, (40, 30, 20), sections=4))
         target = anchors[0] if i == len(tops) - 1 else tops[i + 1]

@@ -18,6 +18,7 @@ import math
 import os
 import sys
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch
@@ -77,7 +78,7 @@ class CornerColors:
 def corner_colors(part: trimesh.Trimesh) -> CornerColors:
     """Vertex/face colours or a base-colour texture of ``part``, unrolled to its triangles' corners
     (``C = 3 F``, in face order), as both ground-truth backends draw them."""
-    visual = part.visual
+    visual: Any = part.visual  # trimesh's visual kinds (texture, vertex, face) have their own attributes: read by kind
     colors = uv = texture = None
     factor = np.ones(4)
     if visual.kind == "texture" and getattr(visual.material, "baseColorTexture", None) is not None:
@@ -110,9 +111,11 @@ def _as_opaque_primitive(pyrender, part: trimesh.Trimesh):
 
 def base_color_texture_mesh(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     """Textured meshes with a non-PBR material get a PBR copy so the base-colour texture is found."""
-    if mesh.visual.kind == "texture" and not isinstance(mesh.visual.material, trimesh.visual.material.PBRMaterial):
+    visual: Any = mesh.visual  # trimesh's visual kinds (texture, vertex, face) have their own attributes: read by kind
+    if visual.kind == "texture" and not isinstance(visual.material, trimesh.visual.material.PBRMaterial):
         mesh = mesh.copy()
-        mesh.visual.material = mesh.visual.material.to_pbr()
+        copied: Any = mesh.visual
+        copied.material = visual.material.to_pbr()
     return mesh
 
 
@@ -141,7 +144,7 @@ class MeshRays:
 
     def cast_rays(
         self, origins: Float[np.ndarray, "N 3"], dirs: Float[np.ndarray, "N 3"]
-    ) -> tuple[Float[np.ndarray, "N"], Int[np.ndarray, "N"]]:
+    ) -> tuple[Float[np.ndarray, " N"], Int[np.ndarray, " N"]]:
         """Exact ray casting (open3d): hit distance along ``dirs`` (inf = miss) and face id (-1 = miss)."""
         rays = np.concatenate([origins, dirs], axis=-1).astype(np.float32)
         hits = self._raycaster.cast_rays(self._o3d.core.Tensor(rays))
@@ -152,7 +155,7 @@ class MeshRays:
 
     def line_of_sight(
         self, points: Float[Tensor, "N 3"], c2w: Float[Tensor, "M 4 4"], intr: Intrinsics, margin: float = 0.0
-    ) -> Bool[Tensor, "N"]:
+    ) -> Bool[Tensor, " N"]:
         """Exact visibility of ``points`` from the cameras ``c2w``: some camera has the point in its
         image (M17's frustum, no depth limit) and an unoccluded line of sight to it (open3d ray cast
         from the camera centre, 1e-4 tolerance). The limit of a depth test at infinite resolution.
@@ -170,7 +173,7 @@ class MeshRays:
             visible |= frustum_mask(points, pose, intr, math.inf) & self.unoccluded(origin, ends)
         return visible
 
-    def unoccluded(self, origin: Float[Tensor, "3"], points: Float[Tensor, "N 3"]) -> Bool[Tensor, "N"]:
+    def unoccluded(self, origin: Float[Tensor, "3"], points: Float[Tensor, "N 3"]) -> Bool[Tensor, " N"]:
         """Whether the segment from ``origin`` to each point crosses no face (open3d ray cast, 1e-4
         tolerance; a point at the origin is unoccluded). On ``points``' device."""
         device = points.device
@@ -181,7 +184,7 @@ class MeshRays:
         t_hit, _ = self.cast_rays(origin.expand_as(to_point).numpy(), dirs.numpy())
         return (torch.from_numpy(t_hit >= distance.numpy() - 1e-4) | (distance == 0)).to(device)
 
-    def inside(self, points: Float[Tensor, "N 3"]) -> Bool[Tensor, "N"]:
+    def inside(self, points: Float[Tensor, "N 3"]) -> Bool[Tensor, " N"]:
         """Whether each point lies inside the mesh (open3d's occupancy query, which assumes a
         watertight mesh: near an open edge a point can be misjudged). On ``points``' device."""
         query = self._o3d.core.Tensor(points.detach().cpu().to(torch.float32).numpy())

@@ -91,8 +91,10 @@ def main(argv: list[str]) -> int:
         print(
             f"pipeline.tables: note: paths.outputs={outputs} is not a directory; only {read} was read", file=sys.stderr
         )
-    print(f"pipeline.tables: wrote {len(written)} files under {results} (runs.csv, tables/, figures/, site/); "
-          f"open {results / 'site' / 'index.html'}")  # fmt: skip
+    print(
+        f"pipeline.tables: wrote {len(written)} files under {results} (runs.csv, tables/, figures/, site/); "
+        f"open {results / 'site' / 'index.html'}"
+    )
     return 0
 
 

@@ -66,7 +66,11 @@ def aggregate(final: pd.DataFrame) -> pd.DataFrame:
     """Mean, population std and count of valid values per metric over the seeds of each GROUP."""
     rows = []
     for key, group in final.groupby(list(GROUP), sort=False):
-        row = {**dict(zip(GROUP, key)), "scene_source": ", ".join(sorted(set(group["scene_source"]))), "n": len(group)}
+        row = {
+            **dict(zip(GROUP, key, strict=True)),
+            "scene_source": ", ".join(sorted(set(group["scene_source"]))),
+            "n": len(group),
+        }
         for flag, _ in ORACLE_FLAGS:
             row[flag] = bool(group[flag].any())
         for metric in METRIC_KEYS:
@@ -93,7 +97,7 @@ def object_mean(final: pd.DataFrame, runs: Runs) -> tuple[pd.DataFrame, tuple[st
     for key, group in objects.groupby(["budget", "method", "planner", "ablation"], sort=False):
         scenes = sorted(set(group["scene"]), key=lambda scene: runs.scene(scene).order)
         counts[key] = len(scenes)
-        complete = group.groupby("seed").filter(lambda s: set(s["scene"]) == set(scenes))
+        complete = group.groupby("seed").filter(lambda s: set(s["scene"]) == set(scenes))  # noqa: B023 - called at once
         text = f"mean over {len(scenes)} scene{'' if len(scenes) == 1 else 's'} ({', '.join(scenes)})"
         dropped = sorted(set(group["seed"]) - set(complete["seed"]))
         if dropped:
@@ -103,13 +107,13 @@ def object_mean(final: pd.DataFrame, runs: Runs) -> tuple[pd.DataFrame, tuple[st
         for seed, seed_rows in complete.groupby("seed"):
             sources = ", ".join(sorted(set(seed_rows["scene_source"])))
             means = {m: float(seed_rows[m].to_numpy(float).mean()) for m in METRIC_KEYS}
-            keys = dict(zip(("budget", "method", "planner", "ablation"), key))
+            keys = dict(zip(("budget", "method", "planner", "ablation"), key, strict=True))
             oracles = {flag: bool(seed_rows[flag].any()) for flag, _ in ORACLE_FLAGS}
             per_seed.append({**keys, "scene": OBJECT_MEAN, "seed": seed, "scene_source": sources, **oracles, **means})
     if not per_seed:
         return pd.DataFrame(), (), {}
     rows = aggregate(pd.DataFrame(per_seed))
-    keys = zip(rows["budget"], rows["method"], rows["planner"], rows["ablation"])
+    keys = zip(rows["budget"], rows["method"], rows["planner"], rows["ablation"], strict=True)
     rows["scene_count"] = [counts[key] for key in keys]
     if len(coverage) == 1:
         return rows, (f"{next(iter(coverage))} for every row",), samples
@@ -147,10 +151,12 @@ def _mark_best(rows: pd.DataFrame, samples: Samples) -> pd.DataFrame:
             best = means.idxmax() if m.higher_is_better else means.idxmin()
             sign = 1.0 if m.higher_is_better else -1.0
             tied = [
-                i for i in index
-                if i != best and pd.notna(means[i])
+                i
+                for i in index
+                if i != best
+                and pd.notna(means[i])
                 and not paired(sign * samples[keys[best]][m.name], sign * samples[keys[i]][m.name]).above_zero
-            ]  # fmt: skip
+            ]
             column = f"{m.name}_tie" if tied else f"{m.name}_best"
             rows.loc[[best, *tied], column] = True
         reference = [i for i in index if (keys[i][2], keys[i][3], keys[i][4]) == REFERENCE]
@@ -198,30 +204,40 @@ SPECS = (
     Spec("all_runs", "All runs: every scene and method, per scene", None, "all", False),
 )
 SWEPT = ("method", "planner", "ablation")
+DECLARED = "declared"  # a sweep over the options that declare the experiment (``${declared:GROUP,EXPERIMENT}``)
 
 
-def experiment_selection(experiment: str | None, conf_dir: Path = CONF) -> dict[str, tuple[str, ...] | None]:
+def experiment_selection(experiment: str | None, conf_dir: Path = CONF) -> dict[str, tuple[str, ...] | str | None]:
     """The options of each of ``SWEPT`` an experiment runs: the values its sweep lists, None (any) for
-    ``glob(*)``, and the default choice (``conf/config.yaml``) for a group it does not sweep."""
+    ``glob(*)``, ``DECLARED`` for ``${declared:GROUP,EXPERIMENT}`` (the runs whose own config declares the
+    experiment) and the default choice (``conf/config.yaml``) for a group it does not sweep."""
     if experiment is None:
         return dict.fromkeys(SWEPT)
     listed = OmegaConf.to_container(OmegaConf.load(Path(conf_dir) / "config.yaml").defaults)
     defaults = {k: v for d in listed if isinstance(d, dict) for k, v in d.items()}
-    params = (
-        OmegaConf.select(OmegaConf.load(Path(conf_dir) / "experiment" / f"{experiment}.yaml"), "hydra.sweeper.params")
-        or {}
+    node = OmegaConf.select(
+        OmegaConf.load(Path(conf_dir) / "experiment" / f"{experiment}.yaml"), "hydra.sweeper.params"
     )
-    selection: dict[str, tuple[str, ...] | None] = {}
+    params = OmegaConf.to_container(node, resolve=False) if node is not None else {}
+    selection: dict[str, tuple[str, ...] | str | None] = {}
     for key in SWEPT:
         value = str(params.get(key, defaults[key]))
-        selection[key] = None if value.startswith("glob(") else tuple(v.strip() for v in value.split(","))
+        if value.startswith("glob("):
+            selection[key] = None
+        elif key == "method" and value.replace(" ", "") == f"${{declared:method,{experiment}}}":
+            selection[key] = DECLARED
+        else:
+            selection[key] = tuple(v.strip() for v in value.split(","))
     return selection
 
 
 def _select(final: pd.DataFrame, spec: Spec, runs: Runs) -> pd.DataFrame:
     keep = pd.Series(True, index=final.index)
     for column, allowed in experiment_selection(spec.experiment).items():
-        if allowed is not None:
+        if allowed == DECLARED:
+            rows = zip(final["method"], final["planner"], final["ablation"], strict=True)
+            keep &= np.array([spec.experiment in runs.row(*row).experiments for row in rows], dtype=bool)
+        elif allowed is not None:
             keep &= final[column].isin(allowed)
     if spec.scenes == "objects":
         keep &= np.array([runs.scene(scene).nerf_asset for scene in final["scene"]], dtype=bool)
@@ -269,8 +285,10 @@ def _notes(selected: pd.DataFrame, done: pd.DataFrame, rows: pd.DataFrame, runs:
         )
     if runs.conflicts:
         notes.append(
-            f"{len(runs.conflicts)} conflict(s) between copies of a run left records out: a copy with other settings than "
-            "the kept one, or finished copies that differ, none of which counts (listed by `python -m pipeline.tables`)."
+            f"{len(runs.conflicts)} conflict(s) between copies of a run left records out: a copy with other settings "
+            "than "
+            "the kept one, or finished copies that differ, none of which counts (listed by `python -m "
+            "pipeline.tables`)."
         )
     return notes
 
@@ -279,8 +297,10 @@ def _header(done: pd.DataFrame, runs: Runs) -> tuple[str, ...]:
     budgets = ", ".join(sorted(set(done["budget"])))
     steps = ", ".join(str(s) for s in sorted(set(done["step"].astype(int))))
     by_scene = done.groupby("scene")
-    sources = {column: by_scene[column].agg(lambda s: "/".join(sorted(set(s) - {""}))) for column in
-               ("scene_source", "asset", "ground_truth")}  # fmt: skip
+    sources = {
+        column: by_scene[column].agg(lambda s: "/".join(sorted(set(s) - {""})))
+        for column in ("scene_source", "asset", "ground_truth")
+    }
     scenes = "; ".join(
         f"{scene} ({' '.join(filter(None, (sources['scene_source'][scene], sources['asset'][scene])))}, "
         f"ground truth {sources['ground_truth'][scene]})"
@@ -320,7 +340,8 @@ def _build_table(runs: Runs, spec: Spec) -> Table:
         notes = _notes(selected, done, pd.DataFrame(columns=["n"]), runs)
         return Table(spec.name, spec.title, pd.DataFrame(), (), tuple(notes))
     rows = order_rows(_mark_best(pd.concat(parts, ignore_index=True), samples), runs)
-    names = [runs.row(m, p, a) for m, p, a in zip(rows["method"], rows["planner"], rows["ablation"])]
+    keys = zip(rows["method"], rows["planner"], rows["ablation"], strict=True)
+    names = [runs.row(m, p, a) for m, p, a in keys]
     rows["label"] = [name.label for name in names]
     rows["in_paper"] = [name.in_paper for name in names]
     notes = _notes(selected, done, rows, runs) + [f"{OBJECT_MEAN}: {n}." for n in mean_notes]

@@ -46,13 +46,28 @@ def build_tables(
     runs = collect_runs([Path(outputs), *map(Path, runs_dirs)])
     done = runs.final[runs.final["status"] == "done"].sort_values("seed")
     grids = [  # one grid per method and scene: lowest seed
-        (Path(run["directory"]), results / "figures" / "grids" / file_name(
-            ["grid", run["scene"], "-".join((run["method"], run["planner"], run["ablation"])), run["budget"],
-             f"seed{int(run['seed'])}"], "_", ".png"),
-         f"{run['scene']} / {runs.row(run['method'], run['planner'], run['ablation']).label} / {run['budget']} budget "
-         f"/ seed {int(run['seed'])}")
+        (
+            Path(run["directory"]),
+            results
+            / "figures"
+            / "grids"
+            / file_name(
+                [
+                    "grid",
+                    run["scene"],
+                    "-".join((run["method"], run["planner"], run["ablation"])),
+                    run["budget"],
+                    f"seed{int(run['seed'])}",
+                ],
+                "_",
+                ".png",
+            ),
+            f"{run['scene']} / {runs.row(run['method'], run['planner'], run['ablation']).label} / {run['budget']} "
+            "budget "
+            f"/ seed {int(run['seed'])}",
+        )
         for _, run in done.drop_duplicates(list(GROUP)).iterrows()
-    ]  # fmt: skip
+    ]
     written = [results / "runs.csv"]
     atomic_write_text(written[0], runs.long.to_csv(index=False))
     tables = {spec.name: build_table(runs, spec) for spec in SPECS}

@@ -69,7 +69,7 @@ def curves(runs: Runs, figures: Path) -> list[Path]:
         legend_rows = math.ceil(len(groups) / 7)
         fig.subplots_adjust(left=0.04, right=0.99, bottom=0.1 + 0.035 * legend_rows, top=0.9, wspace=0.25, hspace=0.35)
         axes = fig.subplots(2, 4).ravel()
-        for ax, m in zip(axes, PAPER_METRICS):
+        for ax, m in zip(axes, PAPER_METRICS, strict=True):
             for i, ((method, planner, ablation), group) in enumerate(groups):
                 series = group[group["metric"] == m.name].groupby("step")["value"]
                 mean, std = series.mean(), series.std(ddof=0).fillna(0.0)
@@ -163,8 +163,11 @@ def _image_panel(fig: Figure, ax, kind: str, path: Path) -> None:
     if image is None:
         ax.set_axis_off()
         return
-    ax.imshow(image[..., :3] if image.ndim == 3 else image, cmap=None if image.ndim == 3 else "viridis",
-              interpolation="nearest")  # fmt: skip
+    ax.imshow(
+        image[..., :3] if image.ndim == 3 else image,
+        cmap=None if image.ndim == 3 else "viridis",
+        interpolation="nearest",
+    )
     try:
         recorded = map_range(path) if kind not in ("gt", "pred") else None
     except (OSError, ValueError):
@@ -174,8 +177,15 @@ def _image_panel(fig: Figure, ax, kind: str, path: Path) -> None:
     low, high, unit = recorded
     if math.isnan(low) and math.isnan(high):
         ax.images[0].set_alpha(0.15)
-        ax.text(0.5, 0.5, "no score map:\nthis method\nscores no views" if kind == "score" else "no finite value",
-                transform=ax.transAxes, ha="center", va="center", fontsize=9)  # fmt: skip
+        ax.text(
+            0.5,
+            0.5,
+            "no score map:\nthis method\nscores no views" if kind == "score" else "no finite value",
+            transform=ax.transAxes,
+            ha="center",
+            va="center",
+            fontsize=9,
+        )
         return
     if not (math.isfinite(low) and math.isfinite(high)):
         return  # a range no map of ours records

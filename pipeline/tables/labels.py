@@ -19,12 +19,14 @@ LAST = 10**6  # order of the object-scene mean: after every scene
 @dataclass(frozen=True)
 class RowName:
     """A (method, planner, ablation) row: its label (``NVF``, ``w/o Vis.``, ``AIR-OPT``), sort key (plain
-    before refined planners, ablations as in Table S2, methods as in Tables S3-S4) and whether its method
-    is one of the paper's (``in_paper``; False for a baseline this benchmark adds, e.g. FisherRF, which
-    has no reference numbers)."""
+    before refined planners, ablations as in Table S2, methods as in Tables S3-S4), the experiments its
+    method declares (``method.experiments``: the paper tables it joins) and whether its method is one of
+    the paper's (``in_paper``; False for a baseline this benchmark adds, e.g. FisherRF, which has no
+    reference numbers)."""
 
     label: str
     order: tuple
+    experiments: tuple[str, ...] = ()
     in_paper: bool = True
 
 
@@ -48,7 +50,8 @@ def row_name(config: Mapping[str, Any]) -> RowName:
     if planner != "argmax":
         label = f"{label}-{planner.upper()}"
     order = (planner != "argmax", planner, ablation.get("rank", LAST), method.get("rank", LAST), method["name"])
-    return RowName(label, order, method.get("label", method["name"]) in paper_methods())
+    in_paper = method.get("label", method["name"]) in paper_methods()
+    return RowName(label, order, tuple(method.get("experiments") or ()), in_paper)
 
 
 def scene_name(config: Mapping[str, Any]) -> SceneName:

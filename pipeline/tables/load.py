@@ -152,9 +152,12 @@ def used_mesh_visibility(info: dict) -> bool:
     )
     method = config.get("method") if isinstance(config, dict) else None
     return (
-        isinstance(entropy, dict) and isinstance(method, dict) and method.get("name") == "nvf"
-        and entropy.get("visibility_source") == "mesh" and entropy.get("use_visibility") is True
-    )  # fmt: skip
+        isinstance(entropy, dict)
+        and isinstance(method, dict)
+        and method.get("name") == "nvf"
+        and entropy.get("visibility_source") == "mesh"
+        and entropy.get("use_visibility") is True
+    )
 
 
 def record_directories(root: Path) -> tuple[list[Path], list[str]]:
@@ -183,7 +186,10 @@ def copy_difference(one: dict, other: dict) -> str | None:
     """How two copies of a run with the same settings differ in what the tables read: the first row and key,
     else the first of run.json's ``TABULATED`` keys; None when the tables would show either alike (times and
     provenance may differ: two copies written at other moments)."""
-    pairs = [(f"step {index} ", mine, theirs) for index, (mine, theirs) in enumerate(zip(one["rows"], other["rows"]))]
+    pairs = [
+        (f"step {index} ", mine, theirs)
+        for index, (mine, theirs) in enumerate(zip(one["rows"], other["rows"], strict=False))  # the steps both hold
+    ]
     tabulated = [{key: copy["info"].get(key) for key in TABULATED} for copy in (one, other)]
     for prefix, mine, theirs in [*pairs, ("run.json ", *tabulated)]:
         found = first_difference(mine, theirs, prefix)
@@ -223,7 +229,8 @@ def _choose(copies: list[dict], conflicts: list[str]) -> dict | None:
 def collect_runs(roots: list[Path]) -> Runs:
     """Read every run record under ``roots`` (``record_directories``); one that fails a check
     (``pipeline.records.verify``) is listed in ``skipped`` with the reason, and so is every link to a folder
-    outside its root (never followed). Copies of one run (same identity keys) are resolved by ``_choose``, every copy left out
+    outside its root (never followed). Copies of one run (same identity keys) are resolved by ``_choose``, every copy
+    left out
     listed in ``conflicts``: a table never mixes runs, or picks between differing copies, silently."""
     copies: dict[tuple, list[dict]] = {}
     seen: set[Path] = set()

@@ -1,6 +1,6 @@
-"""A ``Table`` as Markdown, CSV and LaTeX texts (and an HTML table for the results site): cells 'mean ± std' (bold for the best, † where some
-seeds lack the value), ‡ after the label of a row planned with the mesh's line of sight, § after the label of
-a row whose method the paper does not have, header lines
+"""A ``Table`` as Markdown, CSV and LaTeX texts (and an HTML table for the results site): cells 'mean ± std' (bold
+for the best, † where some seeds lack the value), ‡ after the label of a row planned with the mesh's line of
+sight, § after the label of a row whose method the paper does not have, header lines
 and footnotes. Every cell, header line and footnote is escaped for its format (``pipeline.tables.escape``):
 labels, sources and reasons come from run records."""
 
@@ -72,8 +72,15 @@ def render(table: Table, label_header: str, experiment: str | None) -> dict[str,
         }
     columns, cells = _grid(table, label_header)
     grid = pd.DataFrame([[markdown(c) for c in line] for line in cells], columns=columns)
-    md = [f"# {table.title}", "", *map(markdown, table.header), "", grid.to_markdown(index=False, disable_numparse=True), "",
-          *(f"- {markdown(n)}" for n in table.notes)]  # fmt: skip
+    md = [
+        f"# {table.title}",
+        "",
+        *map(markdown, table.header),
+        "",
+        grid.to_markdown(index=False, disable_numparse=True),
+        "",
+        *(f"- {markdown(n)}" for n in table.notes),
+    ]
     bare = [[plain(c).replace("**", "") for c in line] for line in cells]
     csv = "".join(f"# {plain(line)}\n" for line in (table.title, *table.header))
     csv += pd.DataFrame(bare, columns=columns).to_csv(index=False) + "".join(f"# {plain(n)}\n" for n in table.notes)

@@ -109,10 +109,12 @@ def index_page(runs: Runs, done: pd.DataFrame, pages: Mapping[tuple[str, str], P
     """Per budget, methods x scenes: final PSNR mean ± population std over seeds, each scene linking to its page."""
     parts = []
     if done.empty:
-        parts.append("<p>No finished runs yet: run <code>python -m pipeline.run</code>, then "
-                     "<code>python -m pipeline.tables</code>.</p>")  # fmt: skip
+        parts.append(
+            "<p>No finished runs yet: run <code>python -m pipeline.run</code>, then "
+            "<code>python -m pipeline.tables</code>.</p>"
+        )
     for budget, frame in done.groupby("budget"):
-        frame = frame.assign(row=list(zip(frame["method"], frame["planner"], frame["ablation"])))
+        frame = frame.assign(row=list(zip(frame["method"], frame["planner"], frame["ablation"], strict=True)))
         groups = sorted(set(frame["row"]), key=lambda key: runs.row(*key).order)
         scenes = sorted(set(frame["scene"]), key=lambda scene: runs.scene(scene).order)
         head = "".join(f'<th><a href="{link(pages[(budget, s)], page)}">{html.escape(s)}</a></th>' for s in scenes)
@@ -169,32 +171,63 @@ def psnr_figure(runs: Runs, scene: str, budget: str) -> go.Figure:
         color = COLORS[i % len(COLORS)]
         last = max(last, int(frame["step"].max()))
         if frame["n"].max() > 1:
-            fig.add_trace(go.Scatter(x=frame["step"], y=frame["high"], line={"width": 0}, hoverinfo="skip",
-                                     showlegend=False, legendgroup=label))  # fmt: skip
-            fig.add_trace(go.Scatter(x=frame["step"], y=frame["low"], line={"width": 0}, fill="tonexty",
-                                     fillcolor=_alpha(color, 0.12), hoverinfo="skip", showlegend=False,
-                                     legendgroup=label))  # fmt: skip
-        fig.add_trace(go.Scatter(
-            x=frame["step"], y=frame["mean"], name=label, legendgroup=label, line={"color": color},
-            customdata=frame[["low", "high", "n"]].to_numpy(),
-            hovertemplate=f"{html.escape(label)} step %{{x}}: %{{y:.2f}} dB [%{{customdata[0]:.2f}}, "
-                          "%{customdata[1]:.2f}], n=%{customdata[2]}<extra></extra>",
-        ))  # fmt: skip
+            fig.add_trace(
+                go.Scatter(
+                    x=frame["step"],
+                    y=frame["high"],
+                    line={"width": 0},
+                    hoverinfo="skip",
+                    showlegend=False,
+                    legendgroup=label,
+                )
+            )
+            fig.add_trace(
+                go.Scatter(
+                    x=frame["step"],
+                    y=frame["low"],
+                    line={"width": 0},
+                    fill="tonexty",
+                    fillcolor=_alpha(color, 0.12),
+                    hoverinfo="skip",
+                    showlegend=False,
+                    legendgroup=label,
+                )
+            )
+        fig.add_trace(
+            go.Scatter(
+                x=frame["step"],
+                y=frame["mean"],
+                name=label,
+                legendgroup=label,
+                line={"color": color},
+                customdata=frame[["low", "high", "n"]].to_numpy(),
+                hovertemplate=f"{html.escape(label)} step %{{x}}: %{{y:.2f}} dB [%{{customdata[0]:.2f}}, "
+                "%{customdata[1]:.2f}], n=%{customdata[2]}<extra></extra>",
+            )
+        )
         ref = paper[paper["table"].isin(["S3", "S4"]) & (paper["scene"] == paper_scene) & (paper["method"] == label)]
         if paper_scene is not None and not ref.empty:
-            fig.add_trace(go.Scatter(
-                x=[int(frame["step"].max())], y=[float(ref["psnr"].iloc[0])], mode="markers", legendgroup=label,
-                marker={"symbol": "star", "size": 12, "color": color, "line": {"width": 1, "color": "black"}},
-                name=f"{label}: paper (Table {ref['table'].iloc[0]})",
-                hovertemplate=f"paper, {html.escape(label)} on the {paper_scene} asset at the paper budget: "
-                              "%{y:.2f} dB<extra></extra>",
-            ))  # fmt: skip
+            fig.add_trace(
+                go.Scatter(
+                    x=[int(frame["step"].max())],
+                    y=[float(ref["psnr"].iloc[0])],
+                    mode="markers",
+                    legendgroup=label,
+                    marker={"symbol": "star", "size": 12, "color": color, "line": {"width": 1, "color": "black"}},
+                    name=f"{label}: paper (Table {ref['table'].iloc[0]})",
+                    hovertemplate=f"paper, {html.escape(label)} on the {paper_scene} asset at the paper budget: "
+                    "%{y:.2f} dB<extra></extra>",
+                )
+            )
     fig.update_layout(
-        height=480, margin={"l": 60, "r": 20, "t": 40, "b": 50}, template="plotly_white",
+        height=480,
+        margin={"l": 60, "r": 20, "t": 40, "b": 50},
+        template="plotly_white",
         title=f"{scene}, {budget} budget: PSNR over the steps (mean and {LEVEL:.0%} interval over seeds)",
-        xaxis={"title": "step", "dtick": 1 if last <= 20 else None}, yaxis={"title": "PSNR (dB)"},
+        xaxis={"title": "step", "dtick": 1 if last <= 20 else None},
+        yaxis={"title": "PSNR (dB)"},
         legend={"groupclick": "togglegroup"},
-    )  # fmt: skip
+    )
     return fig
 
 
@@ -258,8 +291,10 @@ def _run_card(run: pd.Series, found: RunPictures, page: Path) -> str:
             target = link(picture, page)
             lines.append(f'<a href="{target}"><img src="{target}" alt="{what}, seed {int(run["seed"])}"></a>')
     if found.grid is None:
-        lines.append('<span class="note">no images: the record keeps its steps only (save_images off, or a '
-                     "committed record)</span>")  # fmt: skip
+        lines.append(
+            '<span class="note">no images: the record keeps its steps only (save_images off, or a '
+            "committed record)</span>"
+        )
     return "".join(lines) + "</div>"
 
 
@@ -286,8 +321,10 @@ def pilots_page(pilots: Path, page: Path) -> str:
         parts.append(f"<p>Settings tried beside the budgets, each with its notes and pictures:</p><ul>{items}</ul>")
     for folder in folders:
         parts.append(f'<div class="pilot"><h2 id="{html.escape(folder.name)}">{html.escape(folder.name)}</h2>')
-        files = sorted({*folder.glob("*.md"), *folder.glob("*/*.md"), *folder.glob("*.png"), *folder.glob("*/*.png")},
-                       key=lambda p: (p.parent != folder, p.parent.name, p.name != "README.md", p.name))  # fmt: skip
+        files = sorted(
+            {*folder.glob("*.md"), *folder.glob("*/*.md"), *folder.glob("*.png"), *folder.glob("*/*.png")},
+            key=lambda p: (p.parent != folder, p.parent.name, p.name != "README.md", p.name),
+        )
         for path in files:
             where = path.relative_to(folder).as_posix()
             if path.suffix == ".png":

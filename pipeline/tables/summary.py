@@ -32,7 +32,10 @@ def summarize_run(run_dir: Path) -> Path:
         seconds = row.get("seconds") if isinstance(row.get("seconds"), dict) else {}
         total = sum(v for v in seconds.values() if isinstance(v, (int, float)))
         line = [str(row["step"]), str(row.get("n_views", ""))]
-        line += ["-" if v is None or math.isnan(v) else f"{v:.{m.decimals}f}" for v, m in zip(values, PAPER_METRICS)]
+        line += [
+            "-" if v is None or math.isnan(v) else f"{v:.{m.decimals}f}"
+            for v, m in zip(values, PAPER_METRICS, strict=True)
+        ]
         cells.append(line + [f"{total:.1f}"])
     paper = paper_numbers()
     match = paper[paper["table"].isin(["S3", "S4"]) & (paper["scene"] == scene_name.paper_scene)]

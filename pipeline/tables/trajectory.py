@@ -55,10 +55,15 @@ def outline_of_scene(scene, kind: str) -> SceneOutline:
     points, faces = trimesh.sample.sample_surface(scene.mesh, SURFACE_POINTS, seed=0)
     where = f"the asset {scene.asset.name}" if scene.asset is not None else f"the {scene.source} mesh"
     return SceneOutline(
-        scene.name, kind, np.asarray(points, dtype=np.float64), np.asarray(scene.mesh.face_normals[faces]),
+        scene.name,
+        kind,
+        np.asarray(points, dtype=np.float64),
+        np.asarray(scene.mesh.face_normals[faces]),
         scene.tight_box.double().numpy(),
-        scene.camera_box.double().numpy(), scene.init_poses.double().numpy(), f"outline: {where}",
-    )  # fmt: skip
+        scene.camera_box.double().numpy(),
+        scene.init_poses.double().numpy(),
+        f"outline: {where}",
+    )
 
 
 def recorded_scene(info: Mapping[str, Any], named: NamedConfigs) -> dict:
@@ -83,9 +88,15 @@ def outline_of_config(scene_cfg: Mapping[str, Any], assets: Path) -> SceneOutlin
         tight = np.asarray(scene_cfg["tight_box"], dtype=np.float64)
         init = rig_views(scene_cfg["init_views"], tight, True).double().numpy()
         return SceneOutline(
-            str(scene_cfg["name"]), kind, None, None, tight, np.asarray(scene_cfg["camera_box"], dtype=np.float64), init,
+            str(scene_cfg["name"]),
+            kind,
+            None,
+            None,
+            tight,
+            np.asarray(scene_cfg["camera_box"], dtype=np.float64),
+            init,
             "outline: the tight box (the scene's mesh cannot be read here)",
-        )  # fmt: skip
+        )
 
 
 def chosen_poses(rows: list[dict]) -> tuple[list[int], Float[np.ndarray, "k 4 4"]]:
@@ -136,8 +147,16 @@ def _surface(ax, outline: SceneOutline, axes: tuple[int, int], lo, hi) -> None:
     )
     shade = np.log1p(counts.T) / max(np.log1p(counts.max()), 1e-9)
     image = np.where(shade > 0, 0.85 - 0.55 * shade, 1.0)
-    ax.imshow(image, origin="lower", extent=(lo[0], hi[0], lo[1], hi[1]), cmap="gray", vmin=0.0, vmax=1.0,
-              interpolation="nearest", zorder=0)  # fmt: skip
+    ax.imshow(
+        image,
+        origin="lower",
+        extent=(lo[0], hi[0], lo[1], hi[1]),
+        cmap="gray",
+        vmin=0.0,
+        vmax=1.0,
+        interpolation="nearest",
+        zorder=0,
+    )
 
 
 def trajectory_figure(outline: SceneOutline, rows: list[dict], title: str, out_path: Path) -> Path:
@@ -153,7 +172,7 @@ def trajectory_figure(outline: SceneOutline, rows: list[dict], title: str, out_p
     fig.subplots_adjust(left=0.06, right=0.99, bottom=0.1, top=0.85, wspace=0.18)
     panels = fig.subplots(1, 2, width_ratios=[hi[0] - lo[0] + hi[1] - lo[1], hi[0] - lo[0] + hi[2] - lo[2]])
     cmap = matplotlib.colormaps["plasma"]
-    for ax, (name, axes, labels) in zip(panels, VIEWS):
+    for ax, (name, axes, labels) in zip(panels, VIEWS, strict=True):
         plane_lo, plane_hi = lo[list(axes)], hi[list(axes)]
         if outline.points is not None:
             _surface(ax, outline, axes, plane_lo, plane_hi)
@@ -164,7 +183,7 @@ def trajectory_figure(outline: SceneOutline, rows: list[dict], title: str, out_p
         if len(chosen):
             path = chosen[:, :3, 3][:, list(axes)]
             ax.plot(path[:, 0], path[:, 1], color="0.3", lw=0.5, alpha=0.5, zorder=2)
-        for k, (step, c2w) in enumerate(zip(steps, chosen)):
+        for k, (step, c2w) in enumerate(zip(steps, chosen, strict=True)):
             color = cmap(0.85 * k / max(len(chosen) - 1, 1))
             _glyph(ax, c2w, axes, size, color, zorder=3)
             centre = c2w[:3, 3][list(axes)]

@@ -1,0 +1,238 @@
+"""What the benchmarks share: the scene and its ground-truth views (``load``, ``observations``), a model
+that counts its samples (``CountingModel``), models trained side by side from the same initial weights
+(``same_initial_models``, ``train_in_lockstep``), the model of an episode's first planning step
+(``InitialViewModel``) and held-out PSNR (``held_out_poses``, ``view_psnr``)."""
+
+import dataclasses
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from jaxtyping import Float
+from omegaconf import DictConfig
+from torch import Tensor
+
+from nvf.cameras import Intrinsics, look_at, matrix_to_pose
+from nvf.config import STAGES
+from nvf.field import FieldOutput
+from nvf.model import RenderResult, SceneModel
+from nvf.planning import candidate_poses
+from nvf.precision import PRECISIONS, supported_precisions, unsupported_reason
+from nvf.rendering import Samples
+from nvf.seeding import seeded_generator
+from nvf.training import Observations, train_model
+from pipeline.bench._paired import IterationClock, Turn, lockstep
+from pipeline.cli import fail
+from pipeline.episode.evaluation import RENDER_CHUNK
+from pipeline.episode.settings import EpisodeSettings
+from pipeline.metrics.image import off_edge_psnr, psnr
+from pipeline.scenes.blender import blender_python
+from pipeline.scenes.ground_truth import Renderer
+from pipeline.scenes.loading import load_scene
+from pipeline.scenes.render import GroundTruthRenderer
+from pipeline.scenes.scene import Scene, SceneError
+
+HELD_OUT_VIEWS = 5
+
+
+RGB = frozenset({"rgb"})
+
+
+class CountingModel(SceneModel):
+    """A ``SceneModel`` counting the kept samples of every ``render`` call, and the marched samples its
+    skipping pass evaluated."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.samples = 0
+        self.marched = 0
+
+    def _skip(self, samples: Samples, *args, **kwargs) -> tuple[Samples, FieldOutput | None, Tensor | None]:
+        self.marched += samples.num_samples
+        return super()._skip(samples, *args, **kwargs)
+
+    def render(self, *args, **kwargs) -> RenderResult:
+        result = super().render(*args, **kwargs)
+        self.samples += result.samples.num_samples
+        return result
+
+
+def load(cfg: DictConfig) -> Scene:
+    """The configured scene; a missing mesh exits with one line (status 2)."""
+    try:
+        return load_scene(cfg.scene, Path(cfg.paths.assets), blender_python(cfg.paths.blender_python))
+    except SceneError as err:
+        fail(str(err))
+
+
+def observations(
+    renderer: Renderer, poses: Float[Tensor, "n 4 4"], intr: Intrinsics, gt_samples: int = 1
+) -> Observations:
+    """Ground-truth RGBA views at ``poses`` (RGB black where the mask is empty), each pixel the mean of
+    ``gt_samples^2`` sub-pixel samples (``render_rgba``; Blender's: 1, Cycles' own samples)."""
+    images = np.stack([renderer.render_rgba(c2w, intr, gt_samples) for c2w in poses])
+    return Observations(torch.from_numpy(images), poses.to(torch.float32), intr)
+
+
+def same_initial_models(
+    cfg: DictConfig, scene: Scene, s: EpisodeSettings, names: list[str], model_cls: type[CountingModel]
+) -> dict[str, CountingModel]:
+    """One fresh model per name, all with the initial weights of ``torch.manual_seed(cfg.seed)``."""
+    models = {}
+    for name in names:
+        torch.manual_seed(int(cfg.seed))
+        models[name] = model_cls(scene.object_aabb, s.field, s.sampler)
+    return models
+
+
+def train_in_lockstep(
+    models: dict[str, CountingModel], iterations: int, train: Callable[[str, CountingModel, IterationClock], None]
+) -> dict[str, IterationClock]:
+    """``train(name, model, progress)`` for every model side by side (``pipeline.bench._paired.lockstep``):
+    the trainings take turns iteration by iteration. Returns each one's clock (its own turns only)."""
+    clocks: dict[str, IterationClock] = {}
+
+    def job(name: str) -> Callable[[Turn], None]:
+        def run(turn: Turn) -> None:
+            model = models[name]
+            clocks[name] = IterationClock(lambda: (model.samples, model.marched), iterations, name, turn)
+            train(name, model, clocks[name])
+            clocks[name].bar.close()
+
+        return run
+
+    lockstep({name: job(name) for name in models})
+    return clocks
+
+
+@dataclass
+class InitialViewModel:
+    """A full NVF model (all three stages, at the budget) trained on the scene's initial views (and
+    ``extra_poses`` after them: a later state of an episode): the model of an episode's first planning
+    step, shared by the ``plan`` and ``visibility`` benchmarks."""
+
+    cfg: DictConfig
+    scene: Scene
+    settings: EpisodeSettings
+    renderer: GroundTruthRenderer
+    obs: Observations
+    model: SceneModel
+    train_seconds: float
+
+    @staticmethod
+    def train(
+        cfg: DictConfig, model_cls: type[SceneModel] = SceneModel, extra_poses: Float[Tensor, "k 4 4"] | None = None
+    ) -> "InitialViewModel":
+        scene = load(cfg)
+        s = EpisodeSettings.of(cfg, scene)
+        size = int(cfg.budget.image_size)
+        renderer = GroundTruthRenderer(scene.mesh)
+        poses = (
+            scene.init_poses if extra_poses is None else torch.cat([scene.init_poses, extra_poses.to(scene.init_poses)])
+        )
+        obs = observations(renderer, poses, Intrinsics.from_fov(size, size))
+        torch.manual_seed(int(cfg.seed))
+        model = model_cls(scene.object_aabb, s.field, s.sampler)
+        stats = train_model(model, obs, s.train, STAGES, s.entropy, torch.Generator().manual_seed(int(cfg.seed)))
+        return InitialViewModel(cfg, scene, s, renderer, obs, model, stats.seconds)
+
+    @staticmethod
+    def train_side_by_side(
+        cfg: DictConfig, precisions: list[str]
+    ) -> tuple[dict[str, "InitialViewModel"], dict[str, IterationClock]]:
+        """One ``CountingModel`` per ``train.precision``, from the same initial weights and seed, all three
+        stages trained in lockstep (``train_in_lockstep``)."""
+        scene = load(cfg)
+        s = EpisodeSettings.of(cfg, scene)
+        size = int(cfg.budget.image_size)
+        renderer = GroundTruthRenderer(scene.mesh)
+        obs = observations(renderer, scene.init_poses, Intrinsics.from_fov(size, size))
+        models = same_initial_models(cfg, scene, s, precisions, CountingModel)
+
+        def train(name: str, model: CountingModel, progress: IterationClock) -> None:
+            generator = torch.Generator().manual_seed(int(cfg.seed))
+            train_model(
+                model,
+                obs,
+                dataclasses.replace(s.train, precision=name),
+                STAGES,
+                s.entropy,
+                generator,
+                progress=progress,
+            )
+
+        clocks = train_in_lockstep(models, sum(getattr(s.train, stage).iters for stage in STAGES), train)
+        setups = {
+            name: InitialViewModel(cfg, scene, s, renderer, obs, models[name], clocks[name].wall[-1])
+            for name in precisions
+        }
+        return setups, clocks
+
+    def candidates(self, step: int) -> Float[Tensor, "m 7"]:
+        """The candidate poses the planner would draw at ``step`` (METHOD 13, M28/M29 filters), from
+        the last observed view."""
+        s = self.settings
+        current = matrix_to_pose(self.obs.c2w[-1].to(torch.float32))
+        return candidate_poses(
+            self.model,
+            s.planner,
+            self.scene.camera_box,
+            current,
+            s.tau,
+            s.collision_free,
+            seeded_generator(int(self.cfg.seed), step, "candidates"),
+            line_of_sight=self.renderer.unoccluded,
+        )
+
+
+def held_out_poses(
+    scene: Scene, n: int = HELD_OUT_VIEWS, elevation_deg: float = 40.0, azimuth0_deg: float = 17.0
+) -> Float[Tensor, "n 4 4"]:
+    """Look-at ring around the tight box's centre at the evaluation views' distance (test_integration)."""
+    centre = scene.tight_box.mean(0)
+    radius = float(torch.linalg.norm(scene.eval_poses[0, :3, 3] - centre))
+    phi = math.radians(elevation_deg)
+    poses = []
+    for i in range(n):
+        theta = math.radians(azimuth0_deg + 360.0 * i / n)
+        direction = [math.cos(theta) * math.cos(phi), math.sin(theta) * math.cos(phi), math.sin(phi)]
+        offset = radius * torch.tensor(direction)
+        poses.append(look_at(centre + offset, centre))
+    return torch.stack(poses)
+
+
+def view_psnr(
+    model: SceneModel, renderer: Renderer, poses: Float[Tensor, "n 4 4"], intr: Intrinsics, gt_samples: int
+) -> tuple[float, float]:
+    """PSNR of the model's renders of ``poses`` against the ground truth (``gt_samples^2`` samples per
+    pixel; pooled over the views), over all pixels and off the ground truth's edges
+    (``pipeline.metrics.image.off_edge_psnr``)."""
+    pred = np.stack([model.render_image(c2w, intr, chunk=RENDER_CHUNK)["rgb"].numpy() for c2w in poses])
+    gt = np.stack([renderer.render_rgba(c2w, intr, gt_samples)[..., :3] for c2w in poses])
+    return psnr(pred, gt), off_edge_psnr(pred, gt)
+
+
+def default_precisions() -> str:
+    """``fp32,bf16`` where the CPU runs bfloat16 natively, else ``fp32``."""
+    return "fp32,bf16" if "bf16" in supported_precisions(torch.device("cpu")) else "fp32"
+
+
+def parse_precisions(value: str | None) -> list[str]:
+    """``fp32,bf16`` -> the precisions to compare (the first is the reference of the ratios; ``None``:
+    ``default_precisions()``); each must be one the CPU runs natively (one line and exit status 2 otherwise)."""
+    value = default_precisions() if value is None else value
+    names = [name.strip() for name in value.split(",") if name.strip()]
+    for name in names:
+        reason = (
+            unsupported_reason(name, torch.device("cpu"))
+            if name in PRECISIONS
+            else (f"unknown precision; choose from {', '.join(PRECISIONS)}")
+        )
+        if reason is not None:
+            fail(f"--precisions {name}: {reason}")
+    if not names or len(set(names)) != len(names):
+        fail(f"--precisions {value!r} must name distinct precisions, e.g. fp32,bf16")
+    return names
