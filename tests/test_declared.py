@@ -127,7 +127,7 @@ def test_a_new_method_and_scene_reach_every_table_that_should_hold_them(tmp_path
     for table in ("all_runs", *PAPER_EXPERIMENTS):
         text = (tables / f"{table}.md").read_text()
         holds = table == "all_runs" or table in TOY_EXPERIMENTS
-        assert ("| Toy method |" in text) == holds, table
+        assert ("| Toy method§ |" in text) == holds, table  # § a method the paper does not have
     assert "toy_box (mesh toy_box/toy_box.ply" in (tables / "table34_nerf_assets.md").read_text()
 
 

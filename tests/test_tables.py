@@ -458,7 +458,7 @@ def test_rows_scored_with_the_mesh_visibility_are_marked(tmp_path):
 
 def test_a_method_the_paper_lacks_is_marked_and_compared_with_nvf(tmp_path):
     """FisherRF (docs/METHOD.md 17, M30-M32) joins the main table and Tables S3-S4 like the paper's methods: its
-    row carries the not-in-paper mark (§, its footnote saying -OPT is n/a) and its paired PSNR difference to NVF
+    row carries the not-in-paper mark (§, its footnote saying its -OPT is n/a) and its paired PSNR difference to NVF
     with the 95% Student-t interval; it has no paper reference numbers, so the paper comparison leaves it out.
     """
     out = tmp_path / "out"
@@ -477,7 +477,7 @@ def test_a_method_the_paper_lacks_is_marked_and_compared_with_nvf(tmp_path):
     assert main_table.loc[("hubble", "NVF"), "ΔPSNR vs NVF"] == "-"
     md = read(tables / "main.md")
     assert md.count("FisherRF§") == 2  # hubble and the object-scene mean
-    assert "§ Not in the paper: FisherRF" in md and "-OPT is n/a" in md
+    assert "§ Not in the paper: FisherRF, a method this benchmark adds" in md and "-OPT variant of it (n/a)" in md
     assert r"FisherRF$^\S$" in read(tables / "main.tex")
     objects = pd.read_csv(tables / "table34_nerf_assets.csv", comment="#")
     assert set(objects["Method"]) == {"NVF", "FisherRF§"}

@@ -35,8 +35,8 @@ NOT_IN_PAPER_MARK = "§"
 def not_in_paper_note(labels: list[str]) -> str:
     """The footnote for rows whose method the paper does not have."""
     return (
-        f"{NOT_IN_PAPER_MARK} Not in the paper: {', '.join(labels)}, a baseline this benchmark adds, has no reference "
-        "numbers. FisherRF scores whole views (docs/METHOD.md 17), so it has no -OPT row: -OPT is n/a."
+        f"{NOT_IN_PAPER_MARK} Not in the paper: {', '.join(labels)}, a method this benchmark adds; the paper has no "
+        "reference numbers for it, nor for an -OPT variant of it (n/a)."
     )
 
 
