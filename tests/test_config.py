@@ -9,13 +9,14 @@ from pathlib import Path
 import pytest
 import torch
 from hydra import compose, initialize_config_dir
+from hydra.errors import HydraException
 from omegaconf import OmegaConf, open_dict
 
 from pipeline.config import validation
 from pipeline.config.catalog import declared
 from pipeline.config.memory import SIZE_KEYS_BOUNDED, allocations, too_large
 from pipeline.config.schema import register_configs
-from pipeline.config.validation import ConfigError, validate
+from pipeline.config.validation import ConfigError, error_line, validate
 from pipeline.repo import CONF
 
 
@@ -275,16 +276,9 @@ def test_a_read_only_outputs_directory_is_refused(composer, tmp_path):
     [
         ("budget.horizon", -1, "budget.horizon"),
         ("planner.num_candidates", 0, "planner.num_candidates"),
-        ("field.kind", "mlp", "field.kind"),
-        ("nvf.entropy.bound", "exact", "nvf.entropy.bound"),
         ("planner.opt.ray_fraction", 1.5, "planner.opt.ray_fraction"),
         ("device", "tpu", "device"),
         ("device", "cudax", "device"),
-        ("baseline.activenerf_variant", "B", "not implemented"),
-        ("baseline.air_view_score", "topk", "not implemented"),
-        ("baseline.neurar_loss", "nll", "not implemented"),
-        ("baseline.neurar_detach", False, "baseline.neurar_detach"),
-        ("train.precision", "fp64", "train.precision"),
     ],
 )
 def test_validation_names_the_key(composer, key, value, needle):
@@ -295,6 +289,27 @@ def test_validation_names_the_key(composer, key, value, needle):
     with pytest.raises(ConfigError, match=needle) as err:
         validate(cfg)
     assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize(
+    ("overrides", "needle"),
+    [
+        (["field.kind=mlp"], "field.kind"),
+        (["nvf.entropy.bound=exact"], "nvf.entropy.bound"),
+        (["train.precision=fp64"], "train.precision"),
+        (["method=activenerf", "method.variant=B"], "not implemented"),
+        (["method=air", "method.view_score=topk"], "not implemented"),
+        (["method=neurar", "method.loss=nll"], "not implemented"),
+        (["method=neurar", "method.detach=false"], "method.detach"),
+    ],
+)
+def test_a_choice_outside_its_field_is_one_line_naming_the_key(composer, overrides, needle):
+    """A settings choice (a StrEnum field, checked when composed) or a method's own setting (its dataclass's
+    field, checked when the method is built) outside what it allows: one line (``error_line``, as printed)."""
+    with pytest.raises((HydraException, ConfigError)) as err:
+        validate(composer(*overrides))
+    line = error_line(err.value)
+    assert "\n" not in line and needle in line
 
 
 @pytest.mark.parametrize(("device", "visible"), [("cuda", 0), ("cuda:1", 1)])

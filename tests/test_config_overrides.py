@@ -3,7 +3,6 @@ holds Hydra's global state): every bad override is one line and status 2."""
 
 import pytest
 
-from nvf.methods import NVF
 from pipeline.config.validation import compose_config
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.scenes.loading import load_scene
@@ -82,4 +81,4 @@ def test_d0_resolves_to_the_scene_value_auto_or_the_number_given(d0, want):
     settings = EpisodeSettings.of(compose_config(overrides), load_scene("default"))
     assert isinstance(settings.entropy.d0, float)
     assert settings.entropy.d0 == pytest.approx(want, abs=1e-4)
-    assert settings.scorer(NVF()).d0 == settings.entropy.d0
+    assert settings.method.name == "nvf" and settings.scorer().d0 == settings.entropy.d0

@@ -15,15 +15,15 @@ from torch import nn
 
 from nvf.cameras import Intrinsics, look_at, matrix_to_pose
 from nvf.config import (
-    BaselineConfig,
     DepthMode,
     EntropyConfig,
     HashBackend,
     LineOfSightSource,
     OptConfig,
+    Planner,
     PlannerConfig,
+    PoseParam,
 )
-from nvf.methods import NVF, load_method
 from nvf.model import RenderResult
 from nvf.planning import (
     NoCandidatesError,
@@ -39,6 +39,8 @@ from nvf.planning import (
 from nvf.rendering import Samples, alpha_from_density, expected_depth, ray_sum, weights_from_alpha
 from nvf.seeding import generator_factory, seeded_generator
 from nvf.uncertainty import ViewScorer
+from pipeline.config.catalog import method_configs
+from pipeline.config.method import build_method
 
 AABB = torch.tensor([[-2.0, -2.0, -2.0], [2.0, 2.0, 2.0]])
 BOX = torch.tensor([[-1.9, -1.9, -1.9], [1.9, 1.9, 1.9]])
@@ -137,6 +139,8 @@ def blob_model():
 
 
 def cfg(n=16, **kw):
+    if "name" in kw:
+        kw["name"] = Planner(kw["name"])
     return PlannerConfig(**{"num_candidates": n, "score_chunk_rays": 24, **kw})
 
 
@@ -322,7 +326,7 @@ def test_ray_subset_keeps_a_tenth_of_each_chunk():
     assert per_chunk[:21].eq(409).all() and per_chunk[21] == 398
 
 
-@pytest.mark.parametrize("param", ["quat_raw", "se3"])
+@pytest.mark.parametrize("param", list(PoseParam))
 def test_opt_refinement_ascends_the_score(param):
     """With a large step the refinement turns a camera that half-sees the blob towards it."""
     model, scorer = blob_model(), AccScorer()
@@ -348,7 +352,7 @@ def test_opt_default_lr_moves_poses_only_slightly():
     assert 0 < step < 5e-3  # 20 Adam steps of 1e-4 (METHOD 14.4)
 
 
-@pytest.mark.parametrize("param", ["quat_raw", "se3"])
+@pytest.mark.parametrize("param", list(PoseParam))
 @pytest.mark.parametrize("lr", [1e-4, 0.5])
 def test_opt_never_scores_below_the_best_starting_candidate(param, lr):
     model, scorer = blob_model(), AccScorer()
@@ -418,16 +422,16 @@ def test_planner_config_is_used_not_redefined():
 @pytest.mark.parametrize(
     "method, entropy",
     [
-        ("NVF", EntropyConfig()),
-        ("NVF", EntropyConfig(depth_mode=DepthMode.chunk, chunk_rays=16)),
-        ("WD", EntropyConfig()),
-        ("AIR", EntropyConfig()),
-        ("ActiveNeRF", EntropyConfig()),
+        ("nvf", EntropyConfig()),
+        ("nvf", EntropyConfig(depth_mode=DepthMode.chunk, chunk_rays=16)),
+        ("wd", EntropyConfig()),
+        ("air", EntropyConfig()),
+        ("activenerf", EntropyConfig()),
     ],
 )
 def test_opt_with_the_real_scorers(method, entropy):
     model = blob_model()
-    scorer = load_method(f"nvf.methods.{method}").scorer(entropy, BaselineConfig(), d0=1.0)
+    scorer = build_method(method_configs()[method]).scorer(entropy, d0=1.0)
     assert isinstance(scorer, ViewScorer) and isinstance(AccScorer(), ViewScorer)
     c = cfg(n=8, name="opt", score_chunk_rays=32, opt=OptConfig(iters=3, lr=1e-2, chunk_rays=16))
     sel = select_next_view(model, scorer, c, BOX, None, INTR, 1e-4, False, gens())
@@ -450,7 +454,7 @@ def test_integration_with_the_scene_model():
     )
     model = SceneModel(aabb, field_cfg, SamplerConfig(grid_resolution=16, alpha_threshold=0.0))
     model.update_grid(0, torch.Generator().manual_seed(0))
-    scorer = NVF().scorer(EntropyConfig(), BaselineConfig(), d0=1.0)
+    scorer = build_method(method_configs()["nvf"]).scorer(EntropyConfig(), d0=1.0)
     current = pose_looking([-1.8, 0.1, 0.2], [0.0, 0.0, 0.0])
     c = cfg(n=8, name="opt", score_chunk_rays=4096, opt=OptConfig(iters=2, lr=1e-2))
     tau = 1e-4

@@ -6,9 +6,10 @@ from dataclasses import replace
 
 import pytest
 import torch
+from beartype.roar import BeartypeCallHintViolation
 
-from nvf.config import BaselineConfig, Bound, DepthMode, EntropyConfig, EntropySampler
-from nvf.methods import AIR, NVF, WD, ActiveNeRF, ActiveRMAP, NeurAR, Random, load_method
+from nvf.config import Bound, Correlation, DepthMode, EntropyConfig, EntropySampler
+from nvf.methods import NVF, ActiveNeRF, Method, NeurAR
 from nvf.model import RenderResult
 from nvf.rendering import Samples, ray_sum, weights_from_alpha
 from nvf.uncertainty import H_MIN, ViewScorer, ray_mixture
@@ -21,6 +22,8 @@ from nvf.uncertainty.entropy import (
     upper_bound_and_depth,
 )
 from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
+from pipeline.config.catalog import method_configs
+from pipeline.config.method import MethodError, build_method, method_class
 
 CFG = EntropyConfig()
 H_MIN32 = torch.tensor(H_MIN).item()  # the floor as a float32 score
@@ -175,7 +178,7 @@ def test_loose_bound_only_changes_h():
     assert torch.allclose(got, want, atol=1e-6)
 
 
-@pytest.mark.parametrize("override", [dict(corr="exp"), dict(logdet_coeff=1.0)])
+@pytest.mark.parametrize("override", [dict(corr=Correlation.exp), dict(logdet_coeff=1.0)])
 def test_other_switches_match_building_blocks(override):
     """(M13 corr=exp; M10 c = 1, D1)."""
     result = random_result()
@@ -239,8 +242,8 @@ def test_batch_without_samples_is_the_floor():
 
 
 def test_invalid_nvf_settings():
-    with pytest.raises(ValueError):
-        NVFEntropyScorer(replace(CFG, bound=Bound.exact), d0=1.0)
+    with pytest.raises((TypeError, BeartypeCallHintViolation)):  # outside the Bound enum: refused when built
+        replace(CFG, bound="exact")
     with pytest.raises(ValueError):
         NVFEntropyScorer(CFG, d0=-1.0)
 
@@ -293,12 +296,20 @@ def test_rendered_variance_hand_computed():
 # ---------------------------------------------------------------- all scorers
 
 
-SCORING = (WD, ActiveRMAP, AIR, ActiveNeRF, NeurAR, NVF)
+SCORING = ("wd", "activermap", "air", "activenerf", "neurar", "nvf")
+
+
+def method(name: str, **settings) -> Method:
+    """A method as its yaml declares it (conf/method), with ``settings`` changed."""
+    return build_method({**method_configs()[name], **settings})
 
 
 def scorers():
-    baseline_variants = [BaselineConfig(), BaselineConfig(rmap_occlusion_weighted=True, air_reduce="sum")]
-    out = [m().scorer(CFG, b, 1.0) for m in SCORING for b in baseline_variants]
+    out = [method(name).scorer(CFG, 1.0) for name in SCORING]
+    out += [
+        method("activermap", occlusion_weighted=True).scorer(CFG, 1.0),
+        method("air", reduce="sum").scorer(CFG, 1.0),
+    ]
     out += [NVFEntropyScorer(replace(CFG, bound=Bound.moment_matched), 1.0), NVFEntropyScorer(CFG, 0.0)]
     return out
 
@@ -345,36 +356,36 @@ def test_gradients_finite(scorer):
 def test_method_classes():
     """Each method class builds its scorer (METHOD 12): Random has none; heads and sampler per method; the
     variance-head baselines carry their stage-1 loss (M25, M27), the others none."""
-    base = BaselineConfig()
-    assert Random().scorer(CFG, base, 1.0) is None and Random.aux_loss is None
+    random = method("random")
+    assert random.scorer(CFG, 1.0) is None and random.aux_loss is None
     heads = {
-        WD: ("wd", frozenset()),
-        ActiveRMAP: ("activermap", frozenset()),
-        AIR: ("air", frozenset()),
-        ActiveNeRF: ("activenerf", frozenset({"variance"})),
-        NeurAR: ("neurar", frozenset({"variance"})),
-        NVF: ("nvf", frozenset({"variance", "visibility"})),
+        "wd": frozenset(),
+        "activermap": frozenset(),
+        "air": frozenset(),
+        "activenerf": frozenset({"variance"}),
+        "neurar": frozenset({"variance"}),
+        "nvf": frozenset({"variance", "visibility"}),
     }
-    for cls, (name, want) in heads.items():
-        scorer = cls().scorer(CFG, base, 1.0)
+    for name, want in heads.items():
+        built = method(name)
+        scorer = built.scorer(CFG, 1.0)
         assert isinstance(scorer, ViewScorer) and scorer.name == name
         assert scorer.heads == want and scorer.sampler == "occupancy"
-        assert (cls.aux_loss is not None) == (cls in (ActiveNeRF, NeurAR))
-    assert NVF().scorer(replace(CFG, sampler=EntropySampler.uniform), base, 1.0).sampler == "uniform"
-    assert ActiveRMAP().scorer(CFG, BaselineConfig(rmap_occlusion_weighted=True), 1.0).occlusion_weighted
-    assert AIR().scorer(CFG, BaselineConfig(air_reduce="sum"), 1.0).reduce == "sum"
-    with pytest.raises(NotImplementedError):
-        AIR().scorer(CFG, BaselineConfig(air_view_score="topk"), 1.0)
-    with pytest.raises(NotImplementedError):
-        ActiveNeRF().scorer(CFG, BaselineConfig(activenerf_variant="B"), 1.0)
+        assert (built.aux_loss is not None) == isinstance(built, ActiveNeRF | NeurAR)
+    assert method("nvf").scorer(replace(CFG, sampler=EntropySampler.uniform), 1.0).sampler == "uniform"
+    assert method("activermap", occlusion_weighted=True).scorer(CFG, 1.0).occlusion_weighted
+    assert method("air", reduce="sum").scorer(CFG, 1.0).reduce == "sum"
+    for name, settings in (("air", {"view_score": "topk"}), ("activenerf", {"variant": "B"})):
+        with pytest.raises(MethodError, match="not implemented"):
+            method(name, **settings)
 
 
-def test_load_method_by_import_path():
-    """``method.implementation`` names a Method subclass; anything else is one line."""
-    assert isinstance(load_method("nvf.methods.NVF"), NVF)
+def test_a_method_class_by_import_path():
+    """``method._target_`` names a Method subclass; anything else is one line."""
+    assert method_class("nvf.methods.NVF") is NVF
     for bad in ("nvf.methods.nothing", "no_such_module.Method", "nvf.config.TrainConfig", "NVF"):
-        with pytest.raises(ValueError) as info:
-            load_method(bad)
+        with pytest.raises(MethodError) as info:
+            method_class(bad)
         assert "\n" not in str(info.value)
 
 

@@ -9,6 +9,7 @@ from typing import Any
 
 from omegaconf import OmegaConf
 
+from pipeline.config.plain import as_dict
 from pipeline.repo import CONF
 
 
@@ -20,7 +21,7 @@ def declared(group: str, conf_dir: Path = CONF) -> list[str]:
 def method_configs(conf_dir: Path = CONF) -> dict[str, dict[str, Any]]:
     """Each method's yaml (name, label, rank, implementation, stages), in table order (``rank``)."""
     configs = {
-        name: OmegaConf.to_container(OmegaConf.load(Path(conf_dir) / "method" / f"{name}.yaml"))
+        name: as_dict(OmegaConf.load(Path(conf_dir) / "method" / f"{name}.yaml"), resolve=False)
         for name in declared("method", conf_dir)
     }
     return dict(sorted(configs.items(), key=lambda item: (item[1].get("rank", 100), item[0])))
@@ -29,7 +30,7 @@ def method_configs(conf_dir: Path = CONF) -> dict[str, dict[str, Any]]:
 def ablation_configs(conf_dir: Path = CONF) -> dict[str, dict[str, Any]]:
     """Each ablation's ``ablation`` node (name, label, rank), in Table S2's order (``rank``)."""
     configs = {
-        name: OmegaConf.to_container(OmegaConf.load(Path(conf_dir) / "ablation" / f"{name}.yaml"))["ablation"]
+        name: as_dict(OmegaConf.load(Path(conf_dir) / "ablation" / f"{name}.yaml"), resolve=False)["ablation"]
         for name in declared("ablation", conf_dir)
     }
     return dict(sorted(configs.items(), key=lambda item: (item[1].get("rank", 100), item[0])))
@@ -48,7 +49,7 @@ def members(group: str, experiment: str, dirs: Sequence[Path] = (CONF,)) -> list
     for conf_dir in dirs:
         for name in declared(group, conf_dir):
             if name not in found:
-                node = OmegaConf.load(Path(conf_dir) / group / f"{name}.yaml")
+                node = as_dict(OmegaConf.load(Path(conf_dir) / group / f"{name}.yaml"), resolve=False)
                 found[name] = experiment in (node.get("experiments") or [])
     return sorted(name for name, joins in found.items() if joins)
 

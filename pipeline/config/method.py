@@ -9,10 +9,11 @@ from typing import Any, Literal
 
 from beartype.door import is_bearable
 from hydra.utils import get_class, instantiate
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from nvf.config import STAGES
 from nvf.methods import Method
+from pipeline.config.plain import as_dict
 
 
 class MethodError(ValueError):
@@ -64,7 +65,7 @@ def build_method(node: DictConfig | Mapping[str, Any]) -> Method:
     """The method a config node declares; ``MethodError`` (one line) when its class cannot be imported, a
     key is unknown, missing or of the wrong type, its stages are not a start of ``nvf.config.STAGES``'s
     order beginning with the backbone, or it asks for an alternative that is not implemented."""
-    plain = OmegaConf.to_container(node, resolve=True) if isinstance(node, DictConfig) else dict(node)
+    plain: dict[str, Any] = as_dict(node) if isinstance(node, DictConfig) else dict(node)
     cls = method_class(plain.get("_target_"))
     values = {key: value for key, value in plain.items() if key != "_target_"}
     problem = field_problem(cls, values)

@@ -23,6 +23,7 @@ from pipeline.config.memory import host_memory, too_large
 from pipeline.config.method import MethodError, build_method
 from pipeline.config.named import changed_settings
 from pipeline.config.paths import unwritable
+from pipeline.config.plain import as_dict
 from pipeline.config.schema import RunConfig, register_configs
 from pipeline.records.store import run_dir
 from pipeline.records.verify import MAX_HORIZON, record_value_problem
@@ -129,7 +130,7 @@ def _non_finite(node: Any, prefix: str = "") -> tuple[str, float] | None:
 def _check_finite(cfg: DictConfig) -> None:
     """Every float of the config (all groups, not a list of keys) is finite, and every value is one a run
     record can hold (``pipeline.records.verify.record_value_problem``: text without control characters, ...)."""
-    settings = {k: v for k, v in OmegaConf.to_container(cfg, resolve=True).items() if k != "hydra"}
+    settings = {k: v for k, v in as_dict(cfg).items() if k != "hydra"}
     found = _non_finite(settings)
     if found is not None:
         raise ConfigError(f"{found[0]}={found[1]} must be a finite number")
@@ -143,7 +144,7 @@ def _unknown_keys(node: DictConfig, schema: type, prefix: str = "") -> list[str]
     free-form mappings of the schema (``dict[str, Any]``) take any key."""
     declared_fields = {f.name for f in dataclasses.fields(schema)}
     found = []
-    for key in node:
+    for key in map(str, node):
         kind = OmegaConf.get_type(node, key)
         if key not in declared_fields:
             found.append(f"{prefix}{key}")

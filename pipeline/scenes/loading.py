@@ -29,10 +29,11 @@ import torch
 import trimesh
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 from torch import Tensor
 
 from pipeline.config.catalog import declared
+from pipeline.config.plain import as_dict
 from pipeline.config.schema import register_configs
 from pipeline.repo import CONF, REPO
 from pipeline.scenes import procedural
@@ -182,7 +183,7 @@ def scene_config(name: str) -> dict[str, Any]:
     else:
         with initialize_config_dir(str(CONF), version_base="1.3"):
             cfg = compose("config", overrides=[f"scene={name}"])
-    return OmegaConf.to_container(cfg.scene, resolve=True)
+    return as_dict(cfg.scene)
 
 
 def load_scene(
@@ -195,7 +196,7 @@ def load_scene(
     if isinstance(scene, str):
         cfg = scene_config(scene)
     elif isinstance(scene, DictConfig):
-        cfg = OmegaConf.to_container(scene, resolve=True)
+        cfg = as_dict(scene)
     else:
         cfg = dict(scene)
     name = cfg["name"]
