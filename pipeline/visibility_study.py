@@ -21,8 +21,9 @@ the sources ``head`` and ``labels``, plus ``nvf.entropy.visibility_source`` when
 
 Writes ``${paths.results}/pilots/visibility_study/<setting>/``: ``decisions.jsonl`` (a row per scene, seed,
 step and set; a killed study resumes after its last complete row), ``<scene>_diagnostic.json``,
-``command.txt``; then ``summary.csv`` of the whole study (``pipeline.visibility_summary``). Torch runs with
-``--threads`` threads (default 1: two studies side by side on 2 cores).
+``command.txt`` (every command that wrote into the folder, one per line); then ``summary.csv`` and
+``surface.csv`` of the whole study (``pipeline.visibility_summary``). Torch runs with ``--threads`` threads
+(default 1: two studies side by side on 2 cores).
 """
 
 import dataclasses
@@ -54,7 +55,7 @@ from pipeline.scenes.blender import blender_python
 from pipeline.scenes.loading import load_scene
 from pipeline.scenes.scene import SceneError
 from pipeline.tables.load import load_run
-from pipeline.visibility_summary import STUDY, write_summary
+from pipeline.visibility_summary import STUDY, write_summary, write_surface
 
 SCENES = ("hotdog", "hubble", "default")
 SEEDS = (100, 101, 102)
@@ -271,7 +272,8 @@ def main(argv: list[str] | None = None) -> None:
     out = Path(cfg.paths.results) / "pilots" / STUDY / args.setting
     out.mkdir(parents=True, exist_ok=True)
     command = ["python", "-m", "pipeline.visibility_study", *(sys.argv[1:] if argv is None else argv)]
-    atomic_write_text(out / "command.txt", shlex.join(command) + "\n")
+    commands = (out / "command.txt").read_text().splitlines() if (out / "command.txt").is_file() else []
+    atomic_write_text(out / "command.txt", "\n".join(dict.fromkeys([*commands, shlex.join(command)])) + "\n")
     entropy, train = cfg.nvf.entropy, cfg.train
     setting = {
         "name": args.setting,
@@ -297,6 +299,7 @@ def main(argv: list[str] | None = None) -> None:
         except SceneError as err:
             fail(str(err))
     write_summary(Path(cfg.paths.results) / "pilots" / STUDY)
+    write_surface(Path(cfg.paths.results) / "pilots" / STUDY, args.records)
 
 
 if __name__ == "__main__":
