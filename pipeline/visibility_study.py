@@ -21,8 +21,9 @@ the sources ``head`` and ``labels``, plus ``nvf.entropy.visibility_source`` when
 
 Writes ``${paths.results}/pilots/visibility_study/<setting>/``: ``decisions.jsonl`` (a row per scene, seed,
 step and set; a killed study resumes after its last complete row), ``<scene>_diagnostic.json``,
-``command.txt``; then ``summary.csv`` of the whole study (``pipeline.visibility_summary``). Torch runs with
-``--threads`` threads (default 1: two studies side by side on 2 cores).
+``command.txt`` (every command that wrote into the folder, one per line); then ``summary.csv`` and
+``surface.csv`` of the whole study (``pipeline.visibility_summary``). Torch runs with ``--threads`` threads
+(default 1: two studies side by side on 2 cores).
 """
 
 import dataclasses
@@ -54,7 +55,7 @@ from pipeline.scenes.blender import blender_python
 from pipeline.scenes.loading import load_scene
 from pipeline.scenes.scene import SceneError
 from pipeline.tables.load import load_run
-from pipeline.visibility_summary import STUDY, write_summary
+from pipeline.visibility_summary import STUDY, write_summary, write_surface
 
 SCENES = ("hotdog", "hubble", "default")
 SEEDS = (100, 101, 102)
@@ -172,18 +173,25 @@ def decision(episode: Episode, planning, candidates: torch.Tensor, scorers, obs:
 
 
 class Decisions:
-    """The study's rows for one setting (``decisions.jsonl``), rewritten atomically after each state."""
+    """The study's rows for one setting (``decisions.jsonl``). Each state's rows are appended in one write, so a
+    killed study leaves whole rows (a row cut off by a kill is dropped when the file is next opened) and two
+    studies of one setting on other scenes or seeds can run side by side."""
 
     def __init__(self, path: Path):
         self.path = path
-        self.rows = [json.loads(line) for line in path.read_text().splitlines()] if path.is_file() else []
+        text = path.read_text() if path.is_file() else ""
+        complete = text[: text.rfind("\n") + 1]
+        if complete != text:
+            atomic_write_text(path, complete)
+        self.rows = [json.loads(line) for line in complete.splitlines()]
 
     def done(self, scene: str, seed: int, step: int) -> bool:
         return any((r["scene"], r["seed"], r["step"]) == (scene, seed, step) for r in self.rows)
 
     def add(self, rows: list[dict]) -> None:
         self.rows.extend(rows)
-        atomic_write_text(self.path, "".join(json.dumps(r) + "\n" for r in self.rows))
+        with self.path.open("a", encoding="utf-8") as file:
+            file.write("".join(json.dumps(r) + "\n" for r in rows))
 
 
 def study_scene(
@@ -271,7 +279,8 @@ def main(argv: list[str] | None = None) -> None:
     out = Path(cfg.paths.results) / "pilots" / STUDY / args.setting
     out.mkdir(parents=True, exist_ok=True)
     command = ["python", "-m", "pipeline.visibility_study", *(sys.argv[1:] if argv is None else argv)]
-    atomic_write_text(out / "command.txt", shlex.join(command) + "\n")
+    commands = (out / "command.txt").read_text().splitlines() if (out / "command.txt").is_file() else []
+    atomic_write_text(out / "command.txt", "\n".join(dict.fromkeys([*commands, shlex.join(command)])) + "\n")
     entropy, train = cfg.nvf.entropy, cfg.train
     setting = {
         "name": args.setting,
@@ -297,6 +306,7 @@ def main(argv: list[str] | None = None) -> None:
         except SceneError as err:
             fail(str(err))
     write_summary(Path(cfg.paths.results) / "pilots" / STUDY)
+    write_surface(Path(cfg.paths.results) / "pilots" / STUDY, args.records)
 
 
 if __name__ == "__main__":

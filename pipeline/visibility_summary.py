@@ -10,18 +10,28 @@ in held-out PSNR, dB, where they differ, with the 95% Student-t interval over th
 deciding NVF's ranking most often), ``nvf_unknown_share`` (the unknown component's mean share of NVF's
 reward variance) and ``nvf_tied_fraction``, ``wo_vis_tied_fraction`` (the candidate sets whose maximum
 several candidates share: a pick by draw order).
+
+``surface.csv``: how fast NVF, w/o Vis. and Random uncover a scene's surface in the finished records
+(``vis_area``: the area-weighted share of the surface the training views see, PROTOCOL's Vis. by area), per
+scene and step the mean over seeds and NVF minus w/o Vis. paired over seeds with its 95% interval.
+
+``python -m pipeline.visibility_summary [paths.results=DIR] [--records DIR]`` rewrites both.
 """
 
 import collections
 import json
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from pipeline.cli import ArgumentParser, description
+from pipeline.config.validation import compose_config
 from pipeline.records.store import atomic_write_text
-from pipeline.tables.stats import Interval
+from pipeline.tables.load import collect_runs
+from pipeline.tables.stats import Interval, paired
 
 STUDY = "visibility_study"
 COLUMNS = (
@@ -44,6 +54,10 @@ COLUMNS = (
     "wo_vis_tied_fraction",
 )
 ALL_SCENES = "all"
+SURFACE_ENTRIES = {"nvf": ("nvf", "none"), "wo_vis": ("nvf", "wo_vis"), "random": ("random", "none")}
+SURFACE_COLUMNS = (
+    "scene", "step", "nvf_vis_area", "wo_vis_vis_area", "random_vis_area", "nvf_minus_wo_vis", "ci_low", "ci_high", "n",
+)  # fmt: skip
 
 
 def _rows(folder: Path) -> list[dict]:
@@ -109,3 +123,47 @@ def write_summary(study: Path) -> Path:
     path = study / "summary.csv"
     atomic_write_text(path, summary_frame(study).to_csv(index=False, float_format="%.4g"))
     return path
+
+
+def surface_frame(records: Path, budget: str = "cpu") -> pd.DataFrame:
+    """``surface.csv``'s rows from the finished argmax-planner records of ``budget`` under ``records``: the
+    scenes where both NVF and w/o Vis. have records, every step."""
+    long = collect_runs([records]).long
+    long = long[(long["metric"] == "vis_area") & (long["budget"] == budget) & (long["planner"] == "argmax")]
+    out = []
+    for (scene, step), group in long.groupby(["scene", "step"], sort=True):
+        series = {
+            name: group[(group["method"] == method) & (group["ablation"] == ablation)].set_index("seed")["value"]
+            for name, (method, ablation) in SURFACE_ENTRIES.items()
+        }
+        if series["nvf"].empty or series["wo_vis"].empty:
+            continue
+        interval = paired(series["nvf"], series["wo_vis"])
+        means = {f"{name}_vis_area": values.mean() if len(values) else math.nan for name, values in series.items()}
+        out.append(
+            {"scene": scene, "step": int(step), **means, "nvf_minus_wo_vis": interval.mean, "ci_low": interval.low,
+             "ci_high": interval.high, "n": interval.n}
+        )  # fmt: skip
+    return pd.DataFrame(out, columns=list(SURFACE_COLUMNS))
+
+
+def write_surface(study: Path, records: Path) -> Path:
+    """Write ``<study>/surface.csv`` (atomically) from the records under ``records`` and return its path."""
+    path = study / "surface.csv"
+    atomic_write_text(path, surface_frame(records).to_csv(index=False, float_format="%.4g"))
+    return path
+
+
+def main(argv: list[str]) -> None:
+    parser = ArgumentParser(prog="python -m pipeline.visibility_summary", description=description(__doc__))
+    parser.add_argument("overrides", nargs="*", help="config overrides, e.g. paths.results=results")
+    parser.add_argument("--records", type=Path, default=Path("results/runs"), help="where the finished records are")
+    args = parser.parse_intermixed_args(argv)
+    study = Path(compose_config(args.overrides).paths.results) / "pilots" / STUDY
+    study.mkdir(parents=True, exist_ok=True)
+    for path in (write_summary(study), write_surface(study, args.records)):
+        print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

@@ -14,8 +14,9 @@ import trimesh
 
 from nvf.cameras import Intrinsics, look_at
 from pipeline import visibility_study
+from pipeline.records.store import RunRecord, run_dir
 from pipeline.scenes.render import MeshRays
-from pipeline.visibility_summary import COLUMNS, summary_frame, write_summary
+from pipeline.visibility_summary import COLUMNS, SURFACE_COLUMNS, summary_frame, surface_frame, write_summary
 
 
 def decision_row(scene, step, gain=None, spearman=0.99, decisive="unknown", share=0.9):
@@ -62,6 +63,60 @@ def test_summary_pairs_the_disagreements_per_scene_and_over_scenes(tmp_path):
     assert hotdog["label_auc"] == 0.8 and hotdog["head_auc"] == 0.7 and hotdog["nvf_decisive_term"] == "unknown"
     assert math.isnan(hotdog["minutes_per_episode"])
     assert hotdog["nvf_tied_fraction"] == 0.0 and hotdog["wo_vis_tied_fraction"] == pytest.approx(2 / 3)
+
+
+def write_finished_run(root: Path, method: str, ablation: str, seed: int, vis_area: list[float]) -> None:
+    """A finished smoke record on 'hotdog' whose step ``k`` logs ``vis_area[k]`` (3 steps: smoke's horizon)."""
+    record = RunRecord(run_dir(root, "hotdog", method, "argmax", ablation, "smoke", seed))
+    keys = {"scene": "hotdog", "method": method, "planner": "argmax", "ablation": ablation, "budget": "smoke"}
+    config = {"budget": {"horizon": len(vis_area)}}
+    record.start({**keys, "seed": seed, "scene_source": "mesh", "field": "hashgrid", "config": config}, repo=root)
+    for step, area in enumerate(vis_area):
+        metrics = {"psnr": 20.0, "vis_area": area}
+        record.append_step(
+            {
+                "step": step,
+                "n_views": 3 + step,
+                "status": "ok",
+                "metrics": metrics,
+                "selected_pose": [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 2.0],
+            }
+        )
+    record.mark_done()
+
+
+def test_surface_table_pairs_nvf_with_wo_vis_over_seeds_at_every_step(tmp_path):
+    """surface.csv: per step the mean uncovered surface of NVF, w/o Vis. and Random, and NVF minus w/o Vis.
+    paired by seed (the seeds where both have a record)."""
+    for seed, lead in ((100, 0.15), (101, 0.2), (102, 0.25)):
+        write_finished_run(tmp_path, "nvf", "none", seed, [0.2, 0.3, 0.4 + lead])
+        write_finished_run(tmp_path, "nvf", "wo_vis", seed, [0.2, 0.3, 0.4])
+    write_finished_run(tmp_path, "random", "none", 100, [0.2, 0.2, 0.25])
+    table = surface_frame(tmp_path, budget="smoke")
+    assert tuple(table.columns) == SURFACE_COLUMNS and set(table["scene"]) == {"hotdog"}
+    frame = table.set_index("step")
+    assert frame.loc[0, "nvf_minus_wo_vis"] == 0.0 and frame.loc[2, "nvf_minus_wo_vis"] == pytest.approx(0.2)
+    assert frame.loc[2, "ci_low"] > 0.0 and frame.loc[2, "n"] == 3
+    assert frame.loc[2, "nvf_vis_area"] == pytest.approx(0.6) and frame.loc[2, "random_vis_area"] == 0.25
+    assert surface_frame(tmp_path, budget="cpu").empty  # another budget's records are not mixed in
+
+
+def test_decisions_append_whole_rows_side_by_side_and_drop_a_cut_row(tmp_path):
+    """Two studies of one setting (other scenes) append to one decisions.jsonl without losing each other's
+    rows; a row cut off by a kill is dropped when the file is opened again."""
+    path = tmp_path / "decisions.jsonl"
+    first, second = visibility_study.Decisions(path), visibility_study.Decisions(path)
+    first.add([decision_row("hotdog", 0)])
+    second.add([decision_row("hubble", 0)])
+    first.add([decision_row("hotdog", 6)])
+    assert [(r["scene"], r["step"]) for r in visibility_study.Decisions(path).rows] == [
+        ("hotdog", 0),
+        ("hubble", 0),
+        ("hotdog", 6),
+    ]
+    path.write_text(path.read_text() + '{"scene": "hub')
+    reopened = visibility_study.Decisions(path)
+    assert len(reopened.rows) == 3 and path.read_text().endswith("\n") and reopened.done("hubble", 100, 0)
 
 
 def test_study_refuses_a_bad_setting_name(capsys):
