@@ -173,18 +173,25 @@ def decision(episode: Episode, planning, candidates: torch.Tensor, scorers, obs:
 
 
 class Decisions:
-    """The study's rows for one setting (``decisions.jsonl``), rewritten atomically after each state."""
+    """The study's rows for one setting (``decisions.jsonl``). Each state's rows are appended in one write, so a
+    killed study leaves whole rows (a row cut off by a kill is dropped when the file is next opened) and two
+    studies of one setting on other scenes or seeds can run side by side."""
 
     def __init__(self, path: Path):
         self.path = path
-        self.rows = [json.loads(line) for line in path.read_text().splitlines()] if path.is_file() else []
+        text = path.read_text() if path.is_file() else ""
+        complete = text[: text.rfind("\n") + 1]
+        if complete != text:
+            atomic_write_text(path, complete)
+        self.rows = [json.loads(line) for line in complete.splitlines()]
 
     def done(self, scene: str, seed: int, step: int) -> bool:
         return any((r["scene"], r["seed"], r["step"]) == (scene, seed, step) for r in self.rows)
 
     def add(self, rows: list[dict]) -> None:
         self.rows.extend(rows)
-        atomic_write_text(self.path, "".join(json.dumps(r) + "\n" for r in self.rows))
+        with self.path.open("a", encoding="utf-8") as file:
+            file.write("".join(json.dumps(r) + "\n" for r in rows))
 
 
 def study_scene(

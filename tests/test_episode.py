@@ -23,6 +23,7 @@ from pipeline.records.store import RecordError, RunRecord
 from pipeline.records.verify import verified
 from pipeline.repo import CONF, REPO
 from pipeline.scenes.loading import load_scene
+from pipeline.tables.summary import finish_run
 
 SMOKE = ["budget=smoke", "scene=default"]
 
@@ -90,7 +91,8 @@ def test_smoke_episode_writes_complete_records(tmp_path):
     assert info["collision_free"] is False and info["record_digest"].startswith("sha256:")
     assert verified(record)[1] == rows
     assert (directory / "images" / "step_01_pred.png").is_file()
-    # the run's own labelled pictures and table, beside its records
+    # the run's own labelled pictures and table, beside its records (drawn by the entry point, pipeline.run)
+    finish_run(directory, outcome.scene, outcome.scene_kind)
     assert all(
         (directory / name).stat().st_size > 0 for name in ("grid.png", "psnr.png", "trajectory.png", "summary.md")
     )

@@ -101,6 +101,24 @@ def test_surface_table_pairs_nvf_with_wo_vis_over_seeds_at_every_step(tmp_path):
     assert surface_frame(tmp_path, budget="cpu").empty  # another budget's records are not mixed in
 
 
+def test_decisions_append_whole_rows_side_by_side_and_drop_a_cut_row(tmp_path):
+    """Two studies of one setting (other scenes) append to one decisions.jsonl without losing each other's
+    rows; a row cut off by a kill is dropped when the file is opened again."""
+    path = tmp_path / "decisions.jsonl"
+    first, second = visibility_study.Decisions(path), visibility_study.Decisions(path)
+    first.add([decision_row("hotdog", 0)])
+    second.add([decision_row("hubble", 0)])
+    first.add([decision_row("hotdog", 6)])
+    assert [(r["scene"], r["step"]) for r in visibility_study.Decisions(path).rows] == [
+        ("hotdog", 0),
+        ("hubble", 0),
+        ("hotdog", 6),
+    ]
+    path.write_text(path.read_text() + '{"scene": "hub')
+    reopened = visibility_study.Decisions(path)
+    assert len(reopened.rows) == 3 and path.read_text().endswith("\n") and reopened.done("hubble", 100, 0)
+
+
 def test_study_refuses_a_bad_setting_name(capsys):
     with pytest.raises(SystemExit) as exit_:
         visibility_study.main(["--setting", "../x"])
