@@ -17,6 +17,7 @@ from hydra import compose, initialize_config_dir
 from pipeline.config.schema import register_configs
 from pipeline.episode.loop import Episode
 from pipeline.episode.runner import Outcome, RunRefused, StepFailed, run_episode
+from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.image import LpipsMetric
 from pipeline.records.lock import RunLock
 from pipeline.records.store import RecordError, RunRecord
@@ -308,7 +309,7 @@ def test_ground_truth_has_budget_gt_samples_per_pixel(tmp_path, samples):
     scene = load_scene("default", Path(cfg.paths.assets))
     with pytest.warns(UserWarning, match="LPIPS will be reported as missing"):
         lpips = LpipsMetric(sources=[])
-    episode = Episode(cfg, scene, torch.device("cpu"), lpips)
+    episode = Episode(EpisodeSettings.of(cfg, scene), scene, torch.device("cpu"), lpips)
     images = episode.observations().images.numpy()
     renderer, intr = episode.renderer, episode.intrinsics
     want = np.stack([renderer.render_rgba(c2w, intr, samples) for c2w in scene.init_poses])

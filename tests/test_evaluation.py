@@ -1,4 +1,4 @@
-"""pipeline/metrics/evaluation.py: the step's reconstruction (PROTOCOL 4.2) equals the straightforward one."""
+"""pipeline/episode/evaluation.py: the step's reconstruction (PROTOCOL 4.2) equals the straightforward one."""
 
 import math
 

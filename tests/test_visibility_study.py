@@ -14,6 +14,7 @@ import trimesh
 
 from nvf.cameras import Intrinsics, look_at
 from pipeline import visibility_study
+from pipeline.episode.settings import EpisodeSettings
 from pipeline.records.store import RunRecord, run_dir
 from pipeline.scenes.render import MeshRays
 from pipeline.visibility_summary import COLUMNS, SURFACE_COLUMNS, summary_frame, surface_frame, write_summary
@@ -215,7 +216,7 @@ def test_one_step_outcome_of_a_pick():
 
     cfg = compose_config(["budget=smoke", "train.backbone.iters=5"])
     scene = load_scene(cfg.scene, Path(cfg.paths.assets))
-    episode = Episode(cfg, scene, torch.device("cpu"), LpipsMetric())
+    episode = Episode(EpisodeSettings.of(cfg, scene), scene, torch.device("cpu"), LpipsMetric())
     try:
         obs = episode.observations()
         pose = matrix_to_pose(scene.eval_poses[0].to(torch.float32))

@@ -16,7 +16,7 @@ from omegaconf import DictConfig
 from torch import Tensor
 
 from nvf.cameras import Intrinsics, look_at, matrix_to_pose
-from nvf.config import STAGES
+from nvf.config import STAGES, Precision
 from nvf.field import FieldOutput
 from nvf.model import RenderResult, SceneModel
 from nvf.planning import candidate_poses
@@ -157,7 +157,7 @@ class InitialViewModel:
             train_model(
                 model,
                 obs,
-                dataclasses.replace(s.train, precision=name),
+                dataclasses.replace(s.train, precision=Precision(name)),
                 STAGES,
                 s.entropy,
                 generator,

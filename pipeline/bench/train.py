@@ -51,6 +51,7 @@ from omegaconf import DictConfig
 from torch import Tensor
 
 from nvf.cameras import Intrinsics
+from nvf.config import Precision
 from nvf.encoding import cpp_extension
 from nvf.field import HEADS
 from nvf.model import SceneModel
@@ -311,7 +312,9 @@ def train_side_by_side(
 
     def train(name: str, model: CountingModel, progress: IterationClock) -> None:
         generator = torch.Generator().manual_seed(int(cfg.seed))
-        train_backbone(model, obs, dataclasses.replace(s.train, precision=name), generator, progress=progress)
+        train_backbone(
+            model, obs, dataclasses.replace(s.train, precision=Precision(name)), generator, progress=progress
+        )
 
     return models, train_in_lockstep(models, s.train.backbone.iters, train)
 
