@@ -289,9 +289,18 @@ def test_missing_blender_is_one_line_saying_how_to_install(tmp_path, capsys):
     assert code == 2 and err.count("\n") == 1 and "make blender" in err and str(missing) in err
     assert not (tmp_path / "out").exists()
     with initialize_config_dir(str(CONF), version_base="1.3"):
-        cfg = compose("config", overrides=["budget=smoke", "render.backend=blender", f"paths.blender_python={missing}"])
+        cfg = compose(
+            "config",
+            overrides=[
+                "budget=smoke",
+                "render.backend=blender",
+                f"paths.blender_python={missing}",
+                f"paths.outputs={tmp_path / 'runs'}",
+            ],
+        )
     with pytest.raises(ConfigError, match="render.backend=blender: Blender's Python not found.*make blender"):
-        validate(cfg)
+        run_episode(cfg)  # refused by the renderer's check before the run's record or lock exists
+    assert not (tmp_path / "runs").exists()
 
 
 def test_blender_takes_cycles_samples_not_supersampling(tmp_path):
