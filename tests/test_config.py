@@ -75,7 +75,11 @@ def test_full_cross_product_composes(composer):
         cfg = composer(
             f"scene={scene}", f"method={method}", f"ablation={ablation}", f"planner={planner}", f"budget={budget}"
         )
-        validate(cfg)
+        if method == "fisherrf" and planner == "opt":  # whole-view scores: nothing for -OPT to refine
+            with pytest.raises(ConfigError, match="planner=opt: fisherrf"):
+                validate(cfg)
+        else:
+            validate(cfg)
 
 
 @pytest.mark.parametrize("experiment", _options("experiment"))

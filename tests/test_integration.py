@@ -9,10 +9,10 @@ import pytest
 import torch
 
 from nvf.cameras import Intrinsics, look_at, matrix_to_pose
-from nvf.methods import NVF
 from nvf.model import SceneModel
 from nvf.planning import score_poses
 from nvf.training import train_model
+from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
 from nvf.visibility import visibility_labels
 from pipeline.bench._models import held_out_poses, observations, view_psnr
 from pipeline.config.validation import compose_config
@@ -159,7 +159,7 @@ def seen_unseen_gap(setup, one_sided, entropy) -> float:
     )
     plan = Intrinsics.from_fov(int(cfg.planner.resolution), int(cfg.planner.resolution))
 
-    scorer = NVF().scorer(entropy, settings.baseline, float(entropy.d0))
+    scorer = NVFEntropyScorer(entropy, float(entropy.d0))  # NVF's scorer (nvf.methods.NVF.scorer)
     s = score_poses(model, scorer, matrix_to_pose(seen), plan, 4096)
     u = score_poses(model, scorer, matrix_to_pose(unseen), plan, 4096)
     return float(u.mean() - s.mean())
