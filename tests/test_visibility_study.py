@@ -156,24 +156,9 @@ def test_study_on_a_smoke_record(tmp_path):
         capture_output=True,
     )
     results = tmp_path / "results"
-    visibility_study.main(
-        [
-            "budget=smoke",
-            f"paths.results={results}",
-            "--setting",
-            "smoke",
-            "--scenes",
-            "default",
-            "--seeds",
-            "100",
-            "--steps",
-            "0,1",
-            "--sets",
-            "2",
-            "--records",
-            str(records),
-        ]
-    )
+    study = ["budget=smoke", f"paths.results={results}", "--setting", "smoke", "--scenes", "default"]
+    study += ["--seeds", "100", "--steps", "0,1", "--sets", "2", "--records", str(records)]
+    visibility_study.main(study)
     folder = results / "pilots" / "visibility_study" / "smoke"
     rows = [json.loads(line) for line in (folder / "decisions.jsonl").read_text().splitlines()]
     assert [(r["step"], r["set"]) for r in rows] == [(0, 0), (0, 1), (1, 0), (1, 1)]
@@ -184,24 +169,7 @@ def test_study_on_a_smoke_record(tmp_path):
         results / "pilots" / "visibility_study" / "summary.csv"
     ).is_file()
     before = (folder / "decisions.jsonl").read_text()
-    visibility_study.main(
-        [
-            "budget=smoke",
-            f"paths.results={results}",
-            "--setting",
-            "smoke",
-            "--scenes",
-            "default",
-            "--seeds",
-            "100",
-            "--steps",
-            "0,1",
-            "--sets",
-            "2",
-            "--records",
-            str(records),
-        ]
-    )
+    visibility_study.main(study)
     assert (folder / "decisions.jsonl").read_text() == before  # finished states are not measured again
 
 
