@@ -111,10 +111,6 @@ def test_train_bench_measures_what_an_episode_trains(tmp_path):
     """One precision trains on the main thread, as the episode does: the bench's samples/s agrees within 15%
     with ``train_backbone`` of the same settings timed directly (the same warm-up iterations left out)."""
     overrides = ["budget=smoke", "train.backbone.iters=60"]
-    out = tmp_path / "train.json"
-    train.main([*overrides, "--precisions", "fp32", "--repeats", "1", "--out", str(out)])
-    report = json.loads(out.read_text())
-    warmup = report["settings"]["warmup_iterations"]
     cfg = compose_config(overrides)
     scene = load(cfg)
     s = EpisodeSettings.of(cfg, scene)
@@ -136,7 +132,13 @@ def test_train_bench_measures_what_an_episode_trains(tmp_path):
         train_backbone(model, obs, s.train, torch.Generator().manual_seed(int(cfg.seed)), progress=progress)
         return (samples[-1] - samples[warmup - 1]) / (seconds[-1] - seconds[warmup - 1])
 
-    direct = [direct_rate(), direct_rate()]  # two direct timings bracket the run-to-run spread
+    warmup = max(1, min(10, s.train.backbone.iters // 10))  # the bench's
+    direct = [direct_rate()]  # a direct timing before the bench and one after: their spread brackets it
+    out = tmp_path / "train.json"
+    train.main([*overrides, "--precisions", "fp32", "--repeats", "1", "--out", str(out)])
+    report = json.loads(out.read_text())
+    assert report["settings"]["warmup_iterations"] == warmup
+    direct.append(direct_rate())
     assert min(direct) * 0.85 <= report["train_samples_per_s"] <= max(direct) * 1.15, (report, direct)
 
 

@@ -60,6 +60,30 @@ class CountingModel(SceneModel):
         return result
 
 
+def report_settings(
+    cfg: DictConfig,
+    s: EpisodeSettings,
+    training_views: int,
+    image_size: object,
+    precisions: object,
+    overrides: list[str],
+) -> dict[str, object]:
+    """The settings every bench report names first: budget, scene, field, the training views and their
+    image size, torch threads, the precisions compared and the command-line overrides."""
+    return {
+        "budget": cfg.budget.name,
+        "scene": cfg.scene.name,
+        "field_kind": s.field.kind,
+        "field_backend": s.field.backend,
+        "log2_hashmap_size": s.field.log2_hashmap_size,
+        "training_views": training_views,
+        "image_size": image_size,
+        "torch_threads": torch.get_num_threads(),
+        "precisions": precisions,
+        "overrides": overrides,
+    }
+
+
 def load(cfg: DictConfig) -> Scene:
     """The configured scene; a missing mesh exits with one line (status 2)."""
     try:

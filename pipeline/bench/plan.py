@@ -67,7 +67,15 @@ from nvf.seeding import generator_factory
 from nvf.training import Observations
 from nvf.uncertainty import StepScorer, ViewScorer, WholeViewScorer
 from nvf.uncertainty.fisher import FisherRFScorer
-from pipeline.bench._models import RGB, CountingModel, InitialViewModel, held_out_poses, parse_precisions, view_psnr
+from pipeline.bench._models import (
+    RGB,
+    CountingModel,
+    InitialViewModel,
+    held_out_poses,
+    parse_precisions,
+    report_settings,
+    view_psnr,
+)
 from pipeline.bench._paired import IterationClock, ratio_spread
 from pipeline.bench._report import report_path, write_report
 from pipeline.bench.field import matmul_gflops, mlp_flops
@@ -392,13 +400,7 @@ def main(argv: list[str]) -> None:
             "precisions": per,
             "ratios": ratios,
             "settings": {
-                "budget": cfg.budget.name,
-                "scene": cfg.scene.name,
-                "field_kind": s.field.kind,
-                "field_backend": s.field.backend,
-                "log2_hashmap_size": s.field.log2_hashmap_size,
-                "training_views": obs.num_images,
-                "image_size": size,
+                **report_settings(cfg, s, obs.num_images, size, precisions, args.overrides),
                 "train_iters": {stage: getattr(s.train, stage).iters for stage in STAGES},
                 "train_seconds": setup.train_seconds,
                 "candidates": m,
@@ -412,9 +414,6 @@ def main(argv: list[str]) -> None:
                 "plain_render_samples_per_ray": kept["plain_render"] / (args.repeats * m * intr.num_pixels),
                 "repeats": args.repeats,
                 "blocks": args.blocks,
-                "torch_threads": torch.get_num_threads(),
-                "precisions": precisions,
-                "overrides": args.overrides,
             },
             "seconds": time.perf_counter() - start,
         }

@@ -184,33 +184,36 @@ def order_rows(rows: pd.DataFrame, runs: Runs) -> pd.DataFrame:
 @dataclass(frozen=True)
 class Spec:
     """A table: the Hydra experiment whose sweep fills it (``conf/experiment/<name>.yaml``; the methods,
-    planners and ablations it sweeps are the ones the table takes; None: every run) and which scenes it
-    shows: ``all``, ``objects`` (the NeRF-asset scenes) or ``main`` (each paper scene that is not a NeRF
-    asset, plus the NeRF-asset mean)."""
+    planners, ablations and scenes it sweeps are the ones the table takes, read as ``experiment_selection``
+    reads them; None: every run), whether the NeRF-asset scenes add their mean row (``object_mean``) and
+    whether they show through that mean only (``assets_as_mean``: the main table) and whether it takes
+    every scene whatever its sweep runs (``every_scene``: the methods table, whose sweep runs the embedded
+    scene and whose methods run on other scenes with ``experiment=methods scene=hotdog``)."""
 
     name: str
     title: str
     experiment: str | None
-    scenes: str  # all | objects | main
     object_mean: bool
+    assets_as_mean: bool = False
+    every_scene: bool = False
 
 
 SPECS = (
-    Spec("main", "Main table: Hubble, Room, NeRF-asset mean", "main", "main", True),
-    Spec("table1_opt", "Table S1: gradient-based view refinement (-OPT)", "table1_opt", "all", True),
-    Spec("table2_ablation", "Table S2: ablations", "table2_ablation", "all", True),
-    Spec("table34_nerf_assets", "Tables S3-S4: NeRF assets", "table34_nerf_assets", "objects", True),
-    Spec("methods", "Every method per scene (argmax planner, no ablation)", "methods", "all", False),
-    Spec("all_runs", "All runs: every scene and method, per scene", None, "all", False),
+    Spec("main", "Main table: Hubble, Room, NeRF-asset mean", "main", True, assets_as_mean=True),
+    Spec("table1_opt", "Table S1: gradient-based view refinement (-OPT)", "table1_opt", True),
+    Spec("table2_ablation", "Table S2: ablations", "table2_ablation", True),
+    Spec("table34_nerf_assets", "Tables S3-S4: NeRF assets", "table34_nerf_assets", True),
+    Spec("methods", "Every method per scene (argmax planner, no ablation)", "methods", False, every_scene=True),
+    Spec("all_runs", "All runs: every scene and method, per scene", None, False),
 )
-SWEPT = ("method", "planner", "ablation")
+SWEPT = ("method", "planner", "ablation", "scene")
 DECLARED = "declared"  # a sweep over the options that declare the experiment (``${declared:GROUP,EXPERIMENT}``)
 
 
 def experiment_selection(experiment: str | None, conf_dir: Path = CONF) -> dict[str, tuple[str, ...] | str | None]:
     """The options of each of ``SWEPT`` an experiment runs: the values its sweep lists, None (any) for
-    ``glob(*)``, ``DECLARED`` for ``${declared:GROUP,EXPERIMENT}`` (the runs whose own config declares the
-    experiment) and the default choice (``conf/config.yaml``) for a group it does not sweep."""
+    ``glob(*)``, ``DECLARED`` for ``${declared:GROUP,EXPERIMENT}`` (the options whose own config declares
+    the experiment) and the default choice (``conf/config.yaml``) for a group it does not sweep."""
     if experiment is None:
         return dict.fromkeys(SWEPT)
     listed = OmegaConf.to_container(OmegaConf.load(Path(conf_dir) / "config.yaml").defaults)
@@ -224,7 +227,7 @@ def experiment_selection(experiment: str | None, conf_dir: Path = CONF) -> dict[
         value = str(params.get(key, defaults[key]))
         if value.startswith("glob("):
             selection[key] = None
-        elif key == "method" and value.replace(" ", "") == f"${{declared:method,{experiment}}}":
+        elif value.replace(" ", "") == f"${{declared:{key},{experiment}}}":
             selection[key] = DECLARED
         else:
             selection[key] = tuple(v.strip() for v in value.split(","))
@@ -234,15 +237,15 @@ def experiment_selection(experiment: str | None, conf_dir: Path = CONF) -> dict[
 def _select(final: pd.DataFrame, spec: Spec, runs: Runs) -> pd.DataFrame:
     keep = pd.Series(True, index=final.index)
     for column, allowed in experiment_selection(spec.experiment).items():
-        if allowed == DECLARED:
+        if column == "scene" and spec.every_scene:
+            continue
+        if allowed == DECLARED and column == "scene":
+            keep &= np.array([spec.experiment in runs.scene(scene).experiments for scene in final["scene"]], dtype=bool)
+        elif allowed == DECLARED:
             rows = zip(final["method"], final["planner"], final["ablation"], strict=True)
             keep &= np.array([spec.experiment in runs.row(*row).experiments for row in rows], dtype=bool)
         elif allowed is not None:
             keep &= final[column].isin(allowed)
-    if spec.scenes == "objects":
-        keep &= np.array([runs.scene(scene).nerf_asset for scene in final["scene"]], dtype=bool)
-    elif spec.scenes == "main":
-        keep &= np.array([runs.scene(scene).paper_scene is not None for scene in final["scene"]], dtype=bool)
     return final[keep]
 
 
@@ -327,12 +330,12 @@ def _build_table(runs: Runs, spec: Spec) -> Table:
     selected = _select(runs.final, spec, runs)
     done = selected[selected["status"] == "done"]
     nerf_asset = pd.Series([runs.scene(scene).nerf_asset for scene in done["scene"]], index=done.index, dtype=bool)
-    per_scene = done[~nerf_asset] if spec.scenes == "main" else done
+    per_scene = done[~nerf_asset] if spec.assets_as_mean else done
     parts = [aggregate(per_scene)] if not per_scene.empty else []
     samples = seed_samples(per_scene)
     mean_notes: tuple[str, ...] = ()
     object_scenes = done.loc[nerf_asset, "scene"].nunique()
-    if spec.object_mean and (object_scenes > 1 or (spec.scenes == "main" and object_scenes)):
+    if spec.object_mean and (object_scenes > 1 or (spec.assets_as_mean and object_scenes)):
         mean_rows, mean_notes, mean_samples = object_mean(done, runs)
         parts.append(mean_rows)
         samples |= mean_samples

@@ -32,12 +32,14 @@ class RowName:
 
 @dataclass(frozen=True)
 class SceneName:
-    """A scene's sort key, the paper scene it is or stands in for (None for the embedded scene), and
-    whether it is one of the eight NeRF-asset scenes averaged into the object-scene mean."""
+    """A scene's sort key, the paper scene it is or stands in for (None for the embedded scene), whether
+    it is one of the eight NeRF-asset scenes averaged into the object-scene mean, and the experiments it
+    declares (``scene.experiments``: the paper tables it joins)."""
 
     order: tuple
     paper_scene: str | None
     nerf_asset: bool
+    experiments: tuple[str, ...] = ()
 
 
 def row_name(config: Mapping[str, Any]) -> RowName:
@@ -58,7 +60,10 @@ def scene_name(config: Mapping[str, Any]) -> SceneName:
     """The scene name of a run from its (effective) config."""
     scene = config["scene"]
     return SceneName(
-        (scene.get("rank", LAST - 1), scene["name"]), scene.get("paper_scene"), bool(scene.get("nerf_asset"))
+        (scene.get("rank", LAST - 1), scene["name"]),
+        scene.get("paper_scene"),
+        bool(scene.get("nerf_asset")),
+        tuple(scene.get("experiments") or ()),
     )
 
 

@@ -107,11 +107,17 @@ def effective_config(recorded: Any, named: Any) -> Any:
 
 
 def describe(info: Mapping[str, Any], named: NamedConfigs | None = None) -> tuple[RowName, SceneName]:
-    """How tables name a record's row and scene, from its config (``effective_config``)."""
+    """How tables name a record's row and scene, from its config (``effective_config``); the experiments a
+    method or scene joins are read from today's ``conf/`` where it still has the group (a declaration is
+    the benchmark's current choice, not a setting of the run)."""
     named = NamedConfigs(CONF) if named is None else named
-    config = effective_config(info.get("config") or {}, named.named(tuple(str(info[g]) for g in GROUPS)) or {})
+    today = named.named(tuple(str(info[g]) for g in GROUPS)) or {}
+    config = effective_config(info.get("config") or {}, today)
     names = {group: {"name": info[group]} for group in ("scene", "method", "ablation", "planner")}
     config = effective_config(config, names)  # groups conf/ no longer has and the record lacks: their names
+    for group in ("scene", "method"):  # which experiments a method or scene joins is today's declaration
+        declared = (today.get(group) or {}).get("experiments")
+        config[group] = {**config[group], **({"experiments": declared} if declared is not None else {})}
     return row_name(config), scene_name(config)
 
 

@@ -160,6 +160,21 @@ def psnr_bands(runs: Runs, scene: str, budget: str) -> list[tuple[str, pd.DataFr
     return out
 
 
+def _band_edge(frame: pd.DataFrame, column: str, label: str, fill: str | None = None) -> go.Scatter:
+    """One edge of a PSNR band (``frame[column]`` over ``frame["step"]``), no line or hover, in ``label``'s
+    legend group; ``fill``: the colour between it and the trace before it."""
+    filled = {"fill": "tonexty", "fillcolor": fill} if fill is not None else {}
+    return go.Scatter(
+        x=frame["step"],
+        y=frame[column],
+        line={"width": 0},
+        hoverinfo="skip",
+        showlegend=False,
+        legendgroup=label,
+        **filled,
+    )
+
+
 def psnr_figure(runs: Runs, scene: str, budget: str) -> go.Figure:
     """PSNR over the steps per method: mean line and 95% band; the paper's final value as a marker at the last
     step where the paper reports this scene and method (Tables S3-S4)."""
@@ -170,29 +185,9 @@ def psnr_figure(runs: Runs, scene: str, budget: str) -> go.Figure:
     for i, (label, frame) in enumerate(psnr_bands(runs, scene, budget)):
         color = COLORS[i % len(COLORS)]
         last = max(last, int(frame["step"].max()))
-        if frame["n"].max() > 1:
-            fig.add_trace(
-                go.Scatter(
-                    x=frame["step"],
-                    y=frame["high"],
-                    line={"width": 0},
-                    hoverinfo="skip",
-                    showlegend=False,
-                    legendgroup=label,
-                )
-            )
-            fig.add_trace(
-                go.Scatter(
-                    x=frame["step"],
-                    y=frame["low"],
-                    line={"width": 0},
-                    fill="tonexty",
-                    fillcolor=_alpha(color, 0.12),
-                    hoverinfo="skip",
-                    showlegend=False,
-                    legendgroup=label,
-                )
-            )
+        if frame["n"].max() > 1:  # the band: its upper edge, then the lower one filled up to it
+            fig.add_trace(_band_edge(frame, "high", label))
+            fig.add_trace(_band_edge(frame, "low", label, fill=_alpha(color, 0.12)))
         fig.add_trace(
             go.Scatter(
                 x=frame["step"],
