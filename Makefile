@@ -17,11 +17,11 @@ browser:
 run: setup
 	$(PY) -m pipeline.run $(ARGS)
 
-lint: setup  # import layers, lint, format and types (pyproject.toml's [tool.importlinter], [tool.ruff], [tool.mypy])
+lint: setup  # import layers, lint, format, and types of nvf/ and pipeline/ (pyproject.toml's [tool.importlinter], [tool.ruff], [tool.mypy])
 	.venv/bin/lint-imports
 	$(PY) -m ruff check nvf pipeline
 	$(PY) -m ruff format --check nvf pipeline tests scripts
-	$(PY) -m mypy nvf
+	$(PY) -m mypy
 
 test: setup blender lint
 	$(PY) -m pytest -n 2 $(ARGS)

@@ -170,9 +170,9 @@ def compare(runs: pd.DataFrame) -> pd.DataFrame:
             continue
         present = [b for b in BASELINES if b in entry]
         best = max(present, key=lambda b: entry[b]["final_psnr"].mean()) if present else None
-        for name, other in COMPARISONS:
-            other = best if other is None else other
-            if other not in entry:
+        for name, listed in COMPARISONS:
+            other = best if listed is None else listed
+            if other is None or other not in entry:
                 continue
             seeds = entry[NVF].index.intersection(entry[other].index)
             minutes = float(pd.concat([entry[NVF].loc[seeds, "minutes"], entry[other].loc[seeds, "minutes"]]).mean())
@@ -230,8 +230,8 @@ def markdown(label: str, details: pd.DataFrame, runs: pd.DataFrame) -> str:
     ]
     for scene, group in nvf.groupby("scene", sort=False):
         spearman, same = group["spearman"].dropna(), group["same_choice"].dropna()
-        cells = [f"{spearman.mean():.3f}" if len(spearman) else "-", f"{same.mean():.2f}" if len(same) else "-"]
-        lines.append(f"| {scene} | {cells[0]} | {cells[1]} | {len(spearman)} of {len(group)} |")
+        shown = f"{spearman.mean():.3f}" if len(spearman) else "-", f"{same.mean():.2f}" if len(same) else "-"
+        lines.append(f"| {scene} | {shown[0]} | {shown[1]} | {len(spearman)} of {len(group)} |")
     return "\n".join(lines) + "\n"
 
 

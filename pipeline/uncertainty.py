@@ -46,6 +46,7 @@ from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.catalog import ablation_configs, method_configs
 from pipeline.config.method import build_method
 from pipeline.config.named import GROUPS, NamedConfigs
+from pipeline.config.plain import as_dict
 from pipeline.config.validation import compose_config, resolve_device
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
@@ -190,7 +191,7 @@ def score_seed(
         episode, obs, model = trained[key]
         scorer = EpisodeSettings.of(cfg, partial).scorer()
         metrics, images, view_sums = episode.evaluator.evaluate(model, scorer, episode.face_ids, obs, 0, view)
-        label = row_name(OmegaConf.to_container(cfg, resolve=True)).label
+        label = row_name(as_dict(cfg)).label
         results.append({"seed": seed, "label": label, "trained_as": "/".join(key), **metrics} | view_sums)
         arrays.setdefault("gt", images["gt"])
         arrays.setdefault("pred", images["pred"])
@@ -201,7 +202,9 @@ def score_seed(
 def save_seed(path: Path, results: list[dict], arrays: dict[str, np.ndarray], seconds: float) -> None:
     """One finished seed (``score_seed``'s output and its seconds) as an ``.npz``, written atomically."""
     buffer = io.BytesIO()
-    np.savez(buffer, results=np.array(json.dumps(to_jsonable({"results": results, "seconds": seconds}))), **arrays)
+    results_json = np.array(json.dumps(to_jsonable({"results": results, "seconds": seconds})))
+    # numpy types savez's **kwds as possibly its allow_pickle flag; the names here are gt, pred and score:<label>
+    np.savez(buffer, results=results_json, **arrays)  # type: ignore[arg-type]
     atomic_write_bytes(path, buffer.getvalue())
 
 

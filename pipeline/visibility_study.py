@@ -75,7 +75,9 @@ def recorded_rows(records: Path, scene: str, seed: int, budget: str) -> list[dic
 def scorer_pair(episode: Episode) -> tuple[NVFEntropyScorer, NVFEntropyScorer]:
     """NVF's scorer with the run's settings and the same with ``use_visibility=False`` (w/o Vis.)."""
     s = episode.settings
-    return s.scorer(), s.scorer(dataclasses.replace(s.entropy, use_visibility=False))
+    nvf, blind = s.scorer(), s.scorer(dataclasses.replace(s.entropy, use_visibility=False))
+    assert isinstance(nvf, NVFEntropyScorer) and isinstance(blind, NVFEntropyScorer), "the study's method is NVF"
+    return nvf, blind
 
 
 def candidate_set(episode: Episode, model, k: int, index: int) -> torch.Tensor:
@@ -148,7 +150,7 @@ def decision(episode: Episode, planning, candidates: torch.Tensor, scorers, obs:
     plan_seconds = time.perf_counter() - start
     own, rival = (scores[name].cpu().numpy() for name in ("nvf", "wo_vis"))
     picks = {name: argmax_first(values) for name, values in scores.items()}
-    row = {
+    row: dict[str, object] = {
         "candidates": int(candidates.shape[0]),
         "spearman": spearman(own, rival),
         "same_argmax": picks["nvf"] == picks["wo_vis"],
@@ -166,8 +168,9 @@ def decision(episode: Episode, planning, candidates: torch.Tensor, scorers, obs:
         outcomes = {
             name: heldout_psnr(episode, with_view(obs, episode, candidates[i]), k + 1) for name, i in picks.items()
         }
-        row["psnr"] = {name: value for name, (value, _) in outcomes.items()}
-        row["gain"] = row["psnr"]["nvf"] - row["psnr"]["wo_vis"]
+        picked_psnr = {name: value for name, (value, _) in outcomes.items()}
+        row["psnr"] = picked_psnr
+        row["gain"] = picked_psnr["nvf"] - picked_psnr["wo_vis"]
         row["outcome_train_seconds"] = sum(seconds for _, seconds in outcomes.values())
     return row
 

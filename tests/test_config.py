@@ -15,6 +15,7 @@ from omegaconf import OmegaConf, open_dict
 from pipeline.config import validation
 from pipeline.config.catalog import declared
 from pipeline.config.memory import SIZE_KEYS_BOUNDED, allocations, too_large
+from pipeline.config.plain import as_dict, as_list
 from pipeline.config.schema import register_configs
 from pipeline.config.validation import ConfigError, error_line, validate
 from pipeline.repo import CONF
@@ -356,3 +357,14 @@ def _select(cfg, dotted):
 def test_an_ablation_name_that_conf_does_not_declare_is_one_line(composer):
     with pytest.raises(ConfigError, match=r"^ablation.name='no_such' is not one of .*wo_vis"):
         validate(composer("ablation.name=no_such"))
+
+
+def test_plain_containers_resolve_on_request_and_refuse_the_other_kind():
+    node = OmegaConf.create({"base": 2, "items": ["${base}", 3], "nested": {"x": "${base}"}})
+    assert as_list(node["items"]) == [2, 3]
+    assert as_list(node["items"], resolve=False) == ["${base}", 3]
+    assert as_dict(node["nested"]) == {"x": 2}
+    with pytest.raises(TypeError, match="sequence"):
+        as_list(node["nested"])
+    with pytest.raises(TypeError, match="mapping"):
+        as_dict(node["items"])

@@ -106,7 +106,7 @@ def bench_variant(cfg: FieldConfig, rays: int, per_ray: int, chunk: int, iters: 
     target = torch.rand(x.shape[0], 3, generator=generator)
     n = x.shape[0]
     heads_train = frozenset({"rgb"})
-    phases = {"encode_fwd": [], "encode_bwd": [], "mlp_fwd_bwd": [], "optimizer": []}
+    phases: dict[str, list[float]] = {"encode_fwd": [], "encode_bwd": [], "mlp_fwd_bwd": [], "optimizer": []}
 
     sh = spherical_harmonics(d)
 

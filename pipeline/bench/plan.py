@@ -50,6 +50,7 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import torch
 from jaxtyping import Float
@@ -61,7 +62,7 @@ from nvf.config import STAGES
 from nvf.field import INFERENCE_BLOCK, VIS_POSITION_WIDTH
 from nvf.methods import FisherRF, Method
 from nvf.model import SceneModel
-from nvf.planning import argmax_first, prepare_scorer, score_poses
+from nvf.planning import argmax_first, score_poses
 from nvf.precision import precision_dtype
 from nvf.seeding import generator_factory
 from nvf.training import Observations
@@ -83,7 +84,7 @@ from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.catalog import method_configs
 from pipeline.config.method import build_method
 from pipeline.config.validation import compose_config
-from pipeline.episode.settings import EpisodeSettings
+from pipeline.episode.settings import EpisodeSettings, entropy_d0
 from pipeline.metrics.ranking import spearman
 
 CANDIDATES = 512  # the paper's N; a later planner.num_candidates=... override wins
@@ -92,7 +93,7 @@ GOAL_NVF_OVER_PLAIN = 1.3
 
 
 @torch.no_grad()
-def plain_render(model: CountingModel, poses: Float[Tensor, "m 7"], intr: Intrinsics, chunk_rays: int) -> None:
+def plain_render(model: SceneModel, poses: Float[Tensor, "m 7"], intr: Intrinsics, chunk_rays: int) -> None:
     """Colour + depth render of every pose's image: ``score_poses``' rays and chunks, without a scorer."""
     cam_dirs = camera_directions(intr, poses.device)
     for c2w in pose_to_matrix(poses):
@@ -121,7 +122,7 @@ def time_in_blocks(
     for i, block in enumerate(tqdm(split, desc="blocks", leave=False, disable=not sys.stderr.isatty())):
         for key in keys[i % len(keys) :] + keys[: i % len(keys)]:
             before = model.samples
-            w, c = timed(lambda key=key, block=block: jobs[key](poses[block]))
+            w, c = timed(lambda: jobs[key](poses[block]))  # noqa: B023 - called at once
             kept[key] += model.samples - before
             wall[key].append(w)
             cpu[key].append(c)
@@ -144,7 +145,7 @@ def precision_comparison(
     base, reference = names[0], setups[names[0]]
     held_out = held_out_poses(reference.scene)
     size = int(reference.cfg.budget.image_size)
-    per = {
+    per: dict[str, dict[str, Any]] = {
         name: {
             "train_seconds": setup.train_seconds,
             "train_seconds_by_stage": clocks[name].stage_seconds(),
@@ -321,16 +322,19 @@ def scoring_jobs(
     scorers: dict[str, ViewScorer | WholeViewScorer] = {}
     prepare_seconds: dict[str, float] = {}
     for name, method in methods.items():
-        scorer = method.scorer(s.entropy, float(s.entropy.d0))
+        scorer = method.scorer(s.entropy, entropy_d0(s.entropy))
         if isinstance(scorer, StepScorer):
             began = time.perf_counter()
-            scorer = prepare_scorer(scorer, model, obs, generator_factory(s.seed, 0), chunk)
+            scorers[name] = scorer.prepare(model, obs, generator_factory(s.seed, 0), chunk)
             prepare_seconds[name] = time.perf_counter() - began
-        if scorer is not None:
+        elif scorer is not None:
             scorers[name] = scorer
+
+    def scoring(scorer: ViewScorer | WholeViewScorer) -> Callable[[Tensor], object]:
+        return lambda p: score_poses(model, scorer, p, intr, chunk)
+
     work: dict[str, Callable[[Tensor], object]] = {"plain_render": lambda p: plain_render(model, p, intr, chunk)}
-    for method, scorer in scorers.items():
-        work[method] = lambda p, scorer=scorer: score_poses(model, scorer, p, intr, chunk)
+    work |= {name: scoring(scorer) for name, scorer in scorers.items()}
 
     def in_precision(fn: Callable[[Tensor], object], name: str) -> Callable[[Tensor], object]:
         def run(p: Tensor) -> object:
@@ -356,6 +360,7 @@ def main(argv: list[str]) -> None:
     base = precisions[0]
     setup = setups[base]  # scoring: the reference precision's model with its MLPs in each precision
     s, obs, model = setup.settings, setup.obs, setup.model
+    assert isinstance(model, CountingModel), "models trained side by side count their samples"
     size = int(cfg.budget.image_size)
     planner = s.planner
     poses = setup.candidates(0)
@@ -366,12 +371,17 @@ def main(argv: list[str]) -> None:
     timings = time_in_blocks(jobs, poses, model, args.blocks, args.repeats)
     candidates = poses.shape[0] * args.repeats
     per, ratios = precision_comparison(setups, clocks, timings[0], list(work), candidates, args.blocks)
-    wall, cpu, kept = ({job: by_job[(job, base)] for job in work} for by_job in timings)  # the reference's
+    wall_by_job, cpu_by_job, kept_by_job = timings
+    wall = {job: wall_by_job[(job, base)] for job in work}  # the reference's
+    cpu = {job: cpu_by_job[(job, base)] for job in work}
+    kept = {job: kept_by_job[(job, base)] for job in work}
 
     m = poses.shape[0]
     report: dict = scoring_rates(wall, cpu, list(work), list(scorers), m * args.repeats)
     ratio = report["nvf_over_plain_render"]
-    nvf_flops, plain_flops = mlp_flops(model.field, scorers["nvf"].heads, False), mlp_flops(model.field, RGB, False)
+    nvf_scorer = scorers["nvf"]
+    assert isinstance(nvf_scorer, ViewScorer), "NVF scores pixels"
+    nvf_flops, plain_flops = mlp_flops(model.field, nvf_scorer.heads, False), mlp_flops(model.field, RGB, False)
     extra_flops = nvf_flops - plain_flops
     report["matmul_gflops"], _ = matmul_gflops(INFERENCE_BLOCK, VIS_POSITION_WIDTH, 3)
     plain_seconds = sum(wall["plain_render"])

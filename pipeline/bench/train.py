@@ -168,7 +168,9 @@ def field_floor(
 
     field = model.field
     kept_encoded = encoded.clone().requires_grad_()
-    kept_head_in = torch.randn(kept.num_samples, field.color_head[0].in_features, requires_grad=True)
+    first_layer = field.color_head[0]
+    assert isinstance(first_layer, torch.nn.Linear), "an MLP starts with a linear layer"
+    kept_head_in = torch.randn(kept.num_samples, first_layer.in_features, requires_grad=True)
     marched_encoded = torch.randn(marched.shape[0], field.encoding.out_dim)
     cell_encoded = torch.randn(model.grid.resolution**3, field.encoding.out_dim)
 

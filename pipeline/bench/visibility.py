@@ -51,7 +51,16 @@ from pipeline.bench._models import InitialViewModel
 from pipeline.bench._report import report_path, write_report
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.validation import compose_config
-from pipeline.metrics.ranking import auc, render_for_terms, spearman, term_attribution, ties_at_max, view_terms
+from pipeline.episode.settings import entropy_d0
+from pipeline.metrics.ranking import (
+    auc,
+    render_for_terms,
+    spearman,
+    term_attribution,
+    term_sum,
+    ties_at_max,
+    view_terms,
+)
 from pipeline.tables.load import load_run
 
 SURFACE_OFFSET = 0.01  # scene units: the surface point moves this far towards the candidate camera
@@ -98,15 +107,18 @@ def candidate_view(
     result, origins, dirs = render_for_terms(setup.model, c2w, intr, nvf.sampler)
     samples = result.samples
     acc = result.acc
+    visibility = result.visibility
+    assert visibility is not None, "render_for_terms renders the visibility head"
     with torch.no_grad():
         positions = samples.positions(origins, dirs)
-        v = {name: result.visibility if fn is None else fn(positions) for name, fn in functions.items()}
+        v = {name: visibility if fn is None else fn(positions) for name, fn in functions.items()}
     t_hit, _ = setup.renderer.cast_rays(origins.numpy(), dirs.numpy())
     pixels = torch.from_numpy(np.isfinite(t_hit)) & (acc > MIN_ACCUMULATION)
     safe = acc.clamp_min(1e-12)
     spread = ray_sum(
         result.weights * (samples.t_mid - result.depth[samples.ray_idx]).square(), samples.ray_idx, samples.n_rays
     )
+    seen = _seen_surface(setup, origins, dirs, pixels)
     view = {
         "nvf": {name: view_terms(nvf, result, values) for name, values in v.items()},
         "wo_vis": view_terms(blind, result),
@@ -114,13 +126,13 @@ def candidate_view(
             name: (ray_sum(result.weights * values, samples.ray_idx, samples.n_rays) / safe)[pixels].numpy()
             for name, values in v.items()
         },
-        "seen": _seen_surface(setup, origins, dirs, pixels),
+        "seen": seen,
         "shell": (spread / safe).sqrt()[pixels].numpy(),
         "coverage": float((acc > MIN_ACCUMULATION).float().mean()),
     }
-    view["unseen_coverage"] = float((~view["seen"]).sum()) / acc.shape[0]
-    enough = len(view["seen"]) >= MIN_OBJECT_FRACTION * acc.shape[0]
-    view["novelty"] = float((~view["seen"]).mean()) if enough else math.nan
+    view["unseen_coverage"] = float((~seen).sum()) / acc.shape[0]
+    enough = len(seen) >= MIN_OBJECT_FRACTION * acc.shape[0]
+    view["novelty"] = float((~seen).mean()) if enough else math.nan
     return view
 
 
@@ -152,7 +164,8 @@ def candidate_set_report(
     unseen = np.array([view["unseen_coverage"] for view in views])
     novelty = np.array([view["novelty"] for view in views])
     blind = _stack([view["wo_vis"] for view in views])
-    blind_reward = sum(blind.values())
+    blind_reward = term_sum(blind)
+    sources: dict[str, dict] = {}
     report = {
         "candidates": int(poses.shape[0]),
         "object_pixels": int(len(seen)),
@@ -165,13 +178,13 @@ def candidate_set_report(
             "novelty_spearman": _novelty_spearman(blind_reward, novelty),
             **term_attribution(blind),
         },
-        "sources": {},
+        "sources": sources,
     }
     for name in functions:
         v = np.concatenate([view["pixel_v"][name] for view in views])
         terms = _stack([view["nvf"][name] for view in views])
-        reward = sum(terms.values())
-        report["sources"][name] = {
+        reward = term_sum(terms)
+        sources[name] = {
             "seen_mean": _mean(v[seen]),
             "unseen_mean": _mean(v[~seen]),
             "auc": auc(v[seen], v[~seen]),
@@ -235,7 +248,7 @@ def visibility_report(cfg: DictConfig, sets: int, sources: list[str], extra: Ten
     s = setup.settings
     res = int(s.planner.resolution)
     intr = Intrinsics.from_fov(res, res)
-    d0 = float(s.entropy.d0)
+    d0 = entropy_d0(s.entropy)
     blind = dataclasses.replace(s.entropy, use_visibility=False)
     scorers = (NVFEntropyScorer(s.entropy, d0), NVFEntropyScorer(blind, d0))
     functions = source_functions(setup, sources)

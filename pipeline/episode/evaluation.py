@@ -16,6 +16,7 @@ from nvf.training import Observations
 from nvf.uncertainty import ViewScorer
 from nvf.visibility_source import SourcedVisibility
 from pipeline.config.schema import BudgetConfig, MetricsConfig
+from pipeline.metrics.arrays import as_numpy
 from pipeline.metrics.correlation import uncertainty_correlation
 from pipeline.metrics.coverage import seen_faces, visual_coverage
 from pipeline.metrics.geometry import geometry_metrics, points_from_rays
@@ -88,7 +89,7 @@ def reconstruct_points(
     for _ in range(4 * math.ceil(num_points / batch)):
         origins, dirs, _, _ = obs.sample_rays(batch, generator)
         result = model.render(origins, dirs, heads=frozenset())
-        new = points_from_rays(origins, dirs, result.depth, result.acc).cpu().numpy()
+        new = as_numpy(points_from_rays(origins, dirs, result.depth, result.acc))
         points.append(new)
         count += len(new)
         if count >= num_points:
@@ -147,7 +148,7 @@ class Evaluator:
                 {"gt": self.gt[view], "pred": pred[view], "score": shown["score"], "depth": shown["depth"]},
                 {},
             )
-        images = image_metrics(pred, self.gt, self.lpips, self.metrics.ssim_data_range, self.gt_lpips)
+        quality = image_metrics(pred, self.gt, self.lpips, self.metrics.ssim_data_range, self.gt_lpips)
         points = reconstruct_points(
             model,
             obs,
@@ -173,10 +174,10 @@ class Evaluator:
             corr = (c.patch_pearson, c.view_pearson, c.ause)
             view_sums = {"view_error": c.view_error, "view_score": c.view_score}
         metrics = {
-            "psnr": images.psnr,
-            "ssim": images.ssim,
-            "lpips": images.lpips,
-            "rgb": images.rgb,
+            "psnr": quality.psnr,
+            "ssim": quality.ssim,
+            "lpips": quality.lpips,
+            "rgb": quality.rgb,
             "acc": geometry.acc,
             "comp": geometry.comp,
             "cr": geometry.cr,

@@ -94,7 +94,8 @@ class Episode:
         s = self.settings
         model = self.new_model(step)
         generator = seeded_generator(s.seed, step, "train", self.device)
-        stats = train_model(model, obs, s.train, s.method.stages, s.entropy, generator, s.method.aux_loss, progress)
+        aux_loss = type(s.method).aux_loss  # read from the class: mypy binds a ClassVar callable read from an instance
+        stats = train_model(model, obs, s.train, s.method.stages, s.entropy, generator, aux_loss, progress)
         return model, stats
 
     def step(self, step: int, progress: TrainProgress | None = None) -> tuple[dict, dict]:
@@ -186,13 +187,16 @@ class Episode:
         """How the ``diagnostics.rank_against`` ablation's score ranks the step's candidates against the run's
         own: Spearman correlation and whether both pick the same candidate (no randomness: the run's
         choices are unchanged)."""
-        name, scorer = self.rival
+        assert self.rival is not None, "ranked only for a run with diagnostics.rank_against"
+        name, rival_scorer = self.rival
         chunk = self.settings.planner.score_chunk_rays
-        scorer = prepare_scorer(scorer, model, obs, generators, chunk)
-        rival = score_poses(model, scorer, selection.candidates, self.plan_intrinsics, chunk)
-        own = selection.scores.detach().cpu().numpy()
+        scorer = prepare_scorer(rival_scorer, model, obs, generators, chunk)
+        candidates, scores = selection.candidates, selection.scores
+        assert scorer is not None and candidates is not None and scores is not None, "ranked only for a scoring method"
+        rival = score_poses(model, scorer, candidates, self.plan_intrinsics, chunk)
+        own = scores.detach().cpu().numpy()
         spearman = float(stats.spearmanr(own, rival.detach().cpu().numpy()).statistic) if len(own) > 1 else math.nan
-        same = argmax_first(rival) == argmax_first(selection.scores)
+        same = argmax_first(rival) == argmax_first(scores)
         return {"against": name, "spearman": spearman, "same_choice": same}
 
     def observe_pose(self, pose: list[float]) -> None:

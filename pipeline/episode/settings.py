@@ -29,6 +29,12 @@ def resolved_d0(d0: float | int | str | None, scene: Scene) -> float:
     return float(d0)
 
 
+def entropy_d0(entropy: EntropyConfig) -> float:
+    """The correlation length of entropy settings whose ``d0`` is resolved (``resolved_d0``), as a float."""
+    assert isinstance(entropy.d0, (int, float)), f"entropy.d0={entropy.d0!r} is not resolved"
+    return float(entropy.d0)
+
+
 def run_config(cfg: DictConfig) -> RunConfig:
     """The composed config as the schema's typed objects (interpolations resolved)."""
     run = OmegaConf.to_object(cfg)
@@ -63,7 +69,7 @@ class EpisodeSettings:
         ``StepScorer`` for a method that scores whole views, FisherRF); None for a method without one
         (Random)."""
         entropy = self.entropy if entropy is None else entropy
-        return self.method.scorer(entropy, float(entropy.d0))
+        return self.method.scorer(entropy, entropy_d0(entropy))
 
     @staticmethod
     def of(cfg: DictConfig, scene: Scene) -> "EpisodeSettings":
@@ -73,7 +79,9 @@ class EpisodeSettings:
         rival = None
         if run.diagnostics.rank_against is not None:
             name = run.diagnostics.rank_against
-            ablated = run_config(OmegaConf.merge(cfg, OmegaConf.load(CONF / "ablation" / f"{name}.yaml")))
+            merged = OmegaConf.merge(cfg, OmegaConf.load(CONF / "ablation" / f"{name}.yaml"))
+            assert isinstance(merged, DictConfig), "a run config merged with an ablation's mapping"
+            ablated = run_config(merged)
             rival = name, dataclasses.replace(ablated.nvf.entropy, d0=resolved_d0(ablated.nvf.entropy.d0, scene))
         planner = run.planner
         tau = planner.density_threshold if planner.density_threshold is not None else scene.density_threshold

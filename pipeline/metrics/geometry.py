@@ -76,8 +76,8 @@ def geometry_metrics(
     to_gt, _ = cKDTree(gt).query(rec)
     to_rec, _ = cKDTree(rec).query(gt)
     return GeometryMetrics(
-        acc=float(to_gt.mean()),
-        comp=float(to_rec.mean()),
-        cr=float((to_rec < threshold).mean()),
+        acc=float(np.mean(to_gt)),
+        comp=float(np.mean(to_rec)),
+        cr=float(np.mean(to_rec < threshold)),
         num_points=len(rec),
     )

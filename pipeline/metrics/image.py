@@ -124,15 +124,15 @@ class LpipsMetric:
     def _features(self, x: Float[Tensor, "B 3 H W"]) -> LpipsFeatures:
         """``lpips.LPIPS.forward`` up to the feature difference: [0,1] -> [-1,1], scaling layer,
         AlexNet, unit-normalised activations of the five layers."""
+        assert self.model is not None, "features are computed only with the weights loaded"
         model = self.model.to(x.device)
         return [lpips.normalize_tensor(f) for f in model.net(model.scaling_layer(2 * x.float() - 1))]
 
     def _distances(self, a: LpipsFeatures, b: LpipsFeatures) -> Float[Tensor, " B"]:
         """Per-image LPIPS: sum over layers of the spatial mean of the linear head on ``(a - b)^2``."""
-        total = 0
-        for lin, fa, fb in zip(self.model.lins, a, b, strict=True):
-            total = total + lpips.spatial_average(lin((fa - fb) ** 2), keepdim=True)
-        return total.reshape(-1)
+        assert self.model is not None, "distances are computed only with the weights loaded"
+        layers = zip(self.model.lins, a, b, strict=True)
+        return sum(lpips.spatial_average(lin((fa - fb) ** 2), keepdim=True) for lin, fa, fb in layers).reshape(-1)
 
     @torch.inference_mode()
     def reference(self, gt: Float[Array, "V H W 3"]) -> LpipsFeatures | None:
@@ -148,6 +148,7 @@ class LpipsMetric:
         """Mean LPIPS of ``pred`` against the images ``reference`` was computed from."""
         if self.model is None:
             return math.nan
+        assert reference is not None, "reference() returns features whenever the weights are loaded"
         x = clipped(pred)
         if len(reference[0]) != len(x):
             raise ValueError(f"LPIPS reference holds {len(reference[0])} images, got {len(x)} predictions")

@@ -61,11 +61,18 @@ def render_for_terms(
     return model.render(origins, dirs, heads=frozenset({"variance", "visibility"}), sampler=sampler), origins, dirs
 
 
+def term_sum(terms: dict[str, np.ndarray]) -> np.ndarray:
+    """The per-candidate sum of ``terms`` (name -> ``[m]``, at least one): the reward, up to a constant."""
+    total = sum(terms.values())
+    assert isinstance(total, np.ndarray), "at least one term"
+    return total
+
+
 def term_attribution(terms: dict[str, np.ndarray]) -> dict:
     """Over ``m`` candidates, each term's mean and spread, its share of the reward's variance and its
     Spearman correlation with the reward; ``decisive``: the term with the largest share. ``terms``: name ->
     ``[m]`` per-candidate means whose sum (plus a constant) is the reward."""
-    reward = sum(terms.values())
+    reward = term_sum(terms)
     variance = float(np.var(reward))
     per_term = {
         name: {
@@ -79,4 +86,8 @@ def term_attribution(terms: dict[str, np.ndarray]) -> dict:
         for name, values in terms.items()
     }
     shares = {name: t["share"] for name, t in per_term.items() if t["share"] is not None}
-    return {"terms": per_term, "decisive": max(shares, key=shares.get) if shares else None, "reward_std": variance**0.5}
+    return {
+        "terms": per_term,
+        "decisive": max(shares, key=lambda name: shares[name]) if shares else None,
+        "reward_std": variance**0.5,
+    }

@@ -331,7 +331,7 @@ class RunRecord:
         if not previous and os.path.lexists(self.steps_path):
             raise RecordError(f"{self.steps_path}: rows without run.json (settings unknown); delete {self.directory}")
         now = utc_now()
-        timings = {"started": now, "resumed": [], "ended": None}
+        timings: dict[str, Any] = {"started": now, "resumed": [], "ended": None}
         if previous:
             changed = run_difference(previous, info)
             if changed is not None:

@@ -171,8 +171,9 @@ def row_problem(row: dict) -> str | None:
     if not isinstance(views, int) or isinstance(views, bool) or not 1 <= views <= MAX_VIEWS:
         return f"has n_views={str(views)[:40]}, not an integer from 1 to {MAX_VIEWS}"
     pose = row.get("selected_pose")
-    numbers = isinstance(pose, list) and all(isinstance(v, NUMBER) and not isinstance(v, bool) for v in pose)
-    if not numbers or len(pose) != POSE_SIZE:
+    if not (isinstance(pose, list) and len(pose) == POSE_SIZE) or not all(
+        isinstance(v, NUMBER) and not isinstance(v, bool) for v in pose
+    ):
         return f"has selected_pose={str(pose)[:80]}, not {POSE_SIZE} finite numbers"
     if not isinstance(row.get("lpips_missing_reason"), OPTIONAL_TEXT):
         return "has an lpips_missing_reason that is not text"

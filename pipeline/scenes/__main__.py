@@ -13,6 +13,7 @@ from pathlib import Path
 from omegaconf import OmegaConf
 
 from pipeline.cli import ArgumentParser, description, fail
+from pipeline.config.schema import RenderConfig
 from pipeline.config.validation import compose_config
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.ground_truth import open_renderer
@@ -43,6 +44,7 @@ def main(argv: list[str] | None = None) -> None:
         python = blender_python(cfg.paths.blender_python)
         scene = load_scene(args.scene, Path(cfg.paths.assets), python)
         render = OmegaConf.to_object(cfg.render)
+        assert isinstance(render, RenderConfig), f"the composed render settings, not {type(render).__name__}"
         with open_renderer(scene, render, python, threads=os.cpu_count()) as renderer:
             path = show(scene, renderer, out, args.res)
     except SceneError as exc:

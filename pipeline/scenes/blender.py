@@ -185,6 +185,7 @@ def _mesh_arrays(mesh: trimesh.Trimesh) -> dict[str, np.ndarray]:
     corners = corner_colors(base_color_texture_mesh(mesh))
     arrays = {"vertices": np.asarray(mesh.vertices, np.float64), "faces": np.asarray(mesh.faces, np.int64)}
     if corners.texture is not None:
+        assert corners.uv is not None, "a texture comes with its UVs (corner_colors)"
         texture = np.asarray(corners.texture.convert("RGB"), dtype=np.float64) * corners.factor[:3]
         arrays["corner_uv"] = corners.uv
         arrays["texture"] = np.clip(np.round(texture), 0, 255).astype(np.uint8)

@@ -33,11 +33,12 @@ import os
 import sys
 import tempfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 SEED = 0
-LIGHT_RIG = {
+LIGHT_RIG: dict[str, Any] = {
     "ambient": 0.3,
     "suns": (
         {"name": "key", "strength": 2.0, "azimuth_deg": 45.0, "elevation_deg": 60.0, "angle_deg": 3.0},
@@ -58,7 +59,7 @@ def write_message(stream, header: dict, arrays: dict[str, np.ndarray] | None = N
     specs = [{"name": k, "dtype": v.dtype.str, "shape": list(v.shape)} for k, v in arrays.items()]
     stream.write(json.dumps({**header, "arrays": specs}).encode() + b"\n")
     for value in arrays.values():
-        stream.write(memoryview(value).cast("B"))
+        stream.write(value.data.cast("B"))
     stream.flush()
 
 
@@ -374,10 +375,10 @@ def _shader_color(node, depth: int = 0) -> np.ndarray | None:
     if node is None or depth > 8:
         return None
     if node.bl_idname in ("ShaderNodeMixShader", "ShaderNodeAddShader"):
-        parts = [
+        shaded = [
             _shader_color(s.links[0].from_node, depth + 1) for s in node.inputs if s.is_linked and s.type == "SHADER"
         ]
-        parts = [p for p in parts if p is not None]
+        parts = [p for p in shaded if p is not None]
         return np.mean(parts, axis=0) if parts else None
     for name in ("Base Color", "Color"):
         socket = node.inputs.get(name)

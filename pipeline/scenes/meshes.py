@@ -86,8 +86,8 @@ def read_mesh(path: Path) -> trimesh.Trimesh:
         loaded = trimesh.load(path, process=False)
     except Exception as exc:  # trimesh raises many kinds for bad files
         raise SceneError(f"cannot read mesh {path}: {type(exc).__name__}: {_one_line(exc)}") from None
-    parts = loaded.dump() if isinstance(loaded, trimesh.Scene) else [loaded]
-    parts: list[trimesh.Trimesh] = [p for p in parts if isinstance(p, trimesh.Trimesh) and len(p.faces) > 0]
+    geometries = loaded.dump() if isinstance(loaded, trimesh.Scene) else [loaded]
+    parts = [p for p in geometries if isinstance(p, trimesh.Trimesh) and len(p.faces) > 0]
     if not parts:
         raise SceneError(f"mesh {path} contains no triangles")
     if len(parts) == 1:
@@ -95,7 +95,9 @@ def read_mesh(path: Path) -> trimesh.Trimesh:
     elif all(_has_texture(p) for p in parts):
         mesh = _atlas(parts)
     else:
-        mesh = trimesh.util.concatenate([_to_colors(p) for p in parts])
+        concatenated = trimesh.util.concatenate([_to_colors(p) for p in parts])
+        assert isinstance(concatenated, trimesh.Trimesh), "triangle meshes concatenate to one"
+        mesh = concatenated
     if not np.isfinite(mesh.vertices).all():
         raise SceneError(f"mesh {path} has non-finite (NaN/inf) vertex coordinates")
     if not mesh.area > 0.0 or not np.all(mesh.extents > 0.0):

@@ -20,6 +20,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import trimesh
 from jaxtyping import Float
+from trimesh.visual import ColorVisuals
 
 Vec = Sequence[float | int] | np.ndarray  # a point or vector; beartype rejects ints as floats
 
@@ -27,8 +28,14 @@ Color = tuple[int, int, int]
 _Z = np.array([0.0, 0.0, 1.0])
 
 
+def _face_colors(mesh: trimesh.Trimesh) -> ColorVisuals:
+    """The colours of a mesh built here: trimesh gives every new mesh ``ColorVisuals``."""
+    assert isinstance(mesh.visual, ColorVisuals), f"a procedural mesh with {type(mesh.visual).__name__}"
+    return mesh.visual
+
+
 def _paint(mesh: trimesh.Trimesh, color: Color) -> trimesh.Trimesh:
-    mesh.visual.face_colors = np.array([*color, 255], dtype=np.uint8)
+    _face_colors(mesh).face_colors = np.array([*color, 255], dtype=np.uint8)
     return mesh
 
 
@@ -63,9 +70,10 @@ def _revolved(
 
 def _recolor(mesh: trimesh.Trimesh, select: np.ndarray, color: Color) -> trimesh.Trimesh:
     """Repaint the faces ``select`` (bool per face)."""
-    colors = mesh.visual.face_colors.copy()
+    visual = _face_colors(mesh)
+    colors = visual.face_colors.copy()
     colors[select] = [*color, 255]
-    mesh.visual.face_colors = colors
+    visual.face_colors = colors
     return mesh
 
 
@@ -77,6 +85,7 @@ def _pose(rotation_axis: Vec, angle: float, translation: Vec) -> np.ndarray:
 
 def _assemble(parts: list[trimesh.Trimesh]) -> trimesh.Trimesh:
     mesh = trimesh.util.concatenate(parts)
+    assert isinstance(mesh, trimesh.Trimesh), "triangle meshes concatenate to one"
     mesh.apply_translation([0.0, 0.0, -mesh.bounds[0, 2]])  # floor at z = 0
     return mesh
 
@@ -266,13 +275,14 @@ def _ship(rng: np.random.Generator) -> trimesh.Trimesh:
             centre = offset * along + [0, 0, z]
             parts.append(_rod(centre - width * across, centre + width * across, 0.008, (90, 60, 30), sections=6))
         low, high = foot[2] + 0.45 * (height - 0.7) - 0.02, foot[2] + 0.8 * (height - 0.7)
-        corners = [
-            offset * along - 0.3 * across + [0, 0, low + 0.02],
-            offset * along + 0.3 * across + [0, 0, low + 0.02],
-            offset * along + 0.22 * across + [0, 0, high],
-            offset * along - 0.22 * across + [0, 0, high],
-        ]
-        corners = np.array(corners)
+        corners = np.array(
+            [
+                offset * along - 0.3 * across + [0, 0, low + 0.02],
+                offset * along + 0.3 * across + [0, 0, low + 0.02],
+                offset * along + 0.22 * across + [0, 0, high],
+                offset * along - 0.22 * across + [0, 0, high],
+            ]
+        )
         corners[2:] += 0.04 * np.cross(across, _Z)  # the upper edge bulges: the sail is not planar
         sail = trimesh.Trimesh(corners, [[0, 1, 2], [0, 2, 3]], process=False)
         parts.append(_paint(sail, (235, 230, 210)))
@@ -290,10 +300,10 @@ def _ship(rng: np.random.Generator) -> trimesh.Trimesh:
 
 def _drum(centre: Vec, axis: Vec, radius: float, depth: float, shell: Color) -> trimesh.Trimesh:
     """A cylinder with white heads (faces facing along the axis) and a coloured shell."""
-    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    unit = np.asarray(axis, float) / np.linalg.norm(axis)
     centre = np.asarray(centre, float)
-    drum = _rod(centre - axis * depth / 2, centre + axis * depth / 2, radius, shell, sections=24)
-    return _recolor(drum, np.abs(drum.face_normals @ axis) > 0.9, (235, 235, 225))
+    drum = _rod(centre - unit * depth / 2, centre + unit * depth / 2, radius, shell, sections=24)
+    return _recolor(drum, np.abs(drum.face_normals @ unit) > 0.9, (235, 235, 225))
 
 
 def _cymbal(centre: Vec, radius: float, tilt: float) -> trimesh.Trimesh:

@@ -24,6 +24,7 @@ import numpy as np
 import torch
 import trimesh
 from jaxtyping import Bool, Float, Int
+from PIL import Image
 from torch import Tensor
 
 from nvf.cameras import Intrinsics, pixel_rays
@@ -71,7 +72,7 @@ class CornerColors:
 
     colors: Float[np.ndarray, "C 4"] | None
     uv: Float[np.ndarray, "C 2"] | None
-    texture: object  # PIL image (with ``factor``) or None
+    texture: Image.Image | None  # scaled by ``factor``
     factor: Float[np.ndarray, "4"]
 
 
@@ -135,19 +136,24 @@ class MeshRays:
 
         self.mesh = mesh
         self._bounds = np.asarray(mesh.bounds, dtype=np.float64)
+        self._o3d = o3d
         self._raycaster = o3d.t.geometry.RaycastingScene()
         self._raycaster.add_triangles(
-            o3d.core.Tensor(np.ascontiguousarray(mesh.vertices, dtype=np.float32)),
-            o3d.core.Tensor(np.ascontiguousarray(mesh.faces, dtype=np.uint32)),
+            self._tensor(np.ascontiguousarray(mesh.vertices, dtype=np.float32)),
+            self._tensor(np.ascontiguousarray(mesh.faces, dtype=np.uint32)),
         )
-        self._o3d = o3d
+
+    def _tensor(self, array: np.ndarray):
+        """``array`` as an open3d tensor (a copy, its dtype, on the CPU)."""
+        # open3d's generated stubs list dtype and device without their defaults (None: the array's, the CPU)
+        return self._o3d.core.Tensor(array)  # type: ignore[call-overload]
 
     def cast_rays(
         self, origins: Float[np.ndarray, "N 3"], dirs: Float[np.ndarray, "N 3"]
     ) -> tuple[Float[np.ndarray, " N"], Int[np.ndarray, " N"]]:
         """Exact ray casting (open3d): hit distance along ``dirs`` (inf = miss) and face id (-1 = miss)."""
         rays = np.concatenate([origins, dirs], axis=-1).astype(np.float32)
-        hits = self._raycaster.cast_rays(self._o3d.core.Tensor(rays))
+        hits = self._raycaster.cast_rays(self._tensor(rays))
         t_hit = hits["t_hit"].numpy()
         ids = hits["primitive_ids"].numpy().astype(np.int64)
         ids[~np.isfinite(t_hit)] = -1
@@ -187,7 +193,7 @@ class MeshRays:
     def inside(self, points: Float[Tensor, "N 3"]) -> Bool[Tensor, " N"]:
         """Whether each point lies inside the mesh (open3d's occupancy query, which assumes a
         watertight mesh: near an open edge a point can be misjudged). On ``points``' device."""
-        query = self._o3d.core.Tensor(points.detach().cpu().to(torch.float32).numpy())
+        query = self._tensor(points.detach().cpu().to(torch.float32).numpy())
         return torch.from_numpy(self._raycaster.compute_occupancy(query).numpy() > 0.5).to(points.device)
 
     def face_ids(self, c2w: Float[np.ndarray, "4 4"], intr: Intrinsics) -> Int[np.ndarray, "H W"]:

@@ -7,12 +7,13 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from trimesh.visual import ColorVisuals, TextureVisuals
 
 from nvf.cameras import Intrinsics
 from pipeline.scenes.scene import Scene
 
 
-def _top_view(scene: Scene, renderer, res: int) -> tuple[np.ndarray, list[float]]:
+def _top_view(scene: Scene, renderer, res: int) -> tuple[np.ndarray, tuple[float, float, float, float]]:
     """Orthographic top view (rays straight down from just above the highest camera), lightly height-shaded."""
     poses = torch.cat([scene.init_poses, scene.eval_poses]).double().numpy()
     points = np.concatenate([scene.camera_box.double().numpy(), scene.tight_box.double().numpy(), poses[:, :3, 3]])
@@ -29,9 +30,10 @@ def _top_view(scene: Scene, renderer, res: int) -> tuple[np.ndarray, list[float]
     dirs = np.broadcast_to(np.array([0.0, 0.0, -1.0]), origins.shape)
     t_hit, ids = renderer.cast_rays(origins, dirs)
     mesh = scene.mesh
-    if mesh.visual.kind == "texture":
+    if isinstance(mesh.visual, TextureVisuals):
         colors = mesh.visual.to_color().vertex_colors[mesh.faces, :3].mean(axis=1) / 255.0
     else:
+        assert isinstance(mesh.visual, ColorVisuals), "a scene mesh has texture or colours (pipeline.scenes.meshes)"
         colors = mesh.visual.face_colors[:, :3] / 255.0
     image = np.ones((len(ids), 3))
     hit = ids >= 0
@@ -39,7 +41,7 @@ def _top_view(scene: Scene, renderer, res: int) -> tuple[np.ndarray, list[float]
     tight = scene.tight_box.double().numpy()
     shade = 0.55 + 0.45 * np.clip((z - tight[0, 2]) / (tight[1, 2] - tight[0, 2]), 0.0, 1.0)
     image[hit] = colors[ids[hit]] * shade[:, None]
-    return image.reshape(height, width, 3), [lo[0], hi[0], lo[1], hi[1]]
+    return image.reshape(height, width, 3), (lo[0], hi[0], lo[1], hi[1])
 
 
 def show(scene: Scene, renderer, out_dir: Path, res: int) -> Path:
@@ -78,10 +80,10 @@ def show(scene: Scene, renderer, out_dir: Path, res: int) -> Path:
     ax = fig.add_subplot(grid[:, cols:])
     ax.imshow(top, extent=extent)
     cam, tight = scene.camera_box.numpy(), scene.tight_box.numpy()
-    ax.add_patch(Rectangle(cam[0, :2], *(cam[1, :2] - cam[0, :2]), fill=False, ec="k", lw=1.2, label="camera box"))
-    ax.add_patch(
-        Rectangle(tight[0, :2], *(tight[1, :2] - tight[0, :2]), fill=False, ec="gray", ls="--", label="tight box")
-    )
+    (cx, cy), (cw, ch) = cam[0, :2], cam[1, :2] - cam[0, :2]
+    (tx, ty), (tw, th) = tight[0, :2], tight[1, :2] - tight[0, :2]
+    ax.add_patch(Rectangle((cx, cy), cw, ch, fill=False, ec="k", lw=1.2, label="camera box"))
+    ax.add_patch(Rectangle((tx, ty), tw, th, fill=False, ec="gray", ls="--", label="tight box"))
     arrow = 0.06 * float(np.max(cam[1, :2] - cam[0, :2]))
     for poses, color, label in ((scene.eval_poses, "tab:blue", "eval"), (scene.init_poses, "tab:red", "init")):
         p = poses.double().numpy()

@@ -12,6 +12,7 @@ import pandas as pd
 from jaxtyping import Float
 from omegaconf import OmegaConf
 
+from pipeline.config.plain import as_dict, as_list
 from pipeline.metrics.info import PAPER_METRICS
 from pipeline.repo import CONF
 from pipeline.tables.labels import METRIC_KEYS, OBJECT_MEAN
@@ -93,7 +94,10 @@ def object_mean(final: pd.DataFrame, runs: Runs) -> tuple[pd.DataFrame, tuple[st
     out, and each row's samples indexed by (seed, scene): a mean over scenes is compared over those pairs.
     """
     objects = final[np.array([runs.scene(scene).nerf_asset for scene in final["scene"]], dtype=bool)]
-    per_seed, coverage, counts, samples = [], {}, {}, {}
+    per_seed: list[dict[str, object]] = []
+    coverage: dict[str, list[str]] = {}
+    counts: dict[tuple, int] = {}
+    samples: Samples = {}
     for key, group in objects.groupby(["budget", "method", "planner", "ablation"], sort=False):
         scenes = sorted(set(group["scene"]), key=lambda scene: runs.scene(scene).order)
         counts[key] = len(scenes)
@@ -113,8 +117,8 @@ def object_mean(final: pd.DataFrame, runs: Runs) -> tuple[pd.DataFrame, tuple[st
     if not per_seed:
         return pd.DataFrame(), (), {}
     rows = aggregate(pd.DataFrame(per_seed))
-    keys = zip(rows["budget"], rows["method"], rows["planner"], rows["ablation"], strict=True)
-    rows["scene_count"] = [counts[key] for key in keys]
+    row_keys = zip(rows["budget"], rows["method"], rows["planner"], rows["ablation"], strict=True)
+    rows["scene_count"] = [counts[key] for key in row_keys]
     if len(coverage) == 1:
         return rows, (f"{next(iter(coverage))} for every row",), samples
     return rows, tuple(f"{text}: {', '.join(labels)}" for text, labels in coverage.items()), samples
@@ -216,12 +220,12 @@ def experiment_selection(experiment: str | None, conf_dir: Path = CONF) -> dict[
     the experiment) and the default choice (``conf/config.yaml``) for a group it does not sweep."""
     if experiment is None:
         return dict.fromkeys(SWEPT)
-    listed = OmegaConf.to_container(OmegaConf.load(Path(conf_dir) / "config.yaml").defaults)
+    listed = as_list(OmegaConf.load(Path(conf_dir) / "config.yaml").defaults, resolve=False)
     defaults = {k: v for d in listed if isinstance(d, dict) for k, v in d.items()}
     node = OmegaConf.select(
         OmegaConf.load(Path(conf_dir) / "experiment" / f"{experiment}.yaml"), "hydra.sweeper.params"
     )
-    params = OmegaConf.to_container(node, resolve=False) if node is not None else {}
+    params = as_dict(node, resolve=False) if node is not None else {}
     selection: dict[str, tuple[str, ...] | str | None] = {}
     for key in SWEPT:
         value = str(params.get(key, defaults[key]))
@@ -266,8 +270,8 @@ def _notes(selected: pd.DataFrame, done: pd.DataFrame, rows: pd.DataFrame, runs:
         if missing.empty:
             continue
         if m.name == "lpips":
-            reasons = {r for r in missing["lpips_missing_reason"] if isinstance(r, str) and r}
-            reasons = sorted(reasons or {"reason not recorded"})
+            recorded = {r for r in missing["lpips_missing_reason"] if isinstance(r, str) and r}
+            reasons = sorted(recorded or {"reason not recorded"})
             notes.append(f"{m.label} missing in {len(missing)} of {len(done)} runs: {'; '.join(reasons)}.")
         else:
             hint = " (an empty reconstruction gives Acc = Comp = NaN)" if m.name in ("acc", "comp") else ""

@@ -111,12 +111,13 @@ def run_pictures_of(runs: Runs, site: Path, assets: Path | None) -> tuple[dict[s
         key = Path(safe_name(run["scene"]), group, safe_name(run["budget"]), f"seed_{int(run['seed'])}")
         beside = [run_dir.parents[3].parent / "site" / "runs" / key] if len(run_dir.parents) >= 4 else []
         places = [run_dir, *beside, site / "runs" / key]
-        grid, trajectory = (_found(name, places, run_dir) for name in ("grid.png", "trajectory.png"))
+        found_grid, trajectory = (_found(name, places, run_dir) for name in ("grid.png", "trajectory.png"))
+        grid: Path | None = found_grid  # None once drawn for a run without images
         try:
-            if _stale(grid, run_dir) or _stale(trajectory, run_dir):
+            if _stale(found_grid, run_dir) or _stale(trajectory, run_dir):
                 info, rows = load_run(run_dir)
-                if _stale(grid, run_dir):
-                    grid = image_grid(run_dir, grid, run_title(info))
+                if _stale(found_grid, run_dir):
+                    grid = image_grid(run_dir, found_grid, run_title(info))
                 if _stale(trajectory, run_dir):
                     scene = recorded_scene(info, named)
                     scene_key = str(sorted(scene.items()))

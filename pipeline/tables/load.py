@@ -61,12 +61,16 @@ TABULATED = (
 )
 
 
+def json_object(value: Any) -> dict:
+    """``value`` when it is a JSON object (a dict), else an empty dict: a record's optional sections."""
+    return value if isinstance(value, dict) else {}
+
+
 def ground_truth_label(info: dict) -> tuple[str, str]:
     """The asset file (empty when the record does not say) and the ground-truth backend of a run record:
     ``pyrender`` or ``Blender Cycles <n> spp``. Records from before the Blender backend are pyrender's."""
-    recorded = info.get("ground_truth") if isinstance(info.get("ground_truth"), dict) else {}
-    config = info.get("config") if isinstance(info.get("config"), dict) else {}
-    render = config.get("render") if isinstance(config.get("render"), dict) else {}
+    recorded = json_object(info.get("ground_truth"))
+    render = json_object(json_object(info.get("config")).get("render"))
     backend = recorded.get("backend", render.get("backend", "pyrender"))
     if backend == "blender":
         backend = f"Blender Cycles {recorded.get('samples', render.get('samples'))} spp"
@@ -197,7 +201,7 @@ def copy_difference(one: dict, other: dict) -> str | None:
         for index, (mine, theirs) in enumerate(zip(one["rows"], other["rows"], strict=False))  # the steps both hold
     ]
     tabulated = [{key: copy["info"].get(key) for key in TABULATED} for copy in (one, other)]
-    for prefix, mine, theirs in [*pairs, ("run.json ", *tabulated)]:
+    for prefix, mine, theirs in [*pairs, ("run.json ", tabulated[0], tabulated[1])]:
         found = first_difference(mine, theirs, prefix)
         if found is not None:
             key, was, now = found
@@ -254,7 +258,12 @@ def collect_runs(roots: list[Path]) -> Runs:
             except (ValueError, OSError) as err:
                 skipped.append(f"skipped run record: {str(err).splitlines()[0]}")
                 continue
-            record = {"info": info, "rows": rows, "status": RunRecord(directory).status(), "directory": directory}
+            record: dict[str, Any] = {
+                "info": info,
+                "rows": rows,
+                "status": RunRecord(directory).status(),
+                "directory": directory,
+            }
             copies.setdefault(tuple(info[k] for k in IDENTITY_KEYS), []).append(record)
     records = [kept for group in copies.values() if (kept := _choose(group, conflicts)) is not None]
     long_rows, final_rows = [], []

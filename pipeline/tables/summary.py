@@ -12,7 +12,7 @@ from pipeline.records.store import atomic_write_text, record_status
 from pipeline.tables.escape import markdown
 from pipeline.tables.figures import image_grid, step_curve
 from pipeline.tables.labels import METRIC_KEYS
-from pipeline.tables.load import describe, ground_truth_label, load_run, metric_value
+from pipeline.tables.load import describe, ground_truth_label, json_object, load_run, metric_value
 from pipeline.tables.paper import paper_numbers
 from pipeline.tables.trajectory import SceneOutline, outline_of_scene, trajectory_figure
 
@@ -29,8 +29,7 @@ def summarize_run(run_dir: Path) -> Path:
         if row.get("status", "ok") != "ok" or not isinstance(row.get("metrics"), dict):
             continue
         values = [metric_value(row["metrics"].get(metric)) for metric in METRIC_KEYS]
-        seconds = row.get("seconds") if isinstance(row.get("seconds"), dict) else {}
-        total = sum(v for v in seconds.values() if isinstance(v, (int, float)))
+        total = sum(v for v in json_object(row.get("seconds")).values() if isinstance(v, (int, float)))
         line = [str(row["step"]), str(row.get("n_views", ""))]
         line += [
             "-" if v is None or math.isnan(v) else f"{v:.{m.decimals}f}"

@@ -136,10 +136,11 @@ def _ring(centre: Float[np.ndarray, "2"], radius: float) -> np.ndarray:
 def _surface(ax, outline: SceneOutline, axes: tuple[int, int], lo, hi) -> None:
     """The outline's points projected on ``axes`` as a grey density image (log count); in a room, without the
     surfaces seen face-on (floor and ceiling from above, the far wall from the side), which would cover it."""
-    points = outline.points
+    points, normals = outline.points, outline.normals
+    assert points is not None and normals is not None, "drawn only for an outline with its surface"
     if outline.kind == "room":
         third = 3 - sum(axes)
-        points = points[np.abs(outline.normals[:, third]) < FACE_ON]
+        points = points[np.abs(normals[:, third]) < FACE_ON]
     span = hi - lo
     bins = (max(8, int(BINS * span[0] / span.max())), max(8, int(BINS * span[1] / span.max())))
     counts, _, _ = np.histogram2d(
