@@ -239,9 +239,8 @@ def _choose(copies: list[dict], conflicts: list[str]) -> dict | None:
 def collect_runs(roots: list[Path]) -> Runs:
     """Read every run record under ``roots`` (``record_directories``); one that fails a check
     (``pipeline.records.verify``) is listed in ``skipped`` with the reason, and so is every link to a folder
-    outside its root (never followed). Copies of one run (same identity keys) are resolved by ``_choose``, every copy
-    left out
-    listed in ``conflicts``: a table never mixes runs, or picks between differing copies, silently."""
+    outside its root (never followed). Copies of one run (same identity keys) are resolved by ``_choose``, every
+    copy left out listed in ``conflicts``: a table never mixes runs, or picks between differing copies, silently."""
     copies: dict[tuple, list[dict]] = {}
     seen: set[Path] = set()
     skipped: list[str] = []
