@@ -102,15 +102,11 @@ def test_train_bench_writes_rates_fractions_and_psnr(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(
-    reason="known gap: bench train reports about 20% fewer samples/s than train_backbone timed directly "
-    "(101k against 121-129k at the smoke budget); the cause is not yet found",
-    strict=False,
-)
 def test_train_bench_measures_what_an_episode_trains(tmp_path):
     """One precision trains on the main thread, as the episode does: the bench's samples/s agrees within 15%
-    with ``train_backbone`` of the same settings timed directly (the same warm-up iterations left out)."""
-    overrides = ["budget=smoke", "train.backbone.iters=60"]
+    with ``train_backbone`` of the same settings timed directly (the same warm-up iterations left out).
+    200 iterations: over 60 the run-to-run spread alone was +-20% (measured, quiet machine)."""
+    overrides = ["budget=smoke", "train.backbone.iters=200"]
     cfg = compose_config(overrides)
     scene = load(cfg)
     s = EpisodeSettings.of(cfg, scene)
