@@ -648,3 +648,18 @@ def test_a_runs_images_are_read_as_untrusted_files(tmp_path):
     (run / "images" / "step_00_depth.png").unlink()
     (run / "images" / "step_00_pred.png").unlink()
     assert image_grid(run, tmp_path / "none.png") is None  # a link is not one of the run's images
+
+
+def test_a_record_joins_the_tables_its_method_and_scene_declare_today():
+    """Which tables a run joins is today's declaration (``conf/``), not the list its record carries: a record
+    made when Hubble declared only main is in table2_ablation once Hubble declares it."""
+    from pipeline.tables.load import describe
+
+    cfg = OmegaConf.to_container(compose_config(["scene=hubble", "method=nvf", "ablation=wo_vis"]), resolve=True)
+    cfg["scene"]["experiments"] = ["main"]
+    cfg["method"]["experiments"] = ["main"]
+    info = {"scene": "hubble", "method": "nvf", "planner": "argmax", "ablation": "wo_vis", "budget": "cpu"}
+    row, scene = describe({**info, "config": cfg}, NamedConfigs(CONF))
+    assert "table2_ablation" in scene.experiments and "table2_ablation" in row.experiments
+    gone = describe({**info, "scene": "no_such_scene", "config": cfg}, NamedConfigs(CONF))[1]
+    assert gone.experiments == ("main",)  # a group conf/ no longer has: the record's own list
