@@ -146,25 +146,17 @@ def load_run(directory: Path) -> tuple[dict, list[dict]]:
 def used_mesh_line_of_sight(info: dict) -> bool:
     """Whether the run's candidates were filtered by the scene mesh's exact line of sight (M29 with
     ``planner.los_source=mesh`` and the collision-free sampler): an oracle, marked in the tables."""
-    config = info.get("config")
-    planner = config.get("planner") if isinstance(config, dict) else None
-    return isinstance(planner, dict) and planner.get("los_source") == "mesh" and line_of_sight_filtered(info)
+    planner = json_object(json_object(info.get("config")).get("planner"))
+    return planner.get("los_source") == "mesh" and line_of_sight_filtered(info)
 
 
 def used_mesh_visibility(info: dict) -> bool:
     """Whether NVF's scores read the visibility from the scene mesh (``nvf.entropy.visibility_source=mesh``
     with the visibility in use): an oracle, marked in the tables."""
-    config = info.get("config")
-    entropy = (
-        config.get("nvf", {}).get("entropy")
-        if isinstance(config, dict) and isinstance(config.get("nvf"), dict)
-        else None
-    )
-    method = config.get("method") if isinstance(config, dict) else None
+    config = json_object(info.get("config"))
+    entropy = json_object(json_object(config.get("nvf")).get("entropy"))
     return (
-        isinstance(entropy, dict)
-        and isinstance(method, dict)
-        and method.get("name") == "nvf"
+        json_object(config.get("method")).get("name") == "nvf"
         and entropy.get("visibility_source") == "mesh"
         and entropy.get("use_visibility") is True
     )
