@@ -2,7 +2,8 @@
 does a budget tell the methods apart? The paired discrimination experiment of one budget.
 
 For each scene and seed it runs (through ``python -m pipeline.run -m``, scene by scene, one Hydra sweep
-per entry, ``hydra/launcher=joblib`` with ``J`` one-thread jobs; finished runs are skipped, so a killed
+per entry, ``hydra/launcher=joblib`` with ``J`` parallel jobs, each of cores / J torch threads or
+``OMP_NUM_THREADS``; finished runs are skipped, so a killed
 experiment resumes; ``step_metrics=psnr``: the steps before the last record the PSNR alone) full NVF
 (recording, at every step, how w/o Vis.'s score ranks the same candidates: ``diagnostics.rank_against=wo_vis``),
 its ablations w/o Vis. and Ind. Rays, and the baselines: every other method whose yaml lists ``discriminate``
@@ -278,7 +279,7 @@ def main(argv: list[str]) -> int:
     )
     parser.add_argument("--scenes", default=",".join(SCENES), help=f"comma-separated (default {','.join(SCENES)})")
     parser.add_argument("--seeds", default=",".join(map(str, SEEDS)), help="comma-separated (default 100,101,102)")
-    parser.add_argument("--jobs", type=int, default=2, help="parallel one-thread jobs (default 2)")
+    parser.add_argument("--jobs", type=int, default=2, help="parallel jobs, cores / J torch threads each (default 2)")
     parser.add_argument("--label", default=None, help="the experiment's folder name (default: its budget label)")
     parser.add_argument("--summarize-only", action="store_true", help="only summarise existing runs")
     parser.add_argument(

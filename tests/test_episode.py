@@ -16,7 +16,7 @@ from hydra import compose, initialize_config_dir
 
 from pipeline.config.schema import register_configs
 from pipeline.episode.loop import Episode
-from pipeline.episode.runner import Outcome, RunRefused, StepFailed, run_episode
+from pipeline.episode.runner import Outcome, RunRefused, StepFailed, run_episode, torch_threads
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.image import LpipsMetric
 from pipeline.records.lock import RunLock
@@ -37,7 +37,7 @@ def _cfg(tmp_path: Path, *overrides: str):
 
 def _cli(tmp_path: Path, *overrides: str, **kw) -> subprocess.Popen:
     """``python -m pipeline.run`` at the smoke budget; ``-m`` among ``overrides`` makes it a sweep."""
-    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    env = kw.pop("env", {**os.environ, "OMP_NUM_THREADS": "1"})
     flags = [arg for arg in overrides if arg == "-m"]
     overrides = tuple(arg for arg in overrides if arg != "-m")
     return subprocess.Popen(
@@ -286,6 +286,26 @@ def test_impossible_value_names_the_key(tmp_path):
     _, err = proc.communicate(timeout=300)
     assert proc.returncode == 2
     assert "planner.num_candidates" in err and "Traceback" not in err
+
+
+def test_torch_threads_follow_omp_num_threads_else_cores_per_job(monkeypatch):
+    """Two sweeps side by side share the cores only if each can be told its threads: an explicit
+    ``OMP_NUM_THREADS`` wins over cores / jobs (which gave a one-job sweep every core)."""
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    assert torch_threads() == 1
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")
+    assert torch_threads() == 3
+    monkeypatch.delenv("OMP_NUM_THREADS")
+    assert torch_threads() == (os.cpu_count() or 1)
+
+
+@pytest.mark.parametrize("value", ["0", "two"])
+def test_a_bad_omp_num_threads_is_one_line_before_anything_is_written(tmp_path, value):
+    proc = _cli(tmp_path, env={**os.environ, "OMP_NUM_THREADS": value})
+    _, err = proc.communicate(timeout=300)
+    ours = [line for line in err.splitlines() if line.strip() and "cpp_extension" not in line and "libgomp" not in line]
+    assert proc.returncode == 2 and len(ours) == 1 and ours[0].startswith(f"error: OMP_NUM_THREADS='{value}'"), err
+    assert not any(p.name != ".hydra" for p in tmp_path.iterdir())
 
 
 def test_an_outputs_path_that_is_a_file_is_one_line_before_anything_is_written(tmp_path):
