@@ -71,7 +71,8 @@ def material(name, rgb):
         emit.inputs["Strength"].default_value = 1.0
         links.new(emit.outputs[0], output.inputs["Surface"])
     else:
-        next(n for n in nodes if n.bl_idname == "ShaderNodeBsdfPrincipled").inputs["Base Color"].default_value = (*rgb, 1.0)
+        bsdf = next(n for n in nodes if n.bl_idname == "ShaderNodeBsdfPrincipled")
+        bsdf.inputs["Base Color"].default_value = (*rgb, 1.0)
     return m
 
 def add(name, build, matrix, rgb):
@@ -97,7 +98,8 @@ if spec["sun"]:
     sun.rotation_euler = (0.6, 0.2, 0.8)
     scene.collection.objects.link(sun)
 world = bpy.data.worlds.new("world")
-next(n for n in world.node_tree.nodes if n.bl_idname == "ShaderNodeBackground").inputs["Strength"].default_value = spec["world"]
+background = next(n for n in world.node_tree.nodes if n.bl_idname == "ShaderNodeBackground")
+background.inputs["Strength"].default_value = spec["world"]
 scene.world = world
 if spec["emission"]:
     scene.view_settings.view_transform = "Standard"

@@ -37,7 +37,7 @@ def runs_frame() -> pd.DataFrame:
     }
     for scene in ("a", "b"):
         for (method, ablation), value in psnr.items():
-            for seed, noise in zip((100, 101, 102), (0.0, 0.3, -0.3)):
+            for seed, noise in zip((100, 101, 102), (0.0, 0.3, -0.3), strict=True):
                 rows.append(
                     {
                         "scene": scene,

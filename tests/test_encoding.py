@@ -126,7 +126,7 @@ def test_known_output_gives_the_same_values_and_gradients(backend):
         out = enc(u, known=known if reuse else None)
         (out * grad).sum().backward()
         results.append((out.detach(), enc.table.grad.clone(), u.grad))
-    for fresh, reused in zip(*results):
+    for fresh, reused in zip(*results, strict=True):
         torch.testing.assert_close(reused, fresh)
 
 

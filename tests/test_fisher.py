@@ -114,7 +114,7 @@ def test_only_the_backbone_carries_fisher_information(smoke):
     origins, dirs = object_rays(smoke, 8)
     diagonal = exact_fisher_diagonal(model, params, origins, dirs)
     backbone = {id(p) for p in model.field.parameter_groups()["backbone"]}
-    for p, part in zip(params, diagonal.split([p.numel() for p in params])):
+    for p, part in zip(params, diagonal.split([p.numel() for p in params]), strict=True):
         assert (part.sum() > 0) == (id(p) in backbone)
 
 

@@ -17,7 +17,8 @@ from pipeline.metrics.image import LpipsMetric, image_metrics, psnr, psnr_from_m
 from pipeline.metrics.info import METRICS, PAPER_METRICS
 from pipeline.metrics.lpips_weights import LpipsUnavailable, default_sources, load_lpips_alex
 
-# Published LPIPS(alex, v0.1) of the IQA-PyTorch calibration pairs (ResultsCalibra; files under NVF_CALIBRATION, README.md).
+# Published LPIPS(alex, v0.1) of the IQA-PyTorch calibration pairs (ResultsCalibra; files under NVF_CALIBRATION,
+# README.md).
 CALIBRATION = {"I03": 0.7237, "I04": 0.2572, "I06": 0.0508, "I08": 0.0521, "I19": 0.4253}
 
 
@@ -84,7 +85,7 @@ def test_ssim_matches_skimage_gaussian_population_statistics(data_range):
                 sigma=1.5,
                 use_sample_covariance=False,
             )
-            for p, g in zip(pred, gt)
+            for p, g in zip(pred, gt, strict=True)
         ]
     )
     assert ssim(pred, gt, data_range=data_range) == pytest.approx(reference, abs=1e-9)
@@ -127,7 +128,8 @@ def test_lpips_batched_and_cached_equal_the_per_image_forward(lpips_metric, monk
     x = torch.from_numpy(pred).clamp(0, 1).permute(0, 3, 1, 2).float()
     y = torch.from_numpy(gt).permute(0, 3, 1, 2).float()
     with torch.no_grad():  # the lpips package's own forward, one image at a time
-        straightforward = np.mean([lpips_metric.model(a[None], b[None], normalize=True).item() for a, b in zip(x, y)])
+        pairs = zip(x, y, strict=True)
+        straightforward = np.mean([lpips_metric.model(a[None], b[None], normalize=True).item() for a, b in pairs])
     reference = lpips_metric.reference(gt)
     assert [f.shape[0] for f in reference] == [5] * 5
     assert lpips_metric(pred, gt) == pytest.approx(straightforward, rel=1e-6)

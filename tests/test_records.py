@@ -252,7 +252,8 @@ def test_the_lock_dies_with_its_process(tmp_path):
     run = tmp_path / "run"
     code = (
         "import sys, time; from pathlib import Path; from pipeline.records.lock import RunLock\n"
-        f"with RunLock(Path({str(run)!r}), Path({str(tmp_path)!r})):\n    print('locked', flush=True); time.sleep(600)\n"
+        f"with RunLock(Path({str(run)!r}), Path({str(tmp_path)!r})):\n"
+        "    print('locked', flush=True); time.sleep(600)\n"
     )
     holder = subprocess.Popen([sys.executable, "-c", code], cwd=REPO, stdout=subprocess.PIPE, text=True)
     try:
@@ -334,7 +335,8 @@ def test_case_1_a_run_path_through_a_symlink_leaving_its_root_is_refused(tmp_pat
     (out / "default").mkdir(parents=True)
     (out / "default" / "nvf-argmax-none").symlink_to(elsewhere)
     directory = out / "default" / "nvf-argmax-none" / "smoke" / "seed_100"
-    link = rf"{re.escape(str(out / 'default' / 'nvf-argmax-none'))} is a symbolic link to {re.escape(str(elsewhere))}, outside"
+    parent = re.escape(str(out / "default" / "nvf-argmax-none"))
+    link = rf"{parent} is a symbolic link to {re.escape(str(elsewhere))}, outside"
     with pytest.raises(RecordError, match=link):
         with RunLock(directory, out):
             pass
@@ -364,7 +366,8 @@ def test_case_5_a_lock_that_is_a_directory_or_a_run_path_taken_by_a_file_is_one_
     lock.rmdir()
     (out / "default").mkdir()
     (out / "default" / "nvf-argmax-none").write_text("a file where the run's folder belongs")
-    taken = rf"^{re.escape(str(out / 'default' / 'nvf-argmax-none'))} is a file, not a directory, so {re.escape(str(directory))}"
+    parent = re.escape(str(out / "default" / "nvf-argmax-none"))
+    taken = rf"^{parent} is a file, not a directory, so {re.escape(str(directory))}"
     with pytest.raises(RecordError, match=taken):
         with RunLock(directory, out):
             pass

@@ -125,7 +125,7 @@ def test_tables_and_summaries_say_which_file_and_backend_made_the_ground_truth(t
 
 def test_aggregation_mean_population_std_best_and_n(tmp_path):
     out = tmp_path / "out"
-    for seed, psnr in zip((100, 101, 102), (20.0, 21.0, 23.0)):
+    for seed, psnr in zip((100, 101, 102), (20.0, 21.0, 23.0), strict=True):
         make_run(out, method="nvf", seed=seed, final={"psnr": psnr, "lpips": 0.1, "rgb": 0.02})
         make_run(out, method="random", seed=seed, final={"psnr": 15.0, "lpips": 0.3, "rgb": 0.01})
     written, skipped = build_tables(out, [], tmp_path / "res")
@@ -150,10 +150,10 @@ def test_a_best_is_bold_only_where_its_paired_interval_excludes_every_other_row(
     establish nothing (a tie); hotdog: NVF ahead by 1.0, 1.5, 2.0 dB on three seeds (interval [0.26, 2.74])
     is bold, and Random's PSNR difference to NVF is printed with its interval."""
     out = tmp_path / "out"
-    for seed, psnr in zip((100, 101, 102), (20.0, 21.0, 23.0)):
+    for seed, psnr in zip((100, 101, 102), (20.0, 21.0, 23.0), strict=True):
         make_run(out, method="nvf", seed=seed, final={"psnr": psnr})
     make_run(out, method="random", seed=100, final={"psnr": 15.0})
-    for seed, gap in zip((100, 101, 102), (1.0, 1.5, 2.0)):
+    for seed, gap in zip((100, 101, 102), (1.0, 1.5, 2.0), strict=True):
         make_run(out, method="random", seed=seed, scene="hotdog", final={"psnr": 15.0})
         make_run(out, method="nvf", seed=seed, scene="hotdog", final={"psnr": 15.0 + gap})
     build_tables(out, [], tmp_path / "res", figures=False)
@@ -356,8 +356,9 @@ def test_tables_load_without_torch_open3d_or_lpips():
     """Regenerating tables needs only the metrics' data (pipeline.metrics.info), not the metrics' code, and
     composing a run's named config groups (pipeline.config.named) needs only the schema, not the method library."""
     code = (
-        "import sys, pipeline.repo, pipeline.tables.__main__, pipeline.config.named as o; o.NamedConfigs(pipeline.repo.CONF).named("
-        "('hubble', 'nvf', 'argmax', 'none', 'smoke')); print(sorted({'torch', 'open3d', 'lpips'} & set(sys.modules)))"
+        "import sys, pipeline.repo, pipeline.tables.__main__, pipeline.config.named as o; "
+        "o.NamedConfigs(pipeline.repo.CONF).named(('hubble', 'nvf', 'argmax', 'none', 'smoke')); "
+        "print(sorted({'torch', 'open3d', 'lpips'} & set(sys.modules)))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO)
     assert out.stdout.strip() == "[]"
@@ -434,7 +435,8 @@ def test_rows_planned_with_the_mesh_line_of_sight_are_marked(tmp_path):
     build_tables(out, [], tmp_path / "res", figures=False)
     md = read(tmp_path / "res" / "tables" / "main.md")
     table = pd.read_csv(tmp_path / "res" / "tables" / "main.csv", comment="#")
-    assert set(zip(table["Scene"], table["Method"])) == {("room", "NVF‡"), ("hubble", "NVF"), ("room", "Random")}
+    rows = set(zip(table["Scene"], table["Method"], strict=True))
+    assert rows == {("room", "NVF‡"), ("hubble", "NVF"), ("room", "Random")}
     assert md.count("‡") == 2 and "‡ Planned with an oracle: M29's line-of-sight filter used the scene mesh" in md
     assert r"NVF$^\ddagger$" in read(tmp_path / "res" / "tables" / "main.tex")
     assert "‡" not in read(tmp_path / "res" / "tables" / "table34_nerf_assets.md")

@@ -100,7 +100,7 @@ def params(model: SceneModel, group: str) -> list[torch.Tensor]:
 
 
 def same(a: list[torch.Tensor], b: list[torch.Tensor]) -> bool:
-    return all(torch.equal(x, y) for x, y in zip(a, b))
+    return all(torch.equal(x, y) for x, y in zip(a, b, strict=True))
 
 
 # ----------------------------------------------------------------------------- pure functions
@@ -255,7 +255,7 @@ def test_aux_loss_trains_variance_head_only():
         runs[aux] = (params(model, "backbone"), same(before, params(model, "variance")), stats)
     assert runs["none"][1] and not runs["activenerf"][1] and not runs["neurar"][1]
     for aux in ("activenerf", "neurar"):
-        assert all(torch.allclose(a, b, atol=1e-6) for a, b in zip(runs["none"][0], runs[aux][0]))
+        assert all(torch.allclose(a, b, atol=1e-6) for a, b in zip(runs["none"][0], runs[aux][0], strict=True))
         assert math.isfinite(runs[aux][2]["last_aux_loss"])
 
 

@@ -90,7 +90,7 @@ def test_labels_match_analytic_depth_test(jitter):
     assert labels.min() >= 0.0 and labels.max() <= 1.0
 
     expected = torch.zeros(points.shape[0], dtype=torch.bool)
-    for pos, cam in zip(cams, c2w):
+    for pos, cam in zip(cams, c2w, strict=True):
         reach = first_hit(pos, points) >= (points - pos).norm(dim=-1)
         expected |= frustum_mask(points, cam, INTR, cfg.label_max_depth) & reach
     agree = (labels > 0.5) == expected
