@@ -511,6 +511,14 @@ def stage_order(cfg: TrainConfig) -> tuple[str, ...]:
     raise ValueError(f"stage_order must be 'var_first' or 'vis_first', got {cfg.stage_order!r}")
 
 
+def stages_to_train(stages: Collection[str], cfg: TrainConfig, entropy: EntropyConfig) -> tuple[str, ...]:
+    """The method's ``stages`` in run order (``stage_order``), less the visibility head where nothing reads
+    it (METHOD 11): a score that ignores ``v`` (``entropy.use_visibility=false``, w/o Vis.) with the head
+    trained after the variance head (``var_first``). The stages before it draw and train exactly as with it."""
+    unread = not entropy.use_visibility and cfg.stage_order == "var_first"
+    return tuple(s for s in stage_order(cfg) if s in stages and not (s == "visibility" and unread))
+
+
 def train_model(
     model: SceneModel,
     obs: Observations,

@@ -82,3 +82,18 @@ def test_d0_resolves_to_the_scene_value_auto_or_the_number_given(d0, want):
     assert isinstance(settings.entropy.d0, float)
     assert settings.entropy.d0 == pytest.approx(want, abs=1e-4)
     assert settings.method.name == "nvf" and settings.scorer().d0 == settings.entropy.d0
+
+
+@pytest.mark.parametrize(
+    "overrides, stages",
+    [
+        ([], ("backbone", "variance", "visibility")),
+        (["ablation=wo_vis"], ("backbone", "variance")),
+        (["ablation=wo_vis", "train.stage_order=vis_first"], ("backbone", "visibility", "variance")),
+        (["ablation=ind_rays"], ("backbone", "variance", "visibility")),
+        (["method=wd"], ("backbone",)),
+    ],
+)
+def test_a_step_trains_the_stages_its_scores_read(overrides, stages):
+    """METHOD 11: w/o Vis. trains no visibility head where nothing reads it (``nvf.training.stages_to_train``)."""
+    assert EpisodeSettings.of(compose_config(overrides), load_scene("default")).stages == stages

@@ -31,6 +31,7 @@ from nvf.training import (  # noqa: E402
     composite,
     neurar_loss,
     stage_order,
+    stages_to_train,
     train_backbone,
     train_model,
     train_variance_head,
@@ -366,6 +367,37 @@ def test_train_model_runs_stages_in_order():
     assert seen == ["backbone"] * 4 + ["visibility"] * 2 + ["variance"] * 2
     with pytest.raises(ValueError, match="unknown training stages"):
         train_model(model, obs, cfg, ["colour"], EntropyConfig(), torch.Generator())
+
+
+def test_wo_vis_trains_no_visibility_head_and_all_else_as_nvf():
+    """METHOD 11: w/o Vis.'s score never reads ``v`` and, with ``var_first``, no stage after the head does, so
+    the head is not trained (its collapse failed a w/o Vis. run); the backbone and variance head are exactly
+    full NVF's. With ``vis_first`` the variance head reads the trained head, so it stays."""
+    nvf = ["backbone", "variance", "visibility"]
+    wo_vis = EntropyConfig(use_visibility=False)
+    assert stages_to_train(nvf, tiny_config(), EntropyConfig()) == ("backbone", "variance", "visibility")
+    assert stages_to_train(nvf, tiny_config(), wo_vis) == ("backbone", "variance")
+    assert stages_to_train(nvf, tiny_config(stage_order=StageOrder.vis_first), wo_vis) == (
+        "backbone",
+        "visibility",
+        "variance",
+    )
+    obs = ball_observations(3)
+    cfg = tiny_config(
+        backbone=StageBudget(4, 64, 1e-2), variance=StageBudget(2, 64, 1e-3), visibility=StageBudget(2, 128, 1e-3)
+    )
+    models = {}
+    for name, entropy in (("nvf", EntropyConfig()), ("wo_vis", wo_vis)):
+        model = tiny_model(seed=4)
+        untrained = params(model, "visibility")
+        stats = train_model(
+            model, obs, cfg, stages_to_train(nvf, cfg, entropy), entropy, torch.Generator().manual_seed(5)
+        )
+        models[name] = (model, same(untrained, params(model, "visibility")), list(stats.stages))
+    assert models["nvf"][2] == nvf and models["wo_vis"][2] == ["backbone", "variance"]
+    assert not models["nvf"][1] and models["wo_vis"][1]
+    for group in ("backbone", "variance"):
+        assert same(params(models["nvf"][0], group), params(models["wo_vis"][0], group)), group
 
 
 def test_appearance_embedding_is_trained_per_image():

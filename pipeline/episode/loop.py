@@ -95,7 +95,7 @@ class Episode:
         model = self.new_model(step)
         generator = seeded_generator(s.seed, step, "train", self.device)
         aux_loss = type(s.method).aux_loss  # read from the class: mypy binds a ClassVar callable read from an instance
-        stats = train_model(model, obs, s.train, s.method.stages, s.entropy, generator, aux_loss, progress)
+        stats = train_model(model, obs, s.train, s.stages, s.entropy, generator, aux_loss, progress)
         return model, stats
 
     def step(self, step: int, progress: TrainProgress | None = None) -> tuple[dict, dict]:

@@ -5,6 +5,7 @@ line per finished step."""
 
 import sys
 import time
+from collections.abc import Sequence
 
 from tqdm import tqdm
 
@@ -21,10 +22,10 @@ def clock(seconds: float) -> str:
 class EpisodeProgress:
     """The progress of one episode's steps ``first`` .. ``horizon - 1``, labelled ``label`` (scene/method,
     budget, seed). ``interactive`` (default: stderr is a terminal) shows the status line; otherwise
-    ``step_done`` prints its line on stdout. ``stages``: the method's training stages, in order (after the
+    ``step_done`` prints its line on stdout. ``stages``: the training stages a step runs, in order (after the
     last one's last iteration the step evaluates and plans). A context manager: the line closes with the loop."""
 
-    def __init__(self, label: str, first: int, horizon: int, stages: list[str], interactive: bool | None = None):
+    def __init__(self, label: str, first: int, horizon: int, stages: Sequence[str], interactive: bool | None = None):
         self.label, self.last_stage = label, stages[-1]
         self.interactive = sys.stderr.isatty() if interactive is None else interactive
         self.bar = tqdm(

@@ -198,7 +198,7 @@ def _record_steps(directory: Path, episode: Episode, record: RunRecord, first: i
     """Steps ``first`` .. horizon - 1, each row (and the step's images) written once the step is complete."""
     s = episode.settings
     label = f"{episode.scene.name}/{s.method.name} {s.budget.name} seed {s.seed}"
-    with EpisodeProgress(label, first, s.budget.horizon, s.method.stages) as progress:
+    with EpisodeProgress(label, first, s.budget.horizon, s.stages) as progress:
         for step in range(first, s.budget.horizon):
             start = time.perf_counter()
             row, images = episode.step(step, progress.train)

@@ -11,6 +11,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from nvf.config import EntropyConfig, FieldConfig, PlannerConfig, SamplerConfig, TrainConfig
 from nvf.methods import Method
+from nvf.training import stages_to_train
 from nvf.uncertainty import StepScorer, ViewScorer
 from pipeline.config.method import build_method
 from pipeline.config.schema import BudgetConfig, MetricsConfig, RenderConfig, RunConfig, StepMetrics
@@ -63,6 +64,11 @@ class EpisodeSettings:
     tau: float
     collision_free: bool
     rival: tuple[str, EntropyConfig] | None
+
+    @property
+    def stages(self) -> tuple[str, ...]:
+        """The training stages a step runs, in order (``nvf.training.stages_to_train``)."""
+        return stages_to_train(self.method.stages, self.train, self.entropy)
 
     def scorer(self, entropy: EntropyConfig | None = None) -> ViewScorer | StepScorer | None:
         """The method's view scorer with these settings' (or ``entropy``'s) NVF entropy settings (a
