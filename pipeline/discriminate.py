@@ -1,20 +1,18 @@
 """``python -m pipeline.discriminate [overrides] [--scenes S,..] [--seeds N,..] [--jobs J] [--label NAME]``:
 does a budget tell the methods apart? The paired discrimination experiment of one budget.
 
-For each scene and seed it runs (through ``python -m pipeline.run -m``, scene by scene, one Hydra sweep
-per entry, ``hydra/launcher=joblib`` with ``J`` parallel jobs, each of cores / J torch threads or
-``OMP_NUM_THREADS``; finished runs are skipped, so a killed
-experiment resumes; ``step_metrics=psnr``: the steps before the last record the PSNR alone) full NVF
-(recording, at every step, how w/o Vis.'s score ranks the same candidates: ``diagnostics.rank_against=wo_vis``),
-its ablations w/o Vis. and Ind. Rays, and the baselines: every other method whose yaml lists ``discriminate``
-under ``experiments`` (WD, ActiveNeRF, NeurAR), on every scene whose yaml lists it (default, hotdog, hubble). An entry
-the overrides
-cannot change (``pipeline.records.compat.inert_keys``: ``nvf.entropy.logdet_coeff=1.0`` on WD) is not run
-again where ``--reuse DIR`` (default ``results/runs``) holds its finished records of the plain budget. Then, per
-scene, the paired (same seed) differences of final PSNR and of PSNR
-averaged over the steps: NVF - w/o Vis., NVF - Ind. Rays and NVF - the best baseline (the baseline with
-the highest mean final PSNR on that scene), each with a 95% Student-t interval over the seeds, the
-Spearman correlation of NVF's and w/o Vis.'s candidate scores, and minutes per episode.
+For each scene and seed it runs (through ``python -m pipeline.run -m``, scene by scene, one Hydra sweep per entry,
+``hydra/launcher=joblib`` with ``J`` parallel jobs of cores / J torch threads each, or ``OMP_NUM_THREADS``;
+finished runs are skipped, so a killed experiment resumes; ``step_metrics=psnr``: the steps before the last record
+the PSNR alone) full NVF (recording, at every step, how w/o Vis.'s score ranks the same candidates:
+``diagnostics.rank_against=wo_vis``), its ablations w/o Vis. and Ind. Rays, and the baselines: every other method
+whose yaml lists ``discriminate`` under ``experiments`` (WD, ActiveNeRF, NeurAR), on every scene whose yaml lists
+it (default, hotdog, hubble). An entry the overrides cannot change (``pipeline.records.compat.inert_keys``:
+``nvf.entropy.logdet_coeff=1.0`` on WD) is not run again where ``--reuse DIR`` (default ``results/runs``) holds
+its finished records of the plain budget. Then, per scene, the paired (same seed) differences of final PSNR and of
+PSNR averaged over the steps: NVF - w/o Vis., NVF - Ind. Rays and NVF - the best baseline (the baseline with the
+highest mean final PSNR on that scene), each with a 95% Student-t interval over the seeds, the Spearman
+correlation of NVF's and w/o Vis.'s candidate scores, and minutes per episode.
 
 Writes ``${paths.results}/pilots/discriminate/<label>/`` (``<label>``: the budget and every setting
 beyond it, as the tables label runs, unless ``--label``): ``runs/`` (the records, images off),
