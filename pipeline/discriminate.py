@@ -115,12 +115,19 @@ def sweep_commands(
     return commands
 
 
+def mean_spearman(agreement: list[dict]) -> float:
+    """The mean of the steps' ``rank_agreement`` Spearman correlations where defined (NaN if none is): a step
+    whose rival score is constant over the candidates records None."""
+    values = [a["spearman"] for a in agreement if a["spearman"] is not None and math.isfinite(a["spearman"])]
+    return float(np.mean(values)) if values else math.nan
+
+
 def per_seed(
     roots: list[Path], labels: dict[tuple[str, str], str], planner: str, scenes: tuple[str, ...], seeds: tuple[int, ...]
 ) -> pd.DataFrame:
     """One row per finished run of the experiment under ``roots`` (each entry's budget label in ``labels``,
     ``planner``): scene, method, ablation, seed, final PSNR, PSNR averaged over the steps, minutes (the steps'
-    train + eval + plan seconds), mean Spearman and same-choice fraction."""
+    train + eval + plan seconds), mean Spearman (``mean_spearman``) and same-choice fraction."""
     runs = collect_runs(roots)
     final = runs.final[(runs.final["status"] == "done") & (runs.final["planner"] == planner)]
     mine = np.array(
@@ -140,7 +147,7 @@ def per_seed(
                 "final_psnr": run["psnr"],
                 "mean_psnr": float(np.mean([s["metrics"]["psnr"] for s in steps])),
                 "minutes": sum(sum(s["seconds"].values()) for s in steps) / 60.0,
-                "spearman": float(np.nanmean([a["spearman"] for a in agreement])) if agreement else math.nan,
+                "spearman": mean_spearman(agreement),
                 "same_choice": float(np.mean([a["same_choice"] for a in agreement])) if agreement else math.nan,
             }
         )
@@ -251,6 +258,11 @@ def summarize(
             "run without --summarize-only"
         )
     details = compare(runs)
+    if details.empty:
+        fail(
+            f"no finished NVF {label} runs paired with another entry of scenes {', '.join(scenes)} under "
+            f"{', '.join(map(str, roots))}; with --summarize-only, pass paths.outputs=DIR of the runs"
+        )
     summary = details[details["measure"] == "final_psnr"].loc[:, list(SUMMARY_COLUMNS)]
     files = [out / "summary.csv", out / "details.csv", out / "per_seed.csv", out / "summary.md"]
     atomic_write_text(files[0], summary.to_csv(index=False))

@@ -9,7 +9,7 @@ import pytest
 from scipy import stats
 
 from pipeline import discriminate
-from pipeline.discriminate import SUMMARY_COLUMNS, compare
+from pipeline.discriminate import SUMMARY_COLUMNS, compare, mean_spearman
 from pipeline.tables.stats import Interval
 
 
@@ -115,3 +115,23 @@ def test_entries_a_setting_cannot_change_are_reused_not_rerun(tmp_path):
     )
     assert all("step_metrics=psnr" in c for c in commands)
     assert ["diagnostics.rank_against=wo_vis" in c for c in commands] == [True, False]
+
+
+def test_mean_spearman_leaves_out_steps_where_the_rival_score_was_flat():
+    """A rival score constant over the candidates (w/o Vis. with c = 1 on Hubble) has no rank correlation: the
+    step records None, which the mean leaves out instead of failing on it."""
+    steps = [{"spearman": 0.5, "same_choice": True}, {"spearman": None, "same_choice": False}, {"spearman": 0.7}]
+    assert mean_spearman(steps) == pytest.approx(0.6)
+    assert math.isnan(mean_spearman([{"spearman": None}])) and math.isnan(mean_spearman([]))
+
+
+def test_a_summary_without_nvf_runs_is_one_line_and_status_2(tmp_path, monkeypatch, capsys):
+    """Only the reused baselines found (e.g. --summarize-only without paths.outputs=DIR of the runs): one line,
+    not a KeyError from an empty comparison."""
+    baselines = runs_frame().query("method != 'nvf'")
+    monkeypatch.setattr(discriminate, "per_seed", lambda *args: baselines)
+    with pytest.raises(SystemExit) as info:
+        discriminate.summarize([tmp_path], tmp_path, "cpu", {}, "argmax", ("a", "b"), (100, 101, 102))
+    err = capsys.readouterr().err
+    assert info.value.code == 2 and len(err.strip().splitlines()) == 1 and "paths.outputs=DIR" in err
+    assert not any(tmp_path.iterdir())
