@@ -31,14 +31,13 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from omegaconf import DictConfig, OmegaConf
 
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.catalog import members, method_configs
-from pipeline.config.named import GROUPS, NamedConfigs
+from pipeline.config.named import config_label
 from pipeline.config.validation import compose_config
 from pipeline.records.store import RunRecord, atomic_write_text, record_status, run_dir
-from pipeline.repo import CONF, REPO
+from pipeline.repo import REPO
 from pipeline.scenes.loading import find_asset, scene_config
 from pipeline.scenes.scene import SceneError
 from pipeline.tables.load import collect_runs
@@ -60,17 +59,10 @@ COMPARISONS = (("nvf-wo_vis", WO_VIS), ("nvf-ind_rays", IND_RAYS), ("nvf-best_ba
 SUMMARY_COLUMNS = ("scene", "comparison", "mean_diff", "ci_low", "ci_high", "n", "minutes_per_episode")
 
 
-def budget_label(cfg: DictConfig) -> str:
-    """The budget and every setting beyond the named groups (``cpu+train.precision=bf16``), as the tables
-    label runs (the diagnostics and ``save_images`` are not settings)."""
-    info = {group: cfg[group].name for group in GROUPS} | {"config": OmegaConf.to_container(cfg, resolve=True)}
-    return NamedConfigs(CONF).budget_label(info)
-
-
 def entry_labels(overrides: list[str]) -> dict[tuple[str, str], str]:
     """Each entry's budget label under ``overrides`` (the plain budget's where they cannot act on it)."""
     return {
-        entry: budget_label(compose_config([f"method={entry[0]}", f"ablation={entry[1]}", *overrides]))
+        entry: config_label(compose_config([f"method={entry[0]}", f"ablation={entry[1]}", *overrides]))
         for entry in ENTRIES
     }
 
@@ -306,7 +298,7 @@ def main(argv: list[str]) -> int:
     if args.jobs < 1:
         fail(f"--jobs {args.jobs} must be >= 1")
     cfg = compose_config(args.overrides)
-    budget = budget_label(cfg)
+    budget = config_label(cfg)
     label = args.label or budget
     labels = entry_labels(args.overrides)
     reuse = None if str(args.reuse) == "none" else args.reuse

@@ -33,7 +33,6 @@ import numpy as np
 import torch
 from jaxtyping import Float
 from matplotlib.figure import Figure
-from omegaconf import DictConfig, OmegaConf
 from torch import Tensor
 from tqdm import tqdm
 
@@ -45,7 +44,7 @@ from nvf.uncertainty import ViewScorer
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.catalog import ablation_configs, method_configs
 from pipeline.config.method import build_method
-from pipeline.config.named import GROUPS, NamedConfigs
+from pipeline.config.named import config_label
 from pipeline.config.plain import as_dict
 from pipeline.config.validation import compose_config, resolve_device
 from pipeline.episode.loop import Episode
@@ -53,7 +52,6 @@ from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.image import LpipsMetric
 from pipeline.records.images import colorize, save_figure
 from pipeline.records.store import atomic_write_bytes, atomic_write_text, to_jsonable
-from pipeline.repo import CONF
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.loading import load_scene
 from pipeline.scenes.scene import Scene, SceneError
@@ -232,7 +230,7 @@ def run(
     scene = load_scene(base.scene, Path(base.paths.assets), blender_python(base.paths.blender_python))
     partial = dataclasses.replace(scene, init_poses=partial_views(scene, torch.Generator().manual_seed(PARTIAL_SEED)))
     view = least_seen_view(scene.eval_poses, partial.init_poses)
-    label = budget_label(base)
+    label = config_label(base)
     name = f"{base.scene.name}_{label}"
     if entries != ENTRIES:
         name += "+entries=" + ",".join(entry_name(*entry) for entry in entries)
@@ -283,13 +281,6 @@ def run(
     save_figure(figure(shown, {label: arrays[f"score:{label}"] for label in labels}), out / f"{name}.png")
     shutil.rmtree(finished)
     return [out / f"{name}.{ext}" for ext in ("json", "md", "png")]
-
-
-def budget_label(cfg: DictConfig) -> str:
-    """The budget plus every setting beyond the named groups (``cpu+train.visibility.iters=500``), as the
-    tables label runs (``pipeline.config.named``), so another setting never overwrites the plain budget's files."""
-    info = {group: cfg[group].name for group in GROUPS} | {"config": OmegaConf.to_container(cfg, resolve=True)}
-    return NamedConfigs(CONF).budget_label(info)
 
 
 def markdown(report: dict) -> str:

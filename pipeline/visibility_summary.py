@@ -5,7 +5,8 @@ Columns: ``setting, scene, visibility_source, label_auc, head_auc`` (the initial
 from unseen object pixels, ``pipeline.bench visibility``), ``spearman_nvf_wo_vis`` (mean over the measured
 candidate sets), ``onestep_gain_mean, onestep_ci_low, onestep_ci_high, n`` (NVF's pick minus w/o Vis.'s
 in held-out PSNR, dB, where they differ, with the 95% Student-t interval over the ``n`` disagreements),
-``minutes_per_episode`` (from the setting's discrimination records when it has them, else empty), then
+``minutes_per_episode`` (NVF's and w/o Vis.'s mean in the setting's discrimination experiment when it has
+one, ``episode_minutes``, else empty), then
 ``decisions`` (candidate sets measured), ``same_argmax_fraction``, ``nvf_decisive_term`` (the reward term
 deciding NVF's ranking most often), ``nvf_unknown_share`` (the unknown component's mean share of NVF's
 reward variance) and ``nvf_tied_fraction``, ``wo_vis_tied_fraction`` (the candidate sets whose maximum
@@ -28,6 +29,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.cli import ArgumentParser, description
+from pipeline.config.named import config_label
 from pipeline.config.validation import compose_config
 from pipeline.records.store import atomic_write_text
 from pipeline.tables.load import collect_runs
@@ -75,6 +77,21 @@ def _mean(values: list) -> float:
     return float(np.mean(kept)) if kept else math.nan
 
 
+def episode_minutes(study: Path, setting: dict) -> dict[str, float]:
+    """Mean minutes per episode of NVF and w/o Vis., per scene and over all (``ALL_SCENES``), in the setting's
+    discrimination experiment (``pilots/discriminate/<its budget label>/per_seed.csv``, ``pipeline.discriminate``),
+    or {} where it has none."""
+    overrides = [o for o in setting.get("overrides", []) if not o.startswith("paths.")]
+    label = config_label(compose_config([f"budget={setting.get('budget', 'cpu')}", *overrides]))
+    path = study.parent / "discriminate" / label / "per_seed.csv"
+    if not path.is_file():
+        return {}
+    runs = pd.read_csv(path)
+    runs = runs[(runs["method"] == "nvf") & runs["ablation"].isin(["none", "wo_vis"])]
+    minutes = {str(scene): float(m) for scene, m in runs.groupby("scene")["minutes"].mean().items()}
+    return minutes | ({ALL_SCENES: float(runs["minutes"].mean())} if len(runs) else {})
+
+
 def setting_row(setting: dict, scene: str, rows: list[dict], diagnostics: list[dict]) -> dict:
     """The summary row of one setting over ``rows`` (one scene's, or all of them)."""
     gains = np.array([r["gain"] for r in rows if "gain" in r], dtype=float)
@@ -107,6 +124,7 @@ def summary_frame(study: Path) -> pd.DataFrame:
     out = []
     for folder in sorted(p for p in study.iterdir() if p.is_dir() and (p / "setting.json").is_file()):
         setting = json.loads((folder / "setting.json").read_text())
+        setting["minutes_per_episode"] = episode_minutes(study, setting)
         rows = _rows(folder)
         scenes = list(dict.fromkeys(r["scene"] for r in rows))
         for scene in scenes:

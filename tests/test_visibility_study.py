@@ -66,6 +66,28 @@ def test_summary_pairs_the_disagreements_per_scene_and_over_scenes(tmp_path):
     assert hotdog["nvf_tied_fraction"] == 0.0 and hotdog["wo_vis_tied_fraction"] == pytest.approx(2 / 3)
 
 
+def test_minutes_per_episode_come_from_the_settings_discrimination_experiment(tmp_path):
+    """NVF's and w/o Vis.'s mean minutes per episode in ``pilots/discriminate/<the setting's label>/per_seed.csv``;
+    the baselines' runs (reused from other budgets' records) are left out; a setting without one stays empty."""
+    study = tmp_path / "pilots" / "visibility_study"
+    rows = [decision_row("hotdog", 0, 0.5), decision_row("default", 0, 0.2)]
+    for name, overrides in (("c1", ["nvf.entropy.logdet_coeff=1.0", "paths.results=x"]), ("plain", [])):
+        write_setting(study / name, name, rows)
+        setting = json.loads((study / name / "setting.json").read_text()) | {"overrides": overrides, "budget": "cpu"}
+        (study / name / "setting.json").write_text(json.dumps(setting))
+    experiment = tmp_path / "pilots" / "discriminate" / "cpu+nvf.entropy.logdet_coeff=1.0"
+    experiment.mkdir(parents=True)
+    (experiment / "per_seed.csv").write_text(
+        "scene,method,ablation,seed,minutes\n"
+        "hotdog,nvf,none,100,4\nhotdog,nvf,wo_vis,100,6\nhotdog,wd,none,100,60\ndefault,nvf,none,100,3\n"
+    )
+    frame = summary_frame(study).set_index(["setting", "scene"])
+    assert frame.loc[("c1", "hotdog"), "minutes_per_episode"] == 5.0
+    assert frame.loc[("c1", "default"), "minutes_per_episode"] == 3.0
+    assert frame.loc[("c1", "all"), "minutes_per_episode"] == pytest.approx(13 / 3)
+    assert frame.loc["plain", "minutes_per_episode"].isna().all()
+
+
 def write_finished_run(root: Path, method: str, ablation: str, seed: int, vis_area: list[float]) -> None:
     """A finished smoke record on 'hotdog' whose step ``k`` logs ``vis_area[k]`` (3 steps: smoke's horizon)."""
     record = RunRecord(run_dir(root, "hotdog", method, "argmax", ablation, "smoke", seed))

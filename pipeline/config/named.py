@@ -10,12 +10,13 @@ from typing import Any
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 from hydra.errors import HydraException
-from omegaconf import OmegaConf
+from omegaconf import DictConfig, OmegaConf
 
 from pipeline.config.schema import register_configs
 from pipeline.records import compat
 from pipeline.records.compat import drop_not_settings, drop_retired, with_legacy_defaults
 from pipeline.records.store import to_jsonable
+from pipeline.repo import CONF
 
 GROUPS = ("scene", "method", "planner", "ablation", "budget")
 LOCATIONS = ("paths", "seed")  # where files live; the seed is an identity key
@@ -77,3 +78,11 @@ class NamedConfigs:
         inert = compat.inert_keys(recorded)  # settings the run's method cannot read do not make it another run
         changed = changed_settings(recorded, named)
         return tuple(f"{key}={_text(value)}" for key, value in changed if not compat.is_inert(key, inert))
+
+
+def config_label(cfg: DictConfig) -> str:
+    """The composed config's budget plus every setting beyond its named groups (``cpu+train.precision=bf16``),
+    as the tables label runs (``NamedConfigs.budget_label``; the diagnostics and ``save_images`` are not
+    settings), so another setting never shares the plain budget's files."""
+    info = {group: cfg[group].name for group in GROUPS} | {"config": OmegaConf.to_container(cfg, resolve=True)}
+    return NamedConfigs(CONF).budget_label(info)
