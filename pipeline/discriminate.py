@@ -14,11 +14,13 @@ PSNR averaged over the steps: NVF - w/o Vis., NVF - Ind. Rays and NVF - the best
 highest mean final PSNR on that scene), each with a 95% Student-t interval over the seeds, the Spearman
 correlation of NVF's and w/o Vis.'s candidate scores, and minutes per episode.
 
-Writes ``${paths.results}/pilots/discriminate/<label>/`` (``<label>``: the budget and every setting
-beyond it, as the tables label runs, unless ``--label``): ``runs/`` (the records, images off),
-``summary.csv`` (``scene, comparison, mean_diff, ci_low, ci_high, n, minutes_per_episode``; final PSNR in
-dB), ``details.csv`` (both PSNR measures, every seed's difference, which baseline), ``summary.md`` and
-``command.txt``. ``--summarize-only`` skips the runs (e.g. to summarise records made elsewhere with
+Writes ``${paths.results}/pilots/discriminate/<label>/`` (``<label>``: the budget and every setting beyond it, as
+the tables label runs, unless ``--label``): ``runs/`` (the records, images off), ``summary.csv`` (``scene,
+comparison, mean_diff, ci_low, ci_high, n, minutes_per_episode``; final PSNR in dB), ``details.csv`` (both PSNR
+measures, every seed's difference, which baseline), ``per_seed.csv`` (every run, with the share of its steps whose
+score was flat), ``summary.md`` and ``command.txt``; for a setting beyond the budget, ``against_plain.csv``: each
+entry the setting acts on minus the plain budget's experiment, same seeds (did the setting make NVF better, or its
+ablation worse?). ``--summarize-only`` skips the runs (e.g. to summarise records made elsewhere with
 ``paths.outputs=DIR``).
 """
 
@@ -114,6 +116,15 @@ def mean_spearman(agreement: list[dict]) -> float:
     return float(np.mean(values)) if values else math.nan
 
 
+def flat_steps(steps: list[dict]) -> float:
+    """The fraction of a run's steps whose score was constant over the candidates (every candidate tied at the
+    maximum: a pick by draw order, as Random's); NaN for a run without scores or recorded ties."""
+    scores = [s.get("candidate_scores") or {} for s in steps]
+    if not scores or any("ties_at_max" not in c for c in scores):
+        return math.nan
+    return float(np.mean([c["ties_at_max"] >= c["count"] for c in scores]))
+
+
 def per_seed(
     roots: list[Path], labels: dict[tuple[str, str], str], planner: str, scenes: tuple[str, ...], seeds: tuple[int, ...]
 ) -> pd.DataFrame:
@@ -141,6 +152,7 @@ def per_seed(
                 "minutes": sum(sum(s["seconds"].values()) for s in steps) / 60.0,
                 "spearman": mean_spearman(agreement),
                 "same_choice": float(np.mean([a["same_choice"] for a in agreement])) if agreement else math.nan,
+                "flat_steps": flat_steps(steps),
             }
         )
     return pd.DataFrame(
@@ -155,6 +167,7 @@ def per_seed(
             "minutes",
             "spearman",
             "same_choice",
+            "flat_steps",
         ],
     )
 
@@ -193,6 +206,58 @@ def compare(runs: pd.DataFrame) -> pd.DataFrame:
                     }
                 )
     return pd.DataFrame(rows)
+
+
+def against_plain(runs: pd.DataFrame, plain: pd.DataFrame, entries: list[tuple[str, str]]) -> pd.DataFrame:
+    """What the setting changes, entry by entry: per scene and entry of ``entries`` (those the setting acts
+    on), its runs minus the plain budget's experiment's runs (``plain``, ``per_seed``'s columns), paired by
+    seed, for both PSNR measures, with the share of steps where each run's score was flat."""
+    rows = []
+    for (scene, method, ablation), group in runs.groupby(["scene", "method", "ablation"], sort=False):
+        if (method, ablation) not in entries:
+            continue
+        mine = group.set_index("seed")
+        base = plain[(plain["scene"] == scene) & (plain["method"] == method) & (plain["ablation"] == ablation)]
+        base = base.set_index("seed")
+        seeds = mine.index.intersection(base.index)
+        for measure in ("final_psnr", "mean_psnr"):
+            interval = Interval.of((mine.loc[seeds, measure] - base.loc[seeds, measure]).to_numpy(float))
+            rows.append(
+                {
+                    "scene": scene,
+                    "entry": f"{method}-{ablation}",
+                    "measure": measure,
+                    "mean_diff": interval.mean,
+                    "ci_low": interval.low,
+                    "ci_high": interval.high,
+                    "n": interval.n,
+                    "flat_steps": float(mine.loc[seeds, "flat_steps"].mean()),
+                    "plain_flat_steps": float(base.loc[seeds, "flat_steps"].mean()),
+                }
+            )
+    return pd.DataFrame(rows)
+
+
+def against_plain_markdown(plain_label: str, changes: pd.DataFrame) -> list[str]:
+    """The lines of ``against_plain``'s table for summary.md."""
+    lines = [
+        "",
+        f"What the setting changes, entry by entry: this experiment's runs minus `{plain_label}`'s (same seed), "
+        "and the share of steps where the run's score was constant over the candidates (a pick by draw order):",
+        "",
+        "| scene | entry | final PSNR | PSNR over steps | n | flat steps | flat steps, plain |",
+        "|:--|:--|--:|--:|--:|--:|--:|",
+    ]
+    for (scene, entry), group in changes.groupby(["scene", "entry"], sort=False):
+        cells = {
+            row["measure"]: f"{row['mean_diff']:+.2f} [{row['ci_low']:+.2f}, {row['ci_high']:+.2f}]"
+            for _, row in group.iterrows()
+        }
+        first = group.iloc[0]
+        flat = [f"{v:.2f}" if math.isfinite(v) else "-" for v in (first["flat_steps"], first["plain_flat_steps"])]
+        row = [scene, entry, cells["final_psnr"], cells["mean_psnr"], str(first["n"]), *flat]
+        lines.append("| " + " | ".join(row) + " |")
+    return lines
 
 
 def markdown(label: str, details: pd.DataFrame, runs: pd.DataFrame) -> str:
@@ -241,8 +306,10 @@ def summarize(
     planner: str,
     scenes: tuple[str, ...],
     seeds: tuple[int, ...],
+    plain: Path | None = None,
 ) -> list[Path]:
-    """Write summary.csv, details.csv, per_seed.csv and summary.md for the runs under ``roots``."""
+    """Write summary.csv, details.csv, per_seed.csv and summary.md for the runs under ``roots``; with ``plain``
+    (the plain budget's experiment folder, for a setting beyond it) also against_plain.csv (``against_plain``)."""
     runs = per_seed(roots, labels, planner, scenes, seeds)
     if runs.empty:
         fail(
@@ -260,7 +327,15 @@ def summarize(
     atomic_write_text(files[0], summary.to_csv(index=False))
     atomic_write_text(files[1], details.to_csv(index=False))
     atomic_write_text(files[2], runs.to_csv(index=False))
-    atomic_write_text(files[3], markdown(label, details, runs))
+    text = markdown(label, details, runs)
+    if plain is not None and (plain / "per_seed.csv").is_file():
+        base = pd.read_csv(plain / "per_seed.csv")
+        base["flat_steps"] = base["flat_steps"] if "flat_steps" in base else math.nan
+        changes = against_plain(runs, base, [e for e, entry_label in labels.items() if entry_label == labels[NVF]])
+        files.append(out / "against_plain.csv")
+        atomic_write_text(files[-1], changes.to_csv(index=False))
+        text += "\n".join(against_plain_markdown(plain.name, changes)) + "\n"
+    atomic_write_text(files[3], text)
     return files
 
 
@@ -325,7 +400,8 @@ def main(argv: list[str]) -> int:
         atomic_write_text(out / "command.txt", "".join(shlex.join(["python", *c[1:]]) + "\n" for c in commands))
         for command in commands:
             subprocess.run(command, cwd=REPO, check=False)  # a failed job is recorded; the summary counts seeds
-    files = summarize(roots, out, label, labels, cfg.planner.name, scenes, seeds)
+    plain_dir = out.parent / cfg.budget.name if labels[NVF] != cfg.budget.name else None
+    files = summarize(roots, out, label, labels, cfg.planner.name, scenes, seeds, plain_dir)
     print("pipeline.discriminate: wrote " + ", ".join(map(str, files)))
     return 0
 

@@ -135,3 +135,34 @@ def test_a_summary_without_nvf_runs_is_one_line_and_status_2(tmp_path, monkeypat
     err = capsys.readouterr().err
     assert info.value.code == 2 and len(err.strip().splitlines()) == 1 and "paths.outputs=DIR" in err
     assert not any(tmp_path.iterdir())
+
+
+def test_flat_steps_count_the_steps_where_every_candidate_tied():
+    steps = [{"candidate_scores": {"count": 4, "ties_at_max": t}} for t in (4, 1, 4, 2)]
+    assert discriminate.flat_steps(steps) == 0.5
+    assert math.isnan(discriminate.flat_steps([{"candidate_scores": {"count": 4}}]))  # made before ties were recorded
+    assert math.isnan(discriminate.flat_steps([{"candidate_scores": None}]))  # Random: no scores
+
+
+def test_against_plain_pairs_each_entry_the_setting_acts_on_with_the_plain_budgets_run():
+    """A setting that leaves NVF as it was and makes w/o Vis. 1 dB worse says so entry by entry; the baselines,
+    which it cannot change (their records are the plain budget's), are left out."""
+    plain = runs_frame().assign(flat_steps=math.nan)
+    setting = plain.copy()
+    wo_vis = setting["ablation"] == "wo_vis"
+    setting.loc[wo_vis, "final_psnr"] -= 1.0
+    setting["flat_steps"] = np.where(wo_vis, 0.25, 0.0)
+    changes = discriminate.against_plain(setting, plain, [("nvf", "none"), ("nvf", "wo_vis"), ("nvf", "ind_rays")])
+    final = changes[changes["measure"] == "final_psnr"].set_index(["scene", "entry"])
+    assert set(final.index.get_level_values("entry")) == {"nvf-none", "nvf-wo_vis", "nvf-ind_rays"}
+    assert (
+        final.loc[("a", "nvf-wo_vis"), "mean_diff"] == pytest.approx(-1.0)
+        and final.loc[("a", "nvf-none"), "mean_diff"] == 0
+    )
+    assert final.loc[("a", "nvf-wo_vis"), "flat_steps"] == 0.25 and math.isnan(
+        final.loc[("a", "nvf-wo_vis"), "plain_flat_steps"]
+    )
+    lines = discriminate.against_plain_markdown("cpu", changes)
+    assert any(
+        line.startswith("| a | nvf-wo_vis | -1.00 [-1.00, -1.00]") and line.endswith("| 0.25 | - |") for line in lines
+    )
