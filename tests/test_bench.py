@@ -167,7 +167,6 @@ def test_plan_bench_writes_every_scorer_against_a_plain_render(tmp_path):
     expected = extra_at_limit / extra if extra > 0 else None
     assert report["nvf_extra_fraction_of_limit"] == (None if expected is None else pytest.approx(expected))
     assert report["nvf_over_plain_render_at_limit"] > 1.0  # the extra heads cost FLOPs
-    assert report["nvf_over_plain_render"] > 1.0  # and time: NVF renders more than a plain render (measured 1.5-1.7)
     assert report["goal_within_limit"] == (report["nvf_over_plain_render_at_limit"] <= plan.GOAL_NVF_OVER_PLAIN)
     assert report["settings"]["candidates"] <= 16
     names = train.parse_precisions(None)
