@@ -106,7 +106,7 @@ def test_train_bench_writes_rates_fractions_and_psnr(tmp_path):
     strict=False,
     reason="under pytest's runtime shape checks (--jaxtyping-packages in pyproject's addopts) the bench's path "
     "runs 25-35% slower than the direct call on the faster 2-core machine kind (0.41 against 0.53-0.67 M "
-    "samples/s, 800 iterations, two runs); the same test body run outside pytest passes (bench 0.70 M/s)",
+    "samples/s, 800 iterations, two runs); without them (pytest -o addopts='' --runxfail) it passes, 2 of 2",
 )
 def test_train_bench_measures_what_an_episode_trains(tmp_path):
     """One precision trains on the main thread, as the episode does: the bench's samples/s agrees within 15%
