@@ -4,6 +4,8 @@ quality numbers within bounds set below what smoke reaches today (stated where a
 
 import json
 import math
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -101,18 +103,10 @@ def test_train_bench_writes_rates_fractions_and_psnr(tmp_path):
         assert met["heldout_psnr_drop_db"] == (ratio["heldout_psnr_diff"] >= -0.2)
 
 
-@pytest.mark.slow
-@pytest.mark.xfail(
-    strict=False,
-    reason="under pytest's runtime shape checks (--jaxtyping-packages in pyproject's addopts) the bench's path "
-    "runs 25-35% slower than the direct call on the faster 2-core machine kind (0.41 against 0.53-0.67 M "
-    "samples/s, 800 iterations, two runs); without them (pytest -o addopts='' --runxfail) it passes, 2 of 2",
-)
-def test_train_bench_measures_what_an_episode_trains(tmp_path):
-    """One precision trains on the main thread, as the episode does: the bench's samples/s agrees within 15%
-    with ``train_backbone`` of the same settings timed directly (the same warm-up iterations left out).
-    800 iterations: over 60 the run-to-run spread alone was +-20%, and 200 take about 3 s on the faster
-    machine kind, where single runs still differed by 20%."""
+def bench_and_direct_rates(tmp_path: Path) -> dict:
+    """Stage-1 samples/s of ``pipeline.bench train`` (one precision) and of ``train_backbone`` with the same
+    settings timed directly, once before the bench and once after, the bench's warm-up iterations left out.
+    800 smoke iterations: over 60 the run-to-run spread alone was +-20%."""
     overrides = ["budget=smoke", "train.backbone.iters=800"]
     cfg = compose_config(overrides)
     scene = load(cfg)
@@ -121,6 +115,7 @@ def test_train_bench_measures_what_an_episode_trains(tmp_path):
     renderer = open_renderer(scene, s.render, s.blender_python)
     obs = observations(renderer, scene.eval_poses, Intrinsics.from_fov(size, size), int(cfg.budget.gt_samples))
     renderer.close()
+    warmup = max(1, min(10, s.train.backbone.iters // 10))  # the bench's
 
     def direct_rate() -> float:
         torch.manual_seed(int(cfg.seed))
@@ -135,14 +130,31 @@ def test_train_bench_measures_what_an_episode_trains(tmp_path):
         train_backbone(model, obs, s.train, torch.Generator().manual_seed(int(cfg.seed)), progress=progress)
         return (samples[-1] - samples[warmup - 1]) / (seconds[-1] - seconds[warmup - 1])
 
-    warmup = max(1, min(10, s.train.backbone.iters // 10))  # the bench's
-    direct = [direct_rate()]  # a direct timing before the bench and one after: their spread brackets it
+    direct = [direct_rate()]
     out = tmp_path / "train.json"
     train.main([*overrides, "--precisions", "fp32", "--repeats", "1", "--out", str(out)])
     report = json.loads(out.read_text())
-    assert report["settings"]["warmup_iterations"] == warmup
     direct.append(direct_rate())
-    assert min(direct) * 0.85 <= report["train_samples_per_s"] <= max(direct) * 1.15, (report, direct)
+    return {"bench": report["train_samples_per_s"], "direct": direct, "warmup": warmup, "report": report}
+
+
+@pytest.mark.slow
+def test_train_bench_measures_what_an_episode_trains(tmp_path):
+    """One precision trains on the main thread, as the episode does: the bench's samples/s lies within 15% of
+    the two direct timings that bracket it. Measured in a child process: pytest's runtime shape checks
+    (``--jaxtyping-packages`` in pyproject's addopts) slowed the bench's path 25-35% more than the direct call
+    (0.41 against 0.53-0.67 M samples/s), which is the harness, not the bench."""
+    code = (
+        f"import json, sys; from pathlib import Path; sys.path.insert(0, {str(Path(__file__).parents[1])!r}); "
+        "from tests.test_bench import bench_and_direct_rates; "
+        f"print(json.dumps(bench_and_direct_rates(Path({str(tmp_path)!r}))))"
+    )
+    child = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
+    assert child.returncode == 0, child.stderr[-2000:]
+    rates = json.loads(child.stdout.strip().splitlines()[-1])
+    assert rates["report"]["settings"]["warmup_iterations"] == rates["warmup"]
+    direct = rates["direct"]
+    assert min(direct) * 0.85 <= rates["bench"] <= max(direct) * 1.15, (rates["bench"], direct)
 
 
 def test_bench_precisions_the_cpu_lacks_are_one_line(monkeypatch, capsys):
