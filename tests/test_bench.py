@@ -145,11 +145,11 @@ def test_train_bench_measures_what_an_episode_trains(tmp_path):
     (``--jaxtyping-packages`` in pyproject's addopts) slowed the bench's path 25-35% more than the direct call
     (0.41 against 0.53-0.67 M samples/s), which is the harness, not the bench."""
     code = (
-        f"import json, sys; from pathlib import Path; sys.path.insert(0, {str(Path(__file__).parents[1])!r}); "
-        "from tests.test_bench import bench_and_direct_rates; "
+        "import json; from pathlib import Path; from tests.test_bench import bench_and_direct_rates; "
         f"print(json.dumps(bench_and_direct_rates(Path({str(tmp_path)!r}))))"
     )
-    child = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
+    root = Path(__file__).parents[1]  # `python -c` puts its working directory first on sys.path
+    child = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, check=False)
     assert child.returncode == 0, child.stderr[-2000:]
     rates = json.loads(child.stdout.strip().splitlines()[-1])
     assert rates["report"]["settings"]["warmup_iterations"] == rates["warmup"]
