@@ -33,7 +33,7 @@ class Method:
     label: str  # as printed in tables
     rank: int  # row order in tables
     stages: list[str]  # a subsequence of nvf.config.STAGES starting with backbone
-    experiments: list[str]  # the conf/experiment sweeps (and pipeline.discriminate) it joins
+    experiments: list[str]  # the conf/experiment sweeps (and pipeline.experiments.discriminate) it joins
 
     aux_loss: ClassVar[AuxLoss | None] = None
     score_unit: ClassVar[str] = ""

@@ -1,9 +1,9 @@
-"""The budget curve and the selection rule of docs/BUDGETS.md (pipeline.budget_curve)."""
+"""The budget curve and the selection rule of docs/BUDGETS.md (pipeline.experiments.budget_curve)."""
 
 import pandas as pd
 import pytest
 
-from pipeline.budget_curve import main
+from pipeline.experiments.budget_curve import main
 
 SCENES = ("hotdog", "hubble", "default")
 

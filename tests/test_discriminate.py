@@ -1,4 +1,4 @@
-"""The discrimination experiment (``pipeline.discriminate``): paired differences and their Student-t
+"""The discrimination experiment (``pipeline.experiments.discriminate``): paired differences and their Student-t
 intervals, the best-baseline choice, the summary's columns, and bad input."""
 
 import math
@@ -8,8 +8,8 @@ import pandas as pd
 import pytest
 from scipy import stats
 
-from pipeline import discriminate
-from pipeline.discriminate import SUMMARY_COLUMNS, compare, mean_spearman
+from pipeline.experiments import discriminate
+from pipeline.experiments.discriminate import SUMMARY_COLUMNS, compare, mean_spearman
 from pipeline.tables.stats import Interval
 
 

@@ -138,23 +138,32 @@ def test_tables_read_your_runs_and_with_committed_the_committed_ones(tmp_path, c
 
 
 def entry_points():
-    from pipeline import budget_curve, discriminate, uncertainty, visibility_study
     from pipeline.bench.__main__ import main as bench
+    from pipeline.experiments import budget_curve, discriminate, uncertainty, visibility_study
     from pipeline.scenes.__main__ import main as scenes
 
     return {
         "tables": tables_cli.main,
-        "budget_curve": budget_curve.main,
+        "experiments.budget_curve": budget_curve.main,
         "bench": bench,
         "scenes": scenes,
-        "uncertainty": uncertainty.main,
-        "discriminate": discriminate.main,
-        "visibility_study": visibility_study.main,
+        "experiments.uncertainty": uncertainty.main,
+        "experiments.discriminate": discriminate.main,
+        "experiments.visibility_study": visibility_study.main,
     }
 
 
 @pytest.mark.parametrize(
-    "name", ["tables", "budget_curve", "bench", "scenes", "uncertainty", "discriminate", "visibility_study"]
+    "name",
+    [
+        "tables",
+        "experiments.budget_curve",
+        "bench",
+        "scenes",
+        "experiments.uncertainty",
+        "experiments.discriminate",
+        "experiments.visibility_study",
+    ],
 )
 def test_every_entry_point_has_a_plain_help_page(name, capsys):
     try:

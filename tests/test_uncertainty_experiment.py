@@ -1,6 +1,7 @@
-"""pipeline/uncertainty.py: PROTOCOL 4.4's stand-alone uncertainty experiment (one-sided training set,
+"""pipeline/experiments/uncertainty.py: PROTOCOL 4.4's stand-alone uncertainty experiment (one-sided training set,
 every method's score against the per-pixel error on the evaluation views)."""
 
+import argparse
 import json
 import math
 
@@ -10,10 +11,11 @@ import pytest
 import torch
 
 from nvf.cameras import look_at
-from pipeline import uncertainty
+from pipeline.experiments import uncertainty
+from pipeline.experiments.options import seed_list
+from pipeline.experiments.uncertainty import S, least_seen_view, main, partial_views
 from pipeline.scenes.loading import load_scene
 from pipeline.scenes.scene import SceneError
-from pipeline.uncertainty import S, least_seen_view, main, partial_views
 
 
 def test_hotdog_partial_views_follow_protocol_4_4(assets_dir):
@@ -111,11 +113,15 @@ def test_entries_select_a_subset_in_table_order_and_unknown_names_are_refused(ca
 
 
 def test_seeds_are_distinct_integers_and_a_seed_override_is_refused(capsys):
-    assert uncertainty.parse_seeds(None) == uncertainty.SEEDS == (100, 101, 102)
-    assert uncertainty.parse_seeds("7,3") == (7, 3)
+    assert seed_list("7,3") == (7, 3)
     for bad in ("100,100", "1,x", ""):
-        with pytest.raises(uncertainty.ArgumentError, match="distinct integers"):
-            uncertainty.parse_seeds(bad)
+        with pytest.raises(argparse.ArgumentTypeError, match="distinct integers"):
+            seed_list(bad)
+    assert exit_code(["--seeds", "100,100"]) == 2
+    [line] = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith(
+        "error: python -m pipeline.experiments.uncertainty: argument --seeds: '100,100': give distinct"
+    )
     assert exit_code(["seed=101"]) == 2
     assert capsys.readouterr().err.strip().splitlines() == [
         "error: a seed= override: the experiment's seeds are --seeds (default 100,101,102)"

@@ -1,5 +1,5 @@
-"""pipeline/visibility_study.py and pipeline/visibility_summary.py: paired one-step gains of NVF's picks over
-w/o Vis.'s on recorded NVF states, and the study's summary table."""
+"""pipeline/experiments/visibility_study.py and pipeline/experiments/visibility_summary.py: paired one-step
+gains of NVF's picks over w/o Vis.'s on recorded NVF states, and the study's summary table."""
 
 import json
 import math
@@ -13,11 +13,17 @@ import torch
 import trimesh
 
 from nvf.cameras import Intrinsics, look_at
-from pipeline import visibility_study
 from pipeline.episode.settings import EpisodeSettings
+from pipeline.experiments import visibility_study
+from pipeline.experiments.visibility_summary import (
+    COLUMNS,
+    SURFACE_COLUMNS,
+    summary_frame,
+    surface_frame,
+    write_summary,
+)
 from pipeline.records.store import RunRecord, run_dir
 from pipeline.scenes.render import MeshRays
-from pipeline.visibility_summary import COLUMNS, SURFACE_COLUMNS, summary_frame, surface_frame, write_summary
 
 
 def decision_row(scene, step, gain=None, spearman=0.99, decisive="unknown", share=0.9):

@@ -1,5 +1,5 @@
 """How view scores rank candidate poses, and where a score's ranking comes from (diagnostics of METHOD 13
-and M16; `python -m pipeline.bench visibility`, `python -m pipeline.visibility_study`).
+and M16; `python -m pipeline.bench visibility`, `python -m pipeline.experiments.visibility_study`).
 
 NVF's view reward ``R(p)`` (M16) is the mean over the planning image of ``H'``, which
 ``NVFEntropyScorer.pixel_terms`` splits into ``H_min + seen + unknown + background + mixing + correction``.

@@ -59,6 +59,17 @@ def _grid(table: Table, label_header: str) -> tuple[list[str], list[list[str]]]:
     return columns, cells
 
 
+def markdown_table(columns: list[str], rows: list[list[object]], left: int = 1) -> list[str]:
+    """A Markdown table's lines, every cell escaped (``escape.markdown``); the first ``left`` columns aligned
+    left, the others right."""
+    align = ["|", *(":--|" if i < left else "--:|" for i in range(len(columns)))]
+    return [
+        "| " + " | ".join(map(markdown, columns)) + " |",
+        "".join(align),
+        *("| " + " | ".join(markdown(cell) for cell in row) + " |" for row in rows),
+    ]
+
+
 def render(table: Table, label_header: str, experiment: str | None) -> dict[str, str]:
     """The table as {'md', 'csv', 'tex'} texts ('no runs yet' texts when it has no rows)."""
     if table.rows.empty:

@@ -9,7 +9,6 @@ works while it stays beside them.
 """
 
 import html
-import math
 import os
 import re
 from collections.abc import Mapping
@@ -23,7 +22,6 @@ import pandas as pd
 import plotly.graph_objects as go
 from jinja2 import Environment
 from plotly.offline import get_plotlyjs
-from scipy import stats
 
 from pipeline.records.store import atomic_write_text
 from pipeline.tables.aggregate import SPECS, Table, build_table
@@ -31,9 +29,9 @@ from pipeline.tables.figures import safe_name
 from pipeline.tables.load import Runs
 from pipeline.tables.paper import paper_numbers
 from pipeline.tables.render import html_table
+from pipeline.tables.stats import LEVEL, Interval
 
 PLOTLY_JS = "plotly.min.js"
-LEVEL = 0.95  # the curves' bands: two-sided Student-t interval of the mean over seeds
 
 STYLE = """
 body { font-family: system-ui, sans-serif; margin: 1.5em auto; max-width: 1300px; padding: 0 1em; color: #222; }
@@ -141,21 +139,14 @@ def index_page(runs: Runs, done: pd.DataFrame, pages: Mapping[tuple[str, str], P
 
 def psnr_bands(runs: Runs, scene: str, budget: str) -> list[tuple[str, pd.DataFrame]]:
     """Per method row (in the paper's order): step, mean, low, high and n of the PSNR over seeds, the band
-    the two-sided ``LEVEL`` Student-t interval of the mean (none from one seed)."""
+    the two-sided ``LEVEL`` Student-t interval of the mean (``Interval``; none from one seed)."""
     long = runs.long[(runs.long["scene"] == scene) & (runs.long["budget"] == budget) & (runs.long["metric"] == "psnr")]
     out = []
     for key, group in sorted(long.groupby(["method", "planner", "ablation"]), key=lambda kv: runs.row(*kv[0]).order):
         rows = []
         for step, values in group.groupby("step")["value"]:
-            v = values.to_numpy(float)
-            v = v[np.isfinite(v)]
-            mean = float(v.mean()) if len(v) else math.nan
-            half = (
-                float(stats.t.ppf(0.5 + LEVEL / 2, len(v) - 1) * v.std(ddof=1) / math.sqrt(len(v)))
-                if len(v) > 1
-                else math.nan
-            )
-            rows.append({"step": int(step), "mean": mean, "low": mean - half, "high": mean + half, "n": len(v)})
+            band = Interval.of(values.to_numpy(float))
+            rows.append({"step": int(step), "mean": band.mean, "low": band.low, "high": band.high, "n": band.n})
         out.append((runs.row(*key).label, pd.DataFrame(rows)))
     return out
 

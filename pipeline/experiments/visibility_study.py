@@ -1,4 +1,4 @@
-"""``python -m pipeline.visibility_study --setting NAME [overrides] [--scenes S,..] [--seeds N,..]
+"""``python -m pipeline.experiments.visibility_study --setting NAME [overrides] [--scenes S,..] [--seeds N,..]
 [--steps K,..] [--sets N] [--records DIR]``: does NVF's visibility field change a decision, and does the
 change help? Paired one-step measurements on the states of recorded NVF episodes.
 
@@ -22,7 +22,7 @@ the sources ``head`` and ``labels``, plus ``nvf.entropy.visibility_source`` when
 Writes ``${paths.results}/pilots/visibility_study/<setting>/``: ``decisions.jsonl`` (a row per scene, seed,
 step and set; a killed study resumes after its last complete row), ``<scene>_diagnostic.json``,
 ``command.txt`` (every command that wrote into the folder, one per line); then ``summary.csv`` and
-``surface.csv`` of the whole study (``pipeline.visibility_summary``). Torch runs with ``--threads`` threads
+``surface.csv`` of the whole study (``pipeline.experiments.visibility_summary``). Torch runs with ``--threads`` threads
 (default 1: two studies side by side on 2 cores).
 """
 
@@ -48,6 +48,8 @@ from pipeline.config.validation import compose_config, resolve_device
 from pipeline.episode.evaluation import render_view
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
+from pipeline.experiments.options import SEEDS, name_list, seed_list, step_list
+from pipeline.experiments.visibility_summary import STUDY, write_summary, write_surface
 from pipeline.metrics.image import LpipsMetric, psnr
 from pipeline.metrics.ranking import render_for_terms, spearman, term_attribution, ties_at_max, view_terms
 from pipeline.records.store import atomic_write_text, run_dir
@@ -55,10 +57,8 @@ from pipeline.scenes.blender import blender_python
 from pipeline.scenes.loading import load_scene
 from pipeline.scenes.scene import SceneError
 from pipeline.tables.load import load_run
-from pipeline.visibility_summary import STUDY, write_summary, write_surface
 
 SCENES = ("hotdog", "hubble", "default")
-SEEDS = (100, 101, 102)
 STEPS = (0, 3, 6, 9, 12, 15, 18)
 
 
@@ -252,36 +252,30 @@ def study_scene(
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = ArgumentParser(prog="python -m pipeline.visibility_study", description=description(__doc__))
+    parser = ArgumentParser(prog="python -m pipeline.experiments.visibility_study", description=description(__doc__))
     parser.add_argument(
         "overrides", nargs="*", help="the setting's config overrides, e.g. nvf.entropy.logdet_coeff=1.0"
     )
     parser.add_argument(
         "--setting", required=True, help="the setting's name: its folder under pilots/visibility_study/"
     )
-    parser.add_argument("--scenes", default=",".join(SCENES))
-    parser.add_argument("--seeds", default=",".join(map(str, SEEDS)))
-    parser.add_argument(
-        "--steps", default=",".join(map(str, STEPS)), help="the recorded steps whose states are measured"
-    )
+    parser.add_argument("--scenes", type=name_list, default=SCENES)
+    parser.add_argument("--seeds", type=seed_list, default=SEEDS)
+    parser.add_argument("--steps", type=step_list, default=STEPS, help="the recorded steps whose states are measured")
     parser.add_argument("--sets", type=int, default=3, help="candidate sets per state (0: the planner's own)")
     parser.add_argument("--records", type=Path, default=Path("results/runs"), help="where the NVF records are")
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
     args = parser.parse_intermixed_args(sys.argv[1:] if argv is None else argv)
     if not args.setting.replace("_", "").replace("-", "").replace(".", "").isalnum():
         parser.error(f"--setting={args.setting!r}: use letters, digits, '.', '_' and '-'")
-    try:
-        seeds = [int(x) for x in args.seeds.split(",")]
-        steps = [int(x) for x in args.steps.split(",")]
-    except ValueError:
-        parser.error("--seeds and --steps take comma-separated integers")
-    if args.sets < 1 or args.threads < 1 or any(k < 0 for k in steps):
-        parser.error("--sets and --threads must be >= 1, --steps >= 0")
+    seeds, steps = list(args.seeds), list(args.steps)
+    if args.sets < 1 or args.threads < 1:
+        parser.error("--sets and --threads must be >= 1")
     torch.set_num_threads(args.threads)
     cfg = compose_config(args.overrides)
     out = Path(cfg.paths.results) / "pilots" / STUDY / args.setting
     out.mkdir(parents=True, exist_ok=True)
-    command = ["python", "-m", "pipeline.visibility_study", *(sys.argv[1:] if argv is None else argv)]
+    command = ["python", "-m", "pipeline.experiments.visibility_study", *(sys.argv[1:] if argv is None else argv)]
     commands = (out / "command.txt").read_text().splitlines() if (out / "command.txt").is_file() else []
     atomic_write_text(out / "command.txt", "\n".join(dict.fromkeys([*commands, shlex.join(command)])) + "\n")
     entropy, train = cfg.nvf.entropy, cfg.train
@@ -295,7 +289,7 @@ def main(argv: list[str] | None = None) -> None:
     }
     atomic_write_text(out / "setting.json", json.dumps(setting, indent=2) + "\n")
     decisions = Decisions(out / "decisions.jsonl")
-    for scene in args.scenes.split(","):
+    for scene in args.scenes:
         scene_cfg = compose_config([f"scene={scene}", *args.overrides])
         diagnostic = out / f"{scene}_diagnostic.json"
         if not diagnostic.is_file():

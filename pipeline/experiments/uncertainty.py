@@ -1,4 +1,4 @@
-"""``python -m pipeline.uncertainty [overrides]``: the stand-alone uncertainty experiment (PROTOCOL 4.4,
+"""``python -m pipeline.experiments.uncertainty [overrides]``: the stand-alone uncertainty experiment (PROTOCOL 4.4,
 the paper's entropy-comparison figure), default ``scene=hotdog budget=cpu``.
 
 One model per method is trained, as an episode's step 0 trains it (the method's stages and seeds), on
@@ -49,6 +49,7 @@ from pipeline.config.plain import as_dict
 from pipeline.config.validation import compose_config, resolve_device
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
+from pipeline.experiments.options import SEEDS, seed_list
 from pipeline.metrics.image import LpipsMetric
 from pipeline.records.images import colorize, save_figure
 from pipeline.records.store import atomic_write_bytes, atomic_write_text, to_jsonable
@@ -57,6 +58,7 @@ from pipeline.scenes.loading import load_scene
 from pipeline.scenes.scene import Scene, SceneError
 from pipeline.tables.aggregate import mean_std_valid
 from pipeline.tables.labels import row_name
+from pipeline.tables.render import markdown_table
 
 S = 0.16665  # PROTOCOL 2.3: the reference's scale unit s (Hubble's partial views)
 PARTIAL_VIEWS = 20
@@ -80,7 +82,6 @@ def all_entries() -> tuple[tuple[str, str], ...]:
 
 
 ENTRIES = all_entries()
-SEEDS = (100, 101, 102)  # one model per entry and seed, as the tables' three seeds
 COLUMNS = (("patch_pearson", "patch r ↑"), ("view_pearson", "view r ↑"), ("ause", "AUSE ↓"), ("psnr", "PSNR ↑"))
 
 
@@ -144,19 +145,6 @@ def select_entries(names: list[str] | None) -> tuple[tuple[str, str], ...]:
     if unknown or not names:
         raise ArgumentError(f"--entries: unknown {unknown or names}; choose from {','.join(known)}")
     return tuple(entry for entry in ENTRIES if entry_name(*entry) in names)
-
-
-def parse_seeds(text: str | None) -> tuple[int, ...]:
-    """``--seeds 100,101`` as a tuple of distinct integers (``SEEDS`` for None)."""
-    if text is None:
-        return SEEDS
-    try:
-        seeds = tuple(int(part) for part in text.split(","))
-    except ValueError:
-        seeds = ()
-    if not seeds or len(set(seeds)) != len(seeds):
-        raise ArgumentError(f"--seeds {text!r}: give distinct integers separated by commas, e.g. 100,101,102")
-    return seeds
 
 
 def summary(runs: list[dict]) -> dict:
@@ -294,12 +282,18 @@ def markdown(report: dict) -> str:
         f"One model per entry and seed (seeds {', '.join(map(str, report['seeds']))}; "
         f"torch threads: {report['torch_threads']}): mean ± population std over the seeds.",
         "",
-        "| Method | " + " | ".join(header for _, header in COLUMNS) + " | trained as |",
-        "|:--|" + "--:|" * len(COLUMNS) + ":--|",
+        *markdown_table(
+            ["Method", *(header for _, header in COLUMNS), "trained as"],
+            [
+                [
+                    row["label"],
+                    *(cell(row[key], row[f"{key}_std"], len(report["seeds"])) for key, _ in COLUMNS),
+                    row["trained_as"],
+                ]
+                for row in report["rows"]
+            ],
+        ),
     ]
-    for row in report["rows"]:
-        cells = [cell(row[key], row[f"{key}_std"], len(report["seeds"])) for key, _ in COLUMNS]
-        lines.append(f"| {row['label']} | " + " | ".join(cells) + f" | {row['trained_as']} |")
     return "\n".join(lines) + "\n"
 
 
@@ -330,20 +324,22 @@ def figure(shown: dict, maps: dict[str, np.ndarray]) -> Figure:
 
 
 def main(argv: list[str]) -> int:
-    parser = ArgumentParser(prog="python -m pipeline.uncertainty", description=description(__doc__))
+    parser = ArgumentParser(prog="python -m pipeline.experiments.uncertainty", description=description(__doc__))
     parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. scene=hubble budget=smoke")
     parser.add_argument(
         "--out", type=Path, default=None, help="output directory (default ${paths.results}/uncertainty)"
     )
     parser.add_argument("--entries", default=None, help="comma-separated subset, e.g. nvf,nvf-wo_vis,wd (default all)")
-    parser.add_argument("--seeds", default=None, help="comma-separated training seeds (default 100,101,102)")
+    parser.add_argument(
+        "--seeds", type=seed_list, default=SEEDS, help="comma-separated training seeds (default 100,101,102)"
+    )
     args = parser.parse_intermixed_args(argv)
     names = None if args.entries is None else args.entries.split(",")
     try:
-        written = run(args.overrides, args.out, select_entries(names), parse_seeds(args.seeds))
+        written = run(args.overrides, args.out, select_entries(names), args.seeds)
     except (SceneError, ArgumentError) as err:
         fail(str(err))
-    print("pipeline.uncertainty: wrote " + ", ".join(map(str, written)))
+    print("pipeline.experiments.uncertainty: wrote " + ", ".join(map(str, written)))
     return 0
 
 

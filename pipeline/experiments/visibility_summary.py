@@ -1,5 +1,6 @@
 """The visibility study's table: one row per setting and scene (and per setting over all its scenes) from
-the folders ``python -m pipeline.visibility_study`` writes under ``${paths.results}/pilots/visibility_study/``.
+the folders ``python -m pipeline.experiments.visibility_study`` writes under
+``${paths.results}/pilots/visibility_study/``.
 
 Columns: ``setting, scene, visibility_source, label_auc, head_auc`` (the initial views' separation of seen
 from unseen object pixels, ``pipeline.bench visibility``), ``spearman_nvf_wo_vis`` (mean over the measured
@@ -16,7 +17,7 @@ several candidates share: a pick by draw order).
 (``vis_area``: the area-weighted share of the surface the training views see, PROTOCOL's Vis. by area), per
 scene and step the mean over seeds and NVF minus w/o Vis. paired over seeds with its 95% interval.
 
-``python -m pipeline.visibility_summary [paths.results=DIR] [--records DIR]`` rewrites both.
+``python -m pipeline.experiments.visibility_summary [paths.results=DIR] [--records DIR]`` rewrites both.
 """
 
 import collections
@@ -79,8 +80,8 @@ def _mean(values: list) -> float:
 
 def episode_minutes(study: Path, setting: dict) -> dict[str, float]:
     """Mean minutes per episode of NVF and w/o Vis., per scene and over all (``ALL_SCENES``), in the setting's
-    discrimination experiment (``pilots/discriminate/<its budget label>/per_seed.csv``, ``pipeline.discriminate``),
-    or {} where it has none."""
+    discrimination experiment (``pilots/discriminate/<its budget label>/per_seed.csv``,
+    ``pipeline.experiments.discriminate``), or {} where it has none."""
     overrides = [o for o in setting.get("overrides", []) if not o.startswith("paths.")]
     label = config_label(compose_config([f"budget={setting.get('budget', 'cpu')}", *overrides]))
     path = study.parent / "discriminate" / label / "per_seed.csv"
@@ -173,7 +174,7 @@ def write_surface(study: Path, records: Path) -> Path:
 
 
 def main(argv: list[str]) -> None:
-    parser = ArgumentParser(prog="python -m pipeline.visibility_summary", description=description(__doc__))
+    parser = ArgumentParser(prog="python -m pipeline.experiments.visibility_summary", description=description(__doc__))
     parser.add_argument("overrides", nargs="*", help="config overrides, e.g. paths.results=results")
     parser.add_argument("--records", type=Path, default=Path("results/runs"), help="where the finished records are")
     args = parser.parse_intermixed_args(argv)

@@ -1,9 +1,10 @@
-"""``python -m pipeline.budget_curve [paths.results=DIR]``: the budget curve of the discrimination
+"""``python -m pipeline.experiments.budget_curve [paths.results=DIR]``: the budget curve of the discrimination
 experiments and the budget the selection rule picks from it.
 
-Reads every ``${paths.results}/pilots/discriminate/<label>/summary.csv`` (``python -m pipeline.discriminate``)
-and writes beside them ``curve.csv`` (each label's rows with ``label`` added), ``curve.png`` (each lead
-with its 95% interval against minutes per episode, one panel per comparison) and ``choice.md``.
+Reads every ``${paths.results}/pilots/discriminate/<label>/summary.csv``
+(``python -m pipeline.experiments.discriminate``) and writes beside them ``curve.csv`` (each label's rows
+with ``label`` added), ``curve.png`` (each lead with its 95% interval against minutes per episode, one panel
+per comparison) and ``choice.md``.
 
 The rule (docs/BUDGETS.md): among the settings measured on every scene of the experiment (hotdog, hubble,
 default), the cheapest one where NVF beats both w/o Vis. and the best baseline with the paired 95%
@@ -23,6 +24,7 @@ from pipeline.cli import fail, help_page
 from pipeline.config.paths import paths_from_args
 from pipeline.records.images import save_figure
 from pipeline.records.store import atomic_write_text
+from pipeline.tables.render import markdown_table
 
 SCENES = ("hotdog", "hubble", "default")
 RULE_COMPARISONS = ("nvf-wo_vis", "nvf-best_baseline")
@@ -52,7 +54,7 @@ def read_curve(root: Path) -> pd.DataFrame:
     """Every ``<label>/summary.csv`` under ``root``, with a ``label`` column."""
     frames = [pd.read_csv(path).assign(label=path.parent.name) for path in sorted(root.glob("*/summary.csv"))]
     if not frames:
-        fail(f"no {root}/<label>/summary.csv; run python -m pipeline.discriminate first")
+        fail(f"no {root}/<label>/summary.csv; run python -m pipeline.experiments.discriminate first")
     return pd.concat(frames, ignore_index=True)
 
 
@@ -97,7 +99,7 @@ def choose(candidates: list[Setting]) -> tuple[Setting | None, str]:
 
 
 def plot(curve: pd.DataFrame) -> Figure:
-    """One panel per comparison of the summaries (``pipeline.discriminate.COMPARISONS``), in their order."""
+    """One panel per comparison of the summaries (``pipeline.experiments.discriminate.COMPARISONS``), in their order."""
     comparisons = list(dict.fromkeys(curve["comparison"]))
     figure = Figure(figsize=(4.2 * len(comparisons), 3.6))
     axes = figure.subplots(1, len(comparisons), sharey=True, squeeze=False)[0]
@@ -132,14 +134,22 @@ def report(candidates: list[Setting], chosen: Setting | None, why: str) -> str:
         f"baseline with the paired 95% interval above zero on at least two scenes, within {MAX_MINUTES:g} minutes per "
         "episode; else the widest positive lead per minute.",
         "",
-        "| setting | scenes | min/episode | scenes won | lead (dB) | lead per minute |",
-        "|:--|:--|--:|--:|--:|--:|",
+        *markdown_table(
+            ["setting", "scenes", "min/episode", "scenes won", "lead (dB)", "lead per minute"],
+            [
+                [
+                    s.label,
+                    ", ".join(s.scenes),
+                    f"{s.minutes:.1f}",
+                    s.scenes_won,
+                    f"{s.lead:+.2f}",
+                    f"{s.lead / s.minutes:+.3f}",
+                ]
+                for s in candidates
+            ],
+            left=2,
+        ),
     ]
-    for s in candidates:
-        lines.append(
-            f"| {s.label} | {', '.join(s.scenes)} | {s.minutes:.1f} | {s.scenes_won} | {s.lead:+.2f} | "
-            f"{s.lead / s.minutes:+.3f} |"
-        )
     verdict = f"Chosen: **{chosen.label}** ({why})." if chosen else f"Chosen: none ({why})."
     return "\n".join([*lines, "", verdict, ""])
 
@@ -159,7 +169,7 @@ def main(argv: list[str]) -> int:
     save_figure(plot(curve), root / "curve.png")
     atomic_write_text(root / "choice.md", text)
     print(text, end="")
-    print(f"pipeline.budget_curve: wrote {root / 'curve.csv'}, {root / 'curve.png'}, {root / 'choice.md'}")
+    print(f"pipeline.experiments.budget_curve: wrote {root / 'curve.csv'}, {root / 'curve.png'}, {root / 'choice.md'}")
     return 0
 
 

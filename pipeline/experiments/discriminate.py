@@ -1,4 +1,4 @@
-"""``python -m pipeline.discriminate [overrides] [--scenes S,..] [--seeds N,..] [--jobs J] [--label NAME]``:
+"""``python -m pipeline.experiments.discriminate [overrides] [--scenes S,..] [--seeds N,..] [--jobs J] [--label NAME]``:
 does a budget tell the methods apart? The paired discrimination experiment of one budget.
 
 For each scene and seed it runs (through ``python -m pipeline.run -m``, scene by scene, one Hydra sweep per entry,
@@ -38,16 +38,17 @@ from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.catalog import members, method_configs
 from pipeline.config.named import config_label
 from pipeline.config.validation import compose_config
+from pipeline.experiments.options import SEEDS, name_list, seed_list
 from pipeline.records.store import RunRecord, atomic_write_text, record_status, run_dir
 from pipeline.repo import REPO
 from pipeline.scenes.loading import find_asset, scene_config
 from pipeline.scenes.scene import SceneError
 from pipeline.tables.load import collect_runs
+from pipeline.tables.render import markdown_table
 from pipeline.tables.stats import Interval
 
 EXPERIMENT = "discriminate"  # what a method or scene lists under ``experiments`` to join this one
 SCENES = tuple(members("scene", EXPERIMENT))  # every scene that declares it, by name
-SEEDS = (100, 101, 102)
 NVF, WO_VIS, IND_RAYS = ("nvf", "none"), ("nvf", "wo_vis"), ("nvf", "ind_rays")
 # NVF's rivals: every other method that declares the experiment, in table order (``rank``)
 BASELINES = tuple(
@@ -245,9 +246,8 @@ def against_plain_markdown(plain_label: str, changes: pd.DataFrame) -> list[str]
         f"What the setting changes, entry by entry: this experiment's runs minus `{plain_label}`'s (same seed), "
         "and the share of steps where the run's score was constant over the candidates (a pick by draw order):",
         "",
-        "| scene | entry | final PSNR | PSNR over steps | n | flat steps | flat steps, plain |",
-        "|:--|:--|--:|--:|--:|--:|--:|",
     ]
+    rows = []
     for (scene, entry), group in changes.groupby(["scene", "entry"], sort=False):
         cells = {
             row["measure"]: f"{row['mean_diff']:+.2f} [{row['ci_low']:+.2f}, {row['ci_high']:+.2f}]"
@@ -255,8 +255,9 @@ def against_plain_markdown(plain_label: str, changes: pd.DataFrame) -> list[str]
         }
         first = group.iloc[0]
         flat = [f"{v:.2f}" if math.isfinite(v) else "-" for v in (first["flat_steps"], first["plain_flat_steps"])]
-        row = [scene, entry, cells["final_psnr"], cells["mean_psnr"], str(first["n"]), *flat]
-        lines.append("| " + " | ".join(row) + " |")
+        rows.append([scene, entry, cells["final_psnr"], cells["mean_psnr"], first["n"], *flat])
+    columns = ["scene", "entry", "final PSNR", "PSNR over steps", "n", "flat steps", "flat steps, plain"]
+    lines += markdown_table(columns, rows, left=2)
     return lines
 
 
@@ -269,32 +270,40 @@ def markdown(label: str, details: pd.DataFrame, runs: pd.DataFrame) -> str:
         "established where the interval lies above zero. Best baseline: the one of WD, ActiveNeRF, NeurAR with "
         "the highest mean final PSNR on the scene.",
         "",
-        "| scene | comparison | against | final PSNR | PSNR over steps | n | min/episode |",
-        "|:--|:--|:--|--:|--:|--:|--:|",
     ]
+    rows = []
     for (scene, name), group in details.groupby(["scene", "comparison"], sort=False):
         cells = {
             row["measure"]: f"{row['mean_diff']:+.2f} [{row['ci_low']:+.2f}, {row['ci_high']:+.2f}]"
             for _, row in group.iterrows()
         }
         first = group.iloc[0]
-        lines.append(
-            f"| {scene} | {name} | {first['against']} | {cells.get('final_psnr', '-')} | "
-            f"{cells.get('mean_psnr', '-')} | {first['n']} | {first['minutes_per_episode']:.1f} |"
+        rows.append(
+            [
+                scene,
+                name,
+                first["against"],
+                cells.get("final_psnr", "-"),
+                cells.get("mean_psnr", "-"),
+                first["n"],
+                f"{first['minutes_per_episode']:.1f}",
+            ]
         )
+    columns = ["scene", "comparison", "against", "final PSNR", "PSNR over steps", "n", "min/episode"]
+    lines += markdown_table(columns, rows, left=3)
     nvf = runs[(runs["method"] == NVF[0]) & (runs["ablation"] == NVF[1])]
     lines += [
         "",
         "NVF vs w/o Vis. on NVF's own candidates (mean over steps, then over seeds; '-': records made "
         "without `diagnostics.rank_against=wo_vis`):",
         "",
-        "| scene | Spearman | same choice | seeds |",
-        "|:--|--:|--:|--:|",
     ]
+    rows = []
     for scene, group in nvf.groupby("scene", sort=False):
         spearman, same = group["spearman"].dropna(), group["same_choice"].dropna()
         shown = f"{spearman.mean():.3f}" if len(spearman) else "-", f"{same.mean():.2f}" if len(same) else "-"
-        lines.append(f"| {scene} | {shown[0]} | {shown[1]} | {len(spearman)} of {len(group)} |")
+        rows.append([scene, shown[0], shown[1], f"{len(spearman)} of {len(group)}"])
+    lines += markdown_table(["scene", "Spearman", "same choice", "seeds"], rows)
     return "\n".join(lines) + "\n"
 
 
@@ -339,23 +348,15 @@ def summarize(
     return files
 
 
-def parse_list(text: str, cast, name: str) -> tuple:
-    try:
-        values = tuple(cast(part) for part in text.split(",") if part)
-    except ValueError:
-        values = ()
-    if not values:
-        fail(f"{name} {text!r}: give comma-separated values")
-    return values
-
-
 def main(argv: list[str]) -> int:
-    parser = ArgumentParser(prog="python -m pipeline.discriminate", description=description(__doc__))
+    parser = ArgumentParser(prog="python -m pipeline.experiments.discriminate", description=description(__doc__))
     parser.add_argument(
         "overrides", nargs="*", help="Hydra overrides of the budget, e.g. budget=cpu train.precision=bf16"
     )
-    parser.add_argument("--scenes", default=",".join(SCENES), help=f"comma-separated (default {','.join(SCENES)})")
-    parser.add_argument("--seeds", default=",".join(map(str, SEEDS)), help="comma-separated (default 100,101,102)")
+    parser.add_argument(
+        "--scenes", type=name_list, default=SCENES, help=f"comma-separated (default {','.join(SCENES)})"
+    )
+    parser.add_argument("--seeds", type=seed_list, default=SEEDS, help="comma-separated (default 100,101,102)")
     parser.add_argument("--jobs", type=int, default=2, help="parallel jobs, cores / J torch threads each (default 2)")
     parser.add_argument("--label", default=None, help="the experiment's folder name (default: its budget label)")
     parser.add_argument("--summarize-only", action="store_true", help="only summarise existing runs")
@@ -367,7 +368,7 @@ def main(argv: list[str]) -> int:
         "results/runs; 'none' runs every entry)",
     )
     args = parser.parse_intermixed_args(argv)
-    scenes, seeds = parse_list(args.scenes, str, "--scenes"), parse_list(args.seeds, int, "--seeds")
+    scenes, seeds = args.scenes, args.seeds
     if any(o.split("=")[0].lstrip("+~") in ("method", "ablation", "scene", "seed") for o in args.overrides):
         fail("method, ablation, scene and seed are the experiment's own: use --scenes and --seeds")
     if args.jobs < 1:
@@ -402,7 +403,7 @@ def main(argv: list[str]) -> int:
             subprocess.run(command, cwd=REPO, check=False)  # a failed job is recorded; the summary counts seeds
     plain_dir = out.parent / cfg.budget.name if labels[NVF] != cfg.budget.name else None
     files = summarize(roots, out, label, labels, cfg.planner.name, scenes, seeds, plain_dir)
-    print("pipeline.discriminate: wrote " + ", ".join(map(str, files)))
+    print("pipeline.experiments.discriminate: wrote " + ", ".join(map(str, files)))
     return 0
 
 
