@@ -5,13 +5,21 @@ One frozen dataclass per method: its fields are what ``conf/method/<name>.yaml``
 has a name, a table label and row order (``rank``), the training stages it needs (``stages``; a method
 whose score reads the variance or visibility head trains it there) and the paper tables and experiments
 it belongs to (``experiments``); a subclass adds its own settings as fields, a fixed set of values as a
-``Literal``. Fields have no defaults: the yaml is their one default. The yaml names the class in
+``Literal``, and checks each value against its field's type when built (``__post_init__``). Fields have no
+defaults: the yaml is their one default. The one exception is a field declared with ``run_setting(key)``:
+its value is the run's config at ``key`` (NVF's entropy settings, ``nvf.entropy``, which the variance
+head's loss reads too), filled in by the pipeline, never set in the yaml. The yaml names the class in
 ``_target_`` and the pipeline builds it with Hydra's ``instantiate`` (``pipeline.config.method``), so
 adding a method is one subclass (here or in any importable module) and one yaml file.
 """
 
+import dataclasses
+import typing
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, ClassVar, Literal
+
+from beartype.door import is_bearable
 
 from nvf.config import EntropyConfig
 from nvf.training import AuxLoss, activenerf_loss, neurar_loss
@@ -19,6 +27,19 @@ from nvf.uncertainty.baselines import ActiveRMAPScorer, AIRScorer, RenderedVaria
 from nvf.uncertainty.fisher import FisherRFScorer
 from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
 from nvf.uncertainty.scorers import StepScorer, ViewScorer
+
+RUN_SETTING = "run_setting"  # a field's metadata key: the run config key its value comes from
+
+
+def run_setting(key: str, default: Callable[[], Any]) -> Any:
+    """A method field whose value is the run's config at ``key`` (filled in by the pipeline when it builds the
+    run, ``run_settings``); ``default()`` until then."""
+    return dataclasses.field(default_factory=default, metadata={RUN_SETTING: key})
+
+
+def run_settings(cls: type["Method"]) -> dict[str, str]:
+    """``cls``'s fields that are run settings: field name -> the run config key they come from."""
+    return {f.name: f.metadata[RUN_SETTING] for f in dataclasses.fields(cls) if RUN_SETTING in f.metadata}
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -39,10 +60,19 @@ class Method:
     score_unit: ClassVar[str] = ""
     not_implemented: ClassVar[dict[str, tuple[Any, Any]]] = {}
 
-    def scorer(self, entropy: EntropyConfig, d0: float) -> ViewScorer | StepScorer | None:
+    def __post_init__(self) -> None:
+        """Each field's value is of its declared type (a ``Literal``'s choices; every item of a list);
+        ``TypeError`` naming the field otherwise."""
+        hints = typing.get_type_hints(type(self))
+        for field in dataclasses.fields(self):
+            value, hint = getattr(self, field.name), hints[field.name]
+            items = value if isinstance(value, list) else []
+            if not is_bearable(value, hint) or not all(is_bearable([item], hint) for item in items):
+                raise TypeError(f"{field.name}={value!r} must be {_expected(hint)}")
+
+    def scorer(self) -> ViewScorer | StepScorer | None:
         """The per-pixel view scorer (M16 averages it over the planning image), or a ``StepScorer`` that scores
-        whole views once prepared from the step's model (FisherRF); ``d0`` is NVF's resolved correlation
-        length (M13), which the baselines ignore."""
+        whole views once prepared from the step's model (FisherRF); None: the planner picks uniformly."""
         return None
 
     def unsupported(self) -> str | None:
@@ -67,7 +97,7 @@ class WD(Method):
 
     score_unit: ClassVar[str] = "nats"  # an entropy
 
-    def scorer(self, entropy: EntropyConfig, d0: float) -> ViewScorer:
+    def scorer(self) -> ViewScorer:
         return WDScorer()
 
 
@@ -79,7 +109,7 @@ class ActiveRMAP(Method):
 
     score_unit: ClassVar[str] = "nats"  # an entropy
 
-    def scorer(self, entropy: EntropyConfig, d0: float) -> ViewScorer:
+    def scorer(self) -> ViewScorer:
         return ActiveRMAPScorer(occlusion_weighted=self.occlusion_weighted)
 
 
@@ -93,7 +123,7 @@ class AIR(Method):
     score_unit: ClassVar[str] = "nats"  # an entropy
     not_implemented: ClassVar[dict[str, tuple[Any, Any]]] = {"view_score": ("topk", "pixel_mean")}
 
-    def scorer(self, entropy: EntropyConfig, d0: float) -> ViewScorer:
+    def scorer(self) -> ViewScorer:
         return AIRScorer(reduce=self.reduce)
 
 
@@ -107,7 +137,7 @@ class ActiveNeRF(Method):
     aux_loss: ClassVar[AuxLoss | None] = staticmethod(activenerf_loss)
     not_implemented: ClassVar[dict[str, tuple[Any, Any]]] = {"variant": ("B", "A")}
 
-    def scorer(self, entropy: EntropyConfig, d0: float) -> ViewScorer:
+    def scorer(self) -> ViewScorer:
         return RenderedVarianceScorer(name="activenerf")
 
 
@@ -125,19 +155,24 @@ class NeurAR(Method):
         "detach": (False, True),
     }
 
-    def scorer(self, entropy: EntropyConfig, d0: float) -> ViewScorer:
+    def scorer(self) -> ViewScorer:
         return RenderedVarianceScorer(name="neurar")
 
 
 @dataclass(frozen=True, kw_only=True)
 class NVF(Method):
-    """Neural Visibility Field: the corrected view entropy of the visibility-aware ray mixture (M7-M16);
-    its settings are ``nvf.entropy``, which the variance head's loss (M21) reads too."""
+    """Neural Visibility Field: the corrected view entropy of the visibility-aware ray mixture (M7-M16).
+    ``entropy``: its settings, the run's ``nvf.entropy`` with ``d0`` resolved on the scene (M13's correlation
+    length, a number), which the variance head's loss (M21) reads too."""
+
+    entropy: EntropyConfig = run_setting("nvf.entropy", lambda: EntropyConfig(d0=1.0))
 
     score_unit: ClassVar[str] = "nats"  # an entropy
 
-    def scorer(self, entropy: EntropyConfig, d0: float) -> ViewScorer:
-        return NVFEntropyScorer(entropy, d0)
+    def scorer(self) -> ViewScorer:
+        d0 = self.entropy.d0
+        assert isinstance(d0, (int, float)), f"entropy.d0={d0!r} is not resolved"
+        return NVFEntropyScorer(self.entropy, float(d0))
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -149,7 +184,7 @@ class FisherRF(Method):
     probes: int  # K, Rademacher probes per view (M31); docs/BUDGETS.md says why its value
     prior_precision: float  # lambda (M32); FisherRF's code default
 
-    def scorer(self, entropy: EntropyConfig, d0: float) -> StepScorer:
+    def scorer(self) -> StepScorer:
         return FisherRFScorer(self.probes, self.prior_precision)
 
     def unsupported(self) -> str | None:
@@ -158,3 +193,9 @@ class FisherRF(Method):
         if not self.prior_precision > 0:
             return f"prior_precision={self.prior_precision} must be > 0 (lambda, docs/METHOD.md M32)"
         return None
+
+
+def _expected(hint: Any) -> str:
+    if typing.get_origin(hint) is Literal:
+        return f"one of {', '.join(map(str, typing.get_args(hint)))}"
+    return f"a {getattr(hint, '__name__', str(hint))}"

@@ -22,7 +22,7 @@ from hydra.types import RunMode
 from omegaconf import DictConfig
 
 from pipeline.config.schema import register_configs
-from pipeline.config.validation import ConfigError, error_line
+from pipeline.config.validation import ConfigError, error_line, validate
 from pipeline.episode.runner import RunRefused, StepFailed, run_episode
 from pipeline.records.lock import RunLocked
 from pipeline.records.store import RecordError
@@ -40,7 +40,7 @@ def main(cfg: DictConfig) -> dict:
     multirun = HydraConfig.get().mode == RunMode.MULTIRUN
     logging.getLogger("OpenGL").setLevel(logging.WARNING)  # PyOpenGL announces a missing optional module
     try:
-        outcome = run_episode(cfg)
+        outcome = run_episode(validate(cfg))
     except (*REFUSED, StepFailed) as err:
         print(f"error: {err}", file=sys.stderr)
         if multirun:

@@ -18,7 +18,7 @@ from pipeline.bench import __main__ as bench
 from pipeline.bench import episode, field, plan, train, visibility
 from pipeline.bench._models import CountingModel, load, observations
 from pipeline.config.catalog import method_configs
-from pipeline.config.validation import compose_config
+from pipeline.config.validation import compose_run
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.scenes.ground_truth import open_renderer
 
@@ -108,7 +108,7 @@ def bench_and_direct_rates(tmp_path: Path) -> dict:
     settings timed directly, once before the bench and once after, the bench's warm-up iterations left out.
     800 smoke iterations: over 60 the run-to-run spread alone was +-20%."""
     overrides = ["budget=smoke", "train.backbone.iters=800"]
-    cfg = compose_config(overrides)
+    cfg = compose_run(overrides)
     scene = load(cfg)
     s = EpisodeSettings.of(cfg, scene)
     size = int(cfg.budget.image_size)

@@ -301,7 +301,7 @@ def test_missing_blender_is_one_line_saying_how_to_install(tmp_path, capsys):
             ],
         )
     with pytest.raises(ConfigError, match="render.backend=blender: Blender's Python not found.*make blender"):
-        run_episode(cfg)  # refused by the renderer's check before the run's record or lock exists
+        run_episode(validate(cfg))  # refused by the renderer's check before the run's record or lock exists
     assert not (tmp_path / "runs").exists()
 
 
@@ -343,7 +343,7 @@ def test_a_smoke_episode_on_blender_ground_truth_records_it(tmp_path):
     ]
     with initialize_config_dir(str(CONF), version_base="1.3"):
         cfg = compose("config", overrides=overrides)
-    directory = run_episode(cfg).directory
+    directory = run_episode(validate(cfg)).directory
     assert RunRecord(directory).is_done()
     info = json.loads((directory / "run.json").read_text())
     assert info["scene_source"] == "blend" and info["config"]["render"] == {

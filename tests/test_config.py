@@ -17,7 +17,7 @@ from pipeline.config.catalog import declared
 from pipeline.config.memory import SIZE_KEYS_BOUNDED, allocations, too_large
 from pipeline.config.plain import as_dict, as_list
 from pipeline.config.schema import register_configs
-from pipeline.config.validation import ConfigError, error_line, validate
+from pipeline.config.validation import ConfigError, error_line, typed_run, validate
 from pipeline.repo import CONF
 
 
@@ -227,15 +227,15 @@ def test_case_6_every_size_key_beyond_memory_is_refused_naming_it(composer, key,
     after 26 s; ``budget.horizon=1000000000`` ran until killed. Every size key now has its allocation in the
     estimate (here against 1 GiB), so a value far beyond memory is refused before the run, naming the key."""
     cfg = composer(*overrides, f"{key}={value}")
-    problem = too_large(cfg, float(2**30), float(2**30), "a 1 GiB device")
+    problem = too_large(typed_run(cfg), float(2**30), float(2**30), "a 1 GiB device")
     assert problem is not None and problem.startswith(f"{key}={value}: "), problem
-    assert too_large(composer(*overrides), float(2**30), float(2**30), "a 1 GiB device") is None
+    assert too_large(typed_run(composer(*overrides)), float(2**30), float(2**30), "a 1 GiB device") is None
 
 
 def test_largest_allocations_are_lower_bounds_of_real_arrays(composer):
     """Each estimate is the size of one array the run really allocates (here: at the smoke budget)."""
     cfg = composer("budget=smoke")
-    sizes = {a.key: a.nbytes for a in allocations(cfg)}
+    sizes = {a.key: a.nbytes for a in allocations(typed_run(cfg))}
     assert sizes["sampler.grid_resolution"] == 32**3 * (4 + 1 + 1)  # OccupancyGrid: occ, occupied, observed
     assert sizes["budget.image_size"] == 24 * 24 * 4 * 4  # render_rgba: [H, W, 4] float32
     assert sizes["field.log2_hashmap_size"] == 2**12 * 2 * 4  # one level's table, 2 float32 features

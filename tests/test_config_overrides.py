@@ -1,9 +1,9 @@
-"""pipeline.config.validation.compose_config outside @hydra.main (kept apart from test_config.py, whose module fixture
+"""pipeline.config.validation.compose_run outside @hydra.main (kept apart from test_config.py, whose module fixture
 holds Hydra's global state): every bad override is one line and status 2."""
 
 import pytest
 
-from pipeline.config.validation import compose_config
+from pipeline.config.validation import compose_run
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.scenes.loading import load_scene
 
@@ -21,9 +21,9 @@ from pipeline.scenes.loading import load_scene
         ("ablation=wo_vis nvf.entropy.use_visibility=true", "ablation=wo_vis sets nvf.entropy.use_visibility=False"),
     ],
 )
-def test_compose_config_exits_with_one_line_on_any_bad_override(override, needle, capsys):
+def test_compose_run_exits_with_one_line_on_any_bad_override(override, needle, capsys):
     with pytest.raises(SystemExit) as exit_info:
-        compose_config(override.split())
+        compose_run(override.split())
     assert exit_info.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: ") and needle in err[0]
@@ -62,15 +62,16 @@ def test_case_5_6_9_bad_values_are_one_error_line_before_anything_runs(override,
     """Issue 30: a negative or out-of-int64 seed was a traceback (case 5), a billion label samples or steps were
     accepted (case 6), ``+no_such_key=1`` was stored silently (case 9). Each is now one ``error:`` line, status 2."""
     with pytest.raises(SystemExit) as exit_info:
-        compose_config([override])
+        compose_run([override])
     assert exit_info.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and needle in err[0], err
 
 
 def test_overrides_that_agree_with_the_ablation_compose():
-    assert compose_config(["ablation=ind_rays", "nvf.entropy.d0=0"]).nvf.entropy.d0 == 0.0
-    assert compose_config(["ablation=none", "nvf.entropy.d0=auto"]).nvf.entropy.d0 == "auto"  # no ablation to undo
+    assert compose_run(["ablation=ind_rays", "nvf.entropy.d0=0"]).nvf.entropy.d0 == 0.0
+    auto = compose_run(["ablation=none", "nvf.entropy.d0=auto"])  # no ablation to undo
+    assert auto.composed["nvf"]["entropy"]["d0"] == "auto"
 
 
 @pytest.mark.parametrize("d0, want", [(None, 1.0), ("auto", 0.25 * 2.8152), (0.5, 0.5), (2, 2.0)])
@@ -78,7 +79,7 @@ def test_d0_resolves_to_the_scene_value_auto_or_the_number_given(d0, want):
     """(M13, METHOD 8) ``nvf.entropy.d0``: null = the scene's 1.0 (D4), auto = 0.25 x the diagonal of the
     default scene's object box (1.92 x 1.92 x 0.744), a number as given; the scorer gets a float."""
     overrides = [] if d0 is None else [f"nvf.entropy.d0={d0}"]
-    settings = EpisodeSettings.of(compose_config(overrides), load_scene("default"))
+    settings = EpisodeSettings.of(compose_run(overrides), load_scene("default"))
     assert isinstance(settings.entropy.d0, float)
     assert settings.entropy.d0 == pytest.approx(want, abs=1e-4)
     assert settings.method.name == "nvf" and settings.scorer().d0 == settings.entropy.d0
@@ -96,4 +97,4 @@ def test_d0_resolves_to_the_scene_value_auto_or_the_number_given(d0, want):
 )
 def test_a_step_trains_the_stages_its_scores_read(overrides, stages):
     """METHOD 11: w/o Vis. trains no visibility head where nothing reads it (``nvf.training.stages_to_train``)."""
-    assert EpisodeSettings.of(compose_config(overrides), load_scene("default")).stages == stages
+    assert EpisodeSettings.of(compose_run(overrides), load_scene("default")).stages == stages

@@ -15,11 +15,10 @@ from hydra.core.override_parser.overrides_parser import OverridesParser
 from jaxtyping import Float, Int
 from torch import Tensor
 
-from nvf.config import EntropyConfig
 from nvf.methods import Method
 from nvf.model import RenderResult
 from pipeline.config.schema import register_configs
-from pipeline.config.validation import compose_config
+from pipeline.config.validation import compose_run
 from pipeline.episode.runner import run_episode
 from pipeline.repo import CONF
 from pipeline.tables.build import build_tables
@@ -46,7 +45,7 @@ class Toy(Method):
     power: float
     mode: Literal["plain", "squared"]
 
-    def scorer(self, entropy: EntropyConfig, d0: float) -> OpacityScorer:
+    def scorer(self) -> OpacityScorer:
         return OpacityScorer(self.power * (2.0 if self.mode == "squared" else 1.0))
 
 
@@ -116,7 +115,7 @@ def test_a_new_method_and_scene_reach_every_table_that_should_hold_them(tmp_path
     (assets / "toy_box").mkdir(parents=True)
     box.export(assets / "toy_box" / "toy_box.ply")
     overrides = ["budget=smoke", "budget.horizon=2", f"paths.outputs={outputs}", f"paths.assets={assets}"]
-    cfg = compose_config(
+    cfg = compose_run(
         [f"hydra.searchpath=[file://{conf}]", "scene=toy_box", "method=toy", "method.power=2.0", *overrides]
     )
     directory = run_episode(cfg).directory
@@ -146,6 +145,6 @@ def test_a_method_yaml_with_a_bad_value_is_one_line(tmp_path, key, value, messag
     lines = [f"{key}: {value}" if line.startswith(f"{key}:") else line for line in TOY_METHOD.splitlines()]
     (tmp_path / "method" / "bad.yaml").write_text("\n".join(lines) + "\n")
     with pytest.raises(SystemExit) as info:
-        compose_config([f"hydra.searchpath=[file://{tmp_path}]", "method=bad"])
+        compose_run([f"hydra.searchpath=[file://{tmp_path}]", "method=bad"])
     err = capsys.readouterr().err
     assert info.value.code == 2 and len(err.strip().splitlines()) == 1 and message in err

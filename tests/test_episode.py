@@ -15,6 +15,8 @@ import torch
 from hydra import compose, initialize_config_dir
 
 from pipeline.config.schema import register_configs
+from pipeline.config.typed import Run
+from pipeline.config.validation import validate
 from pipeline.episode.loop import Episode
 from pipeline.episode.runner import Outcome, RunRefused, StepFailed, run_episode, torch_threads
 from pipeline.episode.settings import EpisodeSettings
@@ -29,10 +31,10 @@ from pipeline.tables.summary import finish_run
 SMOKE = ["budget=smoke", "scene=default"]
 
 
-def _cfg(tmp_path: Path, *overrides: str):
+def _cfg(tmp_path: Path, *overrides: str) -> Run:
     register_configs()
     with initialize_config_dir(str(CONF), version_base="1.3"):
-        return compose("config", overrides=[*SMOKE, f"paths.outputs={tmp_path}", *overrides])
+        return validate(compose("config", overrides=[*SMOKE, f"paths.outputs={tmp_path}", *overrides]))
 
 
 def _cli(tmp_path: Path, *overrides: str, **kw) -> subprocess.Popen:

@@ -10,7 +10,6 @@ import pytest
 import torch
 
 from nvf.cameras import Intrinsics, look_at, matrix_to_pose, pixel_rays
-from nvf.config import EntropyConfig
 from nvf.methods import FisherRF
 from nvf.model import SceneModel
 from nvf.planning import argmax_first, prepare_scorer, score_poses, select_next_view
@@ -26,8 +25,7 @@ from nvf.uncertainty.fisher import (
     view_fisher_diagonal,
 )
 from pipeline.bench.train import observations
-from pipeline.config.method import build_method
-from pipeline.config.validation import compose_config
+from pipeline.config.validation import compose_run
 from pipeline.episode.evaluation import Evaluator
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.image import LpipsMetric
@@ -39,21 +37,21 @@ CHUNK = 8192
 
 def declared() -> FisherRF:
     """FisherRF as ``conf/method/fisherrf.yaml`` declares it."""
-    method = build_method(compose_config(["method=fisherrf"]).method)
+    method = compose_run(["method=fisherrf"]).method
     assert isinstance(method, FisherRF)
     return method
 
 
 def fisher_scorer() -> FisherRFScorer:
     """FisherRF's scorer with its declared settings (it reads none of NVF's keys)."""
-    return declared().scorer(EntropyConfig(), 1.0)
+    return declared().scorer()
 
 
 @pytest.fixture(scope="module")
 def smoke():
     """The backbone at the smoke budget trained on the embedded scene's three one-sided initial views:
     ``(cfg, settings, scene, renderer, obs, model)``."""
-    cfg = compose_config(["budget=smoke", "scene=default"])
+    cfg = compose_run(["budget=smoke", "scene=default"])
     scene = load_scene("default")
     settings = EpisodeSettings.of(cfg, scene)
     renderer = GroundTruthRenderer(scene.mesh)
@@ -168,7 +166,7 @@ def test_a_repeated_training_view_scores_below_the_unseen_side(smoke):
 def refusal(capsys, *overrides: str) -> str:
     """The one line (exit status 2) a run with ``overrides`` is refused with before it starts."""
     with pytest.raises(SystemExit) as exit_:
-        compose_config(list(overrides))
+        compose_run(list(overrides))
     assert exit_.value.code == 2
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1
@@ -190,7 +188,7 @@ def test_argmax_planning_only(smoke, capsys):
     scores = score_poses(model, prepared, selection.candidates, plan, settings.planner.score_chunk_rays)
     assert torch.equal(selection.scores, scores) and selection.index == argmax_first(scores)
 
-    opt = EpisodeSettings.of(compose_config(["budget=smoke", "scene=default", "planner=opt"]), scene)
+    opt = EpisodeSettings.of(compose_run(["budget=smoke", "scene=default", "planner=opt"]), scene)
     with pytest.raises(ValueError, match="fisherrf scores whole views"):
         select_next_view(model, prepared, opt.planner, *args)
     assert refusal(capsys, "budget=smoke", "method=fisherrf", "planner=opt").startswith(

@@ -15,7 +15,7 @@ from nvf.training import train_model
 from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
 from nvf.visibility import visibility_labels
 from pipeline.bench._models import held_out_poses, observations, view_psnr
-from pipeline.config.validation import compose_config
+from pipeline.config.validation import compose_run
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.image import edge_pixels, off_edge_psnr, psnr
 from pipeline.scenes.loading import load_scene
@@ -27,7 +27,7 @@ HEAD_STAGES = ("variance", "visibility")
 
 @pytest.fixture(scope="module")
 def setup():
-    cfg = compose_config(["budget=cpu", "scene=default"])
+    cfg = compose_run(["budget=cpu", "scene=default"])
     scene = load_scene("default")
     settings = EpisodeSettings.of(cfg, scene)
     renderer = GroundTruthRenderer(scene.mesh)

@@ -431,7 +431,7 @@ def test_planner_config_is_used_not_redefined():
 )
 def test_opt_with_the_real_scorers(method, entropy):
     model = blob_model()
-    scorer = build_method(method_configs()[method]).scorer(entropy, d0=1.0)
+    scorer = build_method(method_configs()[method], {"nvf.entropy": replace(entropy, d0=1.0)}).scorer()
     assert isinstance(scorer, ViewScorer) and isinstance(AccScorer(), ViewScorer)
     c = cfg(n=8, name="opt", score_chunk_rays=32, opt=OptConfig(iters=3, lr=1e-2, chunk_rays=16))
     sel = select_next_view(model, scorer, c, BOX, None, INTR, 1e-4, False, gens())
@@ -454,7 +454,7 @@ def test_integration_with_the_scene_model():
     )
     model = SceneModel(aabb, field_cfg, SamplerConfig(grid_resolution=16, alpha_threshold=0.0))
     model.update_grid(0, torch.Generator().manual_seed(0))
-    scorer = build_method(method_configs()["nvf"]).scorer(EntropyConfig(), d0=1.0)
+    scorer = build_method(method_configs()["nvf"], {"nvf.entropy": EntropyConfig(d0=1.0)}).scorer()
     current = pose_looking([-1.8, 0.1, 0.2], [0.0, 0.0, 0.0])
     c = cfg(n=8, name="opt", score_chunk_rays=4096, opt=OptConfig(iters=2, lr=1e-2))
     tau = 1e-4

@@ -13,10 +13,9 @@ import imageio.v3 as iio
 import numpy as np
 import pandas as pd
 import pytest
-from omegaconf import OmegaConf
 
 from pipeline.config.named import NamedConfigs
-from pipeline.config.validation import compose_config
+from pipeline.config.validation import compose_run
 from pipeline.records.store import DIGEST_KEY, RunRecord, record_digest, run_dir
 from pipeline.repo import CONF, REPO
 from pipeline.tables.__main__ import main
@@ -83,8 +82,8 @@ def read(path: Path) -> str:
 
 
 def label(method: str, planner: str, ablation: str) -> str:
-    cfg = compose_config([f"method={method}", f"planner={planner}", f"ablation={ablation}"])
-    return row_name(OmegaConf.to_container(cfg)).label
+    cfg = compose_run([f"method={method}", f"planner={planner}", f"ablation={ablation}"])
+    return row_name(cfg.composed).label
 
 
 def test_method_labels():
@@ -657,7 +656,7 @@ def test_a_record_joins_the_tables_its_method_and_scene_declare_today():
     made when Hubble declared only main is in table2_ablation once Hubble declares it."""
     from pipeline.tables.load import describe
 
-    cfg = OmegaConf.to_container(compose_config(["scene=hubble", "method=nvf", "ablation=wo_vis"]), resolve=True)
+    cfg = compose_run(["scene=hubble", "method=nvf", "ablation=wo_vis"]).composed
     cfg["scene"]["experiments"] = ["main"]
     cfg["method"]["experiments"] = ["main"]
     info = {"scene": "hubble", "method": "nvf", "planner": "argmax", "ablation": "wo_vis", "budget": "cpu"}

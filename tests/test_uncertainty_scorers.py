@@ -301,15 +301,12 @@ SCORING = ("wd", "activermap", "air", "activenerf", "neurar", "nvf")
 
 def method(name: str, **settings) -> Method:
     """A method as its yaml declares it (conf/method), with ``settings`` changed."""
-    return build_method({**method_configs()[name], **settings})
+    return build_method({**method_configs()[name], **settings}, {"nvf.entropy": replace(CFG, d0=1.0)})
 
 
 def scorers():
-    out = [method(name).scorer(CFG, 1.0) for name in SCORING]
-    out += [
-        method("activermap", occlusion_weighted=True).scorer(CFG, 1.0),
-        method("air", reduce="sum").scorer(CFG, 1.0),
-    ]
+    out = [method(name).scorer() for name in SCORING]
+    out += [method("activermap", occlusion_weighted=True).scorer(), method("air", reduce="sum").scorer()]
     out += [NVFEntropyScorer(replace(CFG, bound=Bound.moment_matched), 1.0), NVFEntropyScorer(CFG, 0.0)]
     return out
 
@@ -357,7 +354,7 @@ def test_method_classes():
     """Each method class builds its scorer (METHOD 12): Random has none; heads and sampler per method; the
     variance-head baselines carry their stage-1 loss (M25, M27), the others none."""
     random = method("random")
-    assert random.scorer(CFG, 1.0) is None and random.aux_loss is None
+    assert random.scorer() is None and random.aux_loss is None
     heads = {
         "wd": frozenset(),
         "activermap": frozenset(),
@@ -368,13 +365,14 @@ def test_method_classes():
     }
     for name, want in heads.items():
         built = method(name)
-        scorer = built.scorer(CFG, 1.0)
+        scorer = built.scorer()
         assert isinstance(scorer, ViewScorer) and scorer.name == name
         assert scorer.heads == want and scorer.sampler == "occupancy"
         assert (built.aux_loss is not None) == isinstance(built, ActiveNeRF | NeurAR)
-    assert method("nvf").scorer(replace(CFG, sampler=EntropySampler.uniform), 1.0).sampler == "uniform"
-    assert method("activermap", occlusion_weighted=True).scorer(CFG, 1.0).occlusion_weighted
-    assert method("air", reduce="sum").scorer(CFG, 1.0).reduce == "sum"
+    uniform = replace(method("nvf"), entropy=replace(CFG, d0=1.0, sampler=EntropySampler.uniform))
+    assert uniform.scorer().sampler == "uniform"
+    assert method("activermap", occlusion_weighted=True).scorer().occlusion_weighted
+    assert method("air", reduce="sum").scorer().reduce == "sum"
     for name, settings in (("air", {"view_score": "topk"}), ("activenerf", {"variant": "B"})):
         with pytest.raises(MethodError, match="not implemented"):
             method(name, **settings)

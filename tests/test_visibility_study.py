@@ -205,12 +205,12 @@ def test_one_step_outcome_of_a_pick():
     """``with_view`` adds the ground truth at a pose to the observations; ``heldout_psnr`` trains the backbone
     as the next step would (same seed: the same PSNR twice) and measures it on the evaluation views."""
     from nvf.cameras import matrix_to_pose
-    from pipeline.config.validation import compose_config
+    from pipeline.config.validation import compose_run
     from pipeline.episode.loop import Episode
     from pipeline.metrics.image import LpipsMetric
     from pipeline.scenes.loading import load_scene
 
-    cfg = compose_config(["budget=smoke", "train.backbone.iters=5"])
+    cfg = compose_run(["budget=smoke", "train.backbone.iters=5"])
     scene = load_scene(cfg.scene, Path(cfg.paths.assets))
     episode = Episode(EpisodeSettings.of(cfg, scene), scene, torch.device("cpu"), LpipsMetric())
     try:

@@ -12,7 +12,6 @@ from pathlib import Path
 import numpy as np
 import torch
 from jaxtyping import Float
-from omegaconf import DictConfig
 from torch import Tensor
 
 from nvf.cameras import Intrinsics, look_at, matrix_to_pose
@@ -26,6 +25,7 @@ from nvf.seeding import seeded_generator
 from nvf.training import Observations, train_model
 from pipeline.bench._paired import IterationClock, Turn, lockstep
 from pipeline.cli import fail
+from pipeline.config.typed import Run
 from pipeline.episode.evaluation import RENDER_CHUNK
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.image import off_edge_psnr, psnr
@@ -61,7 +61,7 @@ class CountingModel(SceneModel):
 
 
 def report_settings(
-    cfg: DictConfig,
+    cfg: Run,
     s: EpisodeSettings,
     training_views: int,
     image_size: object,
@@ -84,7 +84,7 @@ def report_settings(
     }
 
 
-def load(cfg: DictConfig) -> Scene:
+def load(cfg: Run) -> Scene:
     """The configured scene; a missing mesh exits with one line (status 2)."""
     try:
         return load_scene(cfg.scene, Path(cfg.paths.assets), blender_python(cfg.paths.blender_python))
@@ -102,7 +102,7 @@ def observations(
 
 
 def same_initial_models(
-    cfg: DictConfig, scene: Scene, s: EpisodeSettings, names: list[str], model_cls: type[CountingModel]
+    cfg: Run, scene: Scene, s: EpisodeSettings, names: list[str], model_cls: type[CountingModel]
 ) -> dict[str, CountingModel]:
     """One fresh model per name, all with the initial weights of ``torch.manual_seed(cfg.seed)``."""
     models = {}
@@ -138,7 +138,7 @@ class InitialViewModel:
     ``extra_poses`` after them: a later state of an episode): the model of an episode's first planning
     step, shared by the ``plan`` and ``visibility`` benchmarks."""
 
-    cfg: DictConfig
+    cfg: Run
     scene: Scene
     settings: EpisodeSettings
     renderer: GroundTruthRenderer
@@ -148,7 +148,7 @@ class InitialViewModel:
 
     @staticmethod
     def train(
-        cfg: DictConfig, model_cls: type[SceneModel] = SceneModel, extra_poses: Float[Tensor, "k 4 4"] | None = None
+        cfg: Run, model_cls: type[SceneModel] = SceneModel, extra_poses: Float[Tensor, "k 4 4"] | None = None
     ) -> "InitialViewModel":
         scene = load(cfg)
         s = EpisodeSettings.of(cfg, scene)
@@ -165,7 +165,7 @@ class InitialViewModel:
 
     @staticmethod
     def train_side_by_side(
-        cfg: DictConfig, precisions: list[str]
+        cfg: Run, precisions: list[str]
     ) -> tuple[dict[str, "InitialViewModel"], dict[str, IterationClock]]:
         """One ``CountingModel`` per ``train.precision``, from the same initial weights and seed, all three
         stages trained in lockstep (``train_in_lockstep``)."""

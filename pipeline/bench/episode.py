@@ -14,14 +14,12 @@ import time
 from pathlib import Path
 
 import torch
-from hydra import compose, initialize_config_dir
 
 from pipeline.bench._report import report_path, write_report
 from pipeline.cli import ArgumentParser, description
-from pipeline.config.schema import register_configs
+from pipeline.config.validation import compose_run
 from pipeline.episode.runner import run_episode
 from pipeline.records.store import RunRecord
-from pipeline.repo import CONF
 
 
 def step_summary(row: dict) -> dict:
@@ -44,11 +42,10 @@ def main(argv: list[str]) -> None:
         "--outputs", type=Path, default=None, help="keep the run records here (default: a temporary directory)"
     )
     args = parser.parse_intermixed_args(argv)
-    register_configs()
-    with tempfile.TemporaryDirectory() as tmp, initialize_config_dir(str(CONF), version_base="1.3"):
-        out = report_path(args.out, compose("config", overrides=args.overrides).paths.results, "episode")
+    with tempfile.TemporaryDirectory() as tmp:
+        out = report_path(args.out, compose_run(args.overrides).paths.results, "episode")
         outputs = args.outputs.resolve() if args.outputs else Path(tmp)
-        cfg = compose("config", overrides=[*args.overrides, f"paths.outputs={outputs}"])
+        cfg = compose_run([*args.overrides, f"paths.outputs={outputs}"])
         start = time.perf_counter()
         directory = run_episode(cfg).directory
         seconds = time.perf_counter() - start

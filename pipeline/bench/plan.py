@@ -83,8 +83,8 @@ from pipeline.bench.field import matmul_gflops, mlp_flops
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.catalog import method_configs
 from pipeline.config.method import build_method
-from pipeline.config.validation import compose_config
-from pipeline.episode.settings import EpisodeSettings, entropy_d0
+from pipeline.config.validation import compose_run
+from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.ranking import spearman
 
 CANDIDATES = 512  # the paper's N; a later planner.num_candidates=... override wins
@@ -322,7 +322,7 @@ def scoring_jobs(
     scorers: dict[str, ViewScorer | WholeViewScorer] = {}
     prepare_seconds: dict[str, float] = {}
     for name, method in methods.items():
-        scorer = method.scorer(s.entropy, entropy_d0(s.entropy))
+        scorer = method.scorer()
         if isinstance(scorer, StepScorer):
             began = time.perf_counter()
             scorers[name] = scorer.prepare(model, obs, generator_factory(s.seed, 0), chunk)
@@ -350,9 +350,9 @@ def scoring_jobs(
 def main(argv: list[str]) -> None:
     args = parse_args(argv)
     start = time.perf_counter()
-    cfg = compose_config([f"planner.num_candidates={CANDIDATES}", *args.overrides])
+    cfg = compose_run([f"planner.num_candidates={CANDIDATES}", *args.overrides])
     precisions = parse_precisions(args.precisions)
-    methods = {name: build_method(m) for name, m in method_configs().items()}
+    methods = {name: build_method(m, {"nvf.entropy": cfg.nvf.entropy}) for name, m in method_configs().items()}
     fisher = next((method for method in methods.values() if isinstance(method, FisherRF)), None)
     if args.probes is not None and fisher is None:
         fail("--probes: no method in conf/method is FisherRF (nvf.methods.FisherRF); declare it or drop --probes")

@@ -22,7 +22,7 @@ from nvf.cameras import Intrinsics
 from pipeline.bench._report import report_path, write_report
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.schema import RenderConfig
-from pipeline.config.validation import compose_config
+from pipeline.config.validation import compose_run
 from pipeline.scenes.blender import BlenderRenderer, blender_python
 from pipeline.scenes.loading import load_scene
 from pipeline.scenes.render import GroundTruthRenderer
@@ -53,7 +53,7 @@ def main(argv: list[str]) -> None:
     args = parser.parse_args(argv)
     if min(args.res) < 8 or not 1 <= args.views <= 20 or args.samples < 1:
         fail("--res must be >= 8, --views in 1..20 and --samples >= 1")
-    cfg = compose_config(args.overrides)
+    cfg = compose_run(args.overrides)
     python, threads = blender_python(cfg.paths.blender_python), os.cpu_count() or 1
     use_blender, rows, version, load_start = "blender" in args.backends, [], None, os.getloadavg()
     try:

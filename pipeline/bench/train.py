@@ -47,7 +47,6 @@ from pathlib import Path
 
 import torch
 from jaxtyping import Float
-from omegaconf import DictConfig
 from torch import Tensor
 
 from nvf.cameras import Intrinsics
@@ -74,7 +73,8 @@ from pipeline.bench._paired import IterationClock, ratio_spread
 from pipeline.bench._report import report_path, write_report
 from pipeline.bench.field import matmul_gflops, median_seconds, mlp_flops
 from pipeline.cli import ArgumentParser, description
-from pipeline.config.validation import compose_config
+from pipeline.config.typed import Run
+from pipeline.config.validation import compose_run
 from pipeline.episode.evaluation import RENDER_CHUNK
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.scenes.ground_truth import Renderer, ground_truth_info, open_renderer
@@ -308,7 +308,7 @@ def precision_ratios(
 
 
 def train_side_by_side(
-    cfg: DictConfig, s: EpisodeSettings, scene: Scene, obs: Observations, precisions: list[str]
+    cfg: Run, s: EpisodeSettings, scene: Scene, obs: Observations, precisions: list[str]
 ) -> tuple[dict[str, CountingModel], dict[str, IterationClock]]:
     """Stage 1 of one model per ``train.precision``, from the same initial weights and seed, in lockstep."""
     models = same_initial_models(cfg, scene, s, precisions, CountingModel)
@@ -431,7 +431,7 @@ def goals(r: dict, ratios: dict) -> dict:
 def main(argv: list[str]) -> None:
     args = parse_args(argv)
     start = time.perf_counter()
-    cfg = compose_config(args.overrides)
+    cfg = compose_run(args.overrides)
     precisions = parse_precisions(args.precisions)
     scene = load(cfg)
     s = EpisodeSettings.of(cfg, scene)

@@ -40,7 +40,6 @@ from pathlib import Path
 import numpy as np
 import torch
 from jaxtyping import Float
-from omegaconf import DictConfig
 from torch import Tensor
 
 from nvf.cameras import Intrinsics, pose_to_matrix
@@ -50,8 +49,8 @@ from nvf.visibility_source import SOURCES, label_visibility
 from pipeline.bench._models import InitialViewModel
 from pipeline.bench._report import report_path, write_report
 from pipeline.cli import ArgumentParser, description, fail
-from pipeline.config.validation import compose_config
-from pipeline.episode.settings import entropy_d0
+from pipeline.config.typed import Run
+from pipeline.config.validation import compose_run
 from pipeline.metrics.ranking import (
     auc,
     render_for_terms,
@@ -241,14 +240,15 @@ def recorded_poses(record: Path, step: int) -> Float[Tensor, "k 4 4"]:
     )
 
 
-def visibility_report(cfg: DictConfig, sets: int, sources: list[str], extra: Tensor | None = None) -> dict:
+def visibility_report(cfg: Run, sets: int, sources: list[str], extra: Tensor | None = None) -> dict:
     """Train the model of ``cfg`` on the initial views (and the poses ``extra`` after them) and report
     ``sets`` candidate sets (see the module doc)."""
     setup = InitialViewModel.train(cfg, extra_poses=extra)
     s = setup.settings
     res = int(s.planner.resolution)
     intr = Intrinsics.from_fov(res, res)
-    d0 = entropy_d0(s.entropy)
+    d0 = s.entropy.d0
+    assert isinstance(d0, (int, float)), f"nvf.entropy.d0={d0!r} is not resolved"
     blind = dataclasses.replace(s.entropy, use_visibility=False)
     scorers = (NVFEntropyScorer(s.entropy, d0), NVFEntropyScorer(blind, d0))
     functions = source_functions(setup, sources)
@@ -356,7 +356,7 @@ def main(argv: list[str]) -> None:
     if args.step < 0 or (args.step > 0 and args.record is None):
         parser.error("--step takes a number >= 0 and needs --record")
     start = time.perf_counter()
-    cfg = compose_config(["planner.num_candidates=64", *args.overrides])
+    cfg = compose_run(["planner.num_candidates=64", *args.overrides])
     try:
         extra = recorded_poses(args.record, args.step) if args.record is not None else None
     except (ValueError, OSError) as err:

@@ -8,10 +8,11 @@ for one 37 GiB float32 image; ``train.label_samples=1000000000`` died with an al
 rates, lengths, caps) or one another key already bounds; every other positive key has an allocation here.
 """
 
+import functools
 import os
 from dataclasses import dataclass
 
-from omegaconf import DictConfig, OmegaConf
+from pipeline.config.typed import Run
 
 GIB = float(1 << 30)
 EVAL_VIEWS = 20  # PROTOCOL 2.4: every scene has 20 evaluation views
@@ -62,13 +63,13 @@ class Allocation:
     also: tuple[str, ...] = ()
 
 
-def allocations(cfg: DictConfig) -> list[Allocation]:
-    """The largest array each size key of ``cfg`` makes a run allocate (lower bounds)."""
-    b, s, f, p, t = cfg.budget, cfg.sampler, cfg.field, cfg.planner, cfg.train
+def allocations(run: Run) -> list[Allocation]:
+    """The largest array each size key of ``run`` makes the run allocate (lower bounds)."""
+    b, s, f, p, t = run.budget, run.sampler, run.field, run.planner, run.train
     side = int(b.image_size) * int(b.gt_samples)
     pixels = int(b.image_size) ** 2
     view_rays = int(p.resolution) ** 2
-    stages = set(cfg.method.stages)
+    stages = set(run.method.stages)
     found = [
         Allocation(
             "budget.image_size",
@@ -156,7 +157,7 @@ def allocations(cfg: DictConfig) -> list[Allocation]:
         found.append(
             Allocation("field.hidden_dim", FLOAT32 * hidden**2, "one hidden layer's weights (float32)", on_device=True)
         )
-    if "visibility" in stages or cfg.nvf.entropy.visibility_source == "labels":  # M17: stage 3's labels, or the scores'
+    if "visibility" in stages or run.nvf.entropy.visibility_source == "labels":  # M17: stage 3's labels, or the scores'
         found.append(
             Allocation(
                 "train.label_samples",
@@ -167,7 +168,7 @@ def allocations(cfg: DictConfig) -> list[Allocation]:
             )
         )
     for stage in ("backbone", "variance", "visibility"):
-        batch = int(t[stage].batch)
+        batch = int(getattr(t, stage).batch)
         found.append(
             Allocation(
                 f"train.{stage}.batch", XYZ * batch, "one batch's ray origins or points (float32 xyz)", on_device=True
@@ -183,7 +184,7 @@ def allocations(cfg: DictConfig) -> list[Allocation]:
                 on_device=True,
             )
         )
-    collision_free = p.collision_free if p.collision_free is not None else cfg.scene.collision_free
+    collision_free = p.collision_free if p.collision_free is not None else run.scene.collision_free
     if collision_free and p.los_source == "model":
         found.append(
             Allocation(
@@ -194,7 +195,7 @@ def allocations(cfg: DictConfig) -> list[Allocation]:
                 on_device=True,
             )
         )
-    if cfg.nvf.entropy.sampler == "uniform":
+    if run.nvf.entropy.sampler == "uniform":
         chunk = min(int(p.score_chunk_rays), view_rays)
         found.append(
             Allocation(
@@ -212,12 +213,12 @@ def host_memory() -> float:
     return float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
 
 
-def too_large(cfg: DictConfig, host_bytes: float, device_bytes: float, device_name: str) -> str | None:
+def too_large(run: Run, host_bytes: float, device_bytes: float, device_name: str) -> str | None:
     """One line for the allocation that does not fit its memory by the largest factor (one that a single key
     sizes first, so the line names the key to lower), or None when all fit."""
     over = [
         (a.nbytes / (device_bytes if a.on_device else host_bytes), a)
-        for a in allocations(cfg)
+        for a in allocations(run)
         if a.nbytes > (device_bytes if a.on_device else host_bytes)
     ]
     if not over:
@@ -225,7 +226,8 @@ def too_large(cfg: DictConfig, host_bytes: float, device_bytes: float, device_na
     _, worst = min(over, key=lambda pair: (bool(pair[1].also), -pair[0]))
     limit, where = (device_bytes, device_name) if worst.on_device else (host_bytes, "this machine")
     lower = " or ".join((worst.key, *worst.also))
+    value = functools.reduce(getattr, worst.key.split("."), run)
     return (
-        f"{worst.key}={OmegaConf.select(cfg, worst.key)}: {worst.what} needs {worst.nbytes / GIB:.1f} GiB, "
+        f"{worst.key}={value}: {worst.what} needs {worst.nbytes / GIB:.1f} GiB, "
         f"more than the {limit / GIB:.1f} GiB of memory of {where}; lower {lower}"
     )

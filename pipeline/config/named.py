@@ -10,7 +10,7 @@ from typing import Any
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 from hydra.errors import HydraException
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import OmegaConf
 
 from pipeline.config.schema import register_configs
 from pipeline.records import compat
@@ -80,9 +80,9 @@ class NamedConfigs:
         return tuple(f"{key}={_text(value)}" for key, value in changed if not compat.is_inert(key, inert))
 
 
-def config_label(cfg: DictConfig) -> str:
-    """The composed config's budget plus every setting beyond its named groups (``cpu+train.precision=bf16``),
-    as the tables label runs (``NamedConfigs.budget_label``; the diagnostics and ``save_images`` are not
-    settings), so another setting never shares the plain budget's files."""
-    info = {group: cfg[group].name for group in GROUPS} | {"config": OmegaConf.to_container(cfg, resolve=True)}
+def config_label(composed: Mapping[str, Any]) -> str:
+    """A composed config's (plain data, ``Run.composed``) budget plus every setting beyond its named groups
+    (``cpu+train.precision=bf16``), as the tables label runs (``NamedConfigs.budget_label``; the diagnostics and
+    ``save_images`` are not settings), so another setting never shares the plain budget's files."""
+    info = {group: composed[group]["name"] for group in GROUPS} | {"config": dict(composed)}
     return NamedConfigs(CONF).budget_label(info)

@@ -1,6 +1,7 @@
 """Validation of a run's configuration (the schema is ``pipeline.config.schema``): ``validate`` runs before any
-work and raises ``ConfigError`` with one line naming the key; ``compose_config`` composes and validates
-a config outside ``@hydra.main`` (benchmarks, experiments).
+work, raises ``ConfigError`` with one line naming the key, and turns the composed config into the typed
+``pipeline.config.typed.Run`` that everything below the entry points reads; ``compose_run`` composes and
+validates a config outside ``@hydra.main`` (benchmarks, experiments).
 """
 
 import dataclasses
@@ -15,7 +16,7 @@ from hydra import compose, initialize_config_dir
 from hydra.errors import HydraException
 from omegaconf import DictConfig, OmegaConf
 
-from nvf.config import EntropyConfig
+from nvf.methods import Method
 from nvf.precision import unsupported_reason
 from nvf.uncertainty import StepScorer
 from pipeline.config.catalog import declared
@@ -25,6 +26,7 @@ from pipeline.config.named import changed_settings
 from pipeline.config.paths import unwritable
 from pipeline.config.plain import as_dict
 from pipeline.config.schema import RunConfig, register_configs
+from pipeline.config.typed import Run, resolved_entropy, run_of
 from pipeline.records.store import run_dir
 from pipeline.records.verify import MAX_HORIZON, record_value_problem
 from pipeline.repo import CONF
@@ -164,47 +166,54 @@ def _check_known_keys(cfg: DictConfig) -> None:
         )
 
 
-def _check_run_keys(cfg: DictConfig) -> None:
+def _check_run_keys(run: Run) -> None:
     """The seed (an int64: it seeds every generator of the run) and the names that make the run's directory,
     as ``pipeline.records.store.run_dir`` takes them."""
-    names = (cfg.scene.name, cfg.method.name, cfg.planner.name, cfg.ablation.name, cfg.budget.name)
     try:
-        run_dir(Path(str(cfg.paths.outputs)), *names, cfg.seed)
+        run_dir(Path(run.paths.outputs), *run.names, run.seed)
     except ValueError as err:
         raise ConfigError(str(err)) from None
 
 
-def check_paths(cfg: DictConfig, keys: tuple[str, ...] = ("paths.outputs",)) -> None:
-    """Each of ``keys`` (directories the run writes in) is, or can be made, a writable directory."""
-    for key in keys:
-        problem = unwritable(key, Path(str(OmegaConf.select(cfg, key))))
+def check_paths(paths: dict[str, str]) -> None:
+    """Each of ``paths`` (config key -> a directory the run writes in) is, or can be made, a writable
+    directory."""
+    for key, path in paths.items():
+        problem = unwritable(key, Path(path))
         if problem is not None:
             raise ConfigError(problem)
 
 
-def _check_memory(cfg: DictConfig) -> None:
+def _check_memory(run: Run) -> None:
     """The largest allocation of each size key fits the memory it lives in (``pipeline.config.memory``)."""
-    device = str(cfg.device)
+    device = str(run.device)
     cuda = torch.cuda.is_available() and device != "cpu"
     host = host_memory()
     if cuda:
         index = int(device.partition(":")[2] or 0)
         name = f"cuda:{index} ({torch.cuda.get_device_name(index)})"
-        problem = too_large(cfg, host, float(torch.cuda.get_device_properties(index).total_memory), name)
+        problem = too_large(run, host, float(torch.cuda.get_device_properties(index).total_memory), name)
     else:
-        problem = too_large(cfg, host, host, "this machine")
+        problem = too_large(run, host, host, "this machine")
     if problem is not None:
         raise ConfigError(problem)
 
 
-def validate(cfg: DictConfig) -> None:
-    """Reject impossible values before any work starts (one line naming the key): keys the schema declares
-    (``+key`` too; a choice outside its ``StrEnum`` is refused when the config is composed), the seed and run
-    names, values a run record can hold, the method's own settings, finite floats, positive
-    and bounded sizes, sizes that fit in memory, a device torch can see and a writable ``paths.outputs``."""
+def validate(cfg: DictConfig) -> Run:
+    """The composed ``cfg`` as a typed ``Run``, after rejecting impossible values before any work starts (one
+    line naming the key): keys the schema declares (``+key`` too; a choice outside its ``StrEnum`` is refused
+    when the config is composed), the seed and run names, values a run record can hold, the method's own
+    settings, finite floats, positive and bounded sizes, sizes that fit in memory, a device torch can see and
+    a writable ``paths.outputs``."""
     _check_known_keys(cfg)
-    _check_method(cfg)
-    _check_run_keys(cfg)
+    d0 = cfg.nvf.entropy.d0
+    if d0 != "auto" and (isinstance(d0, str) or (d0 is not None and d0 < 0)):
+        raise ConfigError(
+            f"nvf.entropy.d0={d0} must be a number >= 0 (0 = Ind. Rays), auto (0.25 x the object box's diagonal) "
+            "or null (the scene's value)"
+        )
+    run = typed_run(cfg)
+    _check_run_keys(run)
     _check_finite(cfg)
     if cfg.nvf.entropy.logdet_coeff not in LOGDET_COEFFS:
         raise ConfigError(
@@ -242,35 +251,49 @@ def validate(cfg: DictConfig) -> None:
         )
     if cfg.budget.eval_size < 32:
         raise ConfigError(f"budget.eval_size={cfg.budget.eval_size} must be >= 32 (LPIPS' AlexNet needs 32x32 inputs)")
-    d0 = cfg.nvf.entropy.d0
-    if d0 != "auto" and (isinstance(d0, str) or (d0 is not None and d0 < 0)):
-        raise ConfigError(
-            f"nvf.entropy.d0={d0} must be a number >= 0 (0 = Ind. Rays), auto (0.25 x the object box's diagonal) "
-            "or null (the scene's value)"
-        )
     rival = cfg.diagnostics.rank_against
     if rival is not None and rival not in declared("ablation"):
         raise ConfigError(f"diagnostics.rank_against={rival!r} is not one of {', '.join(declared('ablation'))}")
     _check_device(str(cfg.device))
     _check_render(cfg)
     _check_precision(str(cfg.train.precision), str(cfg.device))
-    _check_memory(cfg)
-    check_paths(cfg)
+    _check_memory(run)
+    check_paths({"paths.outputs": run.paths.outputs})
+    return run
 
 
-def _check_method(cfg: DictConfig) -> None:
-    """The method node builds its class (``pipeline.config.method``): every key one its dataclass declares, of
-    the field's type (a ``Literal``'s choices), no alternative that is not implemented, and no -OPT for a
-    method that scores whole views."""
-    try:
-        method = build_method(cfg.method)
-    except MethodError as err:
-        raise ConfigError(f"{err} (conf/method/{cfg.method.get('name')}.yaml)") from None
-    if cfg.planner.name == "opt" and isinstance(method.scorer(EntropyConfig(), 1.0), StepScorer):
+def typed_run(cfg: DictConfig) -> Run:
+    """``cfg`` as a ``Run``: the method node builds its class (``pipeline.config.method``: every key one its
+    dataclass declares, of the field's type, no alternative that is not implemented), with NVF's entropy
+    settings resolved on the scene, and no -OPT for a method that scores whole views."""
+    config = OmegaConf.to_object(cfg)
+    assert isinstance(config, RunConfig), f"a composed run config, not {type(config).__name__}"
+    config.nvf.entropy = resolved_entropy(config.nvf.entropy, config.scene)
+    method = _method(cfg, config)
+    if cfg.planner.name == "opt" and isinstance(method.scorer(), StepScorer):
         raise ConfigError(
             f"planner=opt: {method.name} scores whole views, without the per-pixel score -OPT refines "
             "(docs/METHOD.md 17); use planner=argmax"
         )
+    rival = None
+    if config.diagnostics.rank_against is not None:
+        name = str(config.diagnostics.rank_against)
+        merged = OmegaConf.merge(cfg, OmegaConf.load(CONF / "ablation" / f"{name}.yaml"))
+        ablated = OmegaConf.to_object(merged)
+        assert isinstance(ablated, RunConfig), "a run config merged with an ablation's mapping"
+        ablated.nvf.entropy = resolved_entropy(ablated.nvf.entropy, ablated.scene)
+        rival = name, _method(cfg, ablated)
+    composed = OmegaConf.to_container(cfg, resolve=True, enum_to_str=True)
+    assert isinstance(composed, dict)
+    return run_of(config, method, rival, {str(k): v for k, v in composed.items()})
+
+
+def _method(cfg: DictConfig, config: RunConfig) -> Method:
+    """The method ``config.method`` declares, with ``config``'s run settings (``nvf.entropy``)."""
+    try:
+        return build_method(config.method, {"nvf.entropy": config.nvf.entropy})
+    except MethodError as err:
+        raise ConfigError(f"{err} (conf/method/{cfg.method.get('name')}.yaml)") from None
 
 
 def _check_render(cfg: DictConfig) -> None:
@@ -307,18 +330,17 @@ def _check_device(device: str) -> None:
         )
 
 
-def compose_config(overrides: list[str]) -> DictConfig:
-    """conf/config.yaml with ``overrides``, validated; an override Hydra cannot apply (unknown key, wrong
-    type) or a bad value exits with one line (status 2)."""
+def compose_run(overrides: list[str]) -> Run:
+    """conf/config.yaml with ``overrides``, validated, as a typed ``Run``; an override Hydra cannot apply
+    (unknown key, wrong type) or a bad value exits with one line (status 2)."""
     register_configs()
     try:
         with initialize_config_dir(str(CONF), version_base="1.3"):
             cfg = compose("config", overrides=overrides)
-        validate(cfg)
+        return validate(cfg)
     except (HydraException, ConfigError) as err:
         print(error_line(err), file=sys.stderr)
         raise SystemExit(2) from None
-    return cfg
 
 
 def error_line(err: Exception) -> str:

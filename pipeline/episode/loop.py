@@ -44,7 +44,7 @@ class Episode:
         self.plan_intrinsics = Intrinsics.from_fov(s.planner.resolution, s.planner.resolution)
         self.method = s.method
         self.scorer = s.scorer()
-        self.rival = None if s.rival is None else (s.rival[0], s.scorer(s.rival[1]))
+        self.rival = None if s.rival is None else (s.rival[0], s.rival[1].scorer())
         # last: a Blender renderer is a process, closed by close()
         self.renderer = open_renderer(scene, s.render, s.blender_python)
         self.poses: list[torch.Tensor] = []

@@ -1,16 +1,15 @@
-"""Run (or resume) one episode into its run record: validate the config, derive the run directory from the
-run's keys, take the run's lock (one writer per run), verify what is recorded there, skip a finished run
+"""Run (or resume) one episode into its run record: derive the run directory from the run's
+keys, take the run's lock (one writer per run), verify what is recorded there, skip a finished run
 (refusing one that finished with other settings), repeat a failed run's reason, resume an unfinished one
 at its first missing step, and record every step atomically; a step that cannot complete marks the run
 failed with a one-line reason. A Blender worker that does not answer in time (``render.timeout``) stops
 the run with a one-line reason and leaves it to resume.
 
-The composed config is read here once: its resolved form is recorded (run.json), and the episode gets
-the typed settings built from it (``pipeline.episode.settings``). The summary and pictures of a finished
-run are the entry point's (``pipeline.run``), from the ``Outcome``.
+It takes the typed run (``pipeline.config.typed.Run``, validated by the entry point): its composed form
+is recorded (run.json), and the episode gets the settings built from it (``pipeline.episode.settings``).
+The summary and pictures of a finished run are the entry point's (``pipeline.run``), from the ``Outcome``.
 """
 
-import dataclasses
 import os
 import time
 from dataclasses import dataclass
@@ -19,15 +18,14 @@ from pathlib import Path
 import numpy as np
 import torch
 from hydra.core.hydra_config import HydraConfig
-from omegaconf import DictConfig, OmegaConf
 
 from nvf.planning import NoCandidatesError
 from nvf.training import TrainingDiverged
-from pipeline.config.schema import RunConfig
-from pipeline.config.validation import ConfigError, resolve_device, validate
+from pipeline.config.typed import Run
+from pipeline.config.validation import ConfigError, resolve_device
 from pipeline.episode.loop import Episode
 from pipeline.episode.progress import EpisodeProgress
-from pipeline.episode.settings import EpisodeSettings, run_config
+from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.image import LpipsMetric
 from pipeline.records.images import save_step_images
 from pipeline.records.lock import RunLock
@@ -76,22 +74,21 @@ def torch_threads() -> int:
     return max(1, cores // jobs)
 
 
-def record_dir(run: RunConfig) -> Path:
-    names = (run.scene.name, str(run.method["name"]), run.planner.name, run.ablation.name, run.budget.name)
-    return run_dir(Path(run.paths.outputs), *names, int(run.seed))
+def record_dir(run: Run) -> Path:
+    return run_dir(Path(run.paths.outputs), *run.names, int(run.seed))
 
 
-def run_settings(cfg: DictConfig) -> dict:
-    """The run's identity keys and resolved config: what makes two records the same run."""
-    config = OmegaConf.to_container(cfg, resolve=True, enum_to_str=True)
+def run_settings(run: Run) -> dict:
+    """The run's identity keys and composed config: what makes two records the same run."""
+    scene, method, planner, ablation, budget = run.names
     return {
-        "scene": cfg.scene.name,
-        "method": cfg.method.name,
-        "planner": str(cfg.planner.name),
-        "ablation": cfg.ablation.name,
-        "budget": cfg.budget.name,
-        "seed": int(cfg.seed),
-        "config": config,
+        "scene": scene,
+        "method": method,
+        "planner": planner,
+        "ablation": ablation,
+        "budget": budget,
+        "seed": int(run.seed),
+        "config": run.composed,
     }
 
 
@@ -113,30 +110,28 @@ def run_info(settings: dict, episode: Episode, lpips_reason: str | None, ground_
     }
 
 
-def run_episode(cfg: DictConfig) -> Outcome:
-    """Run (or resume) one episode under its run's lock (``pipeline.records.lock``).
+def run_episode(run: Run) -> Outcome:
+    """Run (or resume) one episode of the validated ``run`` under its run's lock (``pipeline.records.lock``).
 
-    Raises ``ConfigError`` (a bad value), ``RunLocked`` (another process writes the run), ``RecordError``
-    (its record fails a check), ``RunRefused`` (a record of other settings), ``SceneError`` (the scene
-    cannot load): all before the record starts. ``StepFailed`` once the run failed (recorded as such) or
-    stopped (``BlenderTimeout``: left unfinished).
+    Raises ``ConfigError`` (a renderer that cannot start, a bad thread count), ``RunLocked`` (another process
+    writes the run), ``RecordError`` (its record fails a check), ``RunRefused`` (a record of other settings),
+    ``SceneError`` (the scene cannot load): all before the record starts. ``StepFailed`` once the run failed
+    (recorded as such) or stopped (``BlenderTimeout``: left unfinished).
     """
-    validate(cfg)
-    run = run_config(cfg)
     problem = renderer_problem(run.render, blender_python(run.paths.blender_python))
     if problem is not None:
         raise ConfigError(problem)
     threads = torch_threads()
     directory = record_dir(run)
     with RunLock(directory, root=Path(run.paths.outputs)):
-        return _run_locked(cfg, run, directory, threads)
+        return _run_locked(run, directory, threads)
 
 
-def _run_locked(cfg: DictConfig, run: RunConfig, directory: Path, threads: int) -> Outcome:
+def _run_locked(run: Run, directory: Path, threads: int) -> Outcome:
     record = RunRecord(directory)
     previous, _ = verified(record)
     status = record.status()
-    settings = run_settings(cfg)
+    settings = run_settings(run)
     changed = record.difference(settings) if previous else None
     if changed is not None:
         verb = {"done": "finished", "failed": "failed"}.get(status, "was started")
@@ -153,11 +148,11 @@ def _run_locked(cfg: DictConfig, run: RunConfig, directory: Path, threads: int) 
     torch.set_num_threads(threads)
     torch.manual_seed(int(run.seed))
     np.random.seed(int(run.seed) % 2**32)
-    scene = load_scene(dataclasses.asdict(run.scene), Path(run.paths.assets), blender_python(run.paths.blender_python))
+    scene = load_scene(run.scene, Path(run.paths.assets), blender_python(run.paths.blender_python))
     device = resolve_device(run.device)
     lpips = LpipsMetric()
     try:
-        episode = Episode(EpisodeSettings.of(cfg, scene), scene, device, lpips)
+        episode = Episode(EpisodeSettings.of(run, scene), scene, device, lpips)
         try:
             _run_steps(settings, Path(run.paths.assets), directory, record, episode, lpips)
         finally:

@@ -61,7 +61,7 @@ class SweepReport(Callback):
 
     def _check_outputs(self, config: DictConfig) -> None:
         try:
-            check_paths(config)
+            check_paths({"paths.outputs": str(config.paths.outputs)})
         except ConfigError as err:
             print(f"error: {err}", file=sys.stderr)
             sys.exit(2)

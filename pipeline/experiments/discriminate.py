@@ -37,7 +37,7 @@ import pandas as pd
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.catalog import members, method_configs
 from pipeline.config.named import config_label
-from pipeline.config.validation import compose_config
+from pipeline.config.validation import compose_run
 from pipeline.experiments.options import SEEDS, name_list, seed_list
 from pipeline.records.store import RunRecord, atomic_write_text, record_status, run_dir
 from pipeline.repo import REPO
@@ -65,7 +65,7 @@ SUMMARY_COLUMNS = ("scene", "comparison", "mean_diff", "ci_low", "ci_high", "n",
 def entry_labels(overrides: list[str]) -> dict[tuple[str, str], str]:
     """Each entry's budget label under ``overrides`` (the plain budget's where they cannot act on it)."""
     return {
-        entry: config_label(compose_config([f"method={entry[0]}", f"ablation={entry[1]}", *overrides]))
+        entry: config_label(compose_run([f"method={entry[0]}", f"ablation={entry[1]}", *overrides]).composed)
         for entry in ENTRIES
     }
 
@@ -373,8 +373,8 @@ def main(argv: list[str]) -> int:
         fail("method, ablation, scene and seed are the experiment's own: use --scenes and --seeds")
     if args.jobs < 1:
         fail(f"--jobs {args.jobs} must be >= 1")
-    cfg = compose_config(args.overrides)
-    budget = config_label(cfg)
+    cfg = compose_run(args.overrides)
+    budget = config_label(cfg.composed)
     label = args.label or budget
     labels = entry_labels(args.overrides)
     reuse = None if str(args.reuse) == "none" else args.reuse

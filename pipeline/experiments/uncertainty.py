@@ -37,7 +37,6 @@ from torch import Tensor
 from tqdm import tqdm
 
 from nvf.cameras import look_at
-from nvf.config import EntropyConfig
 from nvf.model import SceneModel
 from nvf.training import Observations
 from nvf.uncertainty import ViewScorer
@@ -45,8 +44,7 @@ from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.catalog import ablation_configs, method_configs
 from pipeline.config.method import build_method
 from pipeline.config.named import config_label
-from pipeline.config.plain import as_dict
-from pipeline.config.validation import compose_config, resolve_device
+from pipeline.config.validation import compose_run, resolve_device
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.experiments.options import SEEDS, seed_list
@@ -73,11 +71,7 @@ def all_entries() -> tuple[tuple[str, str], ...]:
     ablations = [a for a in ablation_configs().values() if a["name"] != "none"]
     ablated = {a["of"] for a in ablations}
     entries = [(method, "none") for method in ablated] + [(a["of"], a["name"]) for a in ablations]
-    scoring = [
-        name
-        for name, m in method_configs().items()
-        if isinstance(build_method(m).scorer(EntropyConfig(), 1.0), ViewScorer)
-    ]
+    scoring = [name for name, m in method_configs().items() if isinstance(build_method(m).scorer(), ViewScorer)]
     return (*entries, *((name, "none") for name in scoring if name not in ablated))
 
 
@@ -168,16 +162,17 @@ def score_seed(
     arrays: dict[str, np.ndarray] = {}
     trained: dict[tuple[str, str], tuple[Episode, Observations, SceneModel]] = {}  # per training key
     for method, ablation in entries:
-        cfg = compose_config([*overrides, f"seed={seed}", f"method={method}", f"ablation={ablation}"])
-        key = (method, ablation if cfg.train.ablation_affects_training else "none")
+        run = compose_run([*overrides, f"seed={seed}", f"method={method}", f"ablation={ablation}"])
+        key = (method, ablation if run.train.ablation_affects_training else "none")
         if key not in trained:  # an ablation scored on NVF's model shares its episode (renders, evaluator)
-            episode = Episode(EpisodeSettings.of(cfg, partial), partial, resolve_device(cfg.device), lpips)
+            episode = Episode(EpisodeSettings.of(run, partial), partial, resolve_device(run.device), lpips)
             obs = episode.observations()
             trained[key] = (episode, obs, episode.train(obs, 0)[0])
         episode, obs, model = trained[key]
-        scorer = EpisodeSettings.of(cfg, partial).scorer()
-        metrics, images, view_sums = episode.evaluator.evaluate(model, scorer, episode.face_ids, obs, 0, view)
-        label = row_name(as_dict(cfg)).label
+        metrics, images, view_sums = episode.evaluator.evaluate(
+            model, run.method.scorer(), episode.face_ids, obs, 0, view
+        )
+        label = row_name(run.composed).label
         results.append({"seed": seed, "label": label, "trained_as": "/".join(key), **metrics} | view_sums)
         arrays.setdefault("gt", images["gt"])
         arrays.setdefault("pred", images["pred"])
@@ -214,11 +209,11 @@ def run(
     if any(o.startswith("seed=") for o in overrides):
         raise ArgumentError("a seed= override: the experiment's seeds are --seeds (default 100,101,102)")
     overrides = overrides if any(o.startswith("scene=") for o in overrides) else ["scene=hotdog", *overrides]
-    base = compose_config(overrides)
+    base = compose_run(overrides)
     scene = load_scene(base.scene, Path(base.paths.assets), blender_python(base.paths.blender_python))
     partial = dataclasses.replace(scene, init_poses=partial_views(scene, torch.Generator().manual_seed(PARTIAL_SEED)))
     view = least_seen_view(scene.eval_poses, partial.init_poses)
-    label = config_label(base)
+    label = config_label(base.composed)
     name = f"{base.scene.name}_{label}"
     if entries != ENTRIES:
         name += "+entries=" + ",".join(entry_name(*entry) for entry in entries)

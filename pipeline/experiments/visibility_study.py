@@ -35,16 +35,17 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from omegaconf import DictConfig
 
 from nvf.cameras import Intrinsics, matrix_to_pose, pose_to_matrix
+from nvf.methods import NVF
 from nvf.planning import argmax_first, candidate_poses, score_poses
 from nvf.seeding import generator_factory, seeded_generator
 from nvf.training import Observations, train_model
 from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
 from pipeline.bench.visibility import visibility_report
 from pipeline.cli import ArgumentParser, description, fail
-from pipeline.config.validation import compose_config, resolve_device
+from pipeline.config.typed import Run
+from pipeline.config.validation import compose_run, resolve_device
 from pipeline.episode.evaluation import render_view
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
@@ -74,8 +75,10 @@ def recorded_rows(records: Path, scene: str, seed: int, budget: str) -> list[dic
 
 def scorer_pair(episode: Episode) -> tuple[NVFEntropyScorer, NVFEntropyScorer]:
     """NVF's scorer with the run's settings and the same with ``use_visibility=False`` (w/o Vis.)."""
-    s = episode.settings
-    nvf, blind = s.scorer(), s.scorer(dataclasses.replace(s.entropy, use_visibility=False))
+    method = episode.settings.method
+    assert isinstance(method, NVF), "the study's method is NVF"
+    blind_entropy = dataclasses.replace(method.entropy, use_visibility=False)
+    nvf, blind = method.scorer(), dataclasses.replace(method, entropy=blind_entropy).scorer()
     assert isinstance(nvf, NVFEntropyScorer) and isinstance(blind, NVFEntropyScorer), "the study's method is NVF"
     return nvf, blind
 
@@ -198,7 +201,7 @@ class Decisions:
 
 
 def study_scene(
-    cfg: DictConfig,
+    run: Run,
     overrides: list[str],
     seeds: list[int],
     steps: list[int],
@@ -206,17 +209,17 @@ def study_scene(
     records: Path,
     decisions: Decisions,
 ) -> None:
-    """Every missing (seed, step) state of one scene (``cfg``: the scene's config with the setting's
+    """Every missing (seed, step) state of one scene (``run``: the scene's config with the setting's
     ``overrides``)."""
-    scene_name = cfg.scene.name
-    scene = load_scene(cfg.scene, Path(cfg.paths.assets), blender_python(cfg.paths.blender_python))
+    scene_name = run.scene.name
+    scene = load_scene(run.scene, Path(run.paths.assets), blender_python(run.paths.blender_python))
     lpips = LpipsMetric()
     for seed in seeds:
         todo = [k for k in steps if not decisions.done(scene_name, seed, k)]
         if not todo:
             continue
-        rows = recorded_rows(records, scene_name, seed, cfg.budget.name)
-        seeded = compose_config([f"scene={scene_name}", f"seed={seed}", *overrides])
+        rows = recorded_rows(records, scene_name, seed, run.budget.name)
+        seeded = compose_run([f"scene={scene_name}", f"seed={seed}", *overrides])
         episode = Episode(EpisodeSettings.of(seeded, scene), scene, resolve_device(seeded.device), lpips)
         try:
             for k in todo:
@@ -272,7 +275,7 @@ def main(argv: list[str] | None = None) -> None:
     if args.sets < 1 or args.threads < 1:
         parser.error("--sets and --threads must be >= 1")
     torch.set_num_threads(args.threads)
-    cfg = compose_config(args.overrides)
+    cfg = compose_run(args.overrides)
     out = Path(cfg.paths.results) / "pilots" / STUDY / args.setting
     out.mkdir(parents=True, exist_ok=True)
     command = ["python", "-m", "pipeline.experiments.visibility_study", *(sys.argv[1:] if argv is None else argv)]
@@ -290,12 +293,12 @@ def main(argv: list[str] | None = None) -> None:
     atomic_write_text(out / "setting.json", json.dumps(setting, indent=2) + "\n")
     decisions = Decisions(out / "decisions.jsonl")
     for scene in args.scenes:
-        scene_cfg = compose_config([f"scene={scene}", *args.overrides])
+        scene_cfg = compose_run([f"scene={scene}", *args.overrides])
         diagnostic = out / f"{scene}_diagnostic.json"
         if not diagnostic.is_file():
             sources = ["head", "labels"] + (["mesh"] if scene_cfg.nvf.entropy.visibility_source == "mesh" else [])
             report = visibility_report(
-                compose_config([f"scene={scene}", "planner.num_candidates=64", *args.overrides]), 3, sources
+                compose_run([f"scene={scene}", "planner.num_candidates=64", *args.overrides]), 3, sources
             )
             atomic_write_text(diagnostic, json.dumps(report, indent=2) + "\n")
         try:

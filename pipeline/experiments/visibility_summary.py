@@ -31,7 +31,7 @@ import pandas as pd
 
 from pipeline.cli import ArgumentParser, description
 from pipeline.config.named import config_label
-from pipeline.config.validation import compose_config
+from pipeline.config.validation import compose_run
 from pipeline.records.store import atomic_write_text
 from pipeline.tables.load import collect_runs
 from pipeline.tables.stats import Interval, paired
@@ -83,7 +83,7 @@ def episode_minutes(study: Path, setting: dict) -> dict[str, float]:
     discrimination experiment (``pilots/discriminate/<its budget label>/per_seed.csv``,
     ``pipeline.experiments.discriminate``), or {} where it has none."""
     overrides = [o for o in setting.get("overrides", []) if not o.startswith("paths.")]
-    label = config_label(compose_config([f"budget={setting.get('budget', 'cpu')}", *overrides]))
+    label = config_label(compose_run([f"budget={setting.get('budget', 'cpu')}", *overrides]).composed)
     path = study.parent / "discriminate" / label / "per_seed.csv"
     if not path.is_file():
         return {}
@@ -178,7 +178,7 @@ def main(argv: list[str]) -> None:
     parser.add_argument("overrides", nargs="*", help="config overrides, e.g. paths.results=results")
     parser.add_argument("--records", type=Path, default=Path("results/runs"), help="where the finished records are")
     args = parser.parse_intermixed_args(argv)
-    study = Path(compose_config(args.overrides).paths.results) / "pilots" / STUDY
+    study = Path(compose_run(args.overrides).paths.results) / "pilots" / STUDY
     study.mkdir(parents=True, exist_ok=True)
     for path in (write_summary(study), write_surface(study, args.records)):
         print(f"wrote {path}")

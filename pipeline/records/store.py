@@ -101,9 +101,9 @@ def to_jsonable(value: Any) -> Any:
         return float(value) if math.isfinite(value) else None
     if isinstance(value, Path):
         return str(value)
-    if isinstance(value, Mapping):  # dict, OmegaConf DictConfig
+    if isinstance(value, Mapping):  # dict, or a mapping config node
         return {str(k): to_jsonable(v) for k, v in value.items()}
-    if isinstance(value, Sequence):  # list, tuple, OmegaConf ListConfig (str handled above)
+    if isinstance(value, Sequence):  # list, tuple, or a sequence config node (str handled above)
         return [to_jsonable(v) for v in value]
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
         return to_jsonable(dataclasses.asdict(value))

@@ -10,11 +10,8 @@ is one line on stderr and exit status 2.
 import os
 from pathlib import Path
 
-from omegaconf import OmegaConf
-
 from pipeline.cli import ArgumentParser, description, fail
-from pipeline.config.schema import RenderConfig
-from pipeline.config.validation import compose_config
+from pipeline.config.validation import compose_run
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.ground_truth import open_renderer
 from pipeline.scenes.loading import load_scene, scene_names
@@ -38,14 +35,12 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     if args.res < 8:
         fail(f"--res must be at least 8, got {args.res}")
-    cfg = compose_config(args.overrides)
+    cfg = compose_run(args.overrides)
     out = args.out or Path(cfg.paths.results) / "figures" / "scenes"
     try:
         python = blender_python(cfg.paths.blender_python)
         scene = load_scene(args.scene, Path(cfg.paths.assets), python)
-        render = OmegaConf.to_object(cfg.render)
-        assert isinstance(render, RenderConfig), f"the composed render settings, not {type(render).__name__}"
-        with open_renderer(scene, render, python, threads=os.cpu_count()) as renderer:
+        with open_renderer(scene, cfg.render, python, threads=os.cpu_count()) as renderer:
             path = show(scene, renderer, out, args.res)
     except SceneError as exc:
         fail(str(exc))

@@ -20,7 +20,7 @@ file itself, the pyrender backend those flat-coloured triangles.
 
 import os
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -29,12 +29,11 @@ import torch
 import trimesh
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
-from omegaconf import DictConfig
 from torch import Tensor
 
 from pipeline.config.catalog import declared
 from pipeline.config.plain import as_dict
-from pipeline.config.schema import register_configs
+from pipeline.config.schema import SceneConfig, register_configs
 from pipeline.repo import CONF, REPO
 from pipeline.scenes import procedural
 from pipeline.scenes.blender import BlenderError, export_blend
@@ -187,16 +186,17 @@ def scene_config(name: str) -> dict[str, Any]:
 
 
 def load_scene(
-    scene: str | Mapping[str, Any] | DictConfig, assets_dir: Path | None = None, blender_python: Path | None = None
+    scene: str | SceneConfig | Mapping[str, Any], assets_dir: Path | None = None, blender_python: Path | None = None
 ) -> Scene:
-    """Build a declared scene: ``scene`` is its name or its composed ``scene`` node (``cfg.scene``); mesh
+    """Build a declared scene: ``scene`` is its name, its typed config (``Run.scene``) or that config as a
+    mapping (a record's ``scene``); mesh
     scenes read their asset from ``assets_dir`` (default ``default_assets_dir()``; a .blend with Blender's
     Python ``blender_python``, default ``pipeline.scenes.blender.blender_python()``). One-line
     ``SceneError`` on bad input."""
     if isinstance(scene, str):
         cfg = scene_config(scene)
-    elif isinstance(scene, DictConfig):
-        cfg = as_dict(scene)
+    elif isinstance(scene, SceneConfig):
+        cfg = asdict(scene)
     else:
         cfg = dict(scene)
     name = cfg["name"]
