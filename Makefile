@@ -17,10 +17,10 @@ browser:
 run: setup
 	$(PY) -m pipeline.run $(ARGS)
 
-lint: setup  # import layers, lint and format of the code, tests and scripts, and types of nvf/ and pipeline/ (pyproject.toml's [tool.importlinter], [tool.ruff], [tool.mypy])
+lint: setup  # import layers, lint and format of the code, tests, scripts and examples, and types of nvf/ and pipeline/ (pyproject.toml's [tool.importlinter], [tool.ruff], [tool.mypy])
 	.venv/bin/lint-imports
-	$(PY) -m ruff check nvf pipeline tests scripts
-	$(PY) -m ruff format --check nvf pipeline tests scripts
+	$(PY) -m ruff check nvf pipeline tests scripts examples
+	$(PY) -m ruff format --check nvf pipeline tests scripts examples
 	$(PY) -m mypy
 
 test: setup blender lint

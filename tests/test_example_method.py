@@ -1,0 +1,53 @@
+"""examples/depth_spread: a method from outside the repository's packages (its class on ``PYTHONPATH``, its yaml
+on Hydra's search path) runs and reaches the tables exactly as docs/USAGE.md says, and its scorer is what
+its docstring states."""
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+import torch
+
+from nvf.model import RenderResult
+from nvf.rendering import Samples
+from pipeline.repo import REPO
+
+EXAMPLE = REPO / "examples" / "depth_spread"
+
+
+def result(weights: list[float], t: list[float], ray_idx: list[int], n_rays: int) -> RenderResult:
+    """A render of packed samples with the given weights and interval midpoints (intervals of length 0)."""
+    w, mid, idx = torch.tensor(weights), torch.tensor(t), torch.tensor(ray_idx)
+    samples = Samples(idx, mid, mid.clone(), n_rays)
+    acc = torch.zeros(n_rays).index_add(0, idx, w)
+    zeros = torch.zeros(len(weights))
+    return RenderResult(samples, zeros, zeros, w, zeros, None, None, None, torch.zeros(n_rays, 3), zeros[:n_rays], acc)
+
+
+def test_the_scorer_is_the_depth_variance_plus_the_background_share(monkeypatch):
+    monkeypatch.syspath_prepend(str(EXAMPLE))
+    from depth_spread import DepthSpreadScorer
+
+    scorer = DepthSpreadScorer(background_weight=0.5)
+    # ray 0: half its weight at t=1, half at t=3 (variance 1, no background); ray 1: 0.2 at t=2 (variance 0,
+    # background 0.8); ray 2: no samples (background only)
+    got = scorer.pixel_scores(result([0.5, 0.5, 0.2], [1.0, 3.0, 2.0], [0, 0, 1], 3))
+    assert got.tolist() == pytest.approx([1.0, 0.5 * 0.8, 0.5])
+
+
+def test_an_outside_method_runs_and_reaches_the_tables(tmp_path):
+    """The command of docs/USAGE.md ("Your own method") at the smoke budget, then ``pipeline.tables``: the
+    run records the method's own setting and its row (marked §: not in the paper) is in the tables."""
+    env = {**os.environ, "PYTHONPATH": str(EXAMPLE), "OMP_NUM_THREADS": "1"}
+    outputs, results = tmp_path / "outputs", tmp_path / "results"
+    run = [sys.executable, "-m", "pipeline.run", "method=depth_spread", f"hydra.searchpath=[file://{EXAMPLE / 'conf'}]"]
+    overrides = ["budget=smoke", "budget.horizon=2", "method.background_weight=0.25", f"paths.outputs={outputs}"]
+    subprocess.run([*run, *overrides], cwd=REPO, env=env, check=True, capture_output=True)
+    [record] = outputs.glob("default/depth_spread-argmax-none/smoke/seed_100/run.json")
+    assert json.loads(record.read_text())["config"]["method"]["background_weight"] == 0.25
+    tables = [sys.executable, "-m", "pipeline.tables", f"paths.outputs={outputs}", f"paths.results={results}"]
+    subprocess.run(tables, cwd=REPO, env=env, check=True, capture_output=True)
+    for table in ("all_runs", "methods"):
+        assert "| DepthSpread§ |" in (results / "tables" / f"{table}.md").read_text(), table
