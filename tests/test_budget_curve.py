@@ -54,19 +54,20 @@ def test_a_setting_measured_on_fewer_scenes_cannot_be_chosen(tmp_path, capsys):
     assert "**cpu**" in choice(tmp_path, capsys)
 
 
-def test_without_a_winner_the_widest_positive_lead_per_minute_is_chosen(tmp_path, capsys):
-    write_summary(tmp_path, "a", TIE, 10.0)  # lead 0.3 dB: 0.030 per minute
-    write_summary(tmp_path, "b", TIE | {"nvf-wo_vis": (0.5, -0.1)}, 12.0)  # lead 0.5: 0.042 per minute
+def test_without_a_winner_the_plain_budget_stays_and_the_nearest_is_named(tmp_path, capsys):
+    write_summary(tmp_path, "cpu", TIE, 10.0)  # lead 0.3 dB: 0.030 per minute
+    write_summary(tmp_path, "cpu+b=1", TIE | {"nvf-wo_vis": (0.5, -0.1)}, 12.0)  # lead 0.5: 0.042 per minute
     assert choice(tmp_path, capsys) == (
-        "Chosen: **b** (no setting meets the rule; this one has the widest positive lead per minute)."
+        "Chosen: **cpu** (no setting meets the rule, so the plain budget stays; nearest: cpu+b=1, the widest "
+        "positive lead per minute (+0.50 dB))."
     )
 
 
-def test_without_any_lead_the_cheapest_is_chosen_and_it_says_so(tmp_path, capsys):
-    write_summary(tmp_path, "expensive", LOSE, 12.0)
-    write_summary(tmp_path, "cheap", LOSE, 6.0)
+def test_without_a_winner_or_a_plain_budget_nothing_is_chosen_and_it_says_so(tmp_path, capsys):
+    write_summary(tmp_path, "cpu+a=1", LOSE, 12.0)
+    write_summary(tmp_path, "cpu+a=2", LOSE, 6.0)
     line = choice(tmp_path, capsys)
-    assert "**cheap**" in line and "none has a positive lead" in line
+    assert line.startswith("Chosen: none") and "none has a positive lead" in line
 
 
 @pytest.mark.parametrize("argv", [["paths.outputs=x"], ["oops"]])

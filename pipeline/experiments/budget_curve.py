@@ -9,8 +9,9 @@ per comparison) and ``choice.md``.
 The rule (docs/BUDGETS.md): among the settings measured on every scene of the experiment (hotdog, hubble,
 default), the cheapest one where NVF beats both w/o Vis. and the best baseline with the paired 95%
 interval above zero on at least two of the three scenes, within ``MAX_MINUTES`` per episode. Where none
-does, the one with the widest positive lead per minute (lead: the mean over scenes of NVF's smaller
-final-PSNR lead over the two); where no setting has a positive lead, the cheapest, saying so.
+does, the plain budget (the setting without overrides) stays, and the report names the setting with the
+widest positive lead per minute (lead: the mean over scenes of NVF's smaller final-PSNR lead over the two)
+as the nearest candidate, not as a choice: a lead the intervals do not establish picks nothing.
 """
 
 import sys
@@ -87,15 +88,15 @@ def choose(candidates: list[Setting]) -> tuple[Setting | None, str]:
         best = min(meeting, key=lambda s: s.minutes)
         return best, "the cheapest setting that meets the rule"
     positive = [s for s in complete if s.lead > 0]
-    if positive:
-        best = max(positive, key=lambda s: s.lead / s.minutes)
-        return best, "no setting meets the rule; this one has the widest positive lead per minute"
-    best = min(complete, key=lambda s: s.minutes)
-    return (
-        best,
-        "no setting meets the rule and none has a positive lead over both w/o Vis. and the best baseline; this is "
-        "the cheapest",
+    nearest = (
+        f"; nearest: {widest.label}, the widest positive lead per minute ({widest.lead:+.2f} dB)"
+        if (widest := max(positive, key=lambda s: s.lead / s.minutes, default=None))
+        else "; none has a positive lead over both w/o Vis. and the best baseline"
     )
+    plain = next((s for s in complete if "+" not in s.label), None)
+    if plain is None:
+        return None, "no setting meets the rule and no plain budget is measured" + nearest
+    return plain, "no setting meets the rule, so the plain budget stays" + nearest
 
 
 def plot(curve: pd.DataFrame) -> Figure:
