@@ -28,8 +28,8 @@ VIS_POSITION_WIDTH = 128
 VIS_POSITION_FEATURES = 32
 APPEARANCE_DIM = 32
 MIN_VARIANCE = 1e-4  # q >= 1e-4 (METHOD section 3, section 15.4)
-# Rows per block of an MLP evaluated without autograd: a 2048 x 128 float activation is 1 MiB, the
-# two cores' L2 (measured: NVF scoring 1.15x faster than whole chunks).
+# Rows per block of an MLP evaluated without autograd: a 2048 x 128 float activation is 1 MiB, the two
+# cores' L2, so a block's activations stay in cache.
 INFERENCE_BLOCK = 2048
 # A low-precision MLP on the CPU pads its rows to a multiple of LOW_PRECISION_ROWS and runs inference in
 # blocks of LOW_PRECISION_BLOCK rows (see MLP._forward_in).

@@ -216,13 +216,10 @@ class _Recorder:
     window, the mean of the last ``COLLAPSE_WINDOW`` iteration losses exceeds both ``COLLAPSE_FACTOR``
     times the lowest such mean before it (over the first ``i + 1`` losses while ``i < COLLAPSE_WINDOW``)
     and the loss of the first iteration (the untrained model: training made it worse).
-    Measured: ``train.backbone.lr=1e3`` at the smoke budget (default scene, steps 0-2) raises stage 1's
-    loss from 0.008-0.015 at iteration 0 to 0.08-0.15, 6-16 times over, from iteration 1 on (caught at
-    iteration 4). Normal training (smoke steps 0-2; the cpu budget on the default scene, Room, Hubble and
-    hotdog with their initial and their 20 evaluation views; heads at 30, and 500 on the default scene) reaches at most
-    1.7 times where it is above its first loss, and 2.95 times at all (Hubble's initial views, stage 1's
-    loss noisy near 1e-4, far below its first). Variance NLL (M21, bounded above by its floor; it can
-    be negative) and the auxiliary losses (M25 can be negative) are checked for non-finite values only.
+    The factor sits between what a diverging learning rate does to stage 1's loss and what normal training
+    reaches (docs/DEVIATIONS.md, "training divergence", gives both). Variance NLL (M21, bounded above by its
+    floor; it can be negative) and the auxiliary losses (M25 can be negative) are checked for non-finite
+    values only.
 
     ``precision="fp16"`` scales the loss (``torch.amp.GradScaler``): float16 gradients of the MLPs
     would otherwise underflow. A step whose gradients overflow is skipped and the scale halved
@@ -323,8 +320,8 @@ def _in_training_precision(stage: Callable[..., dict[str, float]]) -> Callable[.
     """Run a stage ``stage(model, obs, cfg, ...)`` with the field's MLPs in ``cfg.precision`` where they
     run with autograd (``RadianceField.mlp_precision``): float32 (unchanged) by default, bf16 or fp16 for
     mixed precision. Their calls without autograd (the skipping pass, occupancy updates, visibility
-    labels) stay float32: bf16 measured no faster there (docs/BUDGETS.md), and the grid and the labels
-    see float32 densities."""
+    labels) stay float32: bf16 is no faster there (docs/BUDGETS.md, "Mixed precision"), and the grid and
+    the labels see float32 densities."""
 
     @functools.wraps(stage)
     def run(model: SceneModel, obs: Observations, cfg: TrainConfig, *args, **kwargs) -> dict[str, float]:

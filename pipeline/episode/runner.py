@@ -59,8 +59,8 @@ class Outcome:
 
 def torch_threads() -> int:
     """Threads per job: ``OMP_NUM_THREADS`` where it is set (to share the cores with other processes,
-    e.g. two sweeps side by side), else the machine's cores divided among the launcher's parallel jobs
-    (measured: two 2-thread jobs on 2 cores ran 3.5x slower than two 1-thread jobs)."""
+    e.g. two sweeps side by side), else the machine's cores divided among the launcher's parallel jobs:
+    jobs that together ask for more threads than cores slow each other several-fold (docs/USAGE.md)."""
     asked = os.environ.get("OMP_NUM_THREADS", "").strip()
     if asked:
         if not asked.isdigit() or int(asked) < 1:

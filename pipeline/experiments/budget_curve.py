@@ -6,7 +6,7 @@ Reads every ``${paths.results}/pilots/discriminate/<label>/summary.csv``
 with ``label`` added), ``curve.png`` (each lead with its 95% interval against minutes per episode, one panel
 per comparison) and ``choice.md``.
 
-The rule (docs/BUDGETS.md): among the settings measured on every scene of the experiment (hotdog, hubble,
+The rule (docs/BUDGETS.md): among the settings run on every scene of the experiment (hotdog, hubble,
 default), the cheapest one where NVF beats both w/o Vis. and the best baseline with the paired 95%
 interval above zero on at least two of the three scenes, within ``MAX_MINUTES`` per episode. Where none
 does, the plain budget (the setting without overrides) stays, and the report names the setting with the
@@ -95,7 +95,7 @@ def choose(candidates: list[Setting]) -> tuple[Setting | None, str]:
     )
     plain = next((s for s in complete if "+" not in s.label), None)
     if plain is None:
-        return None, "no setting meets the rule and no plain budget is measured" + nearest
+        return None, "no setting meets the rule and the plain budget has not run" + nearest
     return plain, "no setting meets the rule, so the plain budget stays" + nearest
 
 

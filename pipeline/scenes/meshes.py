@@ -53,7 +53,7 @@ def _atlas(parts: list[trimesh.Trimesh], width: int = 1024) -> trimesh.Trimesh:
     for image, uv in tiles:
         h = image.shape[0]
         atlas[top : top + h] = image
-        uvs.append(np.stack([uv[:, 0], (total - top - h + uv[:, 1] * h) / total], axis=1))  # v measured from the bottom
+        uvs.append(np.stack([uv[:, 0], (total - top - h + uv[:, 1] * h) / total], axis=1))  # v counted from the bottom
         top += h
     offsets = np.cumsum([0] + [len(p.vertices) for p in parts[:-1]])
     material = trimesh.visual.material.PBRMaterial(baseColorTexture=Image.fromarray(atlas), doubleSided=True)

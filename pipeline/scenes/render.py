@@ -7,8 +7,8 @@ rays of ``nvf.cameras.pixel_rays``, so they do not depend on rasterisation or mu
 backend (``pipeline.scenes.blender``) shares it.
 
 pyrender is imported lazily, after ``PYOPENGL_PLATFORM`` is chosen (osmesa on CPU, egl on CUDA).
-Measured on the CPU machine kind: importing ``triton`` *after* pyrender with OSMesa segfaults (two
-LLVM copies clash), while importing it *before* pyrender works; torchvision, lpips and torch._dynamo
+Importing ``triton`` *after* pyrender with OSMesa segfaults on the CPU machine kind (two LLVM copies
+clash), while importing it *before* pyrender works; torchvision, lpips and torch._dynamo
 import triton, so ``_import_pyrender`` imports triton first whenever it is installed.
 """
 
