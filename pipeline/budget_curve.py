@@ -19,7 +19,7 @@ from pathlib import Path
 import pandas as pd
 from matplotlib.figure import Figure
 
-from pipeline.cli import fail, help_page
+from pipeline.cli import fail, help_page, run_command
 from pipeline.config.paths import paths_from_args
 from pipeline.records.images import save_figure
 from pipeline.records.store import atomic_write_text
@@ -164,4 +164,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))
+    run_command(main, sys.argv[1:])

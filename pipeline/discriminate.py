@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pipeline.cli import ArgumentParser, description, fail
+from pipeline.cli import ArgumentParser, description, fail, run_command
 from pipeline.config.catalog import members, method_configs
 from pipeline.config.named import config_label
 from pipeline.config.validation import compose_config
@@ -407,4 +407,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))
+    run_command(main, sys.argv[1:])

@@ -43,7 +43,7 @@ from nvf.seeding import generator_factory, seeded_generator
 from nvf.training import Observations, train_model
 from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
 from pipeline.bench.visibility import visibility_report
-from pipeline.cli import ArgumentParser, description, fail
+from pipeline.cli import ArgumentParser, description, fail, run_command
 from pipeline.config.validation import compose_config, resolve_device
 from pipeline.episode.evaluation import render_view
 from pipeline.episode.loop import Episode
@@ -313,4 +313,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    run_command(main, sys.argv[1:])

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pipeline.cli import ArgumentParser, description
+from pipeline.cli import ArgumentParser, description, run_command
 from pipeline.config.named import config_label
 from pipeline.config.validation import compose_config
 from pipeline.records.store import atomic_write_text
@@ -184,4 +184,4 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    run_command(main, sys.argv[1:])

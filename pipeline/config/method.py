@@ -13,10 +13,11 @@ from omegaconf import DictConfig
 
 from nvf.config import STAGES
 from nvf.methods import Method
+from pipeline.cli import BadInput
 from pipeline.config.plain import as_dict
 
 
-class MethodError(ValueError):
+class MethodError(BadInput, ValueError):
     """A method node that cannot be built; the message is one line naming the key."""
 
 

@@ -8,11 +8,12 @@ is one line on stderr and exit status 2.
 """
 
 import os
+import sys
 from pathlib import Path
 
 from omegaconf import OmegaConf
 
-from pipeline.cli import ArgumentParser, description, fail
+from pipeline.cli import ArgumentParser, description, fail, run_command
 from pipeline.config.schema import RenderConfig
 from pipeline.config.validation import compose_config
 from pipeline.scenes.blender import blender_python
@@ -53,4 +54,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_command(main, sys.argv[1:])
