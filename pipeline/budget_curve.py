@@ -10,6 +10,9 @@ default), the cheapest one where NVF beats both w/o Vis. and the best baseline w
 interval above zero on at least two of the three scenes, within ``MAX_MINUTES`` per episode. Where none
 does, the one with the widest positive lead per minute (lead: the mean over scenes of NVF's smaller
 final-PSNR lead over the two); where no setting has a positive lead, the cheapest, saying so.
+
+Each ``summary.csv`` is read back checked (``SUMMARY``'s columns; never through a symbolic link): one that fails
+is one ``error:`` line naming the file, the row and the column, and nothing is written.
 """
 
 import sys
@@ -21,12 +24,24 @@ from matplotlib.figure import Figure
 
 from pipeline.cli import fail, help_page, run_command
 from pipeline.config.paths import paths_from_args
+from pipeline.records.checked import Number, Text, read_csv
+from pipeline.records.files import check_directory, escaping_link
 from pipeline.records.images import save_figure
 from pipeline.records.store import atomic_write_text
 
 SCENES = ("hotdog", "hubble", "default")
 RULE_COMPARISONS = ("nvf-wo_vis", "nvf-best_baseline")
 MAX_MINUTES = 15.0
+DIFFERENCE = Number(-100.0, 100.0, null=True)  # dB; an interval of one seed is empty
+SUMMARY = {
+    "scene": Text(),
+    "comparison": Text(),
+    "mean_diff": DIFFERENCE,
+    "ci_low": DIFFERENCE,
+    "ci_high": DIFFERENCE,
+    "n": Number(0, 2**31, integer=True),
+    "minutes_per_episode": Number(0.0),
+}
 
 
 @dataclass(frozen=True)
@@ -49,8 +64,9 @@ class Setting:
 
 
 def read_curve(root: Path) -> pd.DataFrame:
-    """Every ``<label>/summary.csv`` under ``root``, with a ``label`` column."""
-    frames = [pd.read_csv(path).assign(label=path.parent.name) for path in sorted(root.glob("*/summary.csv"))]
+    """Every ``<label>/summary.csv`` under ``root`` (``SUMMARY``'s columns checked), with a ``label`` column."""
+    paths = [path for path in sorted(root.glob("*/summary.csv")) if escaping_link(root, path.parent) is None]
+    frames = [frame.assign(label=path.parent.name) for path in paths if (frame := read_csv(path, SUMMARY)) is not None]
     if not frames:
         fail(f"no {root}/<label>/summary.csv; run python -m pipeline.discriminate first")
     return pd.concat(frames, ignore_index=True)
@@ -149,9 +165,11 @@ def main(argv: list[str]) -> int:
         print(help_page(__doc__))
         return 0
     try:
-        root = paths_from_args(argv, ("paths.results",))["results"] / "pilots" / "discriminate"
+        results = paths_from_args(argv, ("paths.results",))["results"]
     except ValueError as err:
         fail(str(err))
+    root = results / "pilots" / "discriminate"
+    check_directory(results, root)
     curve = read_curve(root)
     candidates = settings(curve)
     text = report(candidates, *choose(candidates))
