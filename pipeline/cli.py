@@ -51,7 +51,7 @@ def error_line(err: BaseException) -> str:
     ``full_key: ... object_type=...`` trailer; an ``OSError`` names its file, an OmegaConf error the key whose
     value it could not resolve, and both what to do."""
     key = getattr(err, "full_key", None)
-    if isinstance(err, OSError):
+    if isinstance(err, OSError) and not isinstance(err, HydraException):  # Hydra's missing config is an OSError too
         where = f"{err.filename}: " if err.filename is not None else ""
         message = f"{where}{err.strerror or err}; give a path this command can read and write"
     elif isinstance(err, OmegaConfBaseException) and key:
@@ -68,22 +68,28 @@ def fail(message: str) -> NoReturn:
     raise SystemExit(BAD_INPUT)
 
 
+def exit_with(err: BaseException) -> NoReturn:
+    """Print ``err`` (one of ``EXPECTED``) as its ``error:`` line and exit with ``FAILED`` for a ``Failed``, else
+    ``BAD_INPUT``."""
+    print(error_line(err), file=sys.stderr)
+    raise SystemExit(FAILED if isinstance(err, Failed) else BAD_INPUT) from None
+
+
 def run_command(main: Callable[..., int | None], *args: object) -> NoReturn:
-    """Run a command's ``main(*args)`` and exit with its status (0 for None): ``BadInput``, OmegaConf's and
-    Hydra's errors and an ``OSError`` exit with ``BAD_INPUT``, ``Failed`` with ``FAILED``, each as one
-    ``error:`` line; Ctrl-C with ``INTERRUPTED``. Any other exception is a bug and keeps its traceback."""
+    """Run a command's ``main(*args)`` and exit with its status (0 for None): an ``EXPECTED`` error is one
+    ``error:`` line (``exit_with``: ``Failed`` exits with ``FAILED``, bad input with ``BAD_INPUT``); Ctrl-C exits
+    with ``INTERRUPTED``. Any other exception is a bug and keeps its traceback."""
     try:
         status = main(*args)
-    except (BadInput, OmegaConfBaseException, HydraException, OSError) as err:
-        print(error_line(err), file=sys.stderr)
-        raise SystemExit(BAD_INPUT) from None
-    except Failed as err:
-        print(error_line(err), file=sys.stderr)
-        raise SystemExit(FAILED) from None
+    except EXPECTED as err:
+        exit_with(err)
     except KeyboardInterrupt:
         print("\ninterrupted", file=sys.stderr)
         raise SystemExit(INTERRUPTED) from None
     raise SystemExit(status or 0)
+
+
+EXPECTED = (BadInput, Failed, OmegaConfBaseException, HydraException, OSError)  # one line, not a traceback
 
 
 class ArgumentParser(argparse.ArgumentParser):

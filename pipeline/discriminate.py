@@ -15,8 +15,9 @@ highest mean final PSNR on that scene), each with a 95% Student-t interval over 
 correlation of NVF's and w/o Vis.'s candidate scores, and minutes per episode.
 
 Writes ``${paths.results}/pilots/discriminate/<label>/`` (``<label>``: the budget and every setting beyond it, as
-the tables label runs, unless ``--label``): ``runs/`` (the records, images off), ``summary.csv`` (``scene,
-comparison, mean_diff, ci_low, ci_high, n, minutes_per_episode``; final PSNR in dB), ``details.csv`` (both PSNR
+the tables label runs, unless ``--label``, a plain name: letters, digits, ``_``, ``.``, ``-``): ``runs/`` (the
+records, images off), ``summary.csv`` (``scene, comparison, mean_diff, ci_low, ci_high, n, minutes_per_episode``;
+final PSNR in dB), ``details.csv`` (both PSNR
 measures, every seed's difference, which baseline), ``per_seed.csv`` (every run, with the share of its steps whose
 score was flat), ``summary.md`` and ``command.txt``; for a setting beyond the budget, ``against_plain.csv``: each
 entry the setting acts on minus the plain budget's experiment, same seeds (did the setting make NVF better, or its

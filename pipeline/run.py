@@ -22,7 +22,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
-from pipeline.cli import BadInput, Failed, run_command
+from pipeline.cli import EXPECTED, exit_with, run_command
 from pipeline.config.schema import register_configs
 from pipeline.episode.runner import run_episode
 from pipeline.tables.summary import finish_run, missing_pictures, recorded_outline
@@ -38,19 +38,21 @@ def main(cfg: DictConfig) -> dict:
     logging.getLogger("OpenGL").setLevel(logging.WARNING)  # PyOpenGL announces a missing optional module
     try:
         outcome = run_episode(cfg)
+    except EXPECTED as err:
+        if not multirun:
+            exit_with(err)  # here, not through Hydra, which would add its own report of the job
+        print(f"error: {err}", file=sys.stderr)
+        return {"status": "failed", "reason": str(err)}
     except Exception as err:
         if not multirun:
-            raise  # run_command: one line for bad input (2) or a failed run (1), a traceback for a bug
-        if isinstance(err, (BadInput, Failed)):
-            print(f"error: {err}", file=sys.stderr)
-            return {"status": "failed", "reason": str(err)}
+            raise  # a bug: its traceback
         traceback.print_exc()  # an unexpected error: its traceback in the job's log, the sweep goes on
         return {"status": "failed", "reason": f"{type(err).__name__}: {' '.join(str(err).split())}"}
     directory = outcome.directory
     if outcome.status == "done" and outcome.scene is not None:
         finish_run(directory, outline_of_scene(outcome.scene, outcome.scene_kind))
     elif missing_pictures(directory):  # finished, but killed before its pictures were drawn
-        print(f"drawing the pictures of {directory}, which its run did not finish")
+        print(f"drawing the pictures of {directory}: its run ended before it drew them")
         finish_run(directory, recorded_outline(directory, cfg.paths.assets))
     if not multirun:
         shown = (

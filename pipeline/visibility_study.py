@@ -258,7 +258,7 @@ def study_scene(
 
 
 def settings_of(overrides: list[str]) -> list[str]:
-    """A study's overrides as settings: in order, without ``paths.*`` (where files are, not what is measured)."""
+    """A study's overrides as settings, sorted, without ``paths.*`` (where files are, not what is measured)."""
     return sorted(o for o in overrides if not o.startswith("paths."))
 
 

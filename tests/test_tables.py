@@ -647,9 +647,9 @@ def test_issue_39_case_2_a_metric_outside_its_range_is_one_skip_line_and_the_sit
 
 
 def test_issue_39_case_5_labels_render_as_text_in_every_table(tmp_path):
-    """Issue 39, case 5: labels holding Markdown (``**99.99 ± 0.01**``, ``[x](javascript:...)``) stayed live in the
-    .md tables, the site's table turned ``**...**`` into ``<strong>`` (the "significant best" mark), and runs.csv
-    wrote a cell starting with ``=`` (a spreadsheet formula) as it was. Now each renders as text."""
+    """Issue 39, case 5: labels holding Markdown (``**99.99 ± 0.01**``, a link to a ``javascript:`` address) stayed
+    live in the .md tables, the site's table turned ``**...**`` into ``<strong>`` (the "significant best" mark), and
+    runs.csv wrote a cell starting with ``=`` (a spreadsheet formula) as it was. Now each renders as text."""
     import html
 
     import markdown
