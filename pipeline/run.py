@@ -1,7 +1,9 @@
 """Entry point: ``python -m pipeline.run [overrides]`` runs one episode; ``-m`` sweeps (Hydra).
 
 ``pipeline.episode.runner`` validates, locks, verifies, records and resumes; a finished run's summary and
-pictures are drawn here (``pipeline.tables.summary.finish_run``). Expected failures print one line. Exit status 2: the
+pictures are drawn here (``pipeline.tables.summary.finish_run``), and so are those of a finished run that is
+skipped without them (killed between its last step and its pictures). Expected failures print one line
+(``pipeline.cli.run_command``). Exit status 2: the
 run was refused before it started (a bad config or override, an unusable
 ``paths.outputs``, a scene that cannot load, another process writing the run, a record that fails a
 check or holds other settings). Exit status 1: the run failed, now or when it last ran (its record
@@ -17,21 +19,17 @@ import traceback
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
-from hydra.errors import HydraException
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
+from pipeline.cli import EXPECTED, exit_with, run_command
 from pipeline.config.schema import register_configs
-from pipeline.config.validation import ConfigError, error_line, validate
-from pipeline.episode.runner import RunRefused, StepFailed, run_episode
-from pipeline.records.lock import RunLocked
-from pipeline.records.store import RecordError
-from pipeline.scenes.scene import SceneError
-from pipeline.tables.summary import finish_run
+from pipeline.config.validation import validate
+from pipeline.episode.runner import run_episode
+from pipeline.tables.summary import finish_run, missing_pictures, recorded_outline
+from pipeline.tables.trajectory import outline_of_scene
 
 register_configs()
-
-REFUSED = (ConfigError, SceneError, RunLocked, RecordError, RunRefused)  # exit 2: nothing ran
 
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
@@ -41,38 +39,43 @@ def main(cfg: DictConfig) -> dict:
     logging.getLogger("OpenGL").setLevel(logging.WARNING)  # PyOpenGL announces a missing optional module
     try:
         outcome = run_episode(validate(cfg))
-    except (*REFUSED, StepFailed) as err:
+    except EXPECTED as err:
+        if not multirun:
+            exit_with(err)  # here, not through Hydra, which would add its own report of the job
         print(f"error: {err}", file=sys.stderr)
-        if multirun:
-            return {"status": "failed", "reason": str(err)}
-        sys.exit(2 if isinstance(err, REFUSED) else 1)
+        return {"status": "failed", "reason": str(err)}
     except Exception as err:
         if not multirun:
-            raise
+            raise  # a bug: its traceback
         traceback.print_exc()  # an unexpected error: its traceback in the job's log, the sweep goes on
         return {"status": "failed", "reason": f"{type(err).__name__}: {' '.join(str(err).split())}"}
+    directory = outcome.directory
     if outcome.status == "done" and outcome.scene is not None:
-        finish_run(outcome.directory, outcome.scene, outcome.scene_kind)
+        finish_run(directory, outline_of_scene(outcome.scene, outcome.scene_kind))
+    elif missing_pictures(directory):  # finished, but killed before its pictures were drawn
+        print(f"drawing the pictures of {directory}: its run ended before it drew them")
+        finish_run(directory, recorded_outline(directory, cfg.paths.assets))
     if not multirun:
-        directory = outcome.directory
-        print(f"images:  {directory / 'images'} (every step), {directory / 'grid.png'} (labelled)")
-        print(f"curve:   {directory / 'psnr.png'}")
-        print(f"cameras: {directory / 'trajectory.png'} (initial and chosen views, from above and from the side)")
-        print(f"records: {directory / 'run.json'}, {directory / 'steps.jsonl'}")
-        print(f"table:   {directory / 'summary.md'}")
+        shown = (
+            ("images: ", directory / "grid.png", "(every step's images in images/, labelled)"),
+            ("curve:  ", directory / "psnr.png", ""),
+            ("cameras:", directory / "trajectory.png", "(initial and chosen views, from above and from the side)"),
+            ("records:", directory / "run.json", f"and {directory / 'steps.jsonl'}"),
+            ("table:  ", directory / "summary.md", ""),
+        )
+        for name, path, note in shown:
+            if path.is_file():
+                print(f"{name} {path} {note}".rstrip())
     return {"status": outcome.status, "reason": None}
 
 
-def cli() -> None:
-    """``python -m pipeline.run``: ``main`` behind Hydra, except that a config Hydra cannot compose (an unknown
-    group option or key, a value of the wrong type, a malformed override) exits with one line (status 2, like
-    every other bad input here) instead of Hydra's report."""
-    os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra then raises its errors to us instead of printing a report
+def hydra_main() -> None:
+    """``main`` behind Hydra, which raises its errors (a config it cannot compose, an override it cannot
+    resolve, an unknown group option or key) to ``run_command`` instead of printing a report; Ctrl-C says how
+    to resume."""
+    os.environ["HYDRA_FULL_ERROR"] = "1"
     try:
         main()
-    except HydraException as err:
-        print(error_line(err), file=sys.stderr)
-        sys.exit(2)
     except KeyboardInterrupt:
         print(
             "\ninterrupted: every finished step is recorded; run the same command again to resume at the first "
@@ -83,4 +86,4 @@ def cli() -> None:
 
 
 if __name__ == "__main__":
-    cli()
+    run_command(hydra_main)

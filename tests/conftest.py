@@ -5,6 +5,10 @@ to the LPIPS calibration pairs (README.md); a test that needs one skips, naming 
 """
 
 import os
+import runpy
+import sys
+import warnings
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -37,3 +41,22 @@ def lpips_calibration_dir() -> Path:
 def _deterministic_torch():
     torch.manual_seed(0)
     yield
+
+
+@pytest.fixture
+def command(capsys) -> Callable[[str, list[str]], tuple[int, list[str]]]:
+    """``command(module, argv)``: ``python -m <module> <argv>`` run in this process as ``-m`` runs it (``runpy``, so
+    through the module's own ``__main__`` block); its exit status and its stderr's non-empty lines."""
+
+    def run(module: str, argv: list[str]) -> tuple[int, list[str]]:
+        with pytest.MonkeyPatch.context() as patch, warnings.catch_warnings():
+            patch.setattr(sys, "argv", [module, *argv])
+            warnings.simplefilter("ignore", RuntimeWarning)  # runpy notes that the module is imported already
+            try:
+                runpy.run_module(module, run_name="__main__", alter_sys=True)
+                status = 0
+            except SystemExit as done:
+                status = int(done.code or 0)
+        return status, [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+
+    return run

@@ -77,3 +77,30 @@ def test_bad_arguments_and_a_missing_curve_are_one_line_and_status_2(tmp_path, c
             main(args)
         assert exit_.value.code == 2
         assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+CORRUPT = [
+    ("not_a_number", lambda text: text.replace(",3,", ",many,", 1), "row 1, column n is 'many', not a number"),
+    (
+        "column_missing",
+        lambda text: text.replace("minutes_per_episode", "minutes", 1),
+        "lacks the column(s) minutes_per",
+    ),
+    ("infinite_minutes", lambda text: text.rsplit(",", 1)[0] + ",inf\n", "minutes_per_episode is inf, not a finite"),
+    ("binary", lambda text: "\udcff\udcfe" * 8, "not UTF-8 text"),
+]
+
+
+@pytest.mark.parametrize(("case", "damage", "problem"), CORRUPT, ids=[c[0] for c in CORRUPT])
+def test_issue_39_case_10_a_corrupt_summary_is_one_line_and_nothing_is_written(
+    tmp_path, command, case, damage, problem
+):
+    """Issue 39, case 10: the budget curve on a corrupt summary.csv gave a traceback. Now the file is read back
+    checked: one line naming the file, the row and the column, exit 2, no curve written."""
+    write_summary(tmp_path, "cpu", WIN, 5.0)
+    write_summary(tmp_path, "smoke", WIN, 1.0)
+    path = tmp_path / "pilots" / "discriminate" / "smoke" / "summary.csv"
+    path.write_bytes(damage(path.read_text()).encode("utf-8", "surrogateescape"))
+    status, err = command("pipeline.experiments.budget_curve", [f"paths.results={tmp_path}"])
+    assert status == 2 and len(err) == 1 and err[0].startswith(f"error: {path}: ") and problem in err[0], err
+    assert not (tmp_path / "pilots" / "discriminate" / "curve.csv").exists()

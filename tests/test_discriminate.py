@@ -2,6 +2,7 @@
 intervals, the best-baseline choice, the summary's columns, and bad input."""
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -166,3 +167,18 @@ def test_against_plain_pairs_each_entry_the_setting_acts_on_with_the_plain_budge
     assert any(
         line.startswith("| a | nvf-wo_vis | -1.00 [-1.00, -1.00]") and line.endswith("| 0.25 | - |") for line in lines
     )
+
+
+@pytest.mark.parametrize("label", ["../../../../escaped", "/tmp/nvf-bench-escaped", "a/b", ".."])
+def test_issue_39_case_3_a_label_is_a_plain_name(tmp_path, monkeypatch, capsys, label):
+    """Issue 39, case 3: a ``--label`` climbing out of its folder (four ``..``) or an absolute path wrote the
+    experiment's csv and md files outside ``paths.results``. A label is checked as a run key is: one line, status 2,
+    nothing written."""
+    monkeypatch.setattr(discriminate, "per_seed", lambda *args: runs_frame())
+    results = tmp_path / "deep" / "er" / "results"
+    argv = ["--summarize-only", "--reuse", "none", "--label", label, f"paths.results={results}"]
+    with pytest.raises(SystemExit) as info:
+        discriminate.main([*argv, f"paths.outputs={tmp_path / 'out'}"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert info.value.code == 2 and len(err) == 1 and f"option --label={label!r} is not a plain name" in err[0]
+    assert list(tmp_path.iterdir()) == [] and not Path("/tmp/nvf-bench-escaped").exists()

@@ -3,6 +3,7 @@
 import json
 import math
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -18,7 +19,7 @@ from pipeline.config.schema import register_configs
 from pipeline.config.typed import Run
 from pipeline.config.validation import validate
 from pipeline.episode.loop import Episode
-from pipeline.episode.runner import Outcome, RunRefused, StepFailed, run_episode, torch_threads
+from pipeline.episode.runner import Outcome, RunRefused, StepFailed, run_episode, run_settings, torch_threads
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.image import LpipsMetric
 from pipeline.records.lock import RunLock
@@ -27,6 +28,7 @@ from pipeline.records.verify import verified
 from pipeline.repo import CONF, REPO
 from pipeline.scenes.loading import load_scene
 from pipeline.tables.summary import finish_run
+from pipeline.tables.trajectory import outline_of_scene
 
 SMOKE = ["budget=smoke", "scene=default"]
 
@@ -95,7 +97,7 @@ def test_smoke_episode_writes_complete_records(tmp_path):
     assert verified(record)[1] == rows
     assert (directory / "images" / "step_01_pred.png").is_file()
     # the run's own labelled pictures and table, beside its records (drawn by the entry point, pipeline.run)
-    finish_run(directory, outcome.scene, outcome.scene_kind)
+    finish_run(directory, outline_of_scene(outcome.scene, outcome.scene_kind))
     assert all(
         (directory / name).stat().st_size > 0 for name in ("grid.png", "psnr.png", "trajectory.png", "summary.md")
     )
@@ -190,6 +192,48 @@ def test_a_malformed_record_is_refused_before_any_work(tmp_path):
     with pytest.raises(RecordError, match=r"seed_100: steps.jsonl without run.json, so the settings .* unknown"):
         run_episode(_cfg(tmp_path, "method=random", "budget.horizon=1"))
     assert sorted(p.name for p in directory.iterdir()) == ["steps.jsonl"]
+
+
+@pytest.mark.parametrize(
+    ("pose", "problem"),
+    [
+        ([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], "a quaternion of norm 0"),
+        ([0.0, 0.0, 0.0, 1.0, 1e308, 0.0, 1.0], "at (1e+308, 0, 1), not within the scene's camera box"),
+    ],
+    ids=["zero_quaternion", "translation_1e308"],
+)
+def test_issue_39_case_11_resuming_a_row_with_an_impossible_pose_is_one_line(tmp_path, pose, problem):
+    """Issue 39, case 11: resuming an unfinished record whose step row held a zero quaternion or a 1e308 translation
+    was a traceback. Now the record is refused before any work, naming the file, the step and the pose."""
+    cfg = _cfg(tmp_path, "method=random", "budget.horizon=2")
+    directory = tmp_path / "default" / "random-argmax-none" / "smoke" / "seed_100"
+    record = RunRecord(directory)
+    record.start(run_settings(cfg))
+    record.append_step({"step": 0, "n_views": 3, "status": "ok", "metrics": {"psnr": 10.0}, "selected_pose": pose})
+    with pytest.raises(RecordError, match=rf"steps.jsonl: step 0 has selected_pose .*{re.escape(problem)}"):
+        run_episode(cfg)
+    assert sorted(p.name for p in directory.iterdir()) == ["run.json", "steps.jsonl"]
+
+
+def test_issue_39_case_13_a_finished_run_skipped_without_its_pictures_draws_them(tmp_path):
+    """Issue 39, case 13: a run killed right after its DONE marker was skipped on the next run, which printed the
+    paths of grid.png, psnr.png, trajectory.png and summary.md, never drawn. Now the skipped run draws what it lacks
+    (the code a finishing run draws them with) and prints only files that are there."""
+    cfg = _cfg(tmp_path, "method=random", "budget.horizon=2")
+    record = RunRecord(tmp_path / "default" / "random-argmax-none" / "smoke" / "seed_100")
+    record.start(run_settings(cfg))
+    for step in range(2):
+        pose = [0.0, 0.0, 0.0, 1.0, 1.0, -1.0, 1.0 + step / 4]
+        row = {"step": step, "n_views": 3 + step, "status": "ok", "metrics": {"psnr": 12.0 + step}}
+        record.append_step({**row, "selected_pose": pose, "seconds": {"train": 1.0}})
+    record.mark_done()
+    proc = _cli(tmp_path, "method=random", "budget.horizon=2")
+    out, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0 and f"skipping finished run {record.directory}" in out, err
+    drawn = ("psnr.png", "trajectory.png", "summary.md")  # no grid.png: the record saved no images
+    assert all((record.directory / name).stat().st_size > 0 for name in drawn)
+    printed = re.findall(r"^\w+: +(\S+)", out, flags=re.MULTILINE)
+    assert printed and all(Path(path).is_file() for path in printed) and "grid.png" not in out
 
 
 def _sweep_lines(stderr: str) -> list[str]:

@@ -327,6 +327,21 @@ def test_case_1_a_symlinked_lock_file_is_refused_never_followed(tmp_path):
     assert victim.read_text() == "precious\n" and not (out / "inside.txt").exists()
 
 
+def test_issue_39_case_1_a_hard_linked_lock_file_is_refused_never_truncated(tmp_path):
+    """Issue 39, case 1: a lock file hard-linked to a file outside paths.outputs was opened and truncated (O_NOFOLLOW
+    stops symbolic links, not hard links): the file under its other name was emptied. Now it is one line."""
+    victim = tmp_path / "precious.txt"
+    victim.write_text("precious\n")
+    out, directory = tmp_path / "out", tmp_path / "out" / "default" / "nvf-argmax-none" / "smoke" / "seed_100"
+    lock = RunLock(directory, out).path
+    lock.parent.mkdir(parents=True)
+    os.link(victim, lock)
+    with pytest.raises(RecordError, match=rf"^{re.escape(str(lock))}: a file with 1 other name\(s\) \(a hard link\)"):
+        with RunLock(directory, out):
+            pass
+    assert victim.read_text() == "precious\n"
+
+
 def test_case_1_a_run_path_through_a_symlink_leaving_its_root_is_refused(tmp_path):
     """Issue 30, case 1: directory links were followed too. A component of the run directory, or an entry in
     it (its images/), that links outside paths.outputs is refused naming it; a link inside the root is fine."""
@@ -616,6 +631,47 @@ def test_records_finished_before_the_record_digest_are_checked_against_their_row
     with pytest.raises(
         RecordError, match=r"steps.jsonl: differs from the digest run.json took when the run finished \(steps_digest\)"
     ):
+        verified(record)
+
+
+def test_issue_39_case_12_a_record_from_a_version_that_takes_a_digest_must_have_one(tmp_path):
+    """Issue 39, case 12: a record whose ``record_digest`` was deleted and a metric edited was accepted as a legacy
+    record. Which versions take a digest is read from the record itself: every one writes ``candidate_filters`` into
+    run.json and none before did, so such a record without a digest is refused; an older one is still read."""
+    record = RunRecord(run_dir(tmp_path, "lego_proxy", "nvf", "argmax", "none", "smoke", 100))
+    record.start(_info(config={"budget": {"horizon": HORIZON}, "seed": 100}, candidate_filters=True), repo=tmp_path)
+    for step in range(HORIZON):
+        record.append_step(_row(step))
+    record.mark_done()
+    info = json.loads(record.run_json.read_text())
+    del info[DIGEST_KEY]
+    record.run_json.write_text(json.dumps(info))
+    _changed_value(record)
+    with pytest.raises(RecordError, match=r"run.json: no record_digest, though the version that wrote it"):
+        verified(record)
+    del info["candidate_filters"]  # a record made before the digests: the checks that were possible then
+    record.run_json.write_text(json.dumps(info))
+    assert verified(record)[1][0]["metrics"]["psnr"] == 30.0
+
+
+@pytest.mark.parametrize(
+    ("pose", "problem"),
+    [
+        ([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], "a quaternion of norm 0, not a unit quaternion"),
+        ([0.0, 0.0, 0.0, 1.0, 1e308, 0.0, 1.0], "at (1e+308, 0, 1), not within the scene's camera box"),
+        ([0.0, 0.0, 0.0, 1.0, 3.0, 0.0, 1.0], "at (3, 0, 1), not within the scene's camera box"),
+    ],
+)
+def test_a_recorded_pose_must_be_a_unit_quaternion_inside_the_camera_box(tmp_path, pose, problem):
+    """A row's ``selected_pose`` (what a resumed run replays and the trajectory draws) is checked against the
+    record's own camera box, widened by a tenth of its size; a pose inside the widened box is read."""
+    config = {"budget": {"horizon": HORIZON}, "scene": {"camera_box": [[-2.0, -2.0, 0.0], [2.0, 2.0, 2.0]]}}
+    record = RunRecord(run_dir(tmp_path, "lego_proxy", "nvf", "argmax", "none", "smoke", 100))
+    record.start(_info(config=config), repo=tmp_path)
+    record.append_step({**_row(0), "selected_pose": [0.0, 0.0, 0.0, 1.0, 2.3, -2.3, 2.15]})
+    assert len(verified(record)[1]) == 1
+    record.append_step({**_row(1), "selected_pose": pose})
+    with pytest.raises(RecordError, match=rf"steps.jsonl: step 1 has selected_pose .*{re.escape(problem)}"):
         verified(record)
 
 

@@ -173,3 +173,28 @@ def test_every_entry_point_has_a_plain_help_page(name, capsys):
     page = capsys.readouterr().out
     assert code in (0, None)
     assert f"python -m pipeline.{name}" in page and "``" not in page and len(page.splitlines()) >= 5
+
+
+def test_issue_39_case_4_a_pilot_note_is_text_and_a_linked_note_is_not_read(tmp_path):
+    """Issue 39, case 4: a pilot README with raw HTML (``<img src=x onerror=...>``) went into pilots.html live (its
+    script ran in headless Chromium), and a README that is a symbolic link to a system file was rendered too. Now
+    raw HTML is shown as text, links go only to http(s), mailto and the files beside the note, and a linked note is
+    one line saying it is not shown."""
+    from pipeline.tables.site import pilots_page
+
+    pilots = tmp_path / "pilots"
+    (pilots / "hostile").mkdir(parents=True)
+    (pilots / "linked").mkdir()
+    (pilots / "hostile" / "README.md").write_text(
+        "# Notes\n\n<img src=x onerror=alert(1)> [x](javascript:alert(1)) ![y](data:text/html,z) [fine](run.md) "
+        "[web](https://example.org)\n\n<script>alert(2)</script>\n"
+    )
+    (tmp_path / "passwd").write_text("root:x:0:0:secret\n")
+    (pilots / "linked" / "README.md").symlink_to(tmp_path / "passwd")
+    page = pilots_page(pilots, tmp_path / "site" / "pilots.html")
+    tags = re.findall(r"<(\w+)([^>]*)>", page)
+    assert not [tag for tag, _ in tags if tag in ("script", "iframe", "object", "embed")]
+    assert not [attrs for _, attrs in tags if re.search(r"\bon\w+=|javascript:|data:", attrs)]
+    assert "&lt;img src=x onerror=alert(1)&gt;" in page and "&lt;script&gt;alert(2)&lt;/script&gt;" in page
+    assert 'href="../pilots/hostile/run.md"' in page and 'href="https://example.org"' in page
+    assert "secret" not in page and f"not shown: {pilots / 'linked' / 'README.md'}: a symbolic link" in page

@@ -96,3 +96,25 @@ def test_the_smoke_sweeps_site_loads_in_chromium(site, browser, tmp_path):
     browser.get((site / "pilots.html").as_uri())
     assert errors(browser) == [] and broken_images(browser) == []
     print(f"screenshots: {tmp_path / 'index.png'}, {tmp_path / 'scene.png'}")
+
+
+@pytest.mark.skipif(
+    bool(missing), reason=f"needs {' and '.join(missing)} (Debian's chromium, chromium-driver: make browser)"
+)
+def test_a_pilot_notes_html_does_not_run_in_chromium(browser, tmp_path):
+    """Issue 39, case 4 in a browser: a pilot README's raw HTML (an image whose onerror runs a script, a script
+    element, a javascript: link) is shown as text on pilots.html and runs nothing."""
+    from pipeline.records.store import atomic_write_text
+    from pipeline.tables.site import pilots_page
+
+    (tmp_path / "pilots" / "hostile").mkdir(parents=True)
+    (tmp_path / "pilots" / "hostile" / "README.md").write_text(
+        '<img src=x onerror="window.ran = 1">\n\n<script>window.ran = 2</script>\n\n[link](javascript:window.ran=3)\n'
+    )
+    page = tmp_path / "site" / "pilots.html"
+    atomic_write_text(page, pilots_page(tmp_path / "pilots", page))
+    browser.get(page.as_uri())
+    for link in browser.find_elements("link text", "link"):
+        link.click()
+    assert browser.execute_script("return window.ran === undefined") and errors(browser) == []
+    assert "<script>window.ran = 2</script>" in browser.find_element("css selector", ".pilot").text

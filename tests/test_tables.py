@@ -18,6 +18,7 @@ from pipeline.config.named import NamedConfigs
 from pipeline.config.validation import compose_run
 from pipeline.records.store import DIGEST_KEY, RunRecord, record_digest, run_dir
 from pipeline.repo import CONF, REPO
+from pipeline.tables import escape
 from pipeline.tables.__main__ import main
 from pipeline.tables.build import build_tables
 from pipeline.tables.figures import image_grid, safe_name
@@ -219,7 +220,8 @@ def test_truncated_steps_and_bad_records_are_skipped_with_the_reason(tmp_path):
     assert "junk/run.json: not valid JSON" in skipped[1]
     assert "2 run record(s) skipped: they fail a check" in read(tmp_path / "res" / "tables" / "main.md")
     all_runs = read(tmp_path / "res" / "tables" / "all_runs.md")
-    assert all(f"- Skipped run record: {line.split(': ', 1)[1]}." in all_runs for line in skipped)
+    notes = [escape.markdown("Skipped run record: " + line.split(": ", 1)[1] + ".") for line in skipped]
+    assert all(f"- {note}" in all_runs for note in notes)
     assert "Excluded: 1 unfinished run(s)" in all_runs
 
 
@@ -622,6 +624,47 @@ def test_case_4_record_text_is_escaped_in_markdown_latex_and_csv(tmp_path):
     assert all("\\input{" not in line for line in tex.splitlines() if not line.startswith("% "))  # it stays inert
     frame = pd.read_csv(tmp_path / "res" / "tables" / "all_runs.csv", comment="#")
     assert len(frame) == 1 and hostile in frame.iloc[0]["Method"]
+
+
+@pytest.mark.parametrize("psnr", [-1e308, 1e308])
+def test_issue_39_case_2_a_metric_outside_its_range_is_one_skip_line_and_the_site_is_written(tmp_path, capsys, psnr):
+    """Issue 39, case 2: a record whose PSNR is -1e308 (finite, its digest recomputed) stopped pipeline.tables in
+    the figures (``arange: cannot compute length``), so no site was written; +1e308 showed as ``inf ± inf``. Now
+    the record is skipped in one line naming the file and the metric, and the others are tabulated."""
+    make_run(tmp_path / "out", seed=101, final={"psnr": 21.0})
+    crafted = make_run(tmp_path / "out", seed=100)
+    lines = crafted.steps_path.read_text().splitlines(keepends=True)
+    crafted.steps_path.write_text("".join(line.replace('"psnr":0.0', f'"psnr":{psnr!r}') for line in lines))
+    _rewrite(crafted)
+    assert main([f"paths.outputs={tmp_path / 'out'}", f"paths.results={tmp_path / 'res'}"]) == 0
+    err = [line for line in capsys.readouterr().err.splitlines() if "is not a directory" not in line]
+    assert len(err) == 1 and err[0].startswith(f"pipeline.tables: skipped run record: {crafted.steps_path}: step 0")
+    assert f"metric psnr = {psnr:.6g}, outside its range [0, 100]" in err[0]
+    assert (tmp_path / "res" / "site" / "index.html").is_file()
+    tables = read(tmp_path / "res" / "tables" / "all_runs.md")
+    assert "| 21.00 " in tables and "inf" not in tables
+
+
+def test_issue_39_case_5_labels_render_as_text_in_every_table(tmp_path):
+    """Issue 39, case 5: labels holding Markdown (``**99.99 ± 0.01**``, a link to a ``javascript:`` address) stayed
+    live in the .md tables, the site's table turned ``**...**`` into ``<strong>`` (the "significant best" mark), and
+    runs.csv wrote a cell starting with ``=`` (a spreadsheet formula) as it was. Now each renders as text."""
+    import html
+
+    import markdown
+
+    named = NamedConfigs(CONF).named(("hubble", "nvf", "argmax", "none", "smoke"))
+    hostile = "**99.99 ± 0.01** [x](javascript:alert(1)) `code` _em_ ~~gone~~ <b>"
+    make_run(tmp_path / "out", seed=100, config={**named, "method": {**named["method"], "label": hostile}})
+    crafted = make_run(tmp_path / "out", scene="room", seed=100, source="=HYPERLINK(1)")
+    written, _ = build_tables(tmp_path / "out", [], tmp_path / "res")
+    md = markdown.markdown(read(tmp_path / "res" / "tables" / "all_runs.md"), extensions=["tables"])
+    assert not re.search(r"<(strong|em|a|code|del|b)\b", md) and hostile in html.unescape(md)
+    page = next(p for p in written if p.parent.name == "scenes" and p.name.startswith("hubble_"))
+    assert "**99.99 ± 0.01**" in read(page) and "<strong>99.99" not in read(page)
+    cells = pd.read_csv(tmp_path / "res" / "runs.csv", dtype=str, keep_default_na=False)
+    assert set(cells.loc[cells["scene"] == "room", "scene_source"]) == {"'=HYPERLINK(1)"}
+    assert crafted.is_done() and not (cells.map(lambda cell: cell.startswith(("=", "@", "+"))).any().any())
 
 
 def test_case_9_every_tables_error_line_starts_with_error(tmp_path, capsys):

@@ -224,3 +224,110 @@ def test_one_step_outcome_of_a_pick():
         assert math.isfinite(first) and first == again
     finally:
         episode.close()
+
+
+# ----------------------------------------------------------------------------- hostile input (issue 39)
+
+DIAGNOSTIC = {"sources": {"head": {"auc_mean": 0.7}, "labels": {"auc_mean": 0.8}}}
+SUMMARY_DAMAGE = [
+    ("decisions_type_corrupt", "c1/decisions.jsonl", "gain", "c1/decisions.jsonl: line 2 gain is 'x', not a number"),
+    ("decisions_terms_null", "c1/decisions.jsonl", "terms", "c1/decisions.jsonl: line 2 terms is not an object"),
+    ("decisions_bad_middle_line", "c1/decisions.jsonl", "{not json", "c1/decisions.jsonl: line 2 not valid JSON"),
+    ("setting_not_json", "c1/setting.json", "{", "c1/setting.json: not valid JSON"),
+    ("setting_without_name", "c1/setting.json", {"visibility_source": "head"}, "c1/setting.json: name is missing"),
+    ("diagnostic_not_json", "c1/hotdog_diagnostic.json", "[1,", "c1/hotdog_diagnostic.json: not valid JSON"),
+    (
+        "diagnostic_auc_text",
+        "c1/hotdog_diagnostic.json",
+        {"sources": {"head": {"auc_mean": "high"}}},
+        "c1/hotdog_diagnostic.json: sources.head.auc_mean is 'high', not a number",
+    ),
+]
+
+
+@pytest.mark.parametrize(("case", "name", "damage", "line"), SUMMARY_DAMAGE, ids=[d[0] for d in SUMMARY_DAMAGE])
+def test_issue_39_case_7_a_damaged_study_file_is_one_line_and_nothing_is_written(
+    tmp_path, command, case, name, damage, line
+):
+    """Issue 39, case 7: the visibility summary on a type-corrupt decisions.jsonl, a broken setting.json or a
+    bad diagnostic gave a traceback in every variant. Now each is one ``error:`` line naming the file, the line and
+    the key, exit 2, and no summary is written; a last line cut by a kill is left out (a study may be writing)."""
+    study = tmp_path / "results" / "pilots" / "visibility_study"
+    rows = [decision_row("hotdog", 0, 0.5), decision_row("hotdog", 3, 0.3), decision_row("hotdog", 6)]
+    write_setting(study / "c1", "c1", rows, {"hotdog": DIAGNOSTIC})
+    path = study / name
+    if name.endswith("decisions.jsonl"):
+        lines = path.read_text().splitlines(keepends=True)
+        changed = {**rows[1], damage: "x" if damage == "gain" else None} if damage in ("gain", "terms") else None
+        lines[1] = damage + "\n" if changed is None else json.dumps(changed) + "\n"
+        path.write_text("".join(lines))
+    else:
+        path.write_text(damage if isinstance(damage, str) else json.dumps(damage))
+    argv = [f"paths.results={tmp_path / 'results'}", "--records", str(tmp_path / "runs")]
+    status, err = command("pipeline.experiments.visibility_summary", argv)
+    assert status == 2 and len(err) == 1 and err[0].startswith(f"error: {study}/{line}"), err
+    assert not (study / "summary.csv").exists()
+
+
+def test_a_decisions_line_cut_by_a_kill_is_left_out_of_the_summary(tmp_path, command):
+    study = tmp_path / "results" / "pilots" / "visibility_study"
+    write_setting(study / "c1", "c1", [decision_row("hotdog", 0, 0.5), decision_row("hotdog", 3, 0.3)])
+    (study / "c1" / "decisions.jsonl").write_text((study / "c1" / "decisions.jsonl").read_text() + '{"scene": "hot')
+    status, err = command("pipeline.experiments.visibility_summary", [f"paths.results={tmp_path / 'results'}"])
+    assert status == 0 and err == [] and list(summary_frame(study)["decisions"]) == [2]
+
+
+def _study_folder(tmp_path: Path, overrides: list[str]) -> tuple[list[str], Path]:
+    """A 3-step NVF record (smoke budget) and a study folder made with ``overrides`` whose state (default, seed 100,
+    step 1) is measured already: a study run on it does no work. Returns the study's arguments and the folder."""
+    from test_tables import make_run
+
+    make_run(tmp_path / "runs", scene="default", seed=100, steps=3)
+    folder = tmp_path / "results" / "pilots" / "visibility_study" / "s1"
+    folder.mkdir(parents=True)
+    (folder / "setting.json").write_text(json.dumps({"name": "s1", "overrides": overrides, "budget": "smoke"}))
+    (folder / "decisions.jsonl").write_text(json.dumps(decision_row("default", 1)) + "\n")
+    (folder / "default_diagnostic.json").write_text(json.dumps(DIAGNOSTIC))
+    argv = ["budget=smoke", f"paths.results={tmp_path / 'results'}", "--setting", "s1", "--scenes", "default"]
+    return [*argv, "--seeds", "100", "--steps", "1", "--records", str(tmp_path / "runs")], folder
+
+
+def test_issue_39_case_7_a_study_refuses_a_bad_seed_and_a_bad_line_before_any_work(tmp_path, command):
+    """Issue 39, case 7: the visibility study gave a traceback on a bad middle line of decisions.jsonl, and on
+    ``--seeds -5`` after computing for minutes. Both are one line and exit 2 before any work."""
+    argv, folder = _study_folder(tmp_path, ["budget=smoke"])
+    status, err = command("pipeline.experiments.visibility_study", [*argv, "--seeds", "-5"])
+    assert status == 2 and len(err) == 1 and "seed -5 is not an integer from 0 to 2^63-1" in err[0], err
+    (folder / "decisions.jsonl").write_text(
+        json.dumps(decision_row("default", 0)) + "\n{cut\n" + json.dumps(decision_row("default", 1)) + "\n"
+    )
+    before = {path.name: path.read_bytes() for path in folder.iterdir()}
+    status, err = command("pipeline.experiments.visibility_study", argv)
+    assert status == 2 and len(err) == 1 and err[0].startswith(f"error: {folder / 'decisions.jsonl'}: line 2"), err
+    assert {path.name: path.read_bytes() for path in folder.iterdir()} == before
+
+
+def test_issue_39_case_8_a_study_folder_takes_one_set_of_overrides_and_steps_the_record_holds(tmp_path, command):
+    """Issue 39, case 8: ``--setting s1`` run twice with other overrides appended rows of both settings to one folder
+    and rewrote setting.json; ``--steps 50`` on a 3-step record wrote a "step 50" row. Both are refused in one line."""
+    argv, folder = _study_folder(tmp_path, ["budget=smoke"])
+    before = {path.name: path.read_bytes() for path in folder.iterdir()}
+    status, err = command("pipeline.experiments.visibility_study", [*argv, "nvf.entropy.logdet_coeff=1.0"])
+    assert status == 2 and len(err) == 1 and "holds a study made with the overrides ['budget=smoke']" in err[0], err
+    assert {path.name: path.read_bytes() for path in folder.iterdir()} == before
+    (folder / "decisions.jsonl").write_text(json.dumps(decision_row("default", 50)) + "\n")
+    status, err = command("pipeline.experiments.visibility_study", [*argv, "--steps", "50"])
+    assert status == 2 and len(err) == 1 and "--steps 50: the record" in err[0] and "holds steps 0 to 2" in err[0]
+
+
+def test_issue_39_case_9_a_decisions_file_linked_elsewhere_is_neither_read_nor_appended_to(tmp_path, command):
+    """Issue 39, case 9: a decisions.jsonl that is a symbolic link to a file outside the study was read and appended
+    to. Now it is one line, exit 2, and the file it points to is unchanged."""
+    argv, folder = _study_folder(tmp_path, ["budget=smoke"])
+    outside = tmp_path / "elsewhere.jsonl"
+    outside.write_text(json.dumps(decision_row("default", 1)) + "\n")
+    (folder / "decisions.jsonl").unlink()
+    (folder / "decisions.jsonl").symlink_to(outside)
+    status, err = command("pipeline.experiments.visibility_study", argv)
+    assert status == 2 and len(err) == 1 and err[0].startswith(f"error: {folder / 'decisions.jsonl'}: a symbolic link")
+    assert outside.read_text() == json.dumps(decision_row("default", 1)) + "\n"

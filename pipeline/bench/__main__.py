@@ -12,7 +12,7 @@ import sys
 import textwrap
 from pathlib import Path
 
-from pipeline.cli import description, fail
+from pipeline.cli import description, fail, run_command
 
 
 def available() -> list[str]:
@@ -47,4 +47,4 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    run_command(main, sys.argv[1:])

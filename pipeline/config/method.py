@@ -11,9 +11,10 @@ from hydra.utils import get_class, instantiate
 
 from nvf.config import STAGES
 from nvf.methods import Method, run_settings
+from pipeline.cli import BadInput
 
 
-class MethodError(ValueError):
+class MethodError(BadInput, ValueError):
     """A method node that cannot be built; the message is one line naming the key."""
 
 

@@ -7,7 +7,9 @@ from pathlib import Path
 from typing import Any
 
 from omegaconf import OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 
+from pipeline.cli import error_line
 from pipeline.config.plain import as_dict
 from pipeline.config.schema import PathsConfig
 from pipeline.repo import CONF
@@ -16,14 +18,18 @@ from pipeline.repo import CONF
 def configured_paths(overrides: Mapping[str, str]) -> dict[str, Path]:
     """The ``paths`` group (the schema's ``PathsConfig`` and ``conf/paths/default.yaml``) with ``paths.<key>=value``
     overrides applied and its interpolations (``${paths.outputs}/results``, ``NVF_ASSETS``) resolved, without
-    composing the whole config; a key the group does not have is a ValueError naming the keys it has."""
+    composing the whole config; a key the group does not have, or a value that does not resolve
+    (``${oc.env:UNSET}``, ``${``), is a ValueError of one line naming the key."""
     declared: Any = OmegaConf.load(Path(CONF) / "paths" / "default.yaml") or {}
     node = OmegaConf.create({"paths": OmegaConf.merge(OmegaConf.structured(PathsConfig), declared)})
     for key, value in overrides.items():
         if OmegaConf.select(node, key, default=None) is None and key.split(".", 1)[-1] not in node.paths:
             raise ValueError(f"unknown key {key!r}: use {', '.join(f'paths.{k}=DIR' for k in node.paths)}")
         OmegaConf.update(node, key, value)
-    return {key: Path(value) for key, value in as_dict(node.paths).items()}
+    try:
+        return {key: Path(value) for key, value in as_dict(node.paths).items()}
+    except OmegaConfBaseException as err:
+        raise ValueError(error_line(err).removeprefix("error: ")) from None
 
 
 def paths_from_args(args: Sequence[str], keys: Sequence[str]) -> dict[str, Path]:

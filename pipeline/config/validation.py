@@ -19,6 +19,7 @@ from omegaconf import DictConfig, OmegaConf
 from nvf.methods import Method
 from nvf.precision import unsupported_reason
 from nvf.uncertainty import StepScorer
+from pipeline.cli import BadInput, error_line
 from pipeline.config.catalog import declared
 from pipeline.config.memory import host_memory, too_large
 from pipeline.config.method import MethodError, build_method
@@ -32,7 +33,7 @@ from pipeline.records.verify import MAX_HORIZON, record_value_problem
 from pipeline.repo import CONF
 
 
-class ConfigError(ValueError):
+class ConfigError(BadInput, ValueError):
     """An impossible configuration value; the message is one line naming the key."""
 
 
@@ -341,11 +342,3 @@ def compose_run(overrides: list[str]) -> Run:
     except (HydraException, ConfigError) as err:
         print(error_line(err), file=sys.stderr)
         raise SystemExit(2) from None
-
-
-def error_line(err: Exception) -> str:
-    """``err`` (a Hydra composition error or a ``ConfigError``) and its cause as one ``error: ...`` line,
-    without Hydra's config search path and OmegaConf's ``full_key: ... object_type=...`` trailer."""
-    cause = f": {err.__cause__}" if err.__cause__ is not None else ""
-    message = f"{err}{cause}".split("Config search path:")[0].split("full_key:")[0]
-    return f"error: {' '.join(message.split())}"

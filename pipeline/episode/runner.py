@@ -21,6 +21,7 @@ from hydra.core.hydra_config import HydraConfig
 
 from nvf.planning import NoCandidatesError
 from nvf.training import TrainingDiverged
+from pipeline.cli import BadInput, Failed
 from pipeline.config.typed import Run
 from pipeline.config.validation import ConfigError, resolve_device
 from pipeline.episode.loop import Episode
@@ -37,12 +38,12 @@ from pipeline.scenes.loading import load_scene
 from pipeline.scenes.scene import Scene
 
 
-class StepFailed(RuntimeError):
+class StepFailed(Failed, RuntimeError):
     """The run failed (now, or when it last ran; its record holds this one-line reason), or stopped for a
     reason outside its settings and is left unfinished, to resume (a Blender worker that did not answer)."""
 
 
-class RunRefused(ValueError):
+class RunRefused(BadInput, ValueError):
     """The run cannot start: its directory holds a record of another run (other settings)."""
 
 

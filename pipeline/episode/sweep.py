@@ -19,7 +19,9 @@ from hydra.core.utils import JobReturn
 from hydra.experimental.callback import Callback
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 
+from pipeline.cli import error_line
 from pipeline.config.validation import ConfigError, check_paths
 from pipeline.records.store import atomic_write_text
 
@@ -62,8 +64,8 @@ class SweepReport(Callback):
     def _check_outputs(self, config: DictConfig) -> None:
         try:
             check_paths({"paths.outputs": str(config.paths.outputs)})
-        except ConfigError as err:
-            print(f"error: {err}", file=sys.stderr)
+        except (ConfigError, OmegaConfBaseException) as err:  # a bad value, or an override that does not resolve
+            print(error_line(err), file=sys.stderr)
             sys.exit(2)
 
     def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:

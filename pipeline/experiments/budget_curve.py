@@ -12,6 +12,9 @@ interval above zero on at least two of the three scenes, within ``MAX_MINUTES`` 
 does, the plain budget (the setting without overrides) stays, and the report names the setting with the
 widest positive lead per minute (lead: the mean over scenes of NVF's smaller final-PSNR lead over the two)
 as the nearest candidate, not as a choice: a lead the intervals do not establish picks nothing.
+
+Each ``summary.csv`` is read back checked (``SUMMARY``'s columns; never through a symbolic link): one that fails
+is one ``error:`` line naming the file, the row and the column, and nothing is written.
 """
 
 import sys
@@ -21,8 +24,10 @@ from pathlib import Path
 import pandas as pd
 from matplotlib.figure import Figure
 
-from pipeline.cli import fail, help_page
+from pipeline.cli import fail, help_page, run_command
 from pipeline.config.paths import paths_from_args
+from pipeline.records.checked import Number, Text, read_csv
+from pipeline.records.files import check_directory, escaping_link
 from pipeline.records.images import save_figure
 from pipeline.records.store import atomic_write_text
 from pipeline.tables.render import markdown_table
@@ -30,6 +35,16 @@ from pipeline.tables.render import markdown_table
 SCENES = ("hotdog", "hubble", "default")
 RULE_COMPARISONS = ("nvf-wo_vis", "nvf-best_baseline")
 MAX_MINUTES = 15.0
+DIFFERENCE = Number(-100.0, 100.0, null=True)  # dB; an interval of one seed is empty
+SUMMARY = {
+    "scene": Text(),
+    "comparison": Text(),
+    "mean_diff": DIFFERENCE,
+    "ci_low": DIFFERENCE,
+    "ci_high": DIFFERENCE,
+    "n": Number(0, 2**31, integer=True),
+    "minutes_per_episode": Number(0.0),
+}
 
 
 @dataclass(frozen=True)
@@ -52,8 +67,9 @@ class Setting:
 
 
 def read_curve(root: Path) -> pd.DataFrame:
-    """Every ``<label>/summary.csv`` under ``root``, with a ``label`` column."""
-    frames = [pd.read_csv(path).assign(label=path.parent.name) for path in sorted(root.glob("*/summary.csv"))]
+    """Every ``<label>/summary.csv`` under ``root`` (``SUMMARY``'s columns checked), with a ``label`` column."""
+    paths = [path for path in sorted(root.glob("*/summary.csv")) if escaping_link(root, path.parent) is None]
+    frames = [frame.assign(label=path.parent.name) for path in paths if (frame := read_csv(path, SUMMARY)) is not None]
     if not frames:
         fail(f"no {root}/<label>/summary.csv; run python -m pipeline.experiments.discriminate first")
     return pd.concat(frames, ignore_index=True)
@@ -160,9 +176,11 @@ def main(argv: list[str]) -> int:
         print(help_page(__doc__))
         return 0
     try:
-        root = paths_from_args(argv, ("paths.results",))["results"] / "pilots" / "discriminate"
+        results = paths_from_args(argv, ("paths.results",))["results"]
     except ValueError as err:
         fail(str(err))
+    root = results / "pilots" / "discriminate"
+    check_directory(results, root)
     curve = read_curve(root)
     candidates = settings(curve)
     text = report(candidates, *choose(candidates))
@@ -175,4 +193,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))
+    run_command(main, sys.argv[1:])

@@ -15,8 +15,9 @@ highest mean final PSNR on that scene), each with a 95% Student-t interval over 
 correlation of NVF's and w/o Vis.'s candidate scores, and minutes per episode.
 
 Writes ``${paths.results}/pilots/discriminate/<label>/`` (``<label>``: the budget and every setting beyond it, as
-the tables label runs, unless ``--label``): ``runs/`` (the records, images off), ``summary.csv`` (``scene,
-comparison, mean_diff, ci_low, ci_high, n, minutes_per_episode``; final PSNR in dB), ``details.csv`` (both PSNR
+the tables label runs, unless ``--label``, a plain name: letters, digits, ``_``, ``.``, ``-``): ``runs/`` (the
+records, images off), ``summary.csv`` (``scene, comparison, mean_diff, ci_low, ci_high, n, minutes_per_episode``;
+final PSNR in dB), ``details.csv`` (both PSNR
 measures, every seed's difference, which baseline), ``per_seed.csv`` (every run, with the share of its steps whose
 score was flat), ``summary.md`` and ``command.txt``; for a setting beyond the budget, ``against_plain.csv``: each
 entry the setting acts on minus the plain budget's experiment, same seeds (did the setting make NVF better, or its
@@ -24,7 +25,6 @@ ablation worse?). ``--summarize-only`` skips the runs (e.g. to summarise records
 ``paths.outputs=DIR``).
 """
 
-import json
 import math
 import shlex
 import subprocess
@@ -34,16 +34,18 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pipeline.cli import ArgumentParser, description, fail
+from pipeline.cli import ArgumentParser, description, fail, run_command
 from pipeline.config.catalog import members, method_configs
 from pipeline.config.named import config_label
 from pipeline.config.validation import compose_run
 from pipeline.experiments.options import SEEDS, name_list, seed_list
-from pipeline.records.store import RunRecord, atomic_write_text, record_status, run_dir
+from pipeline.records.checked import Number, Optional, Text, read_csv
+from pipeline.records.files import make_directory
+from pipeline.records.store import MAX_SEED, RunRecord, atomic_write_text, check_key, record_status, run_dir
 from pipeline.repo import REPO
 from pipeline.scenes.loading import find_asset, scene_config
 from pipeline.scenes.scene import SceneError
-from pipeline.tables.load import collect_runs
+from pipeline.tables.load import collect_runs, load_run
 from pipeline.tables.render import markdown_table
 from pipeline.tables.stats import Interval
 
@@ -60,6 +62,17 @@ ENTRIES = (NVF, WO_VIS, IND_RAYS, *BASELINES)
 EXTRA = {NVF: "diagnostics.rank_against=wo_vis"}  # an entry's measurement beyond the run
 COMPARISONS = (("nvf-wo_vis", WO_VIS), ("nvf-ind_rays", IND_RAYS), ("nvf-best_baseline", None))
 SUMMARY_COLUMNS = ("scene", "comparison", "mean_diff", "ci_low", "ci_high", "n", "minutes_per_episode")
+PSNR = Number(0.0, 100.0)
+# what against_plain reads of the plain budget's per_seed.csv (read back checked; flat_steps empty where undefined)
+PER_SEED = {
+    "scene": Text(),
+    "method": Text(),
+    "ablation": Text(),
+    "seed": Number(0, MAX_SEED, integer=True),
+    "final_psnr": PSNR,
+    "mean_psnr": PSNR,
+    "flat_steps": Optional(Number(0.0, 1.0, null=True)),  # not in the oldest files
+}
 
 
 def entry_labels(overrides: list[str]) -> dict[tuple[str, str], str]:
@@ -140,7 +153,7 @@ def per_seed(
     )
     rows = []
     for _, run in final[final["scene"].isin(scenes) & final["seed"].isin(seeds) & mine].iterrows():
-        steps = [json.loads(line) for line in (Path(run["directory"]) / "steps.jsonl").read_text().splitlines()]
+        steps = load_run(Path(run["directory"]))[1]
         agreement = [s["rank_agreement"] for s in steps if "rank_agreement" in s]
         rows.append(
             {
@@ -337,9 +350,8 @@ def summarize(
     atomic_write_text(files[1], details.to_csv(index=False))
     atomic_write_text(files[2], runs.to_csv(index=False))
     text = markdown(label, details, runs)
-    if plain is not None and (plain / "per_seed.csv").is_file():
-        base = pd.read_csv(plain / "per_seed.csv")
-        base["flat_steps"] = base["flat_steps"] if "flat_steps" in base else math.nan
+    base = read_csv(plain / "per_seed.csv", PER_SEED) if plain is not None else None
+    if plain is not None and base is not None:
         changes = against_plain(runs, base, [e for e, entry_label in labels.items() if entry_label == labels[NVF]])
         files.append(out / "against_plain.csv")
         atomic_write_text(files[-1], changes.to_csv(index=False))
@@ -375,10 +387,14 @@ def main(argv: list[str]) -> int:
         fail(f"--jobs {args.jobs} must be >= 1")
     cfg = compose_run(args.overrides)
     budget = config_label(cfg.composed)
-    label = args.label or budget
+    try:
+        label = check_key("--label", args.label, "option") if args.label is not None else budget
+    except ValueError as err:
+        fail(str(err))
     labels = entry_labels(args.overrides)
     reuse = None if str(args.reuse) == "none" else args.reuse
-    out = Path(cfg.paths.results) / "pilots" / "discriminate" / label
+    results = Path(cfg.paths.results)
+    out = results / "pilots" / "discriminate" / label
     outputs = Path(cfg.paths.outputs) if args.summarize_only else out / "runs"
     roots = [outputs] + ([reuse] if reuse is not None and reuse.resolve() != outputs.resolve() else [])
     if not args.summarize_only:
@@ -389,7 +405,7 @@ def main(argv: list[str]) -> int:
                     find_asset(cfg_scene, Path(cfg.paths.assets))
             except SceneError as err:
                 fail(str(err))
-        out.mkdir(parents=True, exist_ok=True)
+        make_directory(results, out)
         plain = cfg.budget.name
         entries = [
             (scene, entry)
@@ -408,4 +424,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))
+    run_command(main, sys.argv[1:])

@@ -40,7 +40,7 @@ from nvf.cameras import look_at
 from nvf.model import SceneModel
 from nvf.training import Observations
 from nvf.uncertainty import ViewScorer
-from pipeline.cli import ArgumentParser, description, fail
+from pipeline.cli import ArgumentParser, BadInput, description, fail, run_command
 from pipeline.config.catalog import ablation_configs, method_configs
 from pipeline.config.method import build_method
 from pipeline.config.named import config_label
@@ -121,7 +121,7 @@ def least_seen_view(eval_poses: Float[Tensor, "e 4 4"], train_poses: Float[Tenso
     return int((eval_forward @ train_forward.T).max(dim=1).values.argmin())
 
 
-class ArgumentError(ValueError):
+class ArgumentError(BadInput, ValueError):
     """A command-line argument the experiment cannot use (``--entries``, ``--seeds``, a ``seed=`` override)."""
 
 
@@ -339,4 +339,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))
+    run_command(main, sys.argv[1:])

@@ -21,13 +21,17 @@ the sources ``head`` and ``labels``, plus ``nvf.entropy.visibility_source`` when
 
 Writes ``${paths.results}/pilots/visibility_study/<setting>/``: ``decisions.jsonl`` (a row per scene, seed,
 step and set; a killed study resumes after its last complete row), ``<scene>_diagnostic.json``,
-``command.txt`` (every command that wrote into the folder, one per line); then ``summary.csv`` and
-``surface.csv`` of the whole study (``pipeline.experiments.visibility_summary``). Torch runs with ``--threads`` threads
-(default 1: two studies side by side on 2 cores).
+``command.txt`` (every command that wrote into the folder, one per line), ``setting.json`` (the setting's
+overrides: a folder takes no other set, so give other overrides another ``--setting``); then ``summary.csv`` and
+``surface.csv`` of the whole study (``pipeline.experiments.visibility_summary``). Torch runs with ``--threads``
+threads (default 1: two studies side by side on 2 cores). Before any work, every seed must be one a run can
+have, every step one the records hold, and the folder's files must read back
+(``pipeline.experiments.visibility_summary.DECISION``; never through a symbolic link).
 """
 
 import dataclasses
 import json
+import os
 import shlex
 import sys
 import time
@@ -43,17 +47,19 @@ from nvf.seeding import generator_factory, seeded_generator
 from nvf.training import Observations, train_model
 from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
 from pipeline.bench.visibility import visibility_report
-from pipeline.cli import ArgumentParser, description, fail
+from pipeline.cli import ArgumentParser, description, fail, run_command
 from pipeline.config.typed import Run
 from pipeline.config.validation import compose_run, resolve_device
 from pipeline.episode.evaluation import render_view
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.experiments.options import SEEDS, name_list, seed_list, step_list
-from pipeline.experiments.visibility_summary import STUDY, write_summary, write_surface
+from pipeline.experiments.visibility_summary import DECISION, DIAGNOSTIC, SETTING, STUDY, write_summary, write_surface
 from pipeline.metrics.image import LpipsMetric, psnr
 from pipeline.metrics.ranking import render_for_terms, spearman, term_attribution, ties_at_max, view_terms
-from pipeline.records.store import atomic_write_text, run_dir
+from pipeline.records.checked import MAX_FILE_BYTES, read_json, read_json_lines
+from pipeline.records.files import append_plain_file, make_directory, read_plain_file
+from pipeline.records.store import atomic_write_text, check_key, check_seed, dumps, run_dir
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.loading import load_scene
 from pipeline.scenes.scene import SceneError
@@ -63,13 +69,16 @@ SCENES = ("hotdog", "hubble", "default")
 STEPS = (0, 3, 6, 9, 12, 15, 18)
 
 
-def recorded_rows(records: Path, scene: str, seed: int, budget: str) -> list[dict]:
-    """The step rows of the recorded NVF episode (verified, ``pipeline.records.verify``)."""
+def recorded_rows(records: Path, scene: str, seed: int, budget: str, steps: list[int]) -> list[dict]:
+    """The step rows of the recorded NVF episode (verified, ``pipeline.records.verify``), which must hold every
+    step of ``steps``."""
     directory = run_dir(records, scene, "nvf", "argmax", "none", budget, seed)
     try:
         _, rows = load_run(directory)
     except (ValueError, OSError) as err:
         fail(f"no usable NVF record for scene {scene}, seed {seed}: {err}; pass --records DIR holding it")
+    if max(steps) >= len(rows):
+        fail(f"--steps {max(steps)}: the record {directory} holds steps 0 to {len(rows) - 1}; measure those")
     return rows
 
 
@@ -185,19 +194,16 @@ class Decisions:
 
     def __init__(self, path: Path):
         self.path = path
-        text = path.read_text() if path.is_file() else ""
-        complete = text[: text.rfind("\n") + 1]
-        if complete != text:
-            atomic_write_text(path, complete)
-        self.rows = [json.loads(line) for line in complete.splitlines()]
+        self.rows, whole = read_json_lines(path, DECISION)
+        if os.path.lexists(path) and os.lstat(path).st_size != whole:
+            atomic_write_text(path, "".join(dumps(row) + "\n" for row in self.rows))
 
     def done(self, scene: str, seed: int, step: int) -> bool:
         return any((r["scene"], r["seed"], r["step"]) == (scene, seed, step) for r in self.rows)
 
     def add(self, rows: list[dict]) -> None:
         self.rows.extend(rows)
-        with self.path.open("a", encoding="utf-8") as file:
-            file.write("".join(json.dumps(r) + "\n" for r in rows))
+        append_plain_file(self.path, "".join(dumps(r) + "\n" for r in rows).encode(), "the study's decisions file")
 
 
 def study_scene(
@@ -218,7 +224,7 @@ def study_scene(
         todo = [k for k in steps if not decisions.done(scene_name, seed, k)]
         if not todo:
             continue
-        rows = recorded_rows(records, scene_name, seed, run.budget.name)
+        rows = recorded_rows(records, scene_name, seed, run.budget.name, steps)
         seeded = compose_run([f"scene={scene_name}", f"seed={seed}", *overrides])
         episode = Episode(EpisodeSettings.of(seeded, scene), scene, resolve_device(seeded.device), lpips)
         try:
@@ -254,6 +260,11 @@ def study_scene(
             episode.close()
 
 
+def settings_of(overrides: list[str]) -> list[str]:
+    """A study's overrides as settings, sorted, without ``paths.*`` (where files are, not what is measured)."""
+    return sorted(o for o in overrides if not o.startswith("paths."))
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = ArgumentParser(prog="python -m pipeline.experiments.visibility_study", description=description(__doc__))
     parser.add_argument(
@@ -269,17 +280,32 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--records", type=Path, default=Path("results/runs"), help="where the NVF records are")
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
     args = parser.parse_intermixed_args(sys.argv[1:] if argv is None else argv)
-    if not args.setting.replace("_", "").replace("-", "").replace(".", "").isalnum():
-        parser.error(f"--setting={args.setting!r}: use letters, digits, '.', '_' and '-'")
-    seeds, steps = list(args.seeds), list(args.steps)
+    try:
+        check_key("--setting", args.setting, "option")
+        seeds = [check_seed(seed) for seed in args.seeds]
+    except ValueError as err:
+        parser.error(str(err))
+    steps = list(args.steps)
     if args.sets < 1 or args.threads < 1:
         parser.error("--sets and --threads must be >= 1")
     torch.set_num_threads(args.threads)
     cfg = compose_run(args.overrides)
-    out = Path(cfg.paths.results) / "pilots" / STUDY / args.setting
-    out.mkdir(parents=True, exist_ok=True)
+    scenes = list(args.scenes)
+    for scene in scenes:  # a bad scene, seed or step is one line now, not after the diagnostics' minutes
+        for seed in seeds:
+            recorded_rows(args.records, scene, seed, cfg.budget.name, steps)
+    results = Path(cfg.paths.results)
+    out = make_directory(results, results / "pilots" / STUDY / args.setting)
+    made = read_json(out / "setting.json", SETTING)
+    if made is not None and settings_of(made.get("overrides", [])) != settings_of(args.overrides):
+        fail(
+            f"--setting {args.setting}: {out} holds a study made with the overrides {made.get('overrides', [])}, not "
+            f"{args.overrides}; give these overrides their own --setting"
+        )
+    decisions = Decisions(out / "decisions.jsonl")
+    measured = {scene: read_json(out / f"{scene}_diagnostic.json", DIAGNOSTIC) is not None for scene in scenes}
     command = ["python", "-m", "pipeline.experiments.visibility_study", *(sys.argv[1:] if argv is None else argv)]
-    commands = (out / "command.txt").read_text().splitlines() if (out / "command.txt").is_file() else []
+    commands = (read_plain_file(out / "command.txt", MAX_FILE_BYTES) or b"").decode("utf-8", "replace").splitlines()
     atomic_write_text(out / "command.txt", "\n".join(dict.fromkeys([*commands, shlex.join(command)])) + "\n")
     entropy, train = cfg.nvf.entropy, cfg.train
     setting = {
@@ -290,17 +316,16 @@ def main(argv: list[str] | None = None) -> None:
         "label_margin": train.label_margin,
         "budget": cfg.budget.name,
     }
-    atomic_write_text(out / "setting.json", json.dumps(setting, indent=2) + "\n")
-    decisions = Decisions(out / "decisions.jsonl")
-    for scene in args.scenes:
+    if made is None:
+        atomic_write_text(out / "setting.json", json.dumps(setting, indent=2) + "\n")
+    for scene in scenes:
         scene_cfg = compose_run([f"scene={scene}", *args.overrides])
-        diagnostic = out / f"{scene}_diagnostic.json"
-        if not diagnostic.is_file():
+        if not measured[scene]:
             sources = ["head", "labels"] + (["mesh"] if scene_cfg.nvf.entropy.visibility_source == "mesh" else [])
             report = visibility_report(
                 compose_run([f"scene={scene}", "planner.num_candidates=64", *args.overrides]), 3, sources
             )
-            atomic_write_text(diagnostic, json.dumps(report, indent=2) + "\n")
+            atomic_write_text(out / f"{scene}_diagnostic.json", json.dumps(report, indent=2) + "\n")
         try:
             study_scene(scene_cfg, args.overrides, seeds, steps, args.sets, args.records, decisions)
         except SceneError as err:
@@ -310,4 +335,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    run_command(main, sys.argv[1:])

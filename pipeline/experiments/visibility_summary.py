@@ -17,22 +17,28 @@ several candidates share: a pick by draw order).
 (``vis_area``: the area-weighted share of the surface the training views see, PROTOCOL's Vis. by area), per
 scene and step the mean over seeds and NVF minus w/o Vis. paired over seeds with its 95% interval.
 
-``python -m pipeline.experiments.visibility_summary [paths.results=DIR] [--records DIR]`` rewrites both.
+``python -m pipeline.experiments.visibility_summary [paths.results=DIR] [--records DIR]`` rewrites both. The
+study's files are read back checked (``pipeline.records.checked``: ``SETTING``, ``DECISION``, ``DIAGNOSTIC``, and
+the discrimination experiment's ``PER_SEED`` columns): one that fails is one ``error:`` line naming the file, the
+line and the key, and nothing is written.
 """
 
 import collections
-import json
 import math
+import os
 import sys
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from pipeline.cli import ArgumentParser, description
+from pipeline.cli import ArgumentParser, description, run_command
 from pipeline.config.named import config_label
 from pipeline.config.validation import compose_run
-from pipeline.records.store import atomic_write_text
+from pipeline.records.checked import Each, Entries, Number, Optional, Text, read_csv, read_json, read_json_lines
+from pipeline.records.files import escaping_link, make_directory
+from pipeline.records.store import MAX_SEED, atomic_write_text
+from pipeline.records.verify import MAX_HORIZON
 from pipeline.tables.load import collect_runs
 from pipeline.tables.stats import Interval, paired
 
@@ -63,14 +69,35 @@ SURFACE_COLUMNS = (
 )  # fmt: skip
 
 
+# what the summary and the study read of the study's files (the other keys are kept, not read)
+SETTING = {
+    "name": Text(),
+    "overrides": Optional(Each(Text())),
+    "visibility_source": Optional(Text()),
+    "budget": Optional(Text()),
+}
+COUNT = Number(0, 2**31, integer=True)
+DECISION = {
+    "scene": Text(),
+    "seed": Number(0, MAX_SEED, integer=True),
+    "step": Number(0, MAX_HORIZON, integer=True),
+    "set": COUNT,
+    "spearman": Number(-1.0, 1.0, null=True),
+    "same_argmax": bool,
+    "ties_at_max": {"nvf": COUNT, "wo_vis": COUNT},
+    "terms": {"nvf": {"decisive": Text(null=True), "terms": {"unknown": {"share": Number(null=True)}}}},
+    "gain": Optional(Number(-100.0, 100.0)),  # dB
+}
+DIAGNOSTIC = {"sources": Optional(Entries({"auc_mean": Optional(Number(0.0, 1.0, null=True))}))}
+PER_SEED = {"scene": Text(), "method": Text(), "ablation": Text(), "minutes": Number(0.0)}
+
+
 def _rows(folder: Path) -> list[dict]:
-    path = folder / "decisions.jsonl"
-    return [json.loads(line) for line in path.read_text().splitlines()] if path.is_file() else []
+    return read_json_lines(folder / "decisions.jsonl", DECISION)[0]
 
 
 def _diagnostic(folder: Path, scene: str) -> dict:
-    path = folder / f"{scene}_diagnostic.json"
-    return json.loads(path.read_text()) if path.is_file() else {}
+    return read_json(folder / f"{scene}_diagnostic.json", DIAGNOSTIC) or {}
 
 
 def _mean(values: list) -> float:
@@ -84,10 +111,9 @@ def episode_minutes(study: Path, setting: dict) -> dict[str, float]:
     ``pipeline.experiments.discriminate``), or {} where it has none."""
     overrides = [o for o in setting.get("overrides", []) if not o.startswith("paths.")]
     label = config_label(compose_run([f"budget={setting.get('budget', 'cpu')}", *overrides]).composed)
-    path = study.parent / "discriminate" / label / "per_seed.csv"
-    if not path.is_file():
+    runs = read_csv(study.parent / "discriminate" / label / "per_seed.csv", PER_SEED)
+    if runs is None:
         return {}
-    runs = pd.read_csv(path)
     runs = runs[(runs["method"] == "nvf") & runs["ablation"].isin(["none", "wo_vis"])]
     minutes = {str(scene): float(m) for scene, m in runs.groupby("scene")["minutes"].mean().items()}
     return minutes | ({ALL_SCENES: float(runs["minutes"].mean())} if len(runs) else {})
@@ -123,8 +149,9 @@ def setting_row(setting: dict, scene: str, rows: list[dict], diagnostics: list[d
 def summary_frame(study: Path) -> pd.DataFrame:
     """Every setting folder under ``study``: a row per scene and one over all its scenes."""
     out = []
-    for folder in sorted(p for p in study.iterdir() if p.is_dir() and (p / "setting.json").is_file()):
-        setting = json.loads((folder / "setting.json").read_text())
+    folders = [p for p in study.iterdir() if p.is_dir() and escaping_link(study, p) is None]
+    for folder in sorted(p for p in folders if os.path.lexists(p / "setting.json")):
+        setting = read_json(folder / "setting.json", SETTING)
         setting["minutes_per_episode"] = episode_minutes(study, setting)
         rows = _rows(folder)
         scenes = list(dict.fromkeys(r["scene"] for r in rows))
@@ -178,11 +205,11 @@ def main(argv: list[str]) -> None:
     parser.add_argument("overrides", nargs="*", help="config overrides, e.g. paths.results=results")
     parser.add_argument("--records", type=Path, default=Path("results/runs"), help="where the finished records are")
     args = parser.parse_intermixed_args(argv)
-    study = Path(compose_run(args.overrides).paths.results) / "pilots" / STUDY
-    study.mkdir(parents=True, exist_ok=True)
+    results = Path(compose_run(args.overrides).paths.results)
+    study = make_directory(results, results / "pilots" / STUDY)
     for path in (write_summary(study), write_surface(study, args.records)):
         print(f"wrote {path}")
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    run_command(main, sys.argv[1:])

@@ -1,6 +1,6 @@
 """The benchmark's metrics as data (PROTOCOL.md 4): name, table label, better direction, whether the
-paper reports it, table decimals and the definition written into every run record. No heavy
-imports, so table generation stays cheap."""
+paper reports it, table decimals, the definition written into every run record and the range its values
+lie in (records are checked against it when read). No heavy imports, so table generation stays cheap."""
 
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -10,7 +10,8 @@ from types import MappingProxyType
 @dataclass(frozen=True)
 class MetricInfo:
     """How a metric is shown in tables: ``label``, whether higher values are better, whether it is one
-    of the paper's eight columns, the decimals of a table cell; ``definition`` for run records."""
+    of the paper's eight columns, the decimals of a table cell; ``definition`` for run records; ``bounds``,
+    the closed range every value lies in (``pipeline.records.verify`` refuses a record with one outside)."""
 
     name: str
     label: str
@@ -18,14 +19,19 @@ class MetricInfo:
     paper: bool
     decimals: int
     definition: str
+    bounds: tuple[float, float]
 
     @property
     def arrow(self) -> str:
         return "↑" if self.higher_is_better else "↓"
 
 
+MAX_DISTANCE = 1000.0  # scene units: every scene spans less than 20 (PROTOCOL 2)
+UNIT = (0.0, 1.0)
+CORRELATION = (-1.0, 1.0)
+
 _ALL = (
-    # name, label, higher is better, in the paper's tables, decimals, definition
+    # name, label, higher is better, in the paper's tables, decimals, definition, bounds
     MetricInfo(
         "psnr",
         "PSNR",
@@ -33,6 +39,7 @@ _ALL = (
         True,
         2,
         "10 log10(1 / RGB), RGB the MSE pooled over the 20 evaluation views (PROTOCOL 4.1)",
+        (0.0, 100.0),  # dB: the MSE of images in [0, 1] is at most 1; 100 dB is an MSE of 1e-10
     ),
     MetricInfo(
         "ssim",
@@ -41,6 +48,7 @@ _ALL = (
         True,
         3,
         "Gaussian 11x11 window, sigma 1.5, 5-pixel border dropped, mean over views (PROTOCOL 4.1)",
+        CORRELATION,
     ),
     MetricInfo(
         "lpips",
@@ -49,6 +57,7 @@ _ALL = (
         True,
         3,
         "AlexNet v0.1 linear heads, inputs in [-1, 1], mean over views; null without weights (PROTOCOL 4.1)",
+        (0.0, 2.0),  # unrelated images are about 1 apart
     ),
     MetricInfo(
         "rgb",
@@ -57,6 +66,7 @@ _ALL = (
         True,
         4,
         "MSE pooled over all evaluation pixels and channels, black background (PROTOCOL 4.1)",
+        UNIT,
     ),
     MetricInfo(
         "acc",
@@ -65,6 +75,7 @@ _ALL = (
         True,
         4,
         "mean distance reconstructed -> nearest GT point; null if nothing is reconstructed (PROTOCOL 4.2)",
+        (0.0, MAX_DISTANCE),
     ),
     MetricInfo(
         "comp",
@@ -73,6 +84,7 @@ _ALL = (
         True,
         4,
         "mean distance GT point -> nearest reconstructed point; null for an empty reconstruction",
+        (0.0, MAX_DISTANCE),
     ),
     MetricInfo(
         "cr",
@@ -81,6 +93,7 @@ _ALL = (
         True,
         3,
         "fraction of GT points within the scene's C.R. threshold of a reconstructed point (PROTOCOL 4.2)",
+        UNIT,
     ),
     MetricInfo(
         "vis",
@@ -89,9 +102,16 @@ _ALL = (
         True,
         3,
         "seen GT faces / all GT faces over the observed poses, a face count (PROTOCOL 4.3)",
+        UNIT,
     ),
     MetricInfo(
-        "vis_area", "Vis. (area)", True, False, 3, "area-weighted fraction of seen GT faces (logged, not reported)"
+        "vis_area",
+        "Vis. (area)",
+        True,
+        False,
+        3,
+        "area-weighted fraction of seen GT faces (logged, not reported)",
+        UNIT,
     ),
     MetricInfo(
         "patch_pearson",
@@ -100,9 +120,16 @@ _ALL = (
         False,
         3,
         "Pearson r of 32x32-patch means of error and uncertainty (PROTOCOL 4.4)",
+        CORRELATION,
     ),
     MetricInfo(
-        "view_pearson", "View r", True, False, 3, "Pearson r of per-view sums of error and uncertainty (PROTOCOL 4.4)"
+        "view_pearson",
+        "View r",
+        True,
+        False,
+        3,
+        "Pearson r of per-view sums of error and uncertainty (PROTOCOL 4.4)",
+        CORRELATION,
     ),
     MetricInfo(
         "ause",
@@ -111,6 +138,7 @@ _ALL = (
         False,
         4,
         "area under the sparsification error curve minus the oracle's; 0 is a perfect ranking (an addition)",
+        (0.0, 3.0),  # a mean of per-pixel errors, each a sum over 3 channels in [0, 1]
     ),
 )
 METRICS: Mapping[str, MetricInfo] = MappingProxyType({m.name: m for m in _ALL})

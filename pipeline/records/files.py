@@ -4,6 +4,12 @@ opened without following a link at all (``O_NOFOLLOW``), so a link planted in a 
 results folder can neither redirect a write nor feed a read from elsewhere. A link that stays inside its
 root (a run folder linked from another place under ``paths.outputs``) is followed as usual.
 
+``O_NOFOLLOW`` is not enough for a file written in place (a lock file, an appended log): a hard link is
+not a link to anything, it is the file itself under a second name, possibly outside the folder, and
+writing through it changes the file under that name too. Such a file is opened only when it has no
+other name (``open_in_place``); every other file is written to a new temp file and renamed over its name
+(``pipeline.records.store.atomic_write_bytes``), which never writes into an existing file.
+
 Every problem raises ``RecordError``: one line naming the path and what to do.
 """
 
@@ -11,8 +17,10 @@ import os
 import stat
 from pathlib import Path
 
+from pipeline.cli import BadInput
 
-class RecordError(ValueError):
+
+class RecordError(BadInput, ValueError):
     """A run record that fails a check; the message is one line naming the file and the problem."""
 
 
@@ -85,6 +93,35 @@ def is_plain_file(path: Path) -> bool:
         return stat.S_ISREG(os.lstat(path).st_mode)
     except OSError:
         return False
+
+
+def open_in_place(path: Path, flags: int, what: str) -> int:
+    """A descriptor of the regular file ``path`` (``what`` it is; created with ``os.O_CREAT`` in ``flags``)
+    opened for writing in place, without following a symbolic link; ``RecordError`` when it is a link, not a
+    regular file, or has another name too (a hard link: ``st_nlink`` > 1), before anything is written."""
+    try:
+        fd = os.open(path, flags | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC, 0o666)
+    except OSError as err:
+        kind = "a symbolic link" if os.path.islink(path) else err.strerror
+        raise RecordError(f"{path}: {kind}, not {what}; remove it and run again") from None
+    status = os.fstat(fd)
+    problem = None if stat.S_ISREG(status.st_mode) else "not a regular file"
+    if problem is None and status.st_nlink > 1:
+        problem = f"a file with {status.st_nlink - 1} other name(s) (a hard link), which a write would change too"
+    if problem is not None:
+        os.close(fd)
+        raise RecordError(f"{path}: {problem}, so not {what}; remove it and run again")
+    return fd
+
+
+def append_plain_file(path: Path, data: bytes, what: str) -> None:
+    """Append ``data`` to the regular file ``path`` (``what`` it is; created if missing) in one write
+    (``open_in_place``)."""
+    fd = open_in_place(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, what)
+    try:
+        os.write(fd, data)
+    finally:
+        os.close(fd)
 
 
 def read_plain_file(path: Path, limit: int) -> bytes | None:

@@ -9,23 +9,24 @@ leaves no run directory behind. It is opened with ``O_NOFOLLOW`` (a symbolic lin
 never followed) and never removed, nor is any directory: every writer of a run locks the same file, so
 there is no moment at which two processes hold locks on two different files (removing the lock file or
 its directory on release let a second writer lock a file a third had just replaced). On release the
-holder empties it.
+holder empties it. A lock file with another name (a hard link) is refused before it is written
+(``pipeline.records.files.open_in_place``).
 """
 
 import fcntl
 import os
 import socket
-import stat
 from pathlib import Path
 from types import TracebackType
 
-from pipeline.records.files import RecordError, check_directory, make_directory, refuse_escaping_entries
+from pipeline.cli import BadInput
+from pipeline.records.files import check_directory, make_directory, open_in_place, refuse_escaping_entries
 from pipeline.records.store import utc_now
 
 LOCK_DIRECTORY = ".locks"
 
 
-class RunLocked(RuntimeError):
+class RunLocked(BadInput, RuntimeError):
     """Another process holds the run's lock; the message is one line naming it."""
 
 
@@ -41,7 +42,7 @@ class RunLock:
     """``with RunLock(directory, root):`` holds the lock of the run directory ``directory`` below ``root``
     (``paths.outputs``). ``RecordError`` when a component of the run directory or of its lock file, or an
     entry of the run directory, is a symbolic link leaving ``root``, a file stands where a directory
-    belongs, or the lock file is not a regular file."""
+    belongs, or the lock file is not a regular file of its own (a link, a hard link)."""
 
     def __init__(self, directory: Path, root: Path):
         self.directory = Path(directory)
@@ -54,15 +55,7 @@ class RunLock:
         if self.directory.is_dir():
             refuse_escaping_entries(self.root, self.directory)  # images/, a record file: never written through
         make_directory(self.root, self.path.parent)
-        flags = os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC
-        try:
-            fd = os.open(self.path, flags, 0o666)
-        except OSError as err:
-            kind = "a symbolic link" if self.path.is_symlink() else err.strerror
-            raise RecordError(f"{self.path}: {kind}, not the run's lock file; remove it and run again") from None
-        if not stat.S_ISREG(os.fstat(fd).st_mode):
-            os.close(fd)
-            raise RecordError(f"{self.path}: not a regular file, so not the run's lock file; remove it and run again")
+        fd = open_in_place(self.path, os.O_RDWR | os.O_CREAT, "the run's lock file")
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:

@@ -58,15 +58,15 @@ PACKAGES = (
 METRIC_DEFINITIONS = MappingProxyType({m.name: m.definition for m in METRICS.values()})
 
 
-def check_key(name: str, value: object) -> str:
+def check_key(name: str, value: object, kind: str = "run key") -> str:
     """Return ``value`` if it is a safe single path component of at most ``KEY_MAX_LENGTH`` characters,
-    else raise ValueError naming the key."""
+    else raise ValueError naming the key (``kind``: what ``name`` is, e.g. an ``option`` on the command line)."""
     if not isinstance(value, str) or not KEY_PATTERN.fullmatch(value) or value in (".", ".."):
         shown = value if not isinstance(value, str) or len(value) <= KEY_MAX_LENGTH else f"{value[:KEY_MAX_LENGTH]}..."
-        raise ValueError(f"run key {name}={shown!r} is not a plain name: use letters, digits, '_', '.', '-'")
+        raise ValueError(f"{kind} {name}={shown!r} is not a plain name: use letters, digits, '_', '.', '-'")
     if len(value) > KEY_MAX_LENGTH:
         raise ValueError(
-            f"run key {name}={value[:KEY_MAX_LENGTH]!r}... has {len(value)} characters, more than {KEY_MAX_LENGTH}"
+            f"{kind} {name}={value[:KEY_MAX_LENGTH]!r}... has {len(value)} characters, more than {KEY_MAX_LENGTH}"
         )
     return value
 

@@ -12,11 +12,17 @@ them is one the code can use. Records are untrusted input (copied between machin
   never adopted without a run.json (steps.jsonl, DONE or FAILED alone: the settings they were made
   with are unknown).
 - steps.jsonl holds steps 0, 1, ... in order, each row ``ok`` with its ``metrics`` object (names to
-  numbers or null), ``n_views`` and a ``selected_pose`` of 7 finite numbers (what a resumed run replays).
+  numbers or null, each metric within its ``pipeline.metrics.info`` bounds, counts whole and >= 0),
+  ``n_views`` and a ``selected_pose`` (what a resumed run replays and the tables draw): a unit quaternion
+  (within ``QUATERNION_TOLERANCE``) and a position inside the record's camera box (``config.scene.
+  camera_box``) widened by ``BOX_MARGIN`` of its size on each side, or, for records that do not hold the
+  box, within ``MAX_COORDINATE`` of the origin.
 - A finished run (``done``) has one row per step of its horizon (``config.budget.horizon``), and a
   finished or failed record still has the digest run.json took when it ended: ``record_digest`` of
   run.json's content and steps.jsonl. Records that ended before it hold ``steps_digest``, the digest of
-  steps.jsonl alone, and are checked against that; records older still have the checks above only.
+  steps.jsonl alone, and are checked against that; records older still have the checks above only. Which
+  kind a record is comes from its own content: every version that takes a digest writes ``DIGEST_ERA_KEY``
+  into run.json and no earlier one did, so a record holding it and no digest had its digest removed.
 
 A record that fails a check raises ``RecordError``: one line naming the file and the problem.
 """
@@ -26,6 +32,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from pipeline.metrics.info import METRICS
 from pipeline.records.files import is_plain_file, read_plain_file
 from pipeline.records.store import (
     CONTROL,
@@ -46,6 +53,12 @@ from pipeline.records.store import (
 )
 
 POSE_SIZE = 7  # [qx, qy, qz, qw, x, y, z]
+QUATERNION_TOLERANCE = 1e-3  # | |q| - 1 |: poses are recorded from float32 unit quaternions (off by 1e-7)
+BOX_MARGIN = 0.1  # a recorded position may lie this share of the camera box's size outside it
+MAX_COORDINATE = 1000.0  # scene units: a position of a record without its camera box (scenes span less than 20)
+BOUND_TOLERANCE = 1e-6  # a metric may pass its bounds by rounding (a correlation of 1 + 1e-16)
+COUNTS = ("num_points",)  # metrics that count: whole numbers >= 0
+DIGEST_ERA_KEY = "candidate_filters"  # run.json: written by every version that takes a digest, by none before
 MAX_DEPTH = 32  # JSON nesting of run.json or a row (the committed records nest 8 deep)
 MAX_TEXT = 4096  # characters of one text value or key (the committed records' longest text has 109)
 MAX_HORIZON = 1000  # steps of a run: every step rewrites steps.jsonl whole; the paper's horizon is 20
@@ -150,8 +163,64 @@ def typed_problem(info: Mapping) -> str | None:
     return None
 
 
-def row_problem(row: dict) -> str | None:
-    """What makes a step row unusable, or None."""
+def metric_problem(name: str, value: object) -> str | None:
+    """What makes a recorded metric value unusable (not a number or null, outside its bounds), or None."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, NUMBER):
+        return f"has metric {name[:40]!r} = {str(value)[:40]!r}, not a number or null"
+    info = METRICS.get(name)
+    if info is not None:
+        low, high = info.bounds
+        if not low - BOUND_TOLERANCE <= value <= high + BOUND_TOLERANCE:
+            return f"has metric {name} = {value:.6g}, outside its range [{low:g}, {high:g}]"
+    if name in COUNTS and not (isinstance(value, int) and 0 <= value <= INT64):
+        return f"has metric {name} = {value:.6g}, not a count (a whole number >= 0)"
+    return None
+
+
+def camera_box(info: Mapping) -> list[list[float]] | None:
+    """The record's ``config.scene.camera_box`` (rows min, max), or None when it does not hold one."""
+    present, box = _lookup(info, "config.scene.camera_box")
+    return box if present else None
+
+
+def box_problem(box: object) -> str | None:
+    """What makes a recorded camera box unusable (not two corners of 3 numbers, min <= max), or None."""
+    corners = box if isinstance(box, list) and len(box) == 2 else []
+    if (
+        not all(
+            isinstance(c, list) and len(c) == 3 and all(isinstance(v, NUMBER) and not isinstance(v, bool) for v in c)
+            for c in corners
+        )
+        or not corners
+        or not all(low <= high for low, high in zip(*corners, strict=True))
+    ):
+        return f"config.scene.camera_box is {str(box)[:80]}, not two corners [min, max] of 3 numbers"
+    return None
+
+
+def pose_problem(pose: list, box: list[list[float]] | None) -> str | None:
+    """What makes a recorded pose (7 numbers) unusable: a quaternion that is not a unit one, a position outside
+    ``box`` widened by ``BOX_MARGIN`` (or beyond ``MAX_COORDINATE`` without a box); None when it is usable."""
+    norm = math.sqrt(sum(v * v for v in pose[:4]))
+    if abs(norm - 1.0) > QUATERNION_TOLERANCE:
+        return f"has selected_pose with a quaternion of norm {norm:.6g}, not a unit quaternion"
+    if box is None:
+        low, high = [-MAX_COORDINATE] * 3, [MAX_COORDINATE] * 3
+    else:
+        margins = [BOX_MARGIN * (hi - lo) for lo, hi in zip(*box, strict=True)]
+        low = [lo - m for lo, m in zip(box[0], margins, strict=True)]
+        high = [hi + m for hi, m in zip(box[1], margins, strict=True)]
+    if not all(lo <= v <= hi for v, lo, hi in zip(pose[4:], low, high, strict=True)):
+        where = "the scene's camera box" if box is not None else f"{MAX_COORDINATE:g} of the origin"
+        shown = ", ".join(f"{v:.6g}" for v in pose[4:])
+        return f"has selected_pose at ({shown}), not within {where}"
+    return None
+
+
+def row_problem(row: dict, box: list[list[float]] | None = None) -> str | None:
+    """What makes a step row unusable, or None (``box``: the record's camera box, ``camera_box``)."""
     if row.get("status") != "ok":
         return f"has status {str(row.get('status'))[:40]!r}, not 'ok'"
     problem = record_value_problem(row)
@@ -160,13 +229,9 @@ def row_problem(row: dict) -> str | None:
     metrics = row.get("metrics")
     if not isinstance(metrics, dict):
         return "has no metrics object"
-    bad = [
-        name
-        for name, value in metrics.items()
-        if not (value is None or isinstance(value, NUMBER)) or isinstance(value, bool)
-    ]
-    if bad:
-        return f"has metric {bad[0][:40]!r} = {str(metrics[bad[0]])[:40]!r}, not a number or null"
+    problem = next(filter(None, (metric_problem(name, value) for name, value in metrics.items())), None)
+    if problem is not None:
+        return problem
     views = row.get("n_views")
     if not isinstance(views, int) or isinstance(views, bool) or not 1 <= views <= MAX_VIEWS:
         return f"has n_views={str(views)[:40]}, not an integer from 1 to {MAX_VIEWS}"
@@ -175,20 +240,24 @@ def row_problem(row: dict) -> str | None:
         isinstance(v, NUMBER) and not isinstance(v, bool) for v in pose
     ):
         return f"has selected_pose={str(pose)[:80]}, not {POSE_SIZE} finite numbers"
+    problem = pose_problem(pose, box)
+    if problem is not None:
+        return problem
     if not isinstance(row.get("lpips_missing_reason"), OPTIONAL_TEXT):
         return "has an lpips_missing_reason that is not text"
     return None
 
 
-def check_rows(path: Path, rows: list[dict]) -> None:
-    """Steps 0, 1, ... in order, every row usable (``row_problem``); RecordError naming the line."""
+def check_rows(path: Path, rows: list[dict], box: list[list[float]] | None = None) -> None:
+    """Steps 0, 1, ... in order, every row usable (``row_problem`` with the record's camera box ``box``);
+    RecordError naming the line."""
     for index, row in enumerate(rows):
         if row["step"] != index:
             step = row["step"] if abs(row["step"]) < 10**9 else "a huge number"
             raise RecordError(
                 f"{path}: line {index + 1} holds step {step}, expected step {index} (a step is missing or repeated)"
             )
-        problem = row_problem(row)
+        problem = row_problem(row, box)
         if problem is not None:
             raise RecordError(f"{path}: step {index} {problem}")
 
@@ -216,6 +285,10 @@ def check_info(record: RunRecord, info: dict) -> None:
     present, horizon = _lookup(info, "config.budget.horizon")
     if present and not 1 <= horizon <= MAX_HORIZON:
         raise RecordError(f"{record.run_json}: config.budget.horizon is {horizon}, not from 1 to {MAX_HORIZON}")
+    box = camera_box(info)
+    problem = box_problem(box) if box is not None else None
+    if problem is not None:
+        raise RecordError(f"{record.run_json}: {problem}")
 
 
 def _check_digest(record: RunRecord, info: dict) -> None:
@@ -233,6 +306,11 @@ def _check_digest(record: RunRecord, info: dict) -> None:
                 f"{record.directory / STEPS}: differs from the digest run.json took when the run finished "
                 f"({LEGACY_DIGEST_KEY}); the rows were changed afterwards"
             )
+    elif DIGEST_ERA_KEY in info:
+        raise RecordError(
+            f"{record.run_json}: no {DIGEST_KEY}, though the version that wrote it ({DIGEST_ERA_KEY} says so) takes "
+            "one when a run ends; the digest was removed after the run ended: delete the run"
+        )
 
 
 def verified(record: RunRecord) -> tuple[dict, list[dict]]:
@@ -256,7 +334,7 @@ def verified(record: RunRecord) -> tuple[dict, list[dict]]:
             f"{record.steps_path}: {len(rows)} rows, more than the run's horizon of "
             f"{horizon if present else MAX_HORIZON} steps"
         )
-    check_rows(record.steps_path, rows)
+    check_rows(record.steps_path, rows, camera_box(info))
     status = record.status()
     if status == "done":
         if dropped is not None:

@@ -8,9 +8,10 @@ is one line on stderr and exit status 2.
 """
 
 import os
+import sys
 from pathlib import Path
 
-from pipeline.cli import ArgumentParser, description, fail
+from pipeline.cli import ArgumentParser, description, fail, run_command
 from pipeline.config.validation import compose_run
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.ground_truth import open_renderer
@@ -48,4 +49,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_command(main, sys.argv[1:])

@@ -10,8 +10,10 @@ import trimesh
 from jaxtyping import Float
 from torch import Tensor
 
+from pipeline.cli import BadInput
 
-class SceneError(Exception):
+
+class SceneError(BadInput):
     """A scene cannot be built (unknown name, missing, unreadable or degenerate asset); one-line message."""
 
 

@@ -39,7 +39,7 @@ of it (nothing written); 1: writing failed. Errors are one ``error: ...`` line.
 import sys
 from pathlib import Path
 
-from pipeline.cli import ArgumentParser, help_page
+from pipeline.cli import ArgumentParser, help_page, run_command
 from pipeline.config.paths import paths_from_args, unwritable
 from pipeline.records.store import RecordError
 from pipeline.repo import RESULTS
@@ -99,4 +99,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))
+    run_command(main, sys.argv[1:])

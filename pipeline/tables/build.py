@@ -10,6 +10,7 @@ from pipeline.records.store import atomic_write_text
 from pipeline.repo import CONF
 from pipeline.tables.aggregate import GROUP, SPECS, build_table
 from pipeline.tables.compare import paper_comparison
+from pipeline.tables.escape import csv_cell
 from pipeline.tables.figures import curves, file_name, image_grid, safe_name
 from pipeline.tables.load import Runs, collect_runs, load_run
 from pipeline.tables.render import LABEL_HEADERS, render
@@ -18,6 +19,15 @@ from pipeline.tables.summary import run_title
 from pipeline.tables.trajectory import outline_of_config, recorded_scene, trajectory_figure
 
 OUTPUT_DIRECTORIES = ("tables", "figures", "figures/grids", "site", "site/runs")  # under paths.results
+TEXT_COLUMNS = (
+    "scene",
+    "scene_source",
+    "method",
+    "planner",
+    "ablation",
+    "budget",
+    "metric",
+)  # runs.csv's, from records
 
 
 def prepare_outputs(results: Path) -> None:
@@ -69,7 +79,8 @@ def build_tables(
         for _, run in done.drop_duplicates(list(GROUP)).iterrows()
     ]
     written = [results / "runs.csv"]
-    atomic_write_text(written[0], runs.long.to_csv(index=False))
+    text_columns = {column: runs.long[column].map(csv_cell) for column in TEXT_COLUMNS}
+    atomic_write_text(written[0], runs.long.assign(**text_columns).to_csv(index=False))
     tables = {spec.name: build_table(runs, spec) for spec in SPECS}
     texts = {s.name: render(tables[s.name], LABEL_HEADERS.get(s.name, "Method"), s.experiment) for s in SPECS}
     texts["paper_comparison"] = render(paper_comparison(tables, runs), "Method", "table34_nerf_assets")

@@ -1,16 +1,34 @@
 """Record text made safe for the files it goes into. Labels, budget labels, sources and reasons come from run
 records (untrusted input): in a table they are plain text, never markup, and never more than one line.
 
-- ``plain``: one line (control characters and line breaks become spaces); CSV cells and comment lines.
-- ``markdown``: ``plain`` with ``\\``, ``|`` and ``<`` escaped (no cell break, escape or HTML of its own).
+- ``plain``: one line (control characters and line breaks become spaces); comment lines.
+- ``markdown``: ``plain`` with every character that Markdown (CommonMark, GitHub's tables, Python-Markdown)
+  reads as markup escaped: emphasis, code, links and images, cell breaks, HTML, entities, strikethrough, and a
+  block marker (``#``, ``>``, ``-``, ``+``, ``1.``) at its start.
 - ``tex_escape``: LaTeX for plain text (TeX's specials escaped); comment lines take ``plain``.
+- ``csv_cell``: a CSV cell a spreadsheet shows as text: one starting with ``=``, ``+``, ``-``, ``@``, a tab or a
+  carriage return (a formula) gets a leading ``'``, unless it is a number (``-0.5`` stays a number).
 - ``plot_text``: ``plain`` with ``$`` escaped (no matplotlib mathtext).
 """
 
 import re
 
 CONTROL = re.compile(r"[\x00-\x1f\x7f]")
-MARKDOWN_SPECIALS = (("\\", "\\\\"), ("|", "\\|"), ("<", "&lt;"))
+MARKDOWN_SPECIALS = {
+    "\\": "\\\\",
+    "`": "\\`",
+    "*": "\\*",
+    "[": "\\[",
+    "]": "\\]",
+    "|": "\\|",
+    "<": "&lt;",
+    "&": "&amp;",
+    "~": "&#126;",
+}
+WORD_EDGE_UNDERSCORE = re.compile(r"(?<![A-Za-z0-9])_|_(?![A-Za-z0-9])")  # within a word (lego_proxy) it is text
+MARKDOWN_BLOCK_START = re.compile(r"^(\d*)([#>+-]|(?<=\d)[.)])")  # a heading, quote, list item or rule
+FORMULA_START = ("=", "+", "-", "@", "\t", "\r")
+NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?")
 TEX_SPECIALS = (
     ("\\", r"\textbackslash{}"),
     ("&", r"\&"),
@@ -39,22 +57,22 @@ def plain(text: object) -> str:
 
 
 def markdown(text: object) -> str:
-    """``plain(text)`` for a Markdown table cell or line: ``\\``, ``|`` and ``<`` escaped."""
-    out = plain(text)
-    for special, escaped in MARKDOWN_SPECIALS:
-        out = out.replace(special, escaped)
-    return out
+    """``plain(text)`` for a Markdown table cell or line, shown as the text it is (``MARKDOWN_SPECIALS``
+    escaped, and a block marker at its start)."""
+    out = "".join(MARKDOWN_SPECIALS.get(ch, ch) for ch in plain(text))
+    return MARKDOWN_BLOCK_START.sub(r"\1\\\2", WORD_EDGE_UNDERSCORE.sub(r"\\_", out))
 
 
 def tex_escape(text: object) -> str:
-    """LaTeX for ``plain(text)`` (specials escaped, ± ↑ ↓ † as math); '**x**' (a best cell) becomes bold."""
-    text = plain(text)
+    """LaTeX for ``plain(text)``: specials escaped, ± ↑ ↓ † ‡ ≈ § Δ as math."""
     specials = dict(TEX_SPECIALS)
-    bold = text.startswith("**") and "**" in text[2:]
-    if bold:
-        inner, rest = text[2:].split("**", 1)
-        return r"\textbf{" + tex_escape(inner) + "}" + tex_escape(rest)
-    return "".join(specials.get(ch, ch) for ch in text)
+    return "".join(specials.get(ch, ch) for ch in plain(text))
+
+
+def csv_cell(text: object) -> str:
+    """``text`` as a CSV cell a spreadsheet shows as text, not a formula (a leading ``'``; numbers unchanged)."""
+    text = str(text)
+    return f"'{text}" if text.startswith(FORMULA_START) and not NUMBER.fullmatch(text) else text
 
 
 def plot_text(text: object) -> str:

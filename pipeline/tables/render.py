@@ -1,8 +1,9 @@
 """A ``Table`` as Markdown, CSV and LaTeX texts (and an HTML table for the results site): cells 'mean ± std' (bold
 for the best, † where some seeds lack the value), ‡ after the label of a row planned with the mesh's line of
 sight, § after the label of a row whose method the paper does not have, header lines
-and footnotes. Every cell, header line and footnote is escaped for its format (``pipeline.tables.escape``):
-labels, sources and reasons come from run records."""
+and footnotes. The text cells (budget, scene, label), header lines and footnotes are escaped for their format
+(``pipeline.tables.escape``): labels, sources and reasons come from run records. Only the value cells, which
+this module writes from numbers, carry markup (a best value's bold)."""
 
 import html
 import re
@@ -11,7 +12,7 @@ import pandas as pd
 
 from pipeline.metrics.info import PAPER_METRICS
 from pipeline.tables.aggregate import MESH_LOS_MARK, NOT_IN_PAPER_MARK, ORACLE_FLAGS, Table
-from pipeline.tables.escape import markdown, plain, tex_escape
+from pipeline.tables.escape import csv_cell, markdown, plain, tex_escape
 
 TIE_MARK = "≈"
 
@@ -42,9 +43,10 @@ def _versus_nvf(row: pd.Series) -> str:
     return text + (f" (n={int(n)})" if n < row["n"] else "")
 
 
-def _grid(table: Table, label_header: str) -> tuple[list[str], list[list[str]]]:
-    """Column names and Markdown cell texts (csv drops the bold marks, tex converts them); the ΔPSNR column
-    where some row has an NVF row to be compared with."""
+def _grid(table: Table, label_header: str) -> tuple[list[str], list[list[str]], int]:
+    """Column names, cell texts and how many of each row's first cells are text from the records (the others
+    are values: numbers with ``**`` around a best one, which each format converts); the ΔPSNR column where some
+    row has an NVF row to be compared with."""
     keys = (["section"] if "section" in table.rows else []) + (["budget"] if table.rows["budget"].nunique() > 1 else [])
     versus = "psnr_vs_nvf_n" in table.rows and (table.rows["psnr_vs_nvf_n"] > 0).any()
     columns = [key.capitalize() for key in keys] + ["Scene", label_header]
@@ -56,7 +58,7 @@ def _grid(table: Table, label_header: str) -> tuple[list[str], list[list[str]]]:
         line = [str(row[key]) for key in keys] + [row["scene"], label]
         line += [_cell(row, m.name, m.decimals) for m in PAPER_METRICS] + ([_versus_nvf(row)] if versus else [])
         cells.append(line + [str(int(row["n"]))])
-    return columns, cells
+    return columns, cells, len(keys) + 2
 
 
 def markdown_table(columns: list[str], rows: list[list[object]], left: int = 1) -> list[str]:
@@ -81,8 +83,8 @@ def render(table: Table, label_header: str, experiment: str | None) -> dict[str,
             "csv": pd.DataFrame({"note": [message, *map(plain, table.notes)]}).to_csv(index=False),
             "tex": "\n".join([f"% {table.title}", tex_escape(message), *(tex_escape(n) for n in table.notes)]) + "\n",
         }
-    columns, cells = _grid(table, label_header)
-    grid = pd.DataFrame([[markdown(c) for c in line] for line in cells], columns=columns)
+    columns, cells, texts = _grid(table, label_header)
+    grid = pd.DataFrame([[*map(markdown, line[:texts]), *line[texts:]] for line in cells], columns=columns)
     md = [
         f"# {table.title}",
         "",
@@ -92,7 +94,7 @@ def render(table: Table, label_header: str, experiment: str | None) -> dict[str,
         "",
         *(f"- {markdown(n)}" for n in table.notes),
     ]
-    bare = [[plain(c).replace("**", "") for c in line] for line in cells]
+    bare = [[csv_cell(plain(c)) for c in line[:texts]] + [c.replace("**", "") for c in line[texts:]] for line in cells]
     csv = "".join(f"# {plain(line)}\n" for line in (table.title, *table.header))
     csv += pd.DataFrame(bare, columns=columns).to_csv(index=False) + "".join(f"# {plain(n)}\n" for n in table.notes)
     tex = [
@@ -105,7 +107,7 @@ def render(table: Table, label_header: str, experiment: str | None) -> dict[str,
         r"\toprule",
         " & ".join(map(tex_escape, columns)) + r" \\",
         r"\midrule",
-        *(" & ".join(map(tex_escape, line)) + r" \\" for line in cells),
+        *(" & ".join([*map(tex_escape, line[:texts]), *map(_tex_value, line[texts:])]) + r" \\" for line in cells),
         r"\bottomrule",
         r"\end{tabular}",
         *(r"\par{\footnotesize " + tex_escape(n) + "}" for n in table.notes),
@@ -116,17 +118,31 @@ def render(table: Table, label_header: str, experiment: str | None) -> dict[str,
 BOLD = re.compile(r"\*\*(.+?)\*\*")
 
 
-def _html_cell(text: str) -> str:
-    return BOLD.sub(r"<strong>\1</strong>", html.escape(text))
+def _tex_value(cell: str) -> str:
+    """A value cell in LaTeX: its ``**best**`` bold."""
+    return "".join(
+        r"\textbf{" + tex_escape(part) + "}" if i % 2 else tex_escape(part) for i, part in enumerate(BOLD.split(cell))
+    )
+
+
+def _html_value(cell: str) -> str:
+    """A value cell in HTML: its ``**best**`` in ``<strong>``."""
+    return BOLD.sub(r"<strong>\1</strong>", html.escape(cell))
 
 
 def html_table(table: Table, label_header: str) -> str:
     """The table's rows as an HTML ``<table>`` (the Markdown cells; a best value in ``<strong>``)."""
     if table.rows.empty:
         return "<p>No finished runs.</p>"
-    columns, cells = _grid(table, label_header)
+    columns, cells, texts = _grid(table, label_header)
     head = "".join(f"<th>{html.escape(c)}</th>" for c in columns)
-    body = "".join("<tr>" + "".join(f"<td>{_html_cell(c)}</td>" for c in line) + "</tr>" for line in cells)
+    body = "".join(
+        "<tr>"
+        + "".join(f"<td>{html.escape(c)}</td>" for c in line[:texts])
+        + "".join(f"<td>{_html_value(c)}</td>" for c in line[texts:])
+        + "</tr>"
+        for line in cells
+    )
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 

@@ -2,7 +2,9 @@
 network. ``index.html`` is a methods x scenes overview of the final PSNR; one page per scene and budget holds
 its table (paired intervals as in ``tables/all_runs``), its PSNR-over-steps curves per method (mean and 95%
 Student-t band over seeds, the paper's final value marked where it has one) and every run's pictures;
-``pilots.html`` shows the pilots under ``${paths.results}/pilots``. The interactive plots are plotly's, its
+``pilots.html`` shows the pilots under ``${paths.results}/pilots``: their Markdown notes as text (raw HTML in a
+note is shown escaped, never passed through; links only to http(s), mailto and the files beside the note; a note
+that is a symbolic link, or lies behind one leaving the pilots, is not read). The interactive plots are plotly's, its
 JavaScript written once beside the pages (``plotly.min.js``); pictures are linked where they lie (beside the
 run records, in ``pilots/``, or drawn into ``site/runs/`` for records that lack them), not copied, so the site
 works while it stays beside them.
@@ -15,14 +17,18 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 from urllib.parse import quote
+from xml.etree import ElementTree
 
 import markdown
 import numpy as np
 import pandas as pd
 import plotly.graph_objects as go
 from jinja2 import Environment
+from markdown.extensions import Extension
+from markdown.treeprocessors import Treeprocessor
 from plotly.offline import get_plotlyjs
 
+from pipeline.records.files import RecordError, escaping_link, is_plain_file, read_plain_file
 from pipeline.records.store import atomic_write_text
 from pipeline.tables.aggregate import SPECS, Table, build_table
 from pipeline.tables.figures import safe_name
@@ -284,23 +290,72 @@ def _run_card(run: pd.Series, found: RunPictures, page: Path) -> str:
     return "".join(lines) + "</div>"
 
 
-RELATIVE = re.compile(r'(href|src)="(?![a-z]+:|#|/)([^"]+)"')
-HEADING = re.compile(r"<(/?)h([1-6])([ >])")
+MAX_NOTE_BYTES = 1 << 20  # a pilot's Markdown note
+SAFE_SCHEMES = ("http", "https", "mailto")
+SPACE_OR_CONTROL = re.compile(r"[\x00-\x20\x7f]")
+
+
+def safe_url(url: str) -> bool:
+    """Whether a note may link to ``url``: an http(s) or mailto address, or a relative one (no scheme, not from
+    the root); ``javascript:``, ``data:``, ``file:`` and absolute paths are not, nor anything with a space or a
+    control character (which browsers drop, so ``java\tscript:`` would run)."""
+    if SPACE_OR_CONTROL.search(url) or url.startswith(("/", "\\")):
+        return False
+    scheme, colon, _ = url.partition(":")
+    return not colon or any(ch in scheme for ch in "/?#") or scheme.lower() in SAFE_SCHEMES
+
+
+class _NoteLinks(Treeprocessor):
+    """Each link and image of a note kept only where ``safe_url`` allows it, a relative one pointing at the
+    note's folder (``base``: relative to the page), and the note's headings three levels down."""
+
+    def __init__(self, md: markdown.Markdown, base: str):
+        super().__init__(md)
+        self.base = base
+
+    def run(self, root: ElementTree.Element) -> None:
+        for element in root.iter():
+            if re.fullmatch(r"h[1-6]", element.tag):
+                element.tag = f"h{min(6, int(element.tag[1]) + 3)}"
+            for attribute in ("href", "src"):
+                url = element.get(attribute)
+                if url is None or url.startswith("#"):
+                    continue
+                if not safe_url(url):
+                    del element.attrib[attribute]
+                elif ":" not in url.split("/")[0]:
+                    element.set(attribute, f"{self.base}/{url}")
+
+
+class _TextNote(Extension):
+    """A note rendered as text: raw HTML (blocks and inline) is not recognised, so it is escaped like any text."""
+
+    def __init__(self, base: str):
+        super().__init__()
+        self.base = base
+
+    def extendMarkdown(self, md: markdown.Markdown) -> None:
+        md.preprocessors.deregister("html_block")
+        md.inlinePatterns.deregister("html")
+        md.treeprocessors.register(_NoteLinks(md, self.base), "note_links", 0)
 
 
 def _note(path: Path, page: Path) -> str:
-    """A Markdown note as HTML under the page's own headings (its headings three levels down), its
-    relative links pointing at the files beside it."""
-    text = markdown.markdown(path.read_text(encoding="utf-8"), extensions=["tables", "fenced_code"])
-    base = link(path.parent, page)
-    text = RELATIVE.sub(lambda m: f'{m.group(1)}="{base}/{m.group(2)}"', text)
-    return HEADING.sub(lambda m: f"<{m.group(1)}h{min(6, int(m.group(2)) + 3)}{m.group(3)}", text)
+    """A Markdown note as HTML under the page's own headings (``_TextNote``); read only from a regular file (never
+    through a symbolic link, at most ``MAX_NOTE_BYTES``), else one line saying why it is not shown."""
+    try:
+        data = read_plain_file(path, MAX_NOTE_BYTES) or b""
+    except RecordError as err:
+        return f'<p class="note">not shown: {html.escape(str(err))}</p>'
+    text = data.decode("utf-8", "replace")
+    return markdown.markdown(text, extensions=["tables", "fenced_code", _TextNote(link(path.parent, page))])
 
 
 def pilots_page(pilots: Path, page: Path) -> str:
     """Each pilot under ``pilots``: its Markdown notes (README.md, summaries) and pictures, two folders deep
     (the records under them are not listed); links in the notes point at the files beside them."""
     folders = sorted(p for p in pilots.iterdir() if p.is_dir()) if pilots.is_dir() else []
+    folders = [folder for folder in folders if escaping_link(pilots, folder) is None]
     parts = [f"<p>No pilots under {html.escape(str(pilots))}.</p>"] if not folders else []
     if folders:
         items = "".join(f'<li><a href="#{html.escape(f.name)}">{html.escape(f.name)}</a></li>' for f in folders)
@@ -308,12 +363,23 @@ def pilots_page(pilots: Path, page: Path) -> str:
     for folder in folders:
         parts.append(f'<div class="pilot"><h2 id="{html.escape(folder.name)}">{html.escape(folder.name)}</h2>')
         files = sorted(
-            {*folder.glob("*.md"), *folder.glob("*/*.md"), *folder.glob("*.png"), *folder.glob("*/*.png")},
+            (
+                path
+                for path in {
+                    *folder.glob("*.md"),
+                    *folder.glob("*/*.md"),
+                    *folder.glob("*.png"),
+                    *folder.glob("*/*.png"),
+                }
+                if escaping_link(pilots, path.parent) is None
+            ),
             key=lambda p: (p.parent != folder, p.parent.name, p.name != "README.md", p.name),
         )
         for path in files:
             where = path.relative_to(folder).as_posix()
             if path.suffix == ".png":
+                if not is_plain_file(path):
+                    continue
                 parts.append(f'<h3>{html.escape(where)}</h3><img src="{link(path, page)}" alt="{html.escape(where)}">')
                 continue
             parts.append(f"<h3>{html.escape(where)}</h3>{_note(path, page)}")

@@ -7,14 +7,17 @@ from pathlib import Path
 
 import pandas as pd
 
+from pipeline.config.named import NamedConfigs
 from pipeline.metrics.info import PAPER_METRICS
+from pipeline.records.files import is_plain_file
 from pipeline.records.store import atomic_write_text, record_status
+from pipeline.repo import CONF
 from pipeline.tables.escape import markdown
-from pipeline.tables.figures import image_grid, step_curve
+from pipeline.tables.figures import image_grid, step_curve, step_images
 from pipeline.tables.labels import METRIC_KEYS
 from pipeline.tables.load import describe, ground_truth_label, json_object, load_run, metric_value
 from pipeline.tables.paper import paper_numbers
-from pipeline.tables.trajectory import SceneOutline, outline_of_scene, trajectory_figure
+from pipeline.tables.trajectory import SceneOutline, outline_of_config, recorded_scene, trajectory_figure
 
 
 def summarize_run(run_dir: Path) -> Path:
@@ -72,8 +75,23 @@ def run_pictures(run_dir: Path, outline: SceneOutline) -> list[Path]:
     ]
 
 
-def finish_run(run_dir: Path, scene, kind: str) -> None:
+def finish_run(run_dir: Path, outline: SceneOutline) -> None:
     """What a run leaves beside its records once it is done: ``summary.md`` and its pictures (``run_pictures``)
-    over the outline of ``scene`` (the ``pipeline.scenes.scene.Scene`` it observed, of ``kind``)."""
+    over ``outline``, its scene's (``outline_of_scene`` of the scene it observed, or ``recorded_outline``)."""
     summarize_run(run_dir)
-    run_pictures(run_dir, outline_of_scene(scene, kind))
+    run_pictures(run_dir, outline)
+
+
+def missing_pictures(run_dir: Path) -> bool:
+    """Whether a finished run lacks what ``finish_run`` leaves: ``summary.md``, ``psnr.png``, ``trajectory.png``,
+    and ``grid.png`` where it saved images (a run killed after its DONE marker and before its pictures)."""
+    run_dir = Path(run_dir)
+    needed = ["summary.md", "psnr.png", "trajectory.png", *(["grid.png"] if step_images(run_dir) else [])]
+    return not all(is_plain_file(run_dir / name) for name in needed)
+
+
+def recorded_outline(run_dir: Path, assets: Path) -> SceneOutline:
+    """The outline of a finished run's scene as its record describes it (``outline_of_config``; its surface read
+    from the asset under ``assets`` where it is there)."""
+    info, _ = load_run(Path(run_dir))
+    return outline_of_config(recorded_scene(info, NamedConfigs(CONF)), Path(assets))
