@@ -14,11 +14,11 @@ from pipeline.repo import REPO
 COMMANDS = (
     "pipeline/run.py",
     "pipeline/tables/__main__.py",
-    "pipeline/discriminate.py",
-    "pipeline/uncertainty.py",
-    "pipeline/visibility_study.py",
-    "pipeline/visibility_summary.py",
-    "pipeline/budget_curve.py",
+    "pipeline/experiments/discriminate.py",
+    "pipeline/experiments/uncertainty.py",
+    "pipeline/experiments/visibility_study.py",
+    "pipeline/experiments/visibility_summary.py",
+    "pipeline/experiments/budget_curve.py",
     "pipeline/scenes/__main__.py",
     "pipeline/bench/__main__.py",
 )

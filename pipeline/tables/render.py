@@ -62,13 +62,18 @@ def _grid(table: Table, label_header: str) -> tuple[list[str], list[list[str]], 
 
 
 def markdown_table(columns: list[str], rows: list[list[object]], left: int = 1) -> list[str]:
-    """A Markdown table's lines, every cell escaped (``escape.markdown``); the first ``left`` columns aligned
-    left, the others right."""
+    """A Markdown table's lines: the first ``left`` columns hold text (names, labels: escaped, ``escape.markdown``)
+    and are aligned left; the others hold values the code formatted (numbers, intervals: one line, no cell
+    break) and are aligned right."""
     align = ["|", *(":--|" if i < left else "--:|" for i in range(len(columns)))]
+
+    def cell(i: int, value: object) -> str:
+        return markdown(value) if i < left else plain(value).replace("|", "\\|")
+
     return [
         "| " + " | ".join(map(markdown, columns)) + " |",
         "".join(align),
-        *("| " + " | ".join(markdown(cell) for cell in row) + " |" for row in rows),
+        *("| " + " | ".join(cell(i, value) for i, value in enumerate(row)) + " |" for row in rows),
     ]
 
 
