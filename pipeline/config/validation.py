@@ -16,6 +16,7 @@ from hydra.errors import HydraException
 from omegaconf import DictConfig, OmegaConf
 
 from nvf.config import EntropyConfig
+from nvf.device import resolve_device
 from nvf.precision import unsupported_reason
 from nvf.uncertainty import StepScorer
 from pipeline.config.catalog import declared
@@ -88,13 +89,6 @@ _POSITIVE = (
 # samples per camera-to-point segment (M17's train.label_samples, M29's planner.los_samples): the paper takes 200;
 # every sample is a density query per point and camera, so 65536 (300x) already makes one step take hours
 MAX_SEGMENT_SAMPLES = 65536
-
-
-def resolve_device(name: str) -> torch.device:
-    """``auto`` is CUDA when present, else CPU."""
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(name)
 
 
 def _check_ablation(cfg: DictConfig) -> None:
@@ -184,11 +178,10 @@ def check_paths(cfg: DictConfig, keys: tuple[str, ...] = ("paths.outputs",)) -> 
 
 def _check_memory(cfg: DictConfig) -> None:
     """The largest allocation of each size key fits the memory it lives in (``pipeline.config.memory``)."""
-    device = str(cfg.device)
-    cuda = torch.cuda.is_available() and device != "cpu"
+    device = resolve_device(str(cfg.device))
     host = host_memory()
-    if cuda:
-        index = int(device.partition(":")[2] or 0)
+    if device.type == "cuda":
+        index = 0 if device.index is None else device.index
         name = f"cuda:{index} ({torch.cuda.get_device_name(index)})"
         problem = too_large(cfg, host, float(torch.cuda.get_device_properties(index).total_memory), name)
     else:
