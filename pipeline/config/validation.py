@@ -180,7 +180,7 @@ def _check_memory(cfg: DictConfig) -> None:
     """The largest allocation of each size key fits the memory it lives in (``pipeline.config.memory``)."""
     device = resolve_device(str(cfg.device))
     host = host_memory()
-    if device.type == "cuda":
+    if device.type == "cuda" and torch.cuda.is_available():  # a device torch cannot see: _check_device's line
         index = 0 if device.index is None else device.index
         name = f"cuda:{index} ({torch.cuda.get_device_name(index)})"
         problem = too_large(cfg, host, float(torch.cuda.get_device_properties(index).total_memory), name)
