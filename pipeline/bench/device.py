@@ -1,7 +1,7 @@
 """``python -m pipeline.bench device [--out PATH] [overrides]``: the facts of the machine a run would use:
 the device ``device=auto`` picks, torch and CUDA versions, each CUDA device's name, compute capability and
 memory, the precisions it trains natively, ``nvidia-smi``'s view of the GPUs (where it is installed), the
-CPU's cores and memory. Writes ``results/bench/device.json`` (or ``--out``).
+CPU's cores and memory. Writes ``${paths.results}/bench/device.json`` (or ``--out``).
 """
 
 import os
