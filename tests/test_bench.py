@@ -1,6 +1,7 @@
-"""The ``train``, ``plan``, ``episode`` and ``visibility`` benchmarks at ``budget=smoke``: each writes its
-JSON report (``--out``) with the required rates as finite positive numbers, fractions in (0, 1], and
-quality numbers within bounds set below what smoke reaches today (stated where asserted)."""
+"""The ``train``, ``plan``, ``episode``, ``visibility`` and ``paper_shape`` benchmarks at ``budget=smoke`` (and
+``device``'s facts): each writes its JSON report (``--out``) with the required rates as finite positive
+numbers, fractions in (0, 1], and quality numbers within bounds set below what smoke reaches today (stated
+where asserted)."""
 
 import json
 import math
