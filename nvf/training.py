@@ -6,11 +6,12 @@ labels M17-M18). Nothing here prints; callers observe progress through the ``pro
 ``(stage, iteration, total, loss)``, called once per iteration.
 """
 
+import contextlib
 import dataclasses
 import functools
 import math
 import time
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Iterator
 from dataclasses import dataclass
 
 import torch
@@ -427,13 +428,46 @@ def train_variance_head(
     losses are means over their steps.
     """
     _require_images(obs)
-    steps = _steps_per_iteration(cfg, "variance")
     mix_cfg = _variance_mixture_config(cfg, entropy_cfg)
     rec = _Recorder("variance", cfg.variance.iters, progress, cfg.precision, model.aabb.device.type)
     if mix_cfg is None:
         return rec.summary()
-    optimizer = torch.optim.Adam(model.field.parameter_groups()["variance"], lr=cfg.variance.lr, fused=True)
+    trained = model.field.parameter_groups()["variance"]
+    optimizer = torch.optim.Adam(trained, lr=cfg.variance.lr, fused=True)
     batch = RayBatch(cfg, cfg.variance.batch, model.sampler_cfg.max_samples_per_ray)
+    with _only_trained(model, trained):
+        _variance_iterations(model, obs, cfg, mix_cfg, generator, optimizer, batch, rec)
+    return rec.summary()
+
+
+@contextlib.contextmanager
+def _only_trained(model: SceneModel, trained: list[torch.nn.Parameter]) -> Iterator[None]:
+    """Every parameter of ``model`` outside ``trained`` frozen (``requires_grad`` off) for the block: autograd
+    then records only what reaches ``trained``. The variance stage's loss reads the density, colours and
+    visibility detached, so their graphs (the encoding's and the other MLPs') were memory alone: on Room at
+    the paper's sizes 3x stage 1's per sample (results/bench/README.md, "paper_shape.json")."""
+    frozen = [p for p in model.parameters() if p.requires_grad and not any(p is q for q in trained)]
+    for p in frozen:
+        p.requires_grad_(False)
+    try:
+        yield
+    finally:
+        for p in frozen:
+            p.requires_grad_(True)
+
+
+def _variance_iterations(
+    model: SceneModel,
+    obs: Observations,
+    cfg: TrainConfig,
+    mix_cfg: EntropyConfig,
+    generator: torch.Generator,
+    optimizer: torch.optim.Optimizer,
+    batch: RayBatch,
+    rec: _Recorder,
+) -> None:
+    """Stage 2's iterations (``train_variance_head``)."""
+    steps = _steps_per_iteration(cfg, "variance")
     for k in range(cfg.variance.iters):
         values = []
         for _ in range(steps):
@@ -459,7 +493,6 @@ def train_variance_head(
             values.append(rec.check(loss, k))
             rec.step(optimizer, loss)
         rec.end_iteration(k, sum(values) / len(values))
-    return rec.summary()
 
 
 @_in_training_precision

@@ -1,6 +1,7 @@
-"""The ``train``, ``plan``, ``episode`` and ``visibility`` benchmarks at ``budget=smoke``: each writes its
-JSON report (``--out``) with the required rates as finite positive numbers, fractions in (0, 1], and
-quality numbers within bounds set below what smoke reaches today (stated where asserted)."""
+"""The ``train``, ``plan``, ``episode``, ``visibility`` and ``paper_shape`` benchmarks at ``budget=smoke`` (and
+``device``'s facts): each writes its JSON report (``--out``) with the required rates as finite positive
+numbers, fractions in (0, 1], and quality numbers within bounds set below what smoke reaches today (stated
+where asserted)."""
 
 import json
 import math
@@ -15,7 +16,7 @@ import torch
 from nvf.cameras import Intrinsics
 from nvf.training import train_backbone
 from pipeline.bench import __main__ as bench
-from pipeline.bench import episode, field, plan, train, visibility
+from pipeline.bench import device, episode, field, paper_shape, plan, train, visibility
 from pipeline.bench._models import CountingModel, load, observations
 from pipeline.config.catalog import method_configs
 from pipeline.config.validation import compose_run
@@ -244,3 +245,73 @@ def test_visibility_bench_refuses_bad_arguments(argv, says, capsys):
     with pytest.raises(SystemExit) as exit_:
         visibility.main(argv)
     assert exit_.value.code == 2 and says in capsys.readouterr().err
+
+
+def test_paper_shape_measures_every_stage_with_the_sizes_kept(tmp_path):
+    """``paper_shape`` at the smoke budget's sizes: every stage of step 0 with its seconds, its peak resident
+    memory (reset per stage, so no stage reports less than it started with) and the model's prediction; only
+    counts are cut, never a size; the extrapolated episode is positive."""
+    out = tmp_path / "paper_shape.json"
+    counts = [
+        "train.backbone.iters=4",
+        "train.variance.iters=2",
+        "train.visibility.iters=2",
+        "planner.num_candidates=2",
+    ]
+    paper_shape.main(
+        ["--budget", "smoke", "--scenes", "default", "render.backend=pyrender", *counts, "--out", str(out)]
+    )
+    report = json.loads(out.read_text())
+    stages = [row["name"] for row in report["stages"]]
+    assert stages == [
+        "ground_truth", "backbone", "variance", "visibility", "candidates", "planning", "opt", "evaluation",
+        "mesh_metrics",
+    ]  # fmt: skip
+    for row in report["stages"]:
+        assert row["seconds"] > 0 and row["count"] > 0 and row["predicted_gib"] > 0, row
+        assert row["peak_rss_gib"] >= row["rss_before_gib"] > 0, row
+    assert report["sizes"] == {
+        "image_px": 24, "eval_px": 32, "planning_px": 12, "hash_table_log2": 12, "grid": 32, "gt_points": 5000,
+        "recon_points": 2000, "backbone_rays": 256, "variance_rays": 256, "visibility_points": 1024,
+        "label_samples": 16,
+    }  # fmt: skip
+    cut = {row["key"]: (row["budget_value"], row["used"]) for row in report["cuts"]}
+    assert cut["budget.horizon"] == (3, 1) and cut["evaluation views (--eval-views)"] == (20, 4)
+    assert "render.samples" not in cut  # pyrender has no samples to cut
+    assert all(used < value for value, used in cut.values())
+    assert report["extrapolated_episode_hours_cpu"]["default"] > 0 and report["problems"] == {"default": []}
+    assert report["fits_in_memory"] is True
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["--eval-views", "0"], "--eval-views 0: must be 1..20"),
+        (["--scenes", ","], "--scenes: name at least one scene"),
+        (["--scenes", "nowhere"], "nowhere"),
+    ],
+)
+def test_paper_shape_refuses_bad_input_in_one_line(tmp_path, capsys, args, needle):
+    out = tmp_path / "paper_shape.json"
+    with pytest.raises(SystemExit) as exit_:
+        paper_shape.main([*args, "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert exit_.value.code == 2 and err.startswith("error: ") and needle in err and "\n" not in err
+    assert not out.exists()
+
+
+def test_paper_shape_counts_a_paper_episode_from_its_rates(tmp_path):
+    """Units of a 20-step paper episode: the visibility head's labels grow with the training views."""
+    paper = compose_run(["budget=paper"])
+    assert paper_shape.paper_units("backbone", paper, 3) == 20 * 5000
+    assert paper_shape.paper_units("visibility", paper, 3) == 500 * sum(3 + t for t in range(20))
+    assert paper_shape.paper_units("ground_truth", paper, 3) == 3 + 20 + 20
+    assert paper_shape.paper_units("candidates", paper, 3) == 20 * math.floor(1.2 * 512)
+
+
+def test_device_facts_name_the_device_auto_picks(tmp_path):
+    out = tmp_path / "device.json"
+    device.main(["--out", str(out)])
+    report = json.loads(out.read_text())
+    assert report["device_auto"] == ("cuda" if torch.cuda.is_available() else "cpu")
+    assert len(report["cuda_devices"]) == torch.cuda.device_count() and report["memory_gib"] > 0

@@ -1,6 +1,7 @@
 """nvf/training.py: losses (M4, M19-M21, M25, M27), lr schedule, ray sampling and the three stages
 on a tiny analytic scene (a coloured ball rendered by ray-sphere intersection, 16x16 images)."""
 
+import contextlib
 import dataclasses
 import math
 
@@ -272,6 +273,20 @@ def test_variance_stage_nll_decreases(trained):
     assert stats["iters"] == 15 and stats["steps"] == 15
     assert same(frozen, params(model, "backbone") + params(model, "visibility"))
     assert [c[:3] for c in calls] == [("variance", k, 15) for k in range(15)]
+
+
+def test_variance_stage_trains_as_with_every_graph_recorded(trained, monkeypatch):
+    """Freezing the other parameters for stage 2 only spares memory: the variance head ends bit for bit where
+    it ends when autograd records the whole field, the other parameters keep ``requires_grad`` and get no
+    gradient."""
+    model, obs = trained
+    frozen, whole = copy_model(model), copy_model(model)
+    train_variance_head(frozen, obs, tiny_config(), EntropyConfig(), torch.Generator().manual_seed(1))
+    assert all(p.requires_grad for p in frozen.parameters())
+    assert all(p.grad is None for group in ("backbone", "visibility") for p in frozen.field.parameter_groups()[group])
+    monkeypatch.setattr(training, "_only_trained", lambda model, trained: contextlib.nullcontext())
+    train_variance_head(whole, obs, tiny_config(), EntropyConfig(), torch.Generator().manual_seed(1))
+    assert same(params(frozen, "variance"), params(whole, "variance"))
 
 
 def test_visibility_stage_bce_decreases(trained):

@@ -16,6 +16,7 @@ from torch import Tensor
 
 from nvf.cameras import Intrinsics, look_at, matrix_to_pose
 from nvf.config import STAGES, Precision
+from nvf.device import resolve_device
 from nvf.field import FieldOutput
 from nvf.model import RenderResult, SceneModel
 from nvf.planning import candidate_poses
@@ -36,6 +37,7 @@ from pipeline.scenes.render import GroundTruthRenderer
 from pipeline.scenes.scene import Scene, SceneError
 
 HELD_OUT_VIEWS = 5
+CPU = torch.device("cpu")
 
 
 RGB = frozenset({"rgb"})
@@ -93,22 +95,27 @@ def load(cfg: Run) -> Scene:
 
 
 def observations(
-    renderer: Renderer, poses: Float[Tensor, "n 4 4"], intr: Intrinsics, gt_samples: int = 1
+    renderer: Renderer,
+    poses: Float[Tensor, "n 4 4"],
+    intr: Intrinsics,
+    gt_samples: int = 1,
+    device: torch.device = CPU,
 ) -> Observations:
     """Ground-truth RGBA views at ``poses`` (RGB black where the mask is empty), each pixel the mean of
-    ``gt_samples^2`` sub-pixel samples (``render_rgba``; Blender's: 1, Cycles' own samples)."""
+    ``gt_samples^2`` sub-pixel samples (``render_rgba``; Blender's: 1, Cycles' own samples), on ``device``."""
     images = np.stack([renderer.render_rgba(c2w, intr, gt_samples) for c2w in poses])
-    return Observations(torch.from_numpy(images), poses.to(torch.float32), intr)
+    return Observations(torch.from_numpy(images).to(device), poses.to(device, torch.float32), intr)
 
 
 def same_initial_models(
     cfg: Run, scene: Scene, s: EpisodeSettings, names: list[str], model_cls: type[CountingModel]
 ) -> dict[str, CountingModel]:
-    """One fresh model per name, all with the initial weights of ``torch.manual_seed(cfg.seed)``."""
+    """One fresh model per name, all with the initial weights of ``torch.manual_seed(cfg.seed)``, on the
+    run's device (``device``)."""
     models = {}
     for name in names:
         torch.manual_seed(int(cfg.seed))
-        models[name] = model_cls(scene.object_aabb, s.field, s.sampler)
+        models[name] = model_cls(scene.object_aabb, s.field, s.sampler).to(resolve_device(str(cfg.device)))
     return models
 
 
@@ -157,10 +164,12 @@ class InitialViewModel:
         poses = (
             scene.init_poses if extra_poses is None else torch.cat([scene.init_poses, extra_poses.to(scene.init_poses)])
         )
-        obs = observations(renderer, poses, Intrinsics.from_fov(size, size))
+        device = resolve_device(str(cfg.device))
+        obs = observations(renderer, poses, Intrinsics.from_fov(size, size), device=device)
         torch.manual_seed(int(cfg.seed))
-        model = model_cls(scene.object_aabb, s.field, s.sampler)
-        stats = train_model(model, obs, s.train, STAGES, s.entropy, torch.Generator().manual_seed(int(cfg.seed)))
+        model = model_cls(scene.object_aabb, s.field, s.sampler).to(device)
+        generator = torch.Generator(device).manual_seed(int(cfg.seed))
+        stats = train_model(model, obs, s.train, STAGES, s.entropy, generator)
         return InitialViewModel(cfg, scene, s, renderer, obs, model, stats.seconds)
 
     @staticmethod
@@ -173,11 +182,12 @@ class InitialViewModel:
         s = EpisodeSettings.of(cfg, scene)
         size = int(cfg.budget.image_size)
         renderer = GroundTruthRenderer(scene.mesh)
-        obs = observations(renderer, scene.init_poses, Intrinsics.from_fov(size, size))
+        device = resolve_device(str(cfg.device))
+        obs = observations(renderer, scene.init_poses, Intrinsics.from_fov(size, size), device=device)
         models = same_initial_models(cfg, scene, s, precisions, CountingModel)
 
         def train(name: str, model: CountingModel, progress: IterationClock) -> None:
-            generator = torch.Generator().manual_seed(int(cfg.seed))
+            generator = torch.Generator(device).manual_seed(int(cfg.seed))
             train_model(
                 model,
                 obs,
@@ -198,16 +208,16 @@ class InitialViewModel:
     def candidates(self, step: int) -> Float[Tensor, "m 7"]:
         """The candidate poses the planner would draw at ``step`` (METHOD 13, M28/M29 filters), from
         the last observed view."""
-        s = self.settings
+        s, device = self.settings, self.model.aabb.device
         current = matrix_to_pose(self.obs.c2w[-1].to(torch.float32))
         return candidate_poses(
             self.model,
             s.planner,
-            self.scene.camera_box,
+            self.scene.camera_box.to(device),
             current,
             s.tau,
             s.collision_free,
-            seeded_generator(int(self.cfg.seed), step, "candidates"),
+            seeded_generator(int(self.cfg.seed), step, "candidates", device),
             line_of_sight=self.renderer.unoccluded,
         )
 
@@ -234,24 +244,25 @@ def view_psnr(
     """PSNR of the model's renders of ``poses`` against the ground truth (``gt_samples^2`` samples per
     pixel; pooled over the views), over all pixels and off the ground truth's edges
     (``pipeline.metrics.image.off_edge_psnr``)."""
-    pred = np.stack([model.render_image(c2w, intr, chunk=RENDER_CHUNK)["rgb"].numpy() for c2w in poses])
+    pred = np.stack([model.render_image(c2w, intr, chunk=RENDER_CHUNK)["rgb"].cpu().numpy() for c2w in poses])
     gt = np.stack([renderer.render_rgba(c2w, intr, gt_samples)[..., :3] for c2w in poses])
     return psnr(pred, gt), off_edge_psnr(pred, gt)
 
 
-def default_precisions() -> str:
-    """``fp32,bf16`` where the CPU runs bfloat16 natively, else ``fp32``."""
-    return "fp32,bf16" if "bf16" in supported_precisions(torch.device("cpu")) else "fp32"
+def default_precisions(device: torch.device) -> str:
+    """``fp32,bf16`` where ``device`` runs bfloat16 natively, else ``fp32``."""
+    return "fp32,bf16" if "bf16" in supported_precisions(device) else "fp32"
 
 
-def parse_precisions(value: str | None) -> list[str]:
+def parse_precisions(value: str | None, device: torch.device = CPU) -> list[str]:
     """``fp32,bf16`` -> the precisions to compare (the first is the reference of the ratios; ``None``:
-    ``default_precisions()``); each must be one the CPU runs natively (one line and exit status 2 otherwise)."""
-    value = default_precisions() if value is None else value
+    ``default_precisions(device)``); each must be one ``device`` runs natively (one line and exit status 2
+    otherwise)."""
+    value = default_precisions(device) if value is None else value
     names = [name.strip() for name in value.split(",") if name.strip()]
     for name in names:
         reason = (
-            unsupported_reason(name, torch.device("cpu"))
+            unsupported_reason(name, device)
             if name in PRECISIONS
             else (f"unknown precision; choose from {', '.join(PRECISIONS)}")
         )

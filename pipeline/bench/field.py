@@ -1,4 +1,5 @@
-"""``python -m pipeline.bench field [--threads 2] [--iters 5]``: field throughput on this CPU.
+"""``python -m pipeline.bench field [--threads 2] [--iters 5] [--device auto]``: field throughput on a device
+(``auto``: CUDA where present, else this CPU; the C++ variants only on the CPU).
 
 Measures, side by side in one run, for each backbone variant (hash grid with the paper's 2^19
 table on the torch and C++ backends, the CPU-budget hash grid, dense grids):
@@ -25,6 +26,7 @@ from jaxtyping import Float
 from torch import Tensor
 
 from nvf.config import FieldConfig, FieldKind, HashBackend
+from nvf.device import resolve_device, synchronize
 from nvf.encoding import cpp_extension
 from nvf.field import HEADS, RadianceField, spherical_harmonics
 from pipeline.bench._report import report_path, write_report
@@ -32,6 +34,7 @@ from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.paths import paths_from_args
 
 AABB = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+CPU = torch.device("cpu")
 CPU_BUDGET_LOG2 = 15
 
 
@@ -55,7 +58,8 @@ def variants() -> dict[str, FieldConfig]:
 def ray_samples(
     n_rays: int, per_ray: int, generator: torch.Generator
 ) -> tuple[Float[Tensor, "S 3"], Float[Tensor, "S 3"]]:
-    """Points marched along random rays through the AABB (step 4 sqrt(3)/1000 as in M6), and their dirs."""
+    """Points marched along random rays through the AABB (step 4 sqrt(3)/1000 as in M6), and their dirs
+    (on the CPU)."""
     origins = torch.rand(n_rays, 3, generator=generator) * 1.6 - 0.8
     dirs = torch.nn.functional.normalize(torch.randn(n_rays, 3, generator=generator), dim=-1)
     t = torch.arange(per_ray, dtype=torch.float32) * (4.0 * 3.0**0.5 / 1000.0)
@@ -70,19 +74,22 @@ def median_seconds(fn: Callable[[], object], iters: int, reduce: Callable = stat
     with perfect threading); the wall figure is what this run experienced.
     """
     fn()
+    synchronize()
     wall, cpu = [], []
     for _ in range(iters):
         start, start_cpu = time.perf_counter(), time.process_time()
         fn()
+        synchronize()
         wall.append(time.perf_counter() - start)
         cpu.append((time.process_time() - start_cpu) / torch.get_num_threads())
     return reduce(wall), reduce(cpu)
 
 
-def matmul_gflops(n: int, width: int, iters: int) -> tuple[float, float]:
-    """Best dense ``[n, width] x [width, width]`` float32 matmul GFLOP/s (wall, CPU): the MLPs' roofline."""
-    a, b = torch.randn(n, width), torch.randn(width, width)
-    out = torch.empty(n, width)
+def matmul_gflops(n: int, width: int, iters: int, device: torch.device = CPU) -> tuple[float, float]:
+    """Best dense ``[n, width] x [width, width]`` float32 matmul GFLOP/s on ``device`` (wall, CPU): the MLPs'
+    roofline."""
+    a, b = torch.randn(n, width, device=device), torch.randn(width, width, device=device)
+    out = torch.empty(n, width, device=device)
     wall, cpu = median_seconds(lambda: torch.mm(a, b, out=out), iters * 10, reduce=min)
     return 2.0 * n * width * width / wall / 1e9, 2.0 * n * width * width / cpu / 1e9
 
@@ -97,13 +104,15 @@ def mlp_flops(field: RadianceField, heads: frozenset[str], train: bool) -> float
     return 2.0 * macs * (3.0 if train else 1.0)
 
 
-def bench_variant(cfg: FieldConfig, rays: int, per_ray: int, chunk: int, iters: int) -> dict[str, float | int]:
-    """Training and inference throughput of one field configuration, with a per-phase time split."""
+def bench_variant(
+    cfg: FieldConfig, rays: int, per_ray: int, chunk: int, iters: int, device: torch.device = CPU
+) -> dict[str, float | int]:
+    """Training and inference throughput of one field configuration on ``device``, with a per-phase time split."""
     generator = torch.Generator().manual_seed(0)
-    field = RadianceField(AABB, cfg)
+    field = RadianceField(AABB, cfg).to(device)
     optimizer = torch.optim.Adam(field.parameter_groups()["backbone"], lr=1e-2, eps=1e-15, fused=True)
-    x, d = ray_samples(rays, per_ray, generator)
-    target = torch.rand(x.shape[0], 3, generator=generator)
+    x, d = (t.to(device) for t in ray_samples(rays, per_ray, generator))
+    target = torch.rand(x.shape[0], 3, generator=generator).to(device)
     n = x.shape[0]
     heads_train = frozenset({"rgb"})
     phases: dict[str, list[float]] = {"encode_fwd": [], "encode_bwd": [], "mlp_fwd_bwd": [], "optimizer": []}
@@ -140,7 +149,7 @@ def bench_variant(cfg: FieldConfig, rays: int, per_ray: int, chunk: int, iters: 
     median_seconds(train_step, iters)
     split = {key: statistics.median(values[1:]) for key, values in phases.items()}
 
-    xi, di = ray_samples(2 * rays, per_ray, generator)
+    xi, di = (t.to(device) for t in ray_samples(2 * rays, per_ray, generator))
 
     def infer(heads: frozenset[str]) -> Callable[[], None]:
         @torch.no_grad()
@@ -185,6 +194,7 @@ def main(argv: list[str]) -> None:
     parser.add_argument("--samples-per-ray", type=int, default=25)
     parser.add_argument("--chunk", type=int, default=8192)
     parser.add_argument("--only", nargs="*", default=None, help="variant names to run (default: all)")
+    parser.add_argument("--device", default="auto", help="auto (CUDA where present), cpu, cuda or cuda:N")
     parser.add_argument(
         "--out", type=Path, default=None, help="JSON report path (default: ${paths.results}/bench/field.json)"
     )
@@ -195,7 +205,13 @@ def main(argv: list[str]) -> None:
     except ValueError as err:
         fail(str(err))
     torch.set_num_threads(args.threads)
-    cpp_available = cpp_extension() is not None
+    try:
+        device = resolve_device(args.device)
+    except RuntimeError:
+        fail(f"--device {args.device!r}: must be auto, cpu, cuda or cuda:N")
+    if device.type == "cuda" and not torch.cuda.is_available():
+        fail(f"--device {args.device}: torch sees no CUDA device here; use --device auto or cpu")
+    cpp_available = device.type == "cpu" and cpp_extension() is not None
     results = {}
     for name, cfg in variants().items():
         if args.only and name not in args.only:
@@ -203,8 +219,8 @@ def main(argv: list[str]) -> None:
         if cfg.backend == "cpp" and not cpp_available:
             continue
         # The matmul roofline is re-measured next to each variant: the cores are shared and load drifts.
-        gflops, gflops_cpu = matmul_gflops(args.rays * args.samples_per_ray, 64, args.iters)
-        r = bench_variant(cfg, args.rays, args.samples_per_ray, args.chunk, args.iters)
+        gflops, gflops_cpu = matmul_gflops(args.rays * args.samples_per_ray, 64, args.iters, device)
+        r = bench_variant(cfg, args.rays, args.samples_per_ray, args.chunk, args.iters, device)
         r["matmul_gflops_64"], r["matmul_gflops_64_cpu"] = gflops, gflops_cpu
         for key in ("train", "infer", "infer_rgb"):
             flops = r[f"mlp_flops_{key}"]
@@ -224,6 +240,7 @@ def main(argv: list[str]) -> None:
             flush=True,
         )
     report = {
+        "device": str(device),
         "torch_threads": args.threads,
         "batch_samples": args.rays * args.samples_per_ray,
         "infer_chunk": args.chunk,

@@ -28,7 +28,8 @@ in the same rotation. ``precisions`` gives per precision its model's training se
 stages and by stage), candidates/s with the MLPs in it, and its model's held-out PSNR (5 views at the
 image size, rendered in float32 as an episode renders); ``ratios`` the paired speed-ups over the
 reference (training: median [min, max] over ``K`` iteration windows; scoring: over blocks) and the PSNR
-difference. The top-level figures are the reference precision's. The models run on the CPU.
+difference. The top-level figures are the reference precision's. The models run on the run's device
+(``device``, CUDA where present).
 
 A method whose scorer reads the step's model and training views first (FisherRF, METHOD 17) is prepared
 once on the reference model (``prepare_seconds``, ``prepare_seconds_per_view``: its ``H_D`` over the
@@ -59,6 +60,7 @@ from tqdm import tqdm
 
 from nvf.cameras import Intrinsics, camera_directions, pose_to_matrix, rays_from_camera_dirs
 from nvf.config import STAGES
+from nvf.device import resolve_device, synchronize
 from nvf.field import INFERENCE_BLOCK, VIS_POSITION_WIDTH
 from nvf.methods import FisherRF, Method
 from nvf.model import SceneModel
@@ -184,7 +186,8 @@ def probes_study(
 
     def run(k: int, seed: int) -> tuple[Tensor, float, float]:
         start = time.perf_counter()
-        scorer = FisherRFScorer(k, prior_precision).prepare(setup.model, setup.obs, generator_factory(seed, 0), chunk)
+        generators = generator_factory(seed, 0, setup.model.aabb.device)
+        scorer = FisherRFScorer(k, prior_precision).prepare(setup.model, setup.obs, generators, chunk)
         prepared = time.perf_counter()
         scores = score_poses(setup.model, scorer, poses, intr, chunk)
         return scores, prepared - start, time.perf_counter() - prepared
@@ -218,6 +221,7 @@ def timed(fn: Callable[[], object]) -> tuple[float, float]:
     """Wall and process-CPU-per-thread seconds of one call."""
     start, start_cpu = time.perf_counter(), time.process_time()
     fn()
+    synchronize()
     return time.perf_counter() - start, (time.process_time() - start_cpu) / torch.get_num_threads()
 
 
@@ -325,7 +329,7 @@ def scoring_jobs(
         scorer = method.scorer()
         if isinstance(scorer, StepScorer):
             began = time.perf_counter()
-            scorers[name] = scorer.prepare(model, obs, generator_factory(s.seed, 0), chunk)
+            scorers[name] = scorer.prepare(model, obs, generator_factory(s.seed, 0, model.aabb.device), chunk)
             prepare_seconds[name] = time.perf_counter() - began
         elif scorer is not None:
             scorers[name] = scorer
@@ -351,7 +355,7 @@ def main(argv: list[str]) -> None:
     args = parse_args(argv)
     start = time.perf_counter()
     cfg = compose_run([f"planner.num_candidates={CANDIDATES}", *args.overrides])
-    precisions = parse_precisions(args.precisions)
+    precisions = parse_precisions(args.precisions, resolve_device(str(cfg.device)))
     methods = {name: build_method(m, {"nvf.entropy": cfg.nvf.entropy}) for name, m in method_configs().items()}
     fisher = next((method for method in methods.values() if isinstance(method, FisherRF)), None)
     if args.probes is not None and fisher is None:

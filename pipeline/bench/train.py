@@ -36,8 +36,8 @@ against ``PRECISION_GOALS``. Per-iteration time and kept samples/s can disagree:
 train apart, and their occupancy grids keep and march different numbers of samples.
 
 Rates are given from wall time and (``*_cpu``) from process CPU time / threads, which is robust
-to other jobs on the cores. The models run on the CPU. Writes ``results/bench/train.json``
-(or ``--out``) and prints a table.
+to other jobs on the cores. The models run on the run's device (``device``, CUDA where present). Writes
+``results/bench/train.json`` (or ``--out``) and prints a table.
 """
 
 import dataclasses
@@ -51,6 +51,7 @@ from torch import Tensor
 
 from nvf.cameras import Intrinsics
 from nvf.config import Precision
+from nvf.device import resolve_device, synchronize
 from nvf.encoding import cpp_extension
 from nvf.field import HEADS
 from nvf.model import SceneModel
@@ -104,6 +105,7 @@ def inference_rates(
         with model.field.mlp_precision(torch.float32, infer=precision_dtype(name)):
             for c2w in poses:
                 model.render_image(c2w, intr, heads=heads, chunk=RENDER_CHUNK)
+        synchronize()
         cpu = (time.process_time() - start_cpu) / torch.get_num_threads()
         return time.perf_counter() - start, cpu, model.samples - before
 
@@ -170,9 +172,10 @@ def field_floor(
     kept_encoded = encoded.clone().requires_grad_()
     first_layer = field.color_head[0]
     assert isinstance(first_layer, torch.nn.Linear), "an MLP starts with a linear layer"
-    kept_head_in = torch.randn(kept.num_samples, first_layer.in_features, requires_grad=True)
-    marched_encoded = torch.randn(marched.shape[0], field.encoding.out_dim)
-    cell_encoded = torch.randn(model.grid.resolution**3, field.encoding.out_dim)
+    device = model.aabb.device
+    kept_head_in = torch.randn(kept.num_samples, first_layer.in_features, requires_grad=True, device=device)
+    marched_encoded = torch.randn(marched.shape[0], field.encoding.out_dim, device=device)
+    cell_encoded = torch.randn(model.grid.resolution**3, field.encoding.out_dim, device=device)
 
     def mlp_fwd_bwd() -> None:
         field.zero_grad(set_to_none=True)
@@ -314,7 +317,7 @@ def train_side_by_side(
     models = same_initial_models(cfg, scene, s, precisions, CountingModel)
 
     def train(name: str, model: CountingModel, progress: IterationClock) -> None:
-        generator = torch.Generator().manual_seed(int(cfg.seed))
+        generator = torch.Generator(obs.images.device).manual_seed(int(cfg.seed))
         train_backbone(
             model, obs, dataclasses.replace(s.train, precision=Precision(name)), generator, progress=progress
         )
@@ -387,7 +390,7 @@ def same_work_rates(
     grid = {key: value.clone() for key, value in reference.grid.state_dict().items()}
     for name in precisions:
         reference.grid.load_state_dict(grid)  # field_floor updates the grid once: each precision starts alike
-        generator = torch.Generator().manual_seed(seed)
+        generator = torch.Generator(obs.images.device).manual_seed(seed)
         with reference.field.mlp_precision(precision_dtype(name)):
             floors = field_floor(
                 reference, obs, s.train.backbone.batch, per_iter, s.sampler.update_every, generator, repeats
@@ -432,14 +435,15 @@ def main(argv: list[str]) -> None:
     args = parse_args(argv)
     start = time.perf_counter()
     cfg = compose_run(args.overrides)
-    precisions = parse_precisions(args.precisions)
+    device = resolve_device(str(cfg.device))
+    precisions = parse_precisions(args.precisions, device)
     scene = load(cfg)
     s = EpisodeSettings.of(cfg, scene)
     size = int(cfg.budget.image_size)
     intr = Intrinsics.from_fov(size, size)
     renderer = open_renderer(scene, s.render, s.blender_python)  # render.backend: pyrender's or Blender's ground truth
     gt_samples = int(cfg.budget.gt_samples)
-    obs = observations(renderer, scene.eval_poses, intr, gt_samples)
+    obs = observations(renderer, scene.eval_poses, intr, gt_samples, device)
 
     models, clocks = train_side_by_side(cfg, s, scene, obs, precisions)
     warmup = max(1, min(10, s.train.backbone.iters // 10))

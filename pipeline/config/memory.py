@@ -6,12 +6,16 @@ for one 37 GiB float32 image; ``train.label_samples=1000000000`` died with an al
 
 ``SIZE_KEYS_BOUNDED`` lists the validated positive keys that scale no allocation of their own (times,
 rates, lengths, caps) or one another key already bounds; every other positive key has an allocation here.
+
+``stage_peaks`` predicts more than a bound: each stage's peak, the step's state and the stage's working set
+together, as ``python -m pipeline.bench paper_shape`` measures it (docs/USAGE.md, "The paper budget on a GPU").
 """
 
-import functools
+import math
 import os
 from dataclasses import dataclass
 
+from nvf.config import FieldConfig
 from pipeline.config.typed import Run
 
 GIB = float(1 << 30)
@@ -226,8 +230,104 @@ def too_large(run: Run, host_bytes: float, device_bytes: float, device_name: str
     _, worst = min(over, key=lambda pair: (bool(pair[1].also), -pair[0]))
     limit, where = (device_bytes, device_name) if worst.on_device else (host_bytes, "this machine")
     lower = " or ".join((worst.key, *worst.also))
-    value = functools.reduce(getattr, worst.key.split("."), run)
+    value = run.setting(worst.key)
     return (
         f"{worst.key}={value}: {worst.what} needs {worst.nbytes / GIB:.1f} GiB, "
         f"more than the {limit / GIB:.1f} GiB of memory of {where}; lower {lower}"
     )
+
+
+# --- Peak memory of each stage of a step (``stage_peaks``). A step holds its state (the training images, the
+# evaluation views' ground truth and LPIPS features, the field with its Adam moments, the occupancy grid), and
+# each stage adds its working set: a batch or chunk of rays times the samples each marches (``marched_per_ray``:
+# M6's steps along the object box's diagonal, a fully occupied grid) times the bytes those samples hold at
+# once (the skipping pass's, and the kept samples' autograd graph). The bytes per marched sample were fitted to
+# earlier runs of ``python -m pipeline.bench paper_shape`` (pyrender's ground truth; the peak minus the resident
+# size before the stage, over rays x ``marched_per_ray``): one constant per kind of work for every scene, the
+# geometric mean of the default scene's and Room's values, which differ up to 7x (a model at step 0 keeps 10
+# samples per ray on one and 169 on the other). The committed run (results/bench/paper_shape.json) is the
+# check: every stage within 2x (tests/test_memory.py). On the CPU the process itself is half of each peak, so
+# the check is loose there; on CUDA (``on_device``) the working sets dominate and no GPU has measured them.
+PROCESS_BYTES = 0.85 * GIB  # resident before a step's first stage (paper_shape.json: 0.85 and 0.88 GiB)
+TRAIN_SAMPLE_BYTES = 355.0  # stage 1: autograd through the encoding, the density MLP and the colour head
+HEAD_SAMPLE_BYTES = 150.0  # stage 2: every head rendered, autograd through the variance head alone
+SCORE_SAMPLE_BYTES = 390.0  # inference with every head and NVF's entropy terms (planning, evaluation)
+POSE_SAMPLE_BYTES = 350.0  # -OPT: autograd through every head to the pose
+DENSITY_SAMPLE_BYTES = 55.0  # density alone without autograd (point clouds)
+LABEL_SAMPLE_BYTES = 600.0  # one M17 label position: its density without autograd (cpp encoding, the MLP in blocks)
+VIS_POINT_BYTES = 2048.0  # stage 3: the visibility MLPs' autograd per point
+LABEL_CHUNK = 1 << 18  # nvf.visibility.segment_transmittance's positions per chunk
+RENDER_CHUNK = 4096  # rays per call of an evaluation render (pipeline.episode.evaluation.RENDER_CHUNK)
+GT_POINT_BYTES = 4 * 24.0  # float64 xyz of a mesh sample, with the KD-tree and distances over it
+RENDER_PIXEL_BYTES = 24.0  # an evaluation render's colour, depth, accumulation and score (float32)
+STAGES = (  # a step's stages, in the order they run (pipeline.bench.paper_shape)
+    *("ground_truth", "backbone", "variance", "visibility", "candidates", "planning", "opt", "evaluation"),
+    "mesh_metrics",
+)
+
+
+def marched_per_ray(cfg: Run) -> int:
+    """M6's steps ``dt(t) = max(step_size, cone_angle t)`` from ``t = 0`` over the object box's diagonal,
+    at most ``sampler.max_samples_per_ray``: the samples a ray marches through a fully occupied grid."""
+    s = cfg.sampler
+    box = cfg.scene.object_aabb
+    diagonal = sum((float(hi) - float(lo)) ** 2 for lo, hi in zip(box[0], box[1], strict=True)) ** 0.5
+    step, cone = float(s.step_size), float(s.cone_angle)
+    knee = step / cone if cone > 0 else diagonal  # where the cone's step overtakes the fixed one
+    steps = min(diagonal, knee) / step + (math.log(diagonal / knee) / cone if diagonal > knee else 0.0)
+    return min(int(s.max_samples_per_ray), math.ceil(steps))
+
+
+def alexnet_floats(side: int) -> int:
+    """Floats of LPIPS' five AlexNet feature maps of a ``side x side`` image (conv1 stride 4, two max-pools)."""
+    h1 = (side + 4 - 11) // 4 + 1
+    h2 = (h1 - 3) // 2 + 1
+    h3 = (h2 - 3) // 2 + 1
+    return 64 * h1 * h1 + 192 * h2 * h2 + (384 + 256 + 256) * h3 * h3
+
+
+def table_entries(f: FieldConfig) -> int:
+    """Rows of the field's feature table (hash grid: every level; dense grid: its voxels)."""
+    if f.kind == "densegrid":
+        return int(f.dense_resolution) ** 3
+    levels = int(f.num_levels)
+    base, top = int(f.base_resolution), int(f.max_resolution)
+    growth = (top / base) ** (1.0 / max(1, levels - 1))
+    size = 2 ** int(f.log2_hashmap_size)
+    return sum(min((int(base * growth**level + 1e-9) + 1) ** 3, size) for level in range(levels))
+
+
+def stage_peaks(cfg: Run, views: int, eval_views: int = EVAL_VIEWS, on_device: bool = False) -> dict[str, float]:
+    """Predicted peak bytes of each stage (``STAGES``) of a step with ``views`` training views and ``eval_views``
+    evaluation views: the process's resident memory on the CPU, or with ``on_device`` what the CUDA device
+    holds (the same model without the process, the host-only ground truth and the point clouds)."""
+    b, p, t, f = cfg.budget, cfg.planner, cfg.train, cfg.field
+    samples = marched_per_ray(cfg)
+    features = int(f.dense_features) if f.kind == "densegrid" else int(f.features_per_level)
+    table = FLOAT32 * features * table_entries(f)
+    grid = 6.0 * int(cfg.sampler.grid_resolution) ** 3
+    eval_pixels = eval_views * int(b.eval_size) ** 2
+    images = views * int(b.image_size) ** 2 * 4 * FLOAT32  # the observations' RGBA
+    device_state = images + grid + 2 * table  # the table and its last gradient
+    host_state = PROCESS_BYTES + images + views * int(b.image_size) ** 2 * (4 * FLOAT32 + INT64)
+    lpips_features = eval_views * alexnet_floats(int(b.eval_size)) * FLOAT32
+    host_state += eval_pixels * XYZ + lpips_features
+    working = {
+        "ground_truth": 0.0,
+        "backbone": 2 * table + int(t.backbone.batch) * samples * TRAIN_SAMPLE_BYTES,  # + Adam's two moments
+        "variance": int(t.variance.batch) * samples * HEAD_SAMPLE_BYTES,
+        "visibility": LABEL_CHUNK * LABEL_SAMPLE_BYTES + int(t.visibility.batch) * VIS_POINT_BYTES,
+        "candidates": 0.0,
+        "planning": min(int(p.score_chunk_rays), int(p.resolution) ** 2) * samples * SCORE_SAMPLE_BYTES,
+        "opt": float(p.opt.ray_fraction) * int(p.resolution) ** 2 * samples * POSE_SAMPLE_BYTES,
+        "evaluation": min(RENDER_CHUNK, int(b.eval_size) ** 2) * samples * SCORE_SAMPLE_BYTES,
+        "mesh_metrics": int(b.recon_batch) * samples * DENSITY_SAMPLE_BYTES,
+    }
+    host_working = {
+        "evaluation": eval_pixels * RENDER_PIXEL_BYTES + lpips_features,
+        "mesh_metrics": int(b.gt_points) * GT_POINT_BYTES + int(b.recon_points) * 2 * XYZ,
+    }
+    if on_device:
+        return {stage: device_state + working[stage] for stage in STAGES}
+    state = host_state + device_state - images  # on the CPU the observations are the host's stacked images
+    return {stage: state + working[stage] + host_working.get(stage, 0.0) for stage in STAGES}

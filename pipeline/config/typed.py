@@ -5,6 +5,7 @@ rival, and the composed config as plain data (what a run record stores). An entr
 (``pipeline.config.validation.validate`` or ``compose_run``)."""
 
 import dataclasses
+import functools
 from dataclasses import dataclass
 from typing import Any
 
@@ -29,6 +30,10 @@ class Run(RunConfig):
     def names(self) -> tuple[str, str, str, str, str]:
         """The run's identity keys but the seed: scene, method, planner, ablation and budget names."""
         return self.scene.name, self.method.name, str(self.planner.name), self.ablation.name, self.budget.name
+
+    def setting(self, key: str) -> Any:
+        """The value at a dotted config key (``"budget.image_size"``)."""
+        return functools.reduce(getattr, key.split("."), self)
 
 
 def resolved_d0(d0: float | int | str | None, scene: SceneConfig) -> float:

@@ -16,6 +16,7 @@ from hydra import compose, initialize_config_dir
 from hydra.errors import HydraException
 from omegaconf import DictConfig, OmegaConf
 
+from nvf.device import resolve_device
 from nvf.methods import Method
 from nvf.precision import unsupported_reason
 from nvf.uncertainty import StepScorer
@@ -91,13 +92,6 @@ _POSITIVE = (
 # samples per camera-to-point segment (M17's train.label_samples, M29's planner.los_samples): the paper takes 200;
 # every sample is a density query per point and camera, so 65536 (300x) already makes one step take hours
 MAX_SEGMENT_SAMPLES = 65536
-
-
-def resolve_device(name: str) -> torch.device:
-    """``auto`` is CUDA when present, else CPU."""
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(name)
 
 
 def _check_ablation(cfg: DictConfig) -> None:
@@ -187,11 +181,10 @@ def check_paths(paths: dict[str, str]) -> None:
 
 def _check_memory(run: Run) -> None:
     """The largest allocation of each size key fits the memory it lives in (``pipeline.config.memory``)."""
-    device = str(run.device)
-    cuda = torch.cuda.is_available() and device != "cpu"
+    device = resolve_device(str(run.device))
     host = host_memory()
-    if cuda:
-        index = int(device.partition(":")[2] or 0)
+    if device.type == "cuda" and torch.cuda.is_available():  # a device torch cannot see: _check_device's line
+        index = 0 if device.index is None else device.index
         name = f"cuda:{index} ({torch.cuda.get_device_name(index)})"
         problem = too_large(run, host, float(torch.cuda.get_device_properties(index).total_memory), name)
     else:

@@ -19,8 +19,8 @@ from pipeline.config.schema import BudgetConfig, MetricsConfig
 from pipeline.metrics.arrays import as_numpy
 from pipeline.metrics.correlation import uncertainty_correlation
 from pipeline.metrics.coverage import seen_faces, visual_coverage
-from pipeline.metrics.geometry import geometry_metrics, points_from_rays
-from pipeline.metrics.image import LpipsMetric, image_metrics, psnr
+from pipeline.metrics.geometry import GeometryMetrics, geometry_metrics, points_from_rays
+from pipeline.metrics.image import ImageMetrics, LpipsMetric, image_metrics, psnr
 from pipeline.scenes.ground_truth import Renderer
 from pipeline.scenes.scene import Scene
 
@@ -120,6 +120,36 @@ class Evaluator:
         self.gt_lpips = lpips.reference(self.gt)  # step-independent half of LPIPS (None without weights)
         self.patch = max(1, size // PATCHES_PER_SIDE)
 
+    def renders(
+        self, model: SceneModel | SourcedVisibility, scorer: ViewScorer | None
+    ) -> tuple[list[dict[str, np.ndarray]], Float[np.ndarray, "V H W 3"]]:
+        """Every evaluation view rendered (``render_view``) and their colours clipped to ``[0, 1]``."""
+        renders = [render_view(model, scorer, c2w.to(self.device), self.intrinsics) for c2w in self.scene.eval_poses]
+        return renders, np.stack([r["rgb"] for r in renders]).clip(0.0, 1.0)
+
+    def quality(self, pred: Float[np.ndarray, "V H W 3"]) -> ImageMetrics:
+        """PSNR, SSIM, LPIPS and RGB of the rendered evaluation views ``pred`` (PROTOCOL 4.1)."""
+        return image_metrics(pred, self.gt, self.lpips, self.metrics.ssim_data_range, self.gt_lpips)
+
+    def geometry(self, model: SceneModel | SourcedVisibility, obs: Observations, step: int) -> GeometryMetrics:
+        """Acc., Comp. and C.R. (PROTOCOL 4.2) of the points reconstructed from ``obs``' rays at step ``step``
+        against ``budget.gt_points`` samples of the scene mesh."""
+        budget = self.budget
+        points = reconstruct_points(
+            model,
+            obs,
+            budget.recon_points,
+            budget.recon_batch,
+            seeded_generator(self.seed, step, "recon_points", self.device),
+        )
+        return geometry_metrics(
+            points,
+            self.scene.mesh,
+            self.scene.cr_threshold,
+            seed=int(seeded_generator(self.seed, step, "gt_points").initial_seed() % 2**32),
+            num_gt_samples=budget.gt_points,
+        )
+
     def evaluate(
         self,
         model: SceneModel | SourcedVisibility,
@@ -135,11 +165,10 @@ class Evaluator:
         view r pairs (else empty: Random, or a method that scores whole views, has no score map and no
         correlation). ``face_ids``: the face hit by each pixel-centre ray of every training view (Vis.).
         ``psnr_only``: PSNR alone (every other metric None, no score map; ``step_metrics=psnr``)."""
-        budget, scene = self.budget, self.scene
+        scene = self.scene
         if psnr_only or not isinstance(scorer, ViewScorer):
             scorer = None
-        renders = [render_view(model, scorer, c2w.to(self.device), self.intrinsics) for c2w in scene.eval_poses]
-        pred = np.stack([r["rgb"] for r in renders]).clip(0.0, 1.0)
+        renders, pred = self.renders(model, scorer)
         if psnr_only:
             shown = renders[view]
             metrics = {key: None for key in STEP_METRICS} | {"psnr": psnr(pred, self.gt)}
@@ -148,21 +177,8 @@ class Evaluator:
                 {"gt": self.gt[view], "pred": pred[view], "score": shown["score"], "depth": shown["depth"]},
                 {},
             )
-        quality = image_metrics(pred, self.gt, self.lpips, self.metrics.ssim_data_range, self.gt_lpips)
-        points = reconstruct_points(
-            model,
-            obs,
-            budget.recon_points,
-            budget.recon_batch,
-            seeded_generator(self.seed, step, "recon_points", self.device),
-        )
-        geometry = geometry_metrics(
-            points,
-            scene.mesh,
-            scene.cr_threshold,
-            seed=int(seeded_generator(self.seed, step, "gt_points").initial_seed() % 2**32),
-            num_gt_samples=budget.gt_points,
-        )
+        quality = self.quality(pred)
+        geometry = self.geometry(model, obs, step)
         num_faces = len(scene.mesh.faces)
         seen = np.zeros(num_faces, dtype=bool)
         for ids in face_ids:

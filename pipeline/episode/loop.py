@@ -111,21 +111,7 @@ class Episode:
             planning, self.scorer, self.face_ids, obs, step, psnr_only=psnr_only
         )
         t2 = time.perf_counter()
-        current = matrix_to_pose(self.poses[-1]).to(self.device)
-        generators = generator_factory(s.seed, step, self.device)
-        scorer = prepare_scorer(self.scorer, planning, obs, generators, s.planner.score_chunk_rays)
-        selection = select_next_view(
-            planning,
-            scorer,
-            s.planner,
-            self.scene.camera_box.to(self.device),
-            current,
-            self.plan_intrinsics,
-            s.tau,
-            s.collision_free,
-            generators,
-            self.renderer.unoccluded,
-        )
+        selection, generators = self.plan(planning, obs, step)
         t3 = time.perf_counter()
         self.previous_model = model if s.train.warm_start else None
         row = {
@@ -158,6 +144,30 @@ class Episode:
         if self.rival is not None and selection.scores is not None:
             row["rank_agreement"] = self.rank_agreement(planning, selection, obs, generators)
         return row, images
+
+    def plan(
+        self, planning: SceneModel | SourcedVisibility, obs: Observations, step: int
+    ) -> tuple[Selection, GeneratorFactory]:
+        """Step ``step``'s next view from the model the scores read (``planning_model``): the method's scorer
+        (prepared on ``obs`` if it scores whole views) over the candidates from the last observed pose
+        (METHOD 12-14); also the step's generators."""
+        s = self.settings
+        current = matrix_to_pose(self.poses[-1]).to(self.device)
+        generators = generator_factory(s.seed, step, self.device)
+        scorer = prepare_scorer(self.scorer, planning, obs, generators, s.planner.score_chunk_rays)
+        selection = select_next_view(
+            planning,
+            scorer,
+            s.planner,
+            self.scene.camera_box.to(self.device),
+            current,
+            self.plan_intrinsics,
+            s.tau,
+            s.collision_free,
+            generators,
+            self.renderer.unoccluded,
+        )
+        return selection, generators
 
     def planning_model(self, model: SceneModel, obs: Observations) -> SceneModel | SourcedVisibility:
         """The model the scores read (``nvf.entropy.visibility_source``): ``model`` itself (its visibility

@@ -19,11 +19,12 @@ import numpy as np
 import torch
 from hydra.core.hydra_config import HydraConfig
 
+from nvf.device import resolve_device
 from nvf.planning import NoCandidatesError
 from nvf.training import TrainingDiverged
 from pipeline.cli import BadInput, Failed
 from pipeline.config.typed import Run
-from pipeline.config.validation import ConfigError, resolve_device
+from pipeline.config.validation import ConfigError
 from pipeline.episode.loop import Episode
 from pipeline.episode.progress import EpisodeProgress
 from pipeline.episode.settings import EpisodeSettings

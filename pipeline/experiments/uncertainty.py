@@ -37,6 +37,7 @@ from torch import Tensor
 from tqdm import tqdm
 
 from nvf.cameras import look_at
+from nvf.device import resolve_device
 from nvf.model import SceneModel
 from nvf.training import Observations
 from nvf.uncertainty import ViewScorer
@@ -44,7 +45,7 @@ from pipeline.cli import ArgumentParser, BadInput, description, fail, run_comman
 from pipeline.config.catalog import ablation_configs, method_configs
 from pipeline.config.method import build_method
 from pipeline.config.named import config_label
-from pipeline.config.validation import compose_run, resolve_device
+from pipeline.config.validation import compose_run
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.experiments.options import SEEDS, seed_list

@@ -41,6 +41,7 @@ import numpy as np
 import torch
 
 from nvf.cameras import Intrinsics, matrix_to_pose, pose_to_matrix
+from nvf.device import resolve_device
 from nvf.methods import NVF
 from nvf.planning import argmax_first, candidate_poses, score_poses
 from nvf.seeding import generator_factory, seeded_generator
@@ -49,7 +50,7 @@ from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
 from pipeline.bench.visibility import visibility_report
 from pipeline.cli import ArgumentParser, description, fail, run_command
 from pipeline.config.typed import Run
-from pipeline.config.validation import compose_run, resolve_device
+from pipeline.config.validation import compose_run
 from pipeline.episode.evaluation import render_view
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings

@@ -28,6 +28,7 @@ from PIL import Image
 from torch import Tensor
 
 from nvf.cameras import Intrinsics, pixel_rays
+from nvf.device import resolve_device
 from nvf.visibility import frustum_mask
 
 BACKENDS = ("auto", "osmesa", "egl")
@@ -49,7 +50,7 @@ def resolve_backend(backend: str) -> str:
         raise ValueError(f"renderer backend must be one of {BACKENDS}, got {backend!r}")
     if backend != "auto":
         return backend
-    return os.environ.get("PYOPENGL_PLATFORM") or ("egl" if torch.cuda.is_available() else "osmesa")
+    return os.environ.get("PYOPENGL_PLATFORM") or ("egl" if resolve_device("auto").type == "cuda" else "osmesa")
 
 
 def _import_pyrender(platform: str):

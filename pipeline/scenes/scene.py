@@ -32,7 +32,7 @@ class Scene:
     camera_box: Float[Tensor, "2 3"]
     tight_box: Float[Tensor, "2 3"]
     init_poses: Float[Tensor, "n 4 4"]  # c2w, OpenGL axes
-    eval_poses: Float[Tensor, "20 4 4"]
+    eval_poses: Float[Tensor, "e 4 4"]  # the 20 of PROTOCOL 2.4 (a benchmark may keep fewer: paper_shape)
     density_threshold: float  # tau (M28)
     d0: float  # M13
     cr_threshold: float  # C.R. distance (PROTOCOL 4.2)

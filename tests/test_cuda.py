@@ -1,0 +1,165 @@
+"""Each numeric kernel on CUDA against its CPU result (``-m cuda``; skipped where torch sees no CUDA device).
+
+Inputs are drawn on the CPU and copied, so both devices compute from the same numbers. Everything is
+float32 and differs only by rounding: fused multiply-adds, another order of a reduction, atomic adds in
+scatters (``index_add_``). Tolerances: elementwise kernels ``rtol 1e-5``; reductions, scatters and
+gradients ``rtol 1e-4``; a whole render (marching, field MLPs, compositing) ``atol 1e-4``. The marched
+samples must be the same samples (a midpoint that rounds across a cell boundary would change them).
+"""
+
+import math
+
+import pytest
+import torch
+
+from nvf.cameras import Intrinsics, look_at, pixel_rays
+from nvf.config import EntropyConfig, FieldConfig, HashBackend, SamplerConfig
+from nvf.device import resolve_device
+from nvf.encoding import HashEncoding, cpp_extension
+from nvf.model import SceneModel
+from nvf.rendering import alpha_from_density, expected_depth, ray_sum, weights_from_alpha
+from nvf.uncertainty.entropy import upper_bound_and_depth
+from nvf.uncertainty.fisher import colour_parameters, exact_fisher_diagonal, probe_fisher_diagonal, rademacher
+
+pytestmark = [
+    pytest.mark.cuda,
+    pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device: torch.cuda.is_available() is False"),
+]
+CPU = torch.device("cpu")
+AABB = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+SMALL_FIELD = FieldConfig(num_levels=8, log2_hashmap_size=14, max_resolution=128, backend=HashBackend.torch)
+SMALL_GRID = SamplerConfig(grid_resolution=32, warmup_iters=8)
+
+
+def cuda() -> torch.device:
+    device = resolve_device("auto")
+    assert device.type == "cuda", "device=auto picks CUDA where torch sees it"
+    return device
+
+
+def on(device: torch.device, *tensors: torch.Tensor) -> list[torch.Tensor]:
+    return [t.to(device) for t in tensors]
+
+
+def encode(enc: HashEncoding, u: torch.Tensor, grad_out: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    """Output, table gradient and point gradient of ``enc`` at ``u``."""
+    u = u.clone().requires_grad_(True)
+    out = enc(u)
+    table_grad, u_grad = torch.autograd.grad(out, [enc.table, u], grad_out)
+    return out.detach(), table_grad, u_grad
+
+
+@pytest.mark.parametrize("cpu_backend", ["torch", "cpp"])
+def test_hash_encoding_matches_the_cpu(cpu_backend):
+    """METHOD 3 on CUDA (the torch backend, the one CUDA has) against the CPU's torch and C++ backends."""
+    if cpu_backend == "cpp" and cpp_extension() is None:
+        pytest.skip("the C++ hash-grid kernel did not build here")
+    generator = torch.Generator().manual_seed(1)
+    u = torch.rand(4096, 3, generator=generator) * 0.9 + 0.05
+    grad_out = torch.randn(4096, 16, generator=generator)
+    enc = HashEncoding(8, 2, 14, 16, 128, backend=cpu_backend)
+    expected = encode(enc, u, grad_out)
+    enc.backend = "torch"
+    got = encode(enc.to(cuda()), *on(cuda(), u, grad_out))
+    for name, want, have in zip(("output", "table gradient", "point gradient"), expected, got, strict=True):
+        torch.testing.assert_close(have.cpu(), want, rtol=1e-4, atol=1e-6, msg=lambda m, n=name: f"{n}: {m}")
+
+
+def trained_like_model(device: torch.device) -> SceneModel:
+    """A small model with a non-trivial density (a ball) and an occupancy grid updated on the CPU, moved to
+    ``device``: both devices then hold the same weights and the same occupied cells."""
+    torch.manual_seed(3)
+    model = SceneModel(AABB, SMALL_FIELD, SMALL_GRID)
+    with torch.no_grad():
+        model.field.encoding.table.normal_(0.0, 0.5)
+    generator = torch.Generator().manual_seed(4)
+    model.update_grid(0, generator)
+    return model.to(device)
+
+
+def rays(n: int = 64) -> tuple[torch.Tensor, torch.Tensor]:
+    """Pixel rays of an ``n x n`` view of the AABB from outside it."""
+    c2w = look_at(torch.tensor([2.5, 1.5, 1.0]), torch.zeros(3))
+    return pixel_rays(c2w, Intrinsics.from_fov(n, n))
+
+
+def test_marching_gives_the_same_samples():
+    """M6: the same occupied cells and rays march the same packed samples on CUDA."""
+    cpu_model, cuda_model = trained_like_model(CPU), trained_like_model(cuda())
+    assert 0 < int(cpu_model.grid.occupied.sum()) < cpu_model.grid.occupied.numel()
+    origins, dirs = rays()
+    expected = cpu_model.grid.march(origins, dirs, jitter=False)
+    got = cuda_model.grid.march(*on(cuda(), origins, dirs), jitter=False)
+    assert expected.num_samples > 0
+    torch.testing.assert_close(got.ray_idx.cpu(), expected.ray_idx, rtol=0, atol=0)
+    torch.testing.assert_close(got.t_start.cpu(), expected.t_start, rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(got.t_end.cpu(), expected.t_end, rtol=1e-5, atol=1e-6)
+
+
+def test_compositing_matches_the_cpu():
+    """M1-M3 on random packed samples: alpha, weights, transmittance, colour sums and expected depth."""
+    generator = torch.Generator().manual_seed(5)
+    n_rays, per_ray = 512, 96
+    ray_idx = torch.arange(n_rays).repeat_interleave(per_ray)
+    sigma = torch.rand(n_rays * per_ray, generator=generator) * 20.0
+    deltas = torch.rand(n_rays * per_ray, generator=generator) * 0.02
+    t_mid = torch.cumsum(deltas.view(n_rays, per_ray), -1).view(-1) + 1.0
+    rgb = torch.rand(n_rays * per_ray, 3, generator=generator)
+
+    def composite(sigma, deltas, t_mid, rgb, ray_idx):
+        alpha = alpha_from_density(sigma, deltas)
+        weights, trans = weights_from_alpha(alpha, ray_idx, n_rays)
+        colour = ray_sum(weights[:, None] * rgb, ray_idx, n_rays)
+        return alpha, weights, trans, colour, expected_depth(weights, t_mid, ray_idx, n_rays)
+
+    expected = composite(sigma, deltas, t_mid, rgb, ray_idx)
+    got = composite(*on(cuda(), sigma, deltas, t_mid, rgb, ray_idx))
+    for want, have in zip(expected, got, strict=True):
+        torch.testing.assert_close(have.cpu(), want, rtol=1e-4, atol=1e-6)
+
+
+def test_whole_render_matches_the_cpu():
+    """``SceneModel.render`` (marching, skipping, field, compositing) with every head, deterministic."""
+    heads = frozenset({"rgb", "variance", "visibility"})
+    origins, dirs = rays()
+    expected = trained_like_model(CPU).render(origins, dirs, heads=heads)
+    got = trained_like_model(cuda()).render(*on(cuda(), origins, dirs), heads=heads)
+    assert expected.samples.num_samples == got.samples.num_samples > 0
+    for key in ("rgb", "depth", "acc", "variance", "visibility"):
+        torch.testing.assert_close(getattr(got, key).cpu(), getattr(expected, key), rtol=1e-4, atol=1e-4)
+
+
+def test_entropy_bound_matches_the_cpu():
+    """M9, M10, M15: the bound and the per-pixel depth from the same packed weights."""
+    generator = torch.Generator().manual_seed(6)
+    n_rays, per_ray = 256, 64
+    ray_idx = torch.arange(n_rays).repeat_interleave(per_ray)
+    weights = torch.rand(n_rays * per_ray, generator=generator) / per_ray
+    visibility = torch.rand(n_rays * per_ray, generator=generator)
+    variance = torch.rand(n_rays * per_ray, 3, generator=generator) * 0.1 + 1e-4
+    t_mid = torch.rand(n_rays * per_ray, generator=generator) * 4.0
+    cfg = EntropyConfig()
+    expected = upper_bound_and_depth(weights, visibility, variance, t_mid, ray_idx, n_rays, cfg)
+    got = upper_bound_and_depth(*on(cuda(), weights, visibility, variance, t_mid, ray_idx), n_rays, cfg)
+    for want, have in zip(expected, got, strict=True):
+        torch.testing.assert_close(have.cpu(), want, rtol=1e-4, atol=1e-5)
+
+
+def test_fisher_probes_match_the_cpu():
+    """M30 and M31 (FisherRF's probes, the same signs on both devices) on the same model and rays."""
+    origins, dirs = rays(16)
+    signs = rademacher(2, origins.shape[0], torch.Generator().manual_seed(7))
+    probe, exact = [], []  # the CPU's, then CUDA's
+    for device in (CPU, cuda()):
+        model = trained_like_model(device)
+        o, d, s = on(device, origins, dirs, signs)
+        params = colour_parameters(model)
+        probe.append(probe_fisher_diagonal(model, params, o, d, s, chunk_rays=128).cpu())
+        centre = slice(8 * 16 + 4, 8 * 16 + 12)  # eight rays of the middle row, through the ball
+        exact.append(exact_fisher_diagonal(model, params, o[centre], d[centre]).cpu())
+    assert probe[0].sum() > 0 and exact[0].sum() > 0
+    torch.testing.assert_close(probe[1], probe[0], rtol=1e-3, atol=1e-9)
+    torch.testing.assert_close(exact[1], exact[0], rtol=1e-3, atol=1e-9)
+    draws = rademacher(4, 1000, torch.Generator(device=cuda()).manual_seed(8))
+    assert draws.device.type == "cuda" and set(draws.unique().tolist()) == {-1.0, 1.0}
+    assert math.isclose(float(draws.mean()), 0.0, abs_tol=0.05)
