@@ -1,49 +1,16 @@
 """``python -m pipeline.bench plan [--out PATH] [--repeats N] [--blocks K] [--precisions fp32,bf16] [--probes LIST]
 [overrides]``: view-scoring throughput of every scorer against a plain render (default ``budget=cpu
 scene=default``), the scoring seconds of one planning step per method, the training precisions side by
-side, and FisherRF's probe count against its cost.
+side, and FisherRF's probe count against its cost (``pipeline.bench._probes``).
 
-Trains one full NVF model (all three stages, at the budget) per ``train.precision`` in ``--precisions``
-on the scene's initial views, from the same initial weights and seed, in lockstep (the trainings take
-turns iteration by iteration, ``pipeline.bench._paired``). On the first (reference) precision's model it draws
-512 candidate poses (the paper's N unless ``planner.num_candidates`` is overridden;
-``nvf.planning.candidate_poses`` with the scene's camera box and the M28/M29 filters) and times, on
-the same model and candidates at ``planner.resolution``: ``nvf.planning.score_poses`` with each
-method's scorer (and the heads it needs), and a plain colour + depth render (``model.render`` with
-``heads={"rgb"}``, no scorer) of the same rays in the same chunks (``planner.score_chunk_rays``).
-
-Timing, after one warm-up on a few candidates: the candidates are split into ``K`` blocks and every
-job runs on a block before the next block starts (job order rotated per block), for ``N`` passes.
-Candidates/s is over all blocks; ``<method>_over_plain_render`` is the median over blocks of the
-per-block time ratio, so slow drifts of the machine's load cancel. The baselines' variance heads are
-NVF's (stage 2), which does not change their cost. ``nvf_over_plain_mlp_flops`` is the ratio of the
-MLP FLOPs per sample (METHOD 3's variance and visibility heads against density + colour).
-``nvf_over_plain_render_at_limit`` is the ratio (from the summed times) if NVF's extra MLP FLOPs ran
-at the ``[2048, 128] x [128, 128]`` matmul rate measured in the same run (``matmul_gflops``, the
-visibility position MLP's hidden layer in one inference block) and its other extra work were free;
-``nvf_extra_fraction_of_limit`` is that ideal time over NVF's measured extra time (summed NVF time minus
-summed plain time), or ``null`` when that difference is not positive (timing noise larger than the extra
-work, as with a few tiny candidates). Every job also runs with that model's MLPs in each other precision,
-in the same rotation. ``precisions`` gives per precision its model's training seconds (own turns; all
-stages and by stage), candidates/s with the MLPs in it, and its model's held-out PSNR (5 views at the
-image size, rendered in float32 as an episode renders); ``ratios`` the paired speed-ups over the
-reference (training: median [min, max] over ``K`` iteration windows; scoring: over blocks) and the PSNR
-difference. The top-level figures are the reference precision's. The models run on the run's device
-(``device``, CUDA where present).
-
-A method whose scorer reads the step's model and training views first (FisherRF, METHOD 17) is prepared
-once on the reference model (``prepare_seconds``, ``prepare_seconds_per_view``: its ``H_D`` over the
-training views), then timed like the others. ``seconds_per_step`` is, per method, what one planning step
-spends scoring the candidate set: its preparation plus its summed block times over one pass.
-
-``--probes 1,2,4,8,16`` compares FisherRF's probe counts ``K`` (M31; lambda as ``conf/method/fisherrf.yaml``
-declares it) on the same model and candidates: per ``K`` the
-preparation and scoring seconds, ``seconds_per_step``, and against a reference (the largest ``K``, drawn
-from an independent generator: seed + 1) the Spearman correlation of the candidates' scores, whether
-both pick the same candidate, and the reference's score of the candidate ``K`` picks over the reference's
-best (1: as good a choice by the reference's measure); the largest ``K``'s own row is the noise floor, two
-independent draws.
-Writes ``results/bench/plan.json`` (or ``--out``) and prints a table.
+One full NVF model per ``train.precision`` in ``--precisions``, trained in lockstep on the scene's initial
+views from the same weights and seed; on the reference model, 512 candidate poses (``planner.num_candidates``
+overrides it) scored by each declared method's scorer and rendered plainly (colour and depth) in the same
+chunks, the candidates split into ``K`` blocks that every job runs in turn so that drifts of the machine's
+load cancel in the per-block ratios. A method that prepares on the step's model (FisherRF) is timed with its
+preparation. The models run on the run's device (``device``, CUDA where present). Writes
+``results/bench/plan.json`` (or ``--out``) and prints a table; results/bench/README.md ("plan.json") defines
+every field of the report.
 """
 
 import statistics
@@ -64,12 +31,11 @@ from nvf.device import resolve_device, synchronize
 from nvf.field import INFERENCE_BLOCK, VIS_POSITION_WIDTH
 from nvf.methods import FisherRF, Method
 from nvf.model import SceneModel
-from nvf.planning import argmax_first, score_poses
+from nvf.planning import score_poses
 from nvf.precision import precision_dtype
 from nvf.seeding import generator_factory
 from nvf.training import Observations
 from nvf.uncertainty import StepScorer, ViewScorer, WholeViewScorer
-from nvf.uncertainty.fisher import FisherRFScorer
 from pipeline.bench._models import (
     RGB,
     CountingModel,
@@ -80,6 +46,7 @@ from pipeline.bench._models import (
     view_psnr,
 )
 from pipeline.bench._paired import IterationClock, ratio_spread
+from pipeline.bench._probes import parse_probes, probes_study
 from pipeline.bench._report import report_path, write_report
 from pipeline.bench.field import matmul_gflops, mlp_flops
 from pipeline.cli import ArgumentParser, description, fail
@@ -87,7 +54,6 @@ from pipeline.config.catalog import method_configs
 from pipeline.config.method import build_method
 from pipeline.config.validation import compose_run
 from pipeline.episode.settings import EpisodeSettings
-from pipeline.metrics.ranking import spearman
 
 CANDIDATES = 512  # the paper's N; a later planner.num_candidates=... override wins
 WARMUP_CANDIDATES = 8
@@ -169,52 +135,6 @@ def precision_comparison(
         for name in names[1:]
     }
     return per, ratios
-
-
-def probes_study(
-    setup: InitialViewModel,
-    poses: Float[Tensor, "m 7"],
-    intr: Intrinsics,
-    chunk: int,
-    probes: list[int],
-    prior_precision: float,
-) -> dict:
-    """FisherRF (lambda ``prior_precision``) at each ``K`` of ``probes`` (sorted) on ``setup``'s model and
-    ``poses``: seconds (prepare, score, per step) and the agreement of the candidates' scores with the largest
-    ``K``'s drawn with seed + 1."""
-    seed = int(setup.cfg.seed)
-
-    def run(k: int, seed: int) -> tuple[Tensor, float, float]:
-        start = time.perf_counter()
-        generators = generator_factory(seed, 0, setup.model.aabb.device)
-        scorer = FisherRFScorer(k, prior_precision).prepare(setup.model, setup.obs, generators, chunk)
-        prepared = time.perf_counter()
-        scores = score_poses(setup.model, scorer, poses, intr, chunk)
-        return scores, prepared - start, time.perf_counter() - prepared
-
-    reference, _, _ = run(max(probes), seed + 1)
-    rows = []
-    for k in sorted(probes):
-        scores, prepare, score = run(k, seed)
-        rows.append({
-            "probes": k, "prepare_seconds": prepare, "prepare_seconds_per_view": prepare / setup.obs.num_images,
-            "score_seconds": score, "seconds_per_step": prepare + score,
-            "spearman_to_reference": spearman(scores.cpu().numpy(), reference.cpu().numpy()),
-            "same_choice_as_reference": argmax_first(scores) == argmax_first(reference),
-            "choice_over_best_in_reference": float(reference[argmax_first(scores)] / reference.max()),
-        })  # fmt: skip
-    return {"reference_probes": max(probes), "prior_precision": prior_precision, "rows": rows}
-
-
-def parse_probes(value: str) -> list[int]:
-    """``1,2,4`` -> distinct positive probe counts (one line and exit status 2 otherwise)."""
-    try:
-        counts = [int(part) for part in value.split(",") if part.strip()]
-    except ValueError:
-        counts = []
-    if not counts or min(counts) < 1 or len(set(counts)) != len(counts):
-        fail(f"--probes {value!r} must list distinct positive probe counts, e.g. 1,2,4,8,16")
-    return counts
 
 
 def timed(fn: Callable[[], object]) -> tuple[float, float]:

@@ -2,42 +2,13 @@
 end-to-end training and inference throughput of the scene model at a budget (default ``budget=cpu
 scene=default``), for each training precision side by side.
 
-In one run, on the scene's 20 evaluation views rendered at ``budget.image_size`` as training views, one
-model per ``train.precision`` in ``--precisions`` (the first is the reference), from the same initial
-weights and seed; the top-level figures below are the reference's:
-
-- stage 1 (``nvf.training.train_backbone`` at the budget: render with ``train=True``, loss,
-  backward, Adam, occupancy-grid updates) timed per iteration, as kept samples/s over the
-  iterations after a warm-up; the precisions' trainings run in lockstep, taking turns iteration by
-  iteration (``pipeline.bench._paired``), each timed over its own turns only;
-- inference: ``no_grad`` ``render_image`` of the 20 views with all heads and with rgb only, on the
-  reference model with its MLPs in each precision, alternating, ``--repeats`` rounds;
-- the ``[n, hidden_dim]`` matmul rate (``pipeline.bench.field``) with ``n`` the mean kept samples
-  of a training batch, and the fractions of that limit (field.py's MLP FLOPs per sample);
-  ``<key>_samples_per_s_at_limit`` is the rate if the MLPs ran at that matmul rate and nothing else
-  cost time, and ``goals_within_limit`` says whether each goal is below it (a goal above it cannot
-  be met at METHOD's MLP sizes on this machine);
-- the field floor (``field_floor``): the kept-sample rate if an iteration cost only the field's own
-  work (forward + backward on the kept samples, the skipping pass's density on the marched ones, the
-  occupancy update over its period), timed apart after training, and the MLP floor, the same with only
-  the MLPs' layers (no hash encoding); ``train_goal_within_field_floor``, ``train_goal_within_mlp_floor``;
-  both on the reference model, with its MLPs in each precision;
-- the PSNR of the trained backbone on 5 held-out views (the ring of tests/test_integration.py) and
-  on the first 5 training views (fit vs. generalisation), also off the ground truth's edges.
-  ``budget.gt_samples=K`` renders every ground-truth view (training and test) as the mean of ``K x K``
-  sub-pixel samples, an anti-aliased ground truth like the paper's Blender renders (as in an episode);
-  ``render.backend=blender`` takes the ground truth from Blender Cycles instead.
-
-``precisions`` holds these figures per precision (held-out PSNR of each precision's own model, rendered
-in float32 as an episode renders it), ``ratios`` each other precision against the reference, paired:
-training samples/s and the per-iteration speed-up over ``--windows`` iteration windows, inference over
-the rounds (median, min, max), the floors' ratios, and the held-out PSNR difference (dB), checked
-against ``PRECISION_GOALS``. Per-iteration time and kept samples/s can disagree: the precisions' models
-train apart, and their occupancy grids keep and march different numbers of samples.
-
-Rates are given from wall time and (``*_cpu``) from process CPU time / threads, which is robust
-to other jobs on the cores. The models run on the run's device (``device``, CUDA where present). Writes
-``results/bench/train.json`` (or ``--out``) and prints a table.
+On the scene's 20 evaluation views as training views, one model per ``train.precision`` in ``--precisions``
+(the first is the reference) from the same initial weights and seed, trained in lockstep
+(``pipeline.bench._paired``): stage 1's kept samples per second, inference's, the matmul limit and the field
+and MLP floors (``pipeline.bench._floor``), and held-out PSNR, per precision with paired ratios against the
+reference. Rates from wall time and (``*_cpu``) from process CPU time / threads. The models run on the run's
+device (``device``, CUDA where present). Writes ``results/bench/train.json`` (or ``--out``) and prints a
+table; results/bench/README.md ("train.json") defines every field of the report.
 """
 
 import dataclasses
@@ -54,9 +25,9 @@ from nvf.config import Precision
 from nvf.device import resolve_device, synchronize
 from nvf.encoding import cpp_extension
 from nvf.field import HEADS
-from nvf.model import SceneModel
 from nvf.precision import precision_dtype
 from nvf.training import Observations, train_backbone
+from pipeline.bench._floor import field_floor
 from pipeline.bench._models import (
     HELD_OUT_VIEWS,
     RGB,
@@ -72,7 +43,7 @@ from pipeline.bench._models import (
 )
 from pipeline.bench._paired import IterationClock, ratio_spread
 from pipeline.bench._report import report_path, write_report
-from pipeline.bench.field import matmul_gflops, median_seconds, mlp_flops
+from pipeline.bench.field import matmul_gflops, mlp_flops
 from pipeline.cli import ArgumentParser, description
 from pipeline.config.typed import Run
 from pipeline.config.validation import compose_run
@@ -127,90 +98,6 @@ def inference_rates(
             "samples_per_s_cpu": statistics.median(cpu),
         }
     return out
-
-
-def field_floor(
-    model: SceneModel,
-    obs: Observations,
-    rays: int,
-    per_iter: tuple[float, float],
-    update_every: int,
-    generator: torch.Generator,
-    repeats: int,
-) -> dict[str, float | int]:
-    """The field's own work in a stage-1 iteration, timed apart on one batch of ``rays`` training rays
-    (median of ``repeats``, wall and CPU): the skipping pass's ``no_grad`` density and encoding on the
-    batch's marched samples; forward + backward of density and colour on its kept samples, reusing their
-    encoding as training does; one occupancy update (every cell, as in warm-up). Scaled per sample to
-    ``per_iter`` (the training's mean kept and marched samples per iteration), with the update spread over
-    ``update_every`` iterations, this gives ``train_samples_per_s_field_floor``: the kept-sample rate if
-    marching, volume rendering, the loss and Adam cost nothing. ``train_samples_per_s_mlp_floor``: the same
-    with only the MLPs' layers on the same rows (density MLP and colour head forward + backward on the kept
-    samples, the density MLP on the marched samples and on every grid cell), i.e. if the hash encoding also
-    cost nothing. Leaves the occupancy grid updated once more."""
-    origins, dirs, _, _ = obs.sample_rays(rays, generator)
-    with torch.no_grad():
-        marched = model.grid.march(origins, dirs, jitter=True, generator=generator).positions(origins, dirs)
-        kept = model.render(origins, dirs, train=True, generator=generator).samples
-        kept_x, kept_d = kept.positions(origins, dirs), dirs[kept.ray_idx]
-        encoded = model.field.density_and_encoding(kept_x)[2]
-
-    def train_field() -> None:
-        model.field.zero_grad(set_to_none=True)
-        out = model.field(kept_x, kept_d, RGB, encoded=encoded)
-        (out.rgb.sum() + out.sigma.sum()).backward()
-
-    def skip_density() -> None:
-        with torch.no_grad():
-            model.field.density_and_encoding(marched)
-
-    def grid_update() -> None:
-        with torch.no_grad():
-            model.update_grid(0, generator)
-
-    field = model.field
-    kept_encoded = encoded.clone().requires_grad_()
-    first_layer = field.color_head[0]
-    assert isinstance(first_layer, torch.nn.Linear), "an MLP starts with a linear layer"
-    device = model.aabb.device
-    kept_head_in = torch.randn(kept.num_samples, first_layer.in_features, requires_grad=True, device=device)
-    marched_encoded = torch.randn(marched.shape[0], field.encoding.out_dim, device=device)
-    cell_encoded = torch.randn(model.grid.resolution**3, field.encoding.out_dim, device=device)
-
-    def mlp_fwd_bwd() -> None:
-        field.zero_grad(set_to_none=True)
-        (field.density_mlp(kept_encoded).sum() + field.color_head(kept_head_in).sum()).backward()
-
-    def mlp_skip_density() -> None:
-        with torch.no_grad():
-            field.density_mlp(marched_encoded)
-
-    def mlp_grid_update() -> None:
-        with torch.no_grad():
-            field.density_mlp(cell_encoded)
-
-    work = {
-        "field": (("fwd_bwd", train_field), ("skip_density", skip_density), ("grid_update", grid_update)),
-        "mlp": (("fwd_bwd", mlp_fwd_bwd), ("skip_density", mlp_skip_density), ("grid_update", mlp_grid_update)),
-    }
-    r: dict[str, float | int] = {
-        "field_floor_kept_samples": kept.num_samples,
-        "field_floor_marched_samples": marched.shape[0],
-    }
-    kept_per_iter, marched_per_iter = per_iter
-    for floor, parts in work.items():
-        timed = {name: median_seconds(fn, repeats) for name, fn in parts}
-        for i, suffix in enumerate(("", "_cpu")):
-            seconds = (
-                timed["fwd_bwd"][i] * kept_per_iter / kept.num_samples
-                + timed["skip_density"][i] * marched_per_iter / marched.shape[0]
-                + timed["grid_update"][i] / update_every
-            )
-            r[f"train_samples_per_s_{floor}_floor{suffix}"] = kept_per_iter / seconds
-        for name, (wall, _) in timed.items():
-            r[f"{floor}_floor_{name}_ms"] = 1e3 * wall
-    field.zero_grad(set_to_none=True)
-    return r
 
 
 def precision_goals_met(ratio: dict) -> dict[str, bool]:
