@@ -5,6 +5,7 @@ import copy
 from hydra import compose, initialize_config_dir
 
 from pipeline.config.named import NamedConfigs
+from pipeline.config.validation import typed_run
 from pipeline.episode.runner import run_settings
 from pipeline.repo import CONF
 
@@ -14,7 +15,7 @@ GROUPS = ["scene=default", "method=nvf", "planner=argmax", "ablation=none", "bud
 def _info(*overrides: str) -> dict:
     """run.json's identity and config for a run made with the named groups plus ``overrides``."""
     with initialize_config_dir(str(CONF), version_base="1.3"):
-        return run_settings(compose("config", overrides=[*GROUPS, *overrides, "paths.outputs=/elsewhere"]))
+        return run_settings(typed_run(compose("config", overrides=[*GROUPS, *overrides, "paths.outputs=/elsewhere"])))
 
 
 def test_a_run_of_the_named_groups_has_no_overrides():
