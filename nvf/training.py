@@ -394,7 +394,7 @@ def train_backbone(
     return summary
 
 
-def _variance_mixture_config(cfg: TrainConfig, entropy_cfg: EntropyConfig) -> EntropyConfig | None:
+def variance_mixture_config(cfg: TrainConfig, entropy_cfg: EntropyConfig) -> EntropyConfig | None:
     """Mixture settings of (M21); ``None`` when the stage trains nothing.
 
     By default the ablation switches only change the score (section 11): the full mixture is
@@ -431,7 +431,7 @@ def train_variance_head(
     """
     _require_images(obs)
     steps = _steps_per_iteration(cfg, "variance")
-    mix_cfg = _variance_mixture_config(cfg, entropy_cfg)
+    mix_cfg = variance_mixture_config(cfg, entropy_cfg)
     rec = _Recorder("variance", cfg.variance.iters, progress, cfg.precision, model.aabb.device.type)
     if mix_cfg is None:
         return rec.summary()

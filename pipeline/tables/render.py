@@ -59,6 +59,12 @@ def _grid(table: Table, label_header: str) -> tuple[list[str], list[list[str]]]:
     return columns, cells
 
 
+def markdown_table(columns: list[str], cells: list[list[str]]) -> str:
+    """A Markdown table of text cells, each escaped (``pipeline.tables.escape.markdown``; ``**bold**`` kept)."""
+    grid = pd.DataFrame([[markdown(c) for c in line] for line in cells], columns=[markdown(c) for c in columns])
+    return grid.to_markdown(index=False, disable_numparse=True)
+
+
 def render(table: Table, label_header: str, experiment: str | None) -> dict[str, str]:
     """The table as {'md', 'csv', 'tex'} texts ('no runs yet' texts when it has no rows)."""
     if table.rows.empty:
@@ -71,13 +77,12 @@ def render(table: Table, label_header: str, experiment: str | None) -> dict[str,
             "tex": "\n".join([f"% {table.title}", tex_escape(message), *(tex_escape(n) for n in table.notes)]) + "\n",
         }
     columns, cells = _grid(table, label_header)
-    grid = pd.DataFrame([[markdown(c) for c in line] for line in cells], columns=columns)
     md = [
         f"# {table.title}",
         "",
         *map(markdown, table.header),
         "",
-        grid.to_markdown(index=False, disable_numparse=True),
+        markdown_table(columns, cells),
         "",
         *(f"- {markdown(n)}" for n in table.notes),
     ]
