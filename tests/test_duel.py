@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import torch
 
+from nvf.cameras import matrix_to_pose
 from pipeline.config.validation import compose_config
 from pipeline.episode.loop import Episode
 from pipeline.episode.runner import run_episode
@@ -188,6 +189,25 @@ def test_summary_pairs_decisions_and_episodes(tmp_path):
     for seed in (101, 102):
         shutil.rmtree(run_dir(records, "hotdog", "wd", "argmax", "none", "smoke", seed))
     assert math.isnan(duel_summary.tables(root, records)[0].iloc[0]["episode_diff"])  # one seed in common
+
+
+def test_one_step_outcome_of_a_pick():
+    """``with_view`` adds the ground truth at a pose to the observations; ``heldout_psnr`` trains the plain
+    backbone as the next step would (same seed: the same PSNR twice) and measures it on the evaluation views."""
+    cfg = compose_config(["budget=smoke", "train.backbone.iters=5"])
+    scene = load_scene(cfg.scene, Path(cfg.paths.assets))
+    episode = Episode(EpisodeSettings.of(cfg, scene), scene, torch.device("cpu"), LpipsMetric())
+    try:
+        obs = episode.observations()
+        pose = matrix_to_pose(scene.eval_poses[0].to(torch.float32))
+        more = decisions.with_view(obs, episode, pose)
+        assert more.num_images == obs.num_images + 1
+        torch.testing.assert_close(more.c2w[-1], scene.eval_poses[0].to(torch.float32), atol=1e-5, rtol=0)
+        first, _ = decisions.heldout_psnr(episode, more, 1)
+        again, _ = decisions.heldout_psnr(episode, more, 1)
+        assert math.isfinite(first) and first == again
+    finally:
+        episode.close()
 
 
 @pytest.fixture(scope="module")

@@ -131,15 +131,17 @@ def prepared_scorer(
     return prepare_scorer(episode.scorer, planning, obs, generators, s.planner.score_chunk_rays)
 
 
-def candidate_set(episode: Episode, planning: Planning, step: int, index: int) -> Float[Tensor, "m 7"]:
+def candidate_set(
+    episode: Episode, planning: Planning, step: int, index: int, purpose: str = "duel_candidates"
+) -> Float[Tensor, "m 7"]:
     """Candidate set ``index`` at step ``step`` of ``episode``'s state, drawn as its planner draws them (the
     filters its method applies: none for Random unless ``planner.random_filters``): set 0 with the step's own
-    generator (the set its episode chose from), the others with their own (``duel_candidates/<index>``)."""
+    generator (the set its episode chose from), the others with their own (``<purpose>/<index>``)."""
     s = episode.settings
     generator = (
         generator_factory(s.seed, step, episode.device)("candidates")
         if index == 0
-        else seeded_generator(s.seed, step, f"duel_candidates/{index}", episode.device)
+        else seeded_generator(s.seed, step, f"{purpose}/{index}", episode.device)
     )
     filters = episode.scorer is not None or s.planner.random_filters
     current = matrix_to_pose(episode.poses[-1]).to(episode.device)
