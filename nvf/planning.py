@@ -243,6 +243,12 @@ def argmax_first(scores: Float[Tensor, " m"]) -> int:
     return int((scores == scores.max()).nonzero()[0, 0])
 
 
+def random_pick(m: int, generator: torch.Generator) -> int:
+    """Random's choice among ``m`` candidates (METHOD 12): one uniform draw from ``generator`` (a step's
+    ``generators("random_pick")``)."""
+    return int(torch.randint(m, (1,), generator=generator, device=generator.device))
+
+
 def top_k_first(scores: Float[Tensor, " m"], k: int) -> Int[Tensor, " k2"]:
     """Indices of the ``min(k, m)`` best scores, best first; ties keep the lower index first."""
     return torch.sort(scores, descending=True, stable=True).indices[: min(k, scores.shape[0])]
@@ -381,8 +387,7 @@ def select_next_view(
     )
     m = candidates.shape[0]
     if scorer is None:
-        g = generators("random_pick")
-        index = int(torch.randint(m, (1,), generator=g, device=g.device))
+        index = random_pick(m, generators("random_pick"))
         return Selection(candidates[index], index, None, m, None, candidates=candidates)
     if cfg.name not in ("argmax", "opt"):
         raise ValueError(f"unknown planner {cfg.name!r} (argmax | opt; Random is scorer=None)")

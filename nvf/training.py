@@ -392,7 +392,7 @@ def train_backbone(
     return summary
 
 
-def _variance_mixture_config(cfg: TrainConfig, entropy_cfg: EntropyConfig) -> EntropyConfig | None:
+def variance_mixture_config(cfg: TrainConfig, entropy_cfg: EntropyConfig) -> EntropyConfig | None:
     """Mixture settings of (M21); ``None`` when the stage trains nothing.
 
     By default the ablation switches only change the score (section 11): the full mixture is
@@ -428,7 +428,7 @@ def train_variance_head(
     losses are means over their steps.
     """
     _require_images(obs)
-    mix_cfg = _variance_mixture_config(cfg, entropy_cfg)
+    mix_cfg = variance_mixture_config(cfg, entropy_cfg)
     rec = _Recorder("variance", cfg.variance.iters, progress, cfg.precision, model.aabb.device.type)
     if mix_cfg is None:
         return rec.summary()

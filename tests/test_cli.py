@@ -19,6 +19,8 @@ COMMANDS = (
     "pipeline/experiments/visibility_study.py",
     "pipeline/experiments/visibility_summary.py",
     "pipeline/experiments/budget_curve.py",
+    "pipeline/experiments/duel.py",
+    "pipeline/experiments/duel_summary.py",
     "pipeline/scenes/__main__.py",
     "pipeline/bench/__main__.py",
 )

@@ -115,6 +115,31 @@ def test_the_site_links_every_picture_and_needs_no_network(tmp_path):
     assert all((site / src).resolve().is_file() for src in links(site / "pilots.html").images)
 
 
+def test_the_duel_page_is_a_matrix_of_gains_marked_where_the_interval_excludes_zero(tmp_path):
+    """duel.html from pilots/duel/summary.csv: a matrix per scene, a gain whose interval excludes zero in bold, one
+    that spans zero not, names escaped; the overview links it only when the table exists."""
+    from pipeline.tables.site import DUEL_SUMMARY, duel_page
+
+    row = {"n": 12, "same_pick": 0.5, "cpu_hours": 1.5, "episode_diff": 0.4, "episode_ci_low": -1.0}
+    rows = [
+        row | {"method": "nvf", "rival": "wd", "scene": "hubble", "gain_mean": 0.5, "ci_low": 0.1, "ci_high": 0.9},
+        row | {"method": "nvf", "rival": "<b>x", "scene": "hubble", "gain_mean": 0.2, "ci_low": -0.1, "ci_high": 0.5},
+    ]
+    summary = pd.DataFrame([r | {"episode_ci_high": 1.8} for r in rows])
+    page = duel_page(summary)
+    assert "<strong>+0.50 [+0.10, +0.90]</strong>" in page and "<strong>+0.20" not in page
+    assert "+0.20 [-0.10, +0.50]" in page and "&lt;b&gt;x" in page and "<b>x" not in page
+    assert "episodes +0.40 [-1.00, +1.80]" in page and page.count("<h2>hubble</h2>") == 1
+    results = tmp_path / "res"
+    build_tables(tmp_path / "out", [], results, assets=tmp_path / "none")
+    assert 'href="duel.html"' not in (results / "site" / "index.html").read_text()
+    (results / DUEL_SUMMARY).parent.mkdir(parents=True)
+    summary.to_csv(results / DUEL_SUMMARY, index=False)
+    build_tables(tmp_path / "out", [], results, assets=tmp_path / "none")
+    assert 'href="duel.html"' in (results / "site" / "index.html").read_text()
+    assert "&lt;b&gt;x" in (results / "site" / "duel.html").read_text()
+
+
 def test_tables_read_your_runs_and_with_committed_the_committed_ones(tmp_path, capsys, monkeypatch):
     committed = tmp_path / "repo_results"
     make_run(committed / "runs", seed=100)  # the same run as yours: counted once
@@ -139,7 +164,7 @@ def test_tables_read_your_runs_and_with_committed_the_committed_ones(tmp_path, c
 
 def entry_points():
     from pipeline.bench.__main__ import main as bench
-    from pipeline.experiments import budget_curve, discriminate, uncertainty, visibility_study
+    from pipeline.experiments import budget_curve, discriminate, duel, duel_summary, uncertainty, visibility_study
     from pipeline.scenes.__main__ import main as scenes
 
     return {
@@ -150,6 +175,8 @@ def entry_points():
         "experiments.uncertainty": uncertainty.main,
         "experiments.discriminate": discriminate.main,
         "experiments.visibility_study": visibility_study.main,
+        "experiments.duel": duel.main,
+        "experiments.duel_summary": duel_summary.main,
     }
 
 
@@ -163,6 +190,8 @@ def entry_points():
         "experiments.uncertainty",
         "experiments.discriminate",
         "experiments.visibility_study",
+        "experiments.duel",
+        "experiments.duel_summary",
     ],
 )
 def test_every_entry_point_has_a_plain_help_page(name, capsys):

@@ -13,10 +13,11 @@ import torch
 import trimesh
 
 from nvf.cameras import Intrinsics, look_at
-from pipeline.episode.settings import EpisodeSettings
 from pipeline.experiments import visibility_study
+from pipeline.experiments.decisions import JsonLines
 from pipeline.experiments.visibility_summary import (
     COLUMNS,
+    DECISION,
     SURFACE_COLUMNS,
     summary_frame,
     surface_frame,
@@ -130,22 +131,13 @@ def test_surface_table_pairs_nvf_with_wo_vis_over_seeds_at_every_step(tmp_path):
     assert surface_frame(tmp_path, budget="cpu").empty  # another budget's records are not mixed in
 
 
-def test_decisions_append_whole_rows_side_by_side_and_drop_a_cut_row(tmp_path):
-    """Two studies of one setting (other scenes) append to one decisions.jsonl without losing each other's
-    rows; a row cut off by a kill is dropped when the file is opened again."""
-    path = tmp_path / "decisions.jsonl"
-    first, second = visibility_study.Decisions(path), visibility_study.Decisions(path)
-    first.add([decision_row("hotdog", 0)])
-    second.add([decision_row("hubble", 0)])
-    first.add([decision_row("hotdog", 6)])
-    assert [(r["scene"], r["step"]) for r in visibility_study.Decisions(path).rows] == [
-        ("hotdog", 0),
-        ("hubble", 0),
-        ("hotdog", 6),
-    ]
-    path.write_text(path.read_text() + '{"scene": "hub')
-    reopened = visibility_study.Decisions(path)
-    assert len(reopened.rows) == 3 and path.read_text().endswith("\n") and reopened.done("hubble", 100, 0)
+def test_a_state_is_done_once_its_rows_are_written(tmp_path):
+    """The study keeps its rows in the duel's ``JsonLines`` (whole rows, a cut one dropped): a state is done once
+    any of its rows is there, so a killed study resumes at its first state without rows."""
+    decisions = JsonLines(tmp_path / "decisions.jsonl", DECISION)
+    decisions.add([decision_row("hotdog", 0), decision_row("hubble", 6)])
+    assert visibility_study.done(decisions, "hubble", 100, 6) and not visibility_study.done(decisions, "hubble", 100, 0)
+    assert not visibility_study.done(decisions, "hotdog", 101, 0)
 
 
 def test_study_refuses_a_bad_setting_name(capsys):
@@ -199,31 +191,6 @@ def test_study_on_a_smoke_record(tmp_path):
     before = (folder / "decisions.jsonl").read_text()
     visibility_study.main(study)
     assert (folder / "decisions.jsonl").read_text() == before  # finished states are not measured again
-
-
-def test_one_step_outcome_of_a_pick():
-    """``with_view`` adds the ground truth at a pose to the observations; ``heldout_psnr`` trains the backbone
-    as the next step would (same seed: the same PSNR twice) and measures it on the evaluation views."""
-    from nvf.cameras import matrix_to_pose
-    from pipeline.config.validation import compose_run
-    from pipeline.episode.loop import Episode
-    from pipeline.metrics.image import LpipsMetric
-    from pipeline.scenes.loading import load_scene
-
-    cfg = compose_run(["budget=smoke", "train.backbone.iters=5"])
-    scene = load_scene(cfg.scene, Path(cfg.paths.assets))
-    episode = Episode(EpisodeSettings.of(cfg, scene), scene, torch.device("cpu"), LpipsMetric())
-    try:
-        obs = episode.observations()
-        pose = matrix_to_pose(scene.eval_poses[0].to(torch.float32))
-        more = visibility_study.with_view(obs, episode, pose)
-        assert more.num_images == obs.num_images + 1
-        torch.testing.assert_close(more.c2w[-1], scene.eval_poses[0].to(torch.float32), atol=1e-5, rtol=0)
-        first, _ = visibility_study.heldout_psnr(episode, more, 1)
-        again, _ = visibility_study.heldout_psnr(episode, more, 1)
-        assert math.isfinite(first) and first == again
-    finally:
-        episode.close()
 
 
 # ----------------------------------------------------------------------------- hostile input (issue 39)

@@ -74,12 +74,14 @@ class Episode:
         images = torch.from_numpy(np.stack(self.images))
         return Observations(images.to(self.device), torch.stack(self.poses).to(self.device), self.intrinsics)
 
-    def new_model(self, step: int) -> SceneModel:
-        """A freshly initialised model, seeded from (seed, step) (METHOD 10: retrained from scratch)."""
+    def new_model(self, step: int, num_images: int | None = None) -> SceneModel:
+        """A freshly initialised model, seeded from (seed, step) (METHOD 10: retrained from scratch), for the
+        views observed so far (or ``num_images`` views)."""
         s = self.settings
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(int(seeded_generator(s.seed, step, "init").initial_seed()))
-            model = SceneModel(self.scene.object_aabb, s.field, s.sampler, num_images=len(self.poses))
+            views = len(self.poses) if num_images is None else num_images
+            model = SceneModel(self.scene.object_aabb, s.field, s.sampler, num_images=views)
         model = model.to(self.device)
         if s.train.warm_start and self.previous_model is not None:
             # Deviation (documented in conf): reuse the previous step's weights instead of retraining.

@@ -16,6 +16,10 @@ poses selected at steps ``0..k-1``). At that state, under the setting's override
    the same for both) and each model's held-out PSNR on the scene's 20 evaluation views is measured: the
    one-step gain of NVF's pick over w/o Vis.'s, paired.
 
+The candidate sets, the one-step outcome and the rows' file are the duel's (``pipeline.experiments.decisions``;
+``python -m pipeline.experiments.duel method=nvf rival=wo_vis`` is the same comparison on states from both
+records, without the terms).
+
 It also runs ``pipeline.bench visibility``'s report on each scene's initial views (3 sets of 64 candidates,
 the sources ``head`` and ``labels``, plus ``nvf.entropy.visibility_source`` when that is ``mesh``).
 
@@ -31,7 +35,6 @@ have, every step one the records hold, and the folder's files must read back
 
 import dataclasses
 import json
-import os
 import shlex
 import sys
 import time
@@ -40,27 +43,26 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from nvf.cameras import Intrinsics, matrix_to_pose, pose_to_matrix
+from nvf.cameras import Intrinsics, pose_to_matrix
 from nvf.device import resolve_device
 from nvf.methods import NVF
-from nvf.planning import argmax_first, candidate_poses, score_poses
-from nvf.seeding import generator_factory, seeded_generator
-from nvf.training import Observations, train_model
+from nvf.planning import argmax_first, score_poses
+from nvf.training import Observations
 from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
 from pipeline.bench.visibility import visibility_report
 from pipeline.cli import ArgumentParser, description, fail, run_command
 from pipeline.config.typed import Run
 from pipeline.config.validation import compose_run
-from pipeline.episode.evaluation import render_view
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
+from pipeline.experiments.decisions import JsonLines, candidate_set, heldout_psnr, with_view
 from pipeline.experiments.options import SEEDS, name_list, seed_list, step_list
 from pipeline.experiments.visibility_summary import DECISION, DIAGNOSTIC, SETTING, STUDY, write_summary, write_surface
-from pipeline.metrics.image import LpipsMetric, psnr
+from pipeline.metrics.image import LpipsMetric
 from pipeline.metrics.ranking import render_for_terms, spearman, term_attribution, ties_at_max, view_terms
-from pipeline.records.checked import MAX_FILE_BYTES, read_json, read_json_lines
-from pipeline.records.files import append_plain_file, make_directory, read_plain_file
-from pipeline.records.store import atomic_write_text, check_key, check_seed, dumps, run_dir
+from pipeline.records.checked import MAX_FILE_BYTES, read_json
+from pipeline.records.files import make_directory, read_plain_file
+from pipeline.records.store import atomic_write_text, check_key, check_seed, run_dir
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.loading import load_scene
 from pipeline.scenes.scene import SceneError
@@ -93,27 +95,6 @@ def scorer_pair(episode: Episode) -> tuple[NVFEntropyScorer, NVFEntropyScorer]:
     return nvf, blind
 
 
-def candidate_set(episode: Episode, model, k: int, index: int) -> torch.Tensor:
-    """Candidate set ``index`` at step ``k``: 0 is the planner's own draw, others their own generators."""
-    s = episode.settings
-    generator = (
-        generator_factory(s.seed, k, episode.device)("candidates")
-        if index == 0
-        else seeded_generator(s.seed, k, f"study_candidates/{index}", episode.device)
-    )
-    current = matrix_to_pose(episode.poses[-1]).to(episode.device)
-    return candidate_poses(
-        model,
-        s.planner,
-        episode.scene.camera_box.to(episode.device),
-        current,
-        s.tau,
-        s.collision_free,
-        generator,
-        line_of_sight=episode.renderer.unoccluded,
-    )
-
-
 def terms_of(planning, scorers: dict[str, NVFEntropyScorer], candidates: torch.Tensor, intr: Intrinsics) -> dict:
     """Per scorer, per candidate, the mean of each reward term over the planning image ([m] per term); one
     render per candidate serves every scorer."""
@@ -123,31 +104,6 @@ def terms_of(planning, scorers: dict[str, NVFEntropyScorer], candidates: torch.T
         for name, scorer in scorers.items():
             views[name].append(view_terms(scorer, result))
     return {name: {term: np.array([v[term] for v in rows]) for term in rows[0]} for name, rows in views.items()}
-
-
-def heldout_psnr(episode: Episode, obs: Observations, step: int) -> tuple[float, float]:
-    """Train the backbone on ``obs`` as step ``step`` would (its seed) and return its held-out PSNR on the
-    scene's evaluation views (PROTOCOL 4.1, pooled MSE) and the training seconds."""
-    s, start = episode.settings, time.perf_counter()
-    model = episode.new_model(step)
-    train_model(model, obs, s.train, ["backbone"], s.entropy, seeded_generator(s.seed, step, "train", episode.device))
-    seconds = time.perf_counter() - start
-    evaluator = episode.evaluator
-    pred = np.stack(
-        [
-            render_view(model, None, c2w.to(episode.device), evaluator.intrinsics)["rgb"]
-            for c2w in episode.scene.eval_poses
-        ]
-    ).clip(0.0, 1.0)
-    return psnr(pred, evaluator.gt), seconds
-
-
-def with_view(obs: Observations, episode: Episode, pose: torch.Tensor) -> Observations:
-    """``obs`` plus the ground truth at ``pose`` (a 7-vector), rendered as the episode observes."""
-    c2w = pose_to_matrix(pose.detach().cpu().to(torch.float32))
-    image = episode.renderer.render_rgba(c2w, episode.intrinsics, episode.settings.budget.gt_samples)
-    images = torch.cat([obs.images, torch.from_numpy(image)[None].to(obs.images)])
-    return Observations(images, torch.cat([obs.c2w, c2w[None].to(obs.c2w)]), obs.intrinsics)
 
 
 def decision(episode: Episode, planning, candidates: torch.Tensor, scorers, obs: Observations, k: int) -> dict:
@@ -188,23 +144,9 @@ def decision(episode: Episode, planning, candidates: torch.Tensor, scorers, obs:
     return row
 
 
-class Decisions:
-    """The study's rows for one setting (``decisions.jsonl``). Each state's rows are appended in one write, so a
-    killed study leaves whole rows (a row cut off by a kill is dropped when the file is next opened) and two
-    studies of one setting on other scenes or seeds can run side by side."""
-
-    def __init__(self, path: Path):
-        self.path = path
-        self.rows, whole = read_json_lines(path, DECISION)
-        if os.path.lexists(path) and os.lstat(path).st_size != whole:
-            atomic_write_text(path, "".join(dumps(row) + "\n" for row in self.rows))
-
-    def done(self, scene: str, seed: int, step: int) -> bool:
-        return any((r["scene"], r["seed"], r["step"]) == (scene, seed, step) for r in self.rows)
-
-    def add(self, rows: list[dict]) -> None:
-        self.rows.extend(rows)
-        append_plain_file(self.path, "".join(dumps(r) + "\n" for r in rows).encode(), "the study's decisions file")
+def done(decisions: JsonLines, scene: str, seed: int, step: int) -> bool:
+    """Whether ``decisions`` holds the state's rows (a state's rows are appended in one write)."""
+    return any((r["scene"], r["seed"], r["step"]) == (scene, seed, step) for r in decisions.rows)
 
 
 def study_scene(
@@ -214,7 +156,7 @@ def study_scene(
     steps: list[int],
     sets: int,
     records: Path,
-    decisions: Decisions,
+    decisions: JsonLines,
 ) -> None:
     """Every missing (seed, step) state of one scene (``run``: the scene's config with the setting's
     ``overrides``)."""
@@ -222,7 +164,7 @@ def study_scene(
     scene = load_scene(run.scene, Path(run.paths.assets), blender_python(run.paths.blender_python))
     lpips = LpipsMetric()
     for seed in seeds:
-        todo = [k for k in steps if not decisions.done(scene_name, seed, k)]
+        todo = [k for k in steps if not done(decisions, scene_name, seed, k)]
         if not todo:
             continue
         rows = recorded_rows(records, scene_name, seed, run.budget.name, steps)
@@ -239,7 +181,7 @@ def study_scene(
                 scorers = scorer_pair(episode)
                 found = []
                 for index in range(sets):
-                    candidates = candidate_set(episode, model, k, index)
+                    candidates = candidate_set(episode, planning, k, index, purpose="study_candidates")
                     row = decision(episode, planning, candidates, scorers, obs, k)
                     found.append(
                         {
@@ -303,7 +245,7 @@ def main(argv: list[str] | None = None) -> None:
             f"--setting {args.setting}: {out} holds a study made with the overrides {made.get('overrides', [])}, not "
             f"{args.overrides}; give these overrides their own --setting"
         )
-    decisions = Decisions(out / "decisions.jsonl")
+    decisions = JsonLines(out / "decisions.jsonl", DECISION)
     measured = {scene: read_json(out / f"{scene}_diagnostic.json", DIAGNOSTIC) is not None for scene in scenes}
     command = ["python", "-m", "pipeline.experiments.visibility_study", *(sys.argv[1:] if argv is None else argv)]
     commands = (read_plain_file(out / "command.txt", MAX_FILE_BYTES) or b"").decode("utf-8", "replace").splitlines()

@@ -4,10 +4,11 @@ every value a reader uses checked against its declared shape and range before us
 kill or replaced, so it is untrusted input like a run record: one that fails is a ``RecordError``, one line naming
 the file, the line or row, and the key.
 
-A shape is a ``Number`` (a range, whole or not, null allowed or not), ``Text``, ``bool``, a dict of keys to shapes
-(an object with those keys; ``Optional`` for a key that may be missing, other keys are not read), ``Each`` (a list
-of one shape) or ``Entries`` (an object whose every value has one shape). Every value is also checked as a record
-value is (``record_value_problem``: nesting, text length, control characters, finite numbers).
+A shape is a ``Number`` (a range, whole or not, null allowed or not), ``Text``, ``bool`` (``Flag``: null allowed
+too), a dict of keys to shapes (an object with those keys; ``Optional`` for a key that may be missing, other keys
+are not read), ``Each`` (a list of one shape) or ``Entries`` (an object whose every value has one shape). Every
+value is also checked as a record value is (``record_value_problem``: nesting, text length, control characters,
+finite numbers).
 """
 
 import io
@@ -39,6 +40,13 @@ class Number:
 @dataclass(frozen=True)
 class Text:
     """A text (null too when ``null``)."""
+
+    null: bool = False
+
+
+@dataclass(frozen=True)
+class Flag:
+    """True or false (null too when ``null``); plain ``bool`` as a shape allows no null."""
 
     null: bool = False
 
@@ -86,8 +94,9 @@ def shape_problem(value: object, shape: Any, where: str = "") -> str | None:
         return None if problem is None else f"{key} is {problem}"
     if isinstance(shape, Text):
         return None if isinstance(value, str) or (value is None and shape.null) else f"{key} is not a text"
-    if shape is bool:
-        return None if isinstance(value, bool) else f"{key} is not true or false"
+    if shape is bool or isinstance(shape, Flag):
+        allowed = value is None and isinstance(shape, Flag) and shape.null
+        return None if isinstance(value, bool) or allowed else f"{key} is not true or false"
     if isinstance(shape, Each):
         if not isinstance(value, list):
             return f"{key} is not a list"

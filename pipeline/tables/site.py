@@ -11,6 +11,7 @@ works while it stays beside them.
 """
 
 import html
+import math
 import os
 import re
 from collections.abc import Mapping
@@ -28,6 +29,7 @@ from markdown.extensions import Extension
 from markdown.treeprocessors import Treeprocessor
 from plotly.offline import get_plotlyjs
 
+from pipeline.records.checked import Number, Text, read_csv
 from pipeline.records.files import RecordError, escaping_link, is_plain_file, read_plain_file
 from pipeline.records.store import atomic_write_text
 from pipeline.tables.aggregate import SPECS, Table, build_table
@@ -38,6 +40,22 @@ from pipeline.tables.render import html_table
 from pipeline.tables.stats import LEVEL, Interval
 
 PLOTLY_JS = "plotly.min.js"
+DUEL_SUMMARY = Path("pilots", "duel", "summary.csv")  # pipeline.experiments.duel_summary's table
+DB = Number(-100.0, 100.0, null=True)  # a PSNR difference, or none
+DUEL_COLUMNS = {
+    "method": Text(),
+    "rival": Text(),
+    "scene": Text(),
+    "n": Number(0, 2**31, integer=True),
+    "gain_mean": DB,
+    "ci_low": DB,
+    "ci_high": DB,
+    "same_pick": Number(0.0, 1.0, null=True),
+    "episode_diff": DB,
+    "episode_ci_low": DB,
+    "episode_ci_high": DB,
+    "cpu_hours": Number(0.0, null=True),
+}  # the duel summary's columns as the site reads them back (pipeline.records.checked)
 
 STYLE = """
 body { font-family: system-ui, sans-serif; margin: 1.5em auto; max-width: 1300px; padding: 0 1em; color: #222; }
@@ -97,8 +115,12 @@ def write_site(runs: Runs, pictures: Mapping[str, RunPictures], results: Path) -
         pages[(budget, scene)] = path
         atomic_write_text(path, scene_page(runs, frame, pictures, scene, budget, path))
         written.append(path)
+    duels, duel = read_csv(Path(results) / DUEL_SUMMARY, DUEL_COLUMNS), site / "duel.html"
+    if duels is not None:
+        atomic_write_text(duel, duel_page(duels))
+        written.append(duel)
     index = site / "index.html"
-    atomic_write_text(index, index_page(runs, done, pages, index))
+    atomic_write_text(index, index_page(runs, done, pages, index, duels is not None))
     pilots = site / "pilots.html"
     atomic_write_text(pilots, pilots_page(Path(results) / "pilots", pilots))
     return [*written, index, pilots]
@@ -109,8 +131,11 @@ def _page(title: str, body: str, home: str = "", plotly: bool = False) -> str:
     return PAGE.render(title=title, body=body, style=STYLE, home=home, plotly=f"{home}{PLOTLY_JS}" if plotly else None)
 
 
-def index_page(runs: Runs, done: pd.DataFrame, pages: Mapping[tuple[str, str], Path], page: Path) -> str:
-    """Per budget, methods x scenes: final PSNR mean ± population std over seeds, each scene linking to its page."""
+def index_page(
+    runs: Runs, done: pd.DataFrame, pages: Mapping[tuple[str, str], Path], page: Path, duel: bool = False
+) -> str:
+    """Per budget, methods x scenes: final PSNR mean ± population std over seeds, each scene linking to its page;
+    ``duel``: link the duel's page."""
     parts = []
     if done.empty:
         parts.append(
@@ -140,6 +165,11 @@ def index_page(runs: Runs, done: pd.DataFrame, pages: Mapping[tuple[str, str], P
         "the number of seeds). A scene's page has every metric with paired 95% intervals, the curves over the steps "
         "and each run's pictures. Proxies and the procedural default scene are stand-ins, not the paper's assets.</p>"
     )
+    if duel:
+        parts.append(
+            '<p><a href="duel.html">Duels</a>: which method\'s next view is better from the same state, paired '
+            "one-step decisions beside the episodes' final PSNR.</p>"
+        )
     return _page("nvf-bench results", "".join(parts))
 
 
@@ -385,3 +415,55 @@ def pilots_page(pilots: Path, page: Path) -> str:
             parts.append(f"<h3>{html.escape(where)}</h3>{_note(path, page)}")
         parts.append("</div>")
     return _page("Pilots", "".join(parts))
+
+
+def _interval_text(mean: float, low: float, high: float) -> tuple[str, bool]:
+    """'+0.21 [+0.01, +0.42]' ('-' without a mean, the mean alone without an interval) and whether the interval
+    excludes zero."""
+    if not math.isfinite(mean):
+        return "-", False
+    if not (math.isfinite(low) and math.isfinite(high)):
+        return f"{mean:+.2f}", False
+    return f"{mean:+.2f} [{low:+.2f}, {high:+.2f}]", bool(low > 0.0 or high < 0.0)
+
+
+def duel_cell(row: pd.Series) -> str:
+    """One pair's cell: the one-step gain with its interval (bold where it excludes zero), its decisions, and the
+    episodes' final-PSNR difference beneath (bold likewise)."""
+    gain, gain_separates = _interval_text(row["gain_mean"], row["ci_low"], row["ci_high"])
+    episode, episode_separates = _interval_text(row["episode_diff"], row["episode_ci_low"], row["episode_ci_high"])
+    gain_html = f"<strong>{html.escape(gain)}</strong>" if gain_separates else html.escape(gain)
+    episode_html = f"<strong>{html.escape(episode)}</strong>" if episode_separates else html.escape(episode)
+    title = f"{int(row['n'])} differing decisions, same pick {row['same_pick']:.0%}, {row['cpu_hours']:.2f} cpu h"
+    return (
+        f'<td title="{html.escape(title)}">{gain_html} <span class="note">n={int(row["n"])}</span><br>'
+        f'<span class="note">episodes {episode_html}</span></td>'
+    )
+
+
+def duel_page(summary: pd.DataFrame) -> str:
+    """Per scene (and over scenes), a method x rival matrix of the duel's one-step gains (``summary.csv`` of
+    ``pipeline.experiments.duel_summary``)."""
+    parts = [
+        "<p>A duel scores the same candidate views with two methods on the same states (half from each method's "
+        "recorded episodes); where their picks differ, the plain backbone is trained one step with each pick and "
+        "measured on the evaluation views. A cell: the row method's pick minus the column rival's in held-out "
+        "PSNR (dB, mean [95% Student-t interval] over the n decisions whose picks differ) and, beneath, the row "
+        "method's final PSNR minus the rival's in their episodes (paired by seed). Bold: the interval excludes "
+        "zero. Hover a cell for the share of identical picks and the duel's cpu hours.</p>"
+    ]
+    for scene, block in summary.groupby("scene", sort=False):
+        methods, rivals = list(dict.fromkeys(block["method"])), list(dict.fromkeys(block["rival"]))
+        head = "".join(f"<th>{html.escape(str(r))}</th>" for r in rivals)
+        lines = []
+        for method in methods:
+            cells = []
+            for rival in rivals:
+                found = block[(block["method"] == method) & (block["rival"] == rival)]
+                cells.append(duel_cell(found.iloc[0]) if len(found) else "<td>-</td>")
+            lines.append(f'<tr><td class="label">{html.escape(str(method))}</td>{"".join(cells)}</tr>')
+        parts.append(
+            f'<h2>{html.escape(str(scene))}</h2><div class="wide"><table><thead><tr><th>method \\ rival</th>'
+            f"{head}</tr></thead><tbody>{''.join(lines)}</tbody></table></div>"
+        )
+    return _page("Duels: paired one-step decisions", "".join(parts))

@@ -1,0 +1,284 @@
+"""One decision of the duel (``pipeline.experiments.duel``): the contenders, their models at a recorded state,
+a candidate set, each contender's pick from it, and the one-step outcome of a pick.
+
+- A contender is a method (``conf/method``) or an NVF ablation (``conf/ablation``: method ``nvf`` with it),
+  planned by argmax.
+- At a state (a record's observations before step ``k``) each contender's model is trained as its own
+  episode's step ``k`` trains it (``Episode.train``). Contenders whose training agrees stage by stage up to the
+  end of the shorter one's (``training_plan``) share one model, the longer training: the stages run in order on
+  one generator, so a stage after the shorter one's last changes nothing it trained (the backbone and the
+  occupancy grid stay bitwise the same, which ``tests/test_duel.py`` checks), and its score reads only that.
+- A pick is what the contender's episode would pick from the candidates: the argmax of its scores
+  (``argmax_first``; a ``StepScorer`` such as FisherRF's prepared once per state, ``prepare_scorer``), or for a
+  method without a scorer (Random) the planner's uniform choice (``random_pick``) with the step's generator.
+- The outcome of a pick is the same for every contender: the plain backbone (stage 1, no auxiliary loss)
+  trained on the state's observations plus the picked view with the seed of step ``k+1``, and its held-out
+  PSNR on the scene's evaluation views (PROTOCOL 4.1).
+"""
+
+import os
+import re
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from jaxtyping import Float
+from torch import Tensor
+
+from nvf.cameras import matrix_to_pose, pose_to_matrix
+from nvf.model import SceneModel
+from nvf.planning import argmax_first, candidate_poses, prepare_scorer, random_pick, score_poses
+from nvf.seeding import generator_factory, seeded_generator
+from nvf.training import Observations, train_model, variance_mixture_config
+from nvf.uncertainty import ViewScorer, WholeViewScorer
+from nvf.visibility_source import SourcedVisibility
+from pipeline.config.catalog import ablation_configs, declared
+from pipeline.episode.evaluation import render_view
+from pipeline.episode.loop import Episode
+from pipeline.episode.settings import EpisodeSettings
+from pipeline.metrics.image import psnr
+from pipeline.records.checked import Each, Flag, Number, Optional, Text, read_json_lines
+from pipeline.records.files import append_plain_file
+from pipeline.records.store import MAX_SEED, atomic_write_text, dumps, to_jsonable
+from pipeline.records.verify import MAX_HORIZON
+
+PLAIN_NAME = re.compile(r"[A-Za-z0-9_.-]+")
+Planning = SceneModel | SourcedVisibility
+
+
+@dataclass(frozen=True)
+class Contender:
+    """A method (``ablation == "none"``) or an NVF ablation, by the name the command line gives it."""
+
+    name: str
+    method: str
+    ablation: str
+
+    @property
+    def overrides(self) -> list[str]:
+        return [f"method={self.method}", f"ablation={self.ablation}"]
+
+
+def contender(name: str) -> Contender:
+    """The contender ``name`` names; ValueError (one line) when it is neither a method nor an ablation."""
+    if not PLAIN_NAME.fullmatch(name):
+        raise ValueError(f"{name!r} is not a plain name (letters, digits, '_', '-', '.')")
+    if name in declared("method"):
+        return Contender(name, name, "none")
+    ablations = {key: node for key, node in ablation_configs().items() if key != "none"}
+    if name in ablations:
+        return Contender(name, str(ablations[name]["of"]), name)
+    raise ValueError(
+        f"unknown contender {name!r}: name a method of conf/method ({', '.join(declared('method'))}) or an "
+        f"ablation of conf/ablation ({', '.join(ablations)})"
+    )
+
+
+def training_plan(s: EpisodeSettings) -> tuple[tuple, tuple]:
+    """What ``Episode.train`` does under ``s``: what every stage shares (field, sampler, training settings, seed)
+    and, stage by stage in run order, what the stage reads (the backbone its auxiliary loss, the variance head
+    its mixture, M21)."""
+    stages: list[tuple] = []
+    for stage in s.stages:
+        if stage == "backbone":
+            stages.append((stage, type(s.method).aux_loss))
+        elif stage == "variance":
+            stages.append((stage, variance_mixture_config(s.train, s.entropy)))
+        else:
+            stages.append((stage,))
+    return (s.field, s.sampler, s.train, s.seed), tuple(stages)
+
+
+def serves(trained: tuple[tuple, tuple], wanted: tuple[tuple, tuple]) -> bool:
+    """Whether a model trained by plan ``trained`` is the one plan ``wanted`` trains (its stages begin with
+    ``wanted``'s)."""
+    return trained[0] == wanted[0] and trained[1][: len(wanted[1])] == wanted[1]
+
+
+@dataclass
+class Trained:
+    """A model trained at a state, the plan it was trained by and the seconds its training took."""
+
+    model: SceneModel
+    plan: tuple[tuple, tuple]
+    seconds: float
+
+
+def train_models(episodes: dict[str, Episode], obs: Observations, step: int) -> dict[str, Trained]:
+    """Each contender's model at the state ``obs`` of step ``step``, one training per group of contenders that
+    share it (``serves``): the longest plans are trained first."""
+    plans = {name: training_plan(episode.settings) for name, episode in episodes.items()}
+    done: list[Trained] = []
+    out = {}
+    for name in sorted(episodes, key=lambda n: -len(plans[n][1])):
+        found = next((t for t in done if serves(t.plan, plans[name])), None)
+        if found is None:
+            start = time.perf_counter()
+            model, _ = episodes[name].train(obs, step)
+            found = Trained(model, plans[name], time.perf_counter() - start)
+            done.append(found)
+        out[name] = found
+    return out
+
+
+def prepared_scorer(
+    episode: Episode, planning: Planning, obs: Observations, step: int
+) -> ViewScorer | WholeViewScorer | None:
+    """The scorer ``episode``'s step ``step`` plans with (``prepare_scorer``: FisherRF's from the model and the
+    views, with the step's generators)."""
+    s = episode.settings
+    generators = generator_factory(s.seed, step, episode.device)
+    return prepare_scorer(episode.scorer, planning, obs, generators, s.planner.score_chunk_rays)
+
+
+def candidate_set(
+    episode: Episode, planning: Planning, step: int, index: int, purpose: str = "duel_candidates"
+) -> Float[Tensor, "m 7"]:
+    """Candidate set ``index`` at step ``step`` of ``episode``'s state, drawn as its planner draws them (the
+    filters its method applies: none for Random unless ``planner.random_filters``): set 0 with the step's own
+    generator (the set its episode chose from), the others with their own (``<purpose>/<index>``)."""
+    s = episode.settings
+    generator = (
+        generator_factory(s.seed, step, episode.device)("candidates")
+        if index == 0
+        else seeded_generator(s.seed, step, f"{purpose}/{index}", episode.device)
+    )
+    filters = episode.scorer is not None or s.planner.random_filters
+    current = matrix_to_pose(episode.poses[-1]).to(episode.device)
+    box = episode.scene.camera_box.to(episode.device)
+    return candidate_poses(
+        planning, s.planner, box, current, s.tau, s.collision_free, generator, filters, episode.renderer.unoccluded
+    )
+
+
+@dataclass
+class Pick:
+    """A contender's pick from a candidate set: its index, every candidate's score (None for Random) and the
+    seconds the scoring took."""
+
+    index: int
+    scores: np.ndarray | None
+    seconds: float
+
+
+def pick(
+    episode: Episode,
+    planning: Planning,
+    scorer: ViewScorer | WholeViewScorer | None,
+    candidates: Float[Tensor, "m 7"],
+    step: int,
+    index: int,
+) -> Pick:
+    """What ``episode``'s method picks from candidate set ``index`` at step ``step``: the argmax of its scores,
+    or without a scorer the planner's uniform draw (set 0 with the step's own generator, the others with
+    ``duel_random_pick/<index>``)."""
+    s, start = episode.settings, time.perf_counter()
+    if scorer is None:
+        generator = (
+            generator_factory(s.seed, step, episode.device)("random_pick")
+            if index == 0
+            else seeded_generator(s.seed, step, f"duel_random_pick/{index}", episode.device)
+        )
+        return Pick(random_pick(candidates.shape[0], generator), None, time.perf_counter() - start)
+    scores = score_poses(planning, scorer, candidates, episode.plan_intrinsics, s.planner.score_chunk_rays)
+    return Pick(argmax_first(scores), scores.cpu().numpy(), time.perf_counter() - start)
+
+
+def with_view(obs: Observations, episode: Episode, pose: Float[Tensor, "7"]) -> Observations:
+    """``obs`` plus the ground truth at ``pose``, rendered as the episode observes."""
+    c2w = pose_to_matrix(pose.detach().cpu().to(torch.float32))
+    image = episode.renderer.render_rgba(c2w, episode.intrinsics, episode.settings.budget.gt_samples)
+    images = torch.cat([obs.images, torch.from_numpy(image)[None].to(obs.images)])
+    return Observations(images, torch.cat([obs.c2w, c2w[None].to(obs.c2w)]), obs.intrinsics)
+
+
+def heldout_psnr(episode: Episode, obs: Observations, step: int) -> tuple[float, float]:
+    """Train the plain backbone on ``obs`` as step ``step`` would (its seed, stage 1, no auxiliary loss) and
+    return its held-out PSNR on the scene's evaluation views (PROTOCOL 4.1, pooled MSE) and the seconds the
+    training and the evaluation took."""
+    s, start = episode.settings, time.perf_counter()
+    model = episode.new_model(step, obs.num_images)
+    train_model(model, obs, s.train, ["backbone"], s.entropy, seeded_generator(s.seed, step, "train", episode.device))
+    evaluator = episode.evaluator
+    views = [
+        render_view(model, None, c2w.to(episode.device), evaluator.intrinsics)["rgb"]
+        for c2w in episode.scene.eval_poses
+    ]
+    return psnr(np.stack(views).clip(0.0, 1.0), evaluator.gt), time.perf_counter() - start
+
+
+SECONDS = {"train": Number(0.0), "prepare": Number(0.0), "score": Number(0.0), "outcome": Optional(Number(0.0))}
+DECISION = {
+    "scene": Text(),
+    "seed": Number(0, MAX_SEED, integer=True),
+    "step": Number(0, MAX_HORIZON, integer=True),
+    "set": Optional(Number(0, 2**31, integer=True)),
+    "source": Optional(Text()),
+    "same_pick": bool,
+    "shared_training": bool,
+    "threads": Number(1, 4096, integer=True),
+    "spearman": Optional(Number(-1.0, 1.0, null=True)),
+    "gain": Optional(Number(-100.0, 100.0)),  # dB
+    "source_pick_recorded": Optional(Flag(null=True)),
+    "seconds": {"method": SECONDS, "rival": SECONDS},
+}
+OUTCOME = {
+    "scene": Text(),
+    "seed": Number(0, MAX_SEED, integer=True),
+    "source": Text(),
+    "step": Number(0, MAX_HORIZON, integer=True),
+    "pose": Each(Number()),
+    "psnr": Number(0.0, 100.0),
+    "seconds": Number(0.0),
+}
+
+
+class JsonLines:
+    """The rows of a JSON-lines file, each checked against ``shape`` when read (``pipeline.records.checked``: never
+    through a symbolic link; a bad line is one ``RecordError`` naming it). Rows are appended in one write each
+    call through the file layer (never into a file with another name), so a killed writer leaves whole rows (a
+    row cut off by a kill is dropped when the file is next opened), and writers of other scenes or seeds can
+    append side by side."""
+
+    def __init__(self, path: Path, shape: Any):
+        self.path = path
+        self.rows, whole = read_json_lines(path, shape)
+        if os.path.lexists(path) and os.lstat(path).st_size != whole:
+            atomic_write_text(path, "".join(dumps(row) + "\n" for row in self.rows))
+
+    def add(self, rows: list[dict[str, Any]]) -> None:
+        rows = [to_jsonable(row) for row in rows]
+        self.rows.extend(rows)
+        append_plain_file(self.path, "".join(dumps(row) + "\n" for row in rows).encode(), "a duel's rows")
+
+
+OutcomeKey = tuple[str, int, str, int, tuple[float, ...]]
+
+
+def outcome_key(scene: str, seed: int, source: str, step: int, pose: list[float]) -> OutcomeKey:
+    """What an outcome depends on: the state (scene, seed, the record it comes from, step) and the pose."""
+    return scene, int(seed), source, int(step), tuple(float(x) for x in pose)
+
+
+class Outcomes:
+    """Outcomes measured so far, by ``outcome_key``: read from the ``outcomes.jsonl`` of ``folders``, a new one
+    appended to the file of the folder it was measured for."""
+
+    def __init__(self, folders: list[Path]):
+        self.known: dict[OutcomeKey, tuple[float, float]] = {}
+        for folder in folders:
+            for row in JsonLines(folder / "outcomes.jsonl", OUTCOME).rows:
+                key = outcome_key(row["scene"], row["seed"], row["source"], row["step"], row["pose"])
+                self.known[key] = (row["psnr"], row["seconds"])
+
+    def get(self, key: OutcomeKey) -> tuple[float, float] | None:
+        return self.known.get(key)
+
+    def add(self, folder: Path, key: OutcomeKey, psnr_db: float, seconds: float) -> None:
+        self.known[key] = (psnr_db, seconds)
+        scene, seed, source, step, pose = key
+        row = {"scene": scene, "seed": seed, "source": source, "step": step, "pose": list(pose)}
+        JsonLines(folder / "outcomes.jsonl", OUTCOME).add([row | {"psnr": psnr_db, "seconds": seconds}])

@@ -1,0 +1,358 @@
+"""``python -m pipeline.experiments.duel method=A rival=B [overrides] [--scenes S,..] [--seeds N,..] [--steps K,..]
+[--sets N] [--records DIR] [--threads T]``: a duel between two methods. Given the same map, whose next view
+is better? Paired one-step decisions on the states of both methods' recorded episodes.
+
+A contender is a method (``conf/method``) or an NVF ablation (``conf/ablation``: ``rival=wo_vis`` is NVF with
+w/o Vis.), planned by argmax (the -OPT planner is not dueled). ``rival=`` takes a comma list
+(``rival=fisherrf,activenerf,wd,random``): one process then shares the method's states, models and outcomes
+between the rivals. The other ``key=value`` arguments are config overrides of both contenders (``budget=cpu``,
+the default).
+
+States: for scene ``s``, seed ``n`` and the ``i``-th listed step ``k``, the observations before step ``k`` (the
+initial views and the poses selected at steps ``0..k-1``) of A's record if ``(i + n)`` is even, else of B's, so
+each step comes from both trajectories over the seeds. Records: ``<records>/<scene>/<method>-argmax-<ablation>/
+<budget>/seed_<n>``, verified.
+
+At a state each contender's model is trained as its own episode's step ``k`` trains it (contenders whose
+training is identical share one). ``--sets`` candidate sets are drawn (set 0: the state's own planner draw at
+step ``k``; the others from their own seeded generators) and each contender picks from the same set as its
+episode would. Where the picks differ, the plain backbone is trained with each pick added (the seed of step
+``k+1``, the same for both) and measured on the scene's 20 evaluation views: the gain is A's pick's held-out
+PSNR minus B's, paired on the state (``pipeline.experiments.decisions``).
+
+Writes ``${paths.results}/pilots/duel/<A>_vs_<B>/``: ``decisions.jsonl`` (a row per scene, seed, step and set;
+each state's rows in one write, so a killed duel resumes after its last complete state), ``outcomes.jsonl``
+(every measured pick, reused by later calls), ``setting.json`` (the overrides: a call with other overrides under
+the same folder is refused) and ``command.txt``; then ``summary.csv``, ``details.csv`` and ``summary.md`` of every
+duel under ``pilots/duel/`` (``pipeline.experiments.duel_summary``). Torch runs with ``--threads`` threads
+(default 1). To use more cores run several processes on disjoint ``--scenes`` or ``--seeds``, one thread each:
+they append to the same folders side by side.
+"""
+
+import argparse
+import itertools
+import json
+import shlex
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import torch
+
+from nvf.device import resolve_device
+from nvf.training import Observations
+from pipeline.cli import ArgumentParser, fail, help_page, run_command
+from pipeline.config.validation import compose_run
+from pipeline.episode.loop import Episode
+from pipeline.episode.settings import EpisodeSettings
+from pipeline.experiments.decisions import (
+    DECISION,
+    Contender,
+    JsonLines,
+    Outcomes,
+    Pick,
+    Trained,
+    candidate_set,
+    contender,
+    heldout_psnr,
+    outcome_key,
+    pick,
+    prepared_scorer,
+    train_models,
+    with_view,
+)
+from pipeline.experiments.duel_summary import DUEL, SETTING, write_summaries
+from pipeline.experiments.options import SEEDS, name_list, seed_list, step_list
+from pipeline.metrics.image import LpipsMetric
+from pipeline.metrics.ranking import spearman
+from pipeline.records.checked import MAX_FILE_BYTES, read_json
+from pipeline.records.files import make_directory, read_plain_file
+from pipeline.records.store import atomic_write_text, check_seed, run_dir
+from pipeline.scenes.blender import blender_python
+from pipeline.scenes.loading import find_asset, load_scene, scene_config
+from pipeline.scenes.scene import Scene, SceneError
+from pipeline.tables.load import load_run
+
+SCENES = ("hotdog", "hubble", "default")
+STEPS = (0, 3, 6, 9, 12, 15, 18)
+OWN_KEYS = ("method", "rival", "ablation", "scene", "seed")  # the duel's own: not config overrides
+
+
+@dataclass
+class Pair:
+    """One duel, A against B: its folder and the states it has measured."""
+
+    method: Contender
+    rival: Contender
+    folder: Path
+    decisions: JsonLines = field(init=False)
+    done: set[tuple[str, int, int]] = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.decisions = JsonLines(self.folder / "decisions.jsonl", DECISION)
+        self.done = {(r["scene"], r["seed"], r["step"]) for r in self.decisions.rows}
+
+    def owner(self, i: int, seed: int) -> Contender:
+        """Whose record the ``i``-th listed step's state comes from for ``seed``: A's and B's alternately."""
+        return self.method if (i + seed) % 2 == 0 else self.rival
+
+    def record(self, rows: list[dict]) -> None:
+        self.decisions.add(rows)
+        self.done.update((r["scene"], r["seed"], r["step"]) for r in rows)
+
+
+@dataclass
+class Call:
+    """What one command measures: its pairs (one method against each rival), overrides and choices."""
+
+    pairs: list[Pair]
+    overrides: list[str]
+    seeds: list[int]
+    steps: list[int]
+    sets: int
+    records: Path
+    threads: int
+    outcomes: Outcomes
+
+
+def recorded_rows(call: Call, scene: str, who: Contender, seed: int, budget: str) -> list[dict]:
+    """The step rows of ``who``'s recorded episode (verified, ``pipeline.records.verify``)."""
+    directory = run_dir(call.records, scene, who.method, "argmax", who.ablation, budget, seed)
+    try:
+        _, rows = load_run(directory)
+    except (ValueError, OSError) as err:
+        fail(f"no usable record of {who.name} at {directory}: {err}; pass --records DIR holding it")
+    last = max(call.steps)
+    if len(rows) <= last:
+        fail(f"the record at {directory} has {len(rows)} steps, --steps asks for step {last}")
+    return rows
+
+
+def open_episode(call: Call, scene: Scene, who: Contender, seed: int, lpips: LpipsMetric) -> Episode:
+    cfg = compose_run([f"scene={scene.name}", f"seed={seed}", *who.overrides, *call.overrides])
+    return Episode(EpisodeSettings.of(cfg, scene), scene, resolve_device(cfg.device), lpips)
+
+
+@dataclass
+class State:
+    """What one state holds for its pairs: its owner (whose record it comes from), where it is, the owner's
+    episode and observations, each contender's model (``Trained``: one object where shared) and scorer
+    preparation seconds, the candidate sets and each contender's pick from each (by name and set)."""
+
+    owner: str
+    scene: str
+    seed: int
+    step: int
+    episode: Episode
+    obs: Observations
+    trained: dict[str, Trained]
+    prepare: dict[str, float]
+    candidates: list[torch.Tensor]
+    picks: dict[tuple[str, int], Pick]
+    recorded: int | None  # the owner's record's pick at this step
+
+    def outcome(self, call: Call, pair: Pair, pose: torch.Tensor) -> tuple[float, float]:
+        """Held-out PSNR and seconds of the pick at ``pose`` (``heldout_psnr``), measured once per pose."""
+        key = outcome_key(self.scene, self.seed, self.owner, self.step, pose.tolist())
+        known = call.outcomes.get(key)
+        if known is None:
+            known = heldout_psnr(self.episode, with_view(self.obs, self.episode, pose), self.step + 1)
+            call.outcomes.add(pair.folder, key, *known)
+        return known
+
+
+def decision_rows(call: Call, pair: Pair, state: State) -> list[dict]:
+    """The rows of one pair at one state, a row per candidate set."""
+    a, b = pair.method.name, pair.rival.name
+    rows = []
+    for index, candidates in enumerate(state.candidates):
+        picks = {name: state.picks[(name, index)] for name in (a, b)}
+        same = picks[a].index == picks[b].index
+        x, y = picks[a].scores, picks[b].scores
+        row: dict[str, object] = {
+            "scene": state.scene,
+            "seed": state.seed,
+            "step": state.step,
+            "set": index,
+            "source": state.owner,
+            "method": a,
+            "rival": b,
+            "candidates": int(candidates.shape[0]),
+            "method_pick": picks[a].index,
+            "rival_pick": picks[b].index,
+            "method_pose": candidates[picks[a].index].tolist(),
+            "rival_pose": candidates[picks[b].index].tolist(),
+            "same_pick": same,
+            "spearman": spearman(x, y) if x is not None and y is not None else None,
+            "source_pick_recorded": state.picks[(state.owner, 0)].index == state.recorded if index == 0 else None,
+            "shared_training": state.trained[a] is state.trained[b],
+            "threads": call.threads,
+        }
+        seconds = {
+            name: {"train": state.trained[name].seconds, "prepare": state.prepare[name], "score": picks[name].seconds}
+            for name in (a, b)
+        }
+        if not same:
+            (ours, seconds[a]["outcome"]), (theirs, seconds[b]["outcome"]) = (
+                state.outcome(call, pair, candidates[picks[name].index]) for name in (a, b)
+            )
+            row |= {"method_psnr": ours, "rival_psnr": theirs, "gain": ours - theirs}
+        row["seconds"] = {"method": seconds[a], "rival": seconds[b]}
+        rows.append(row)
+    return rows
+
+
+def measure_state(call: Call, episodes: dict[str, Episode], owner: str, rows: list[dict], k: int, pairs: list[Pair]):
+    """Train, draw and pick at the state of ``owner``'s record before step ``k``, then write each pair's rows."""
+    needed = {owner} | {name for pair in pairs for name in (pair.method.name, pair.rival.name)}
+    active = {name: episodes[name] for name in episodes if name in needed}
+    for episode in active.values():
+        episode.replay(rows[len(episode.poses) - len(episode.scene.init_poses) : k])
+    source = active[owner]
+    obs = source.observations()
+    trained = train_models(active, obs, k)
+    planning = {name: e.planning_model(trained[name].model, obs) for name, e in active.items()}
+    prepare, scorers = {}, {}
+    for name, episode in active.items():
+        start = time.perf_counter()
+        scorers[name] = prepared_scorer(episode, planning[name], obs, k)
+        prepare[name] = time.perf_counter() - start
+    candidates = [candidate_set(source, planning[owner], k, index) for index in range(call.sets)]
+    picks = {
+        (name, index): pick(episode, planning[name], scorers[name], candidates[index], k, index)
+        for name, episode in active.items()
+        for index in range(call.sets)
+    }
+    seed, scene = source.settings.seed, source.scene.name
+    recorded = rows[k].get("selected_index")
+    state = State(owner, scene, seed, k, source, obs, trained, prepare, candidates, picks, recorded)
+    lines = []
+    for pair in pairs:
+        found = decision_rows(call, pair, state)
+        pair.record(found)
+        verdicts = ("same" if r["same_pick"] else f"{r['gain']:+.2f} dB" for r in found)
+        lines.append(f"{pair.rival.name}: {', '.join(verdicts)}")
+    print(f"{scene} seed {seed} step {k} ({owner}'s state): " + "; ".join(lines), flush=True)
+
+
+def duel_scene(call: Call, scene_name: str) -> None:
+    """Every missing state of one scene."""
+    cfg = compose_run([f"scene={scene_name}", *call.pairs[0].method.overrides, *call.overrides])
+    try:
+        scene = load_scene(cfg.scene, Path(cfg.paths.assets), blender_python(cfg.paths.blender_python))
+    except SceneError as err:
+        fail(str(err))
+    lpips = LpipsMetric()
+    for seed in call.seeds:
+        todo: dict[str, dict[int, list[Pair]]] = {}  # owner -> step -> pairs missing that state
+        owners: dict[str, Contender] = {}
+        for (i, k), pair in itertools.product(enumerate(call.steps), call.pairs):
+            if (scene_name, seed, k) not in pair.done:
+                who = pair.owner(i, seed)
+                owners[who.name] = who
+                todo.setdefault(who.name, {}).setdefault(k, []).append(pair)
+        for name, states in todo.items():
+            rows = recorded_rows(call, scene_name, owners[name], seed, cfg.budget.name)
+            contenders = {c.name: c for pairs in states.values() for p in pairs for c in (p.method, p.rival)}
+            episodes: dict[str, Episode] = {}
+            try:
+                for who in contenders.values():
+                    episodes[who.name] = open_episode(call, scene, who, seed, lpips)
+                for k in sorted(states):
+                    measure_state(call, episodes, name, rows, k, states[k])
+            finally:
+                for episode in episodes.values():
+                    episode.close()
+
+
+def split_arguments(positional: list[str]) -> tuple[Contender, list[Contender], list[str]]:
+    """The method, the rivals and the config overrides of the positional arguments (one line for bad ones)."""
+    named = {o.split("=", 1)[0]: o.split("=", 1)[1] for o in positional if o.split("=", 1)[0] in ("method", "rival")}
+    overrides = [o for o in positional if o.split("=", 1)[0] not in ("method", "rival")]
+    if "method" not in named or "rival" not in named:
+        fail("name both contenders: method=A rival=B (a method of conf/method or an ablation of conf/ablation)")
+    own = [o for o in overrides if o.split("=", 1)[0].lstrip("+~") in OWN_KEYS]
+    if own:
+        fail(f"{own[0]}: the contenders and states are the duel's own; use method=, rival=, --scenes and --seeds")
+    try:
+        rivals = list(dict.fromkeys(contender(name) for name in named["rival"].split(",")))
+        return contender(named["method"]), rivals, overrides
+    except ValueError as err:
+        fail(str(err))
+
+
+def open_pairs(root: Path, method: Contender, rivals: list[Contender], setting: dict, command: str) -> list[Pair]:
+    """Each pair's folder, its ``setting.json`` checked (another setting is refused before anything is written)
+    or written, and the command added to its ``command.txt``."""
+    folders = [root / f"{method.name}_vs_{rival.name}" for rival in rivals]
+    for folder in folders:
+        made = read_json(folder / "setting.json", SETTING)
+        if made is not None and made["overrides"] != setting["overrides"]:
+            fail(
+                f"{folder} holds a duel with overrides {made['overrides']}, not {setting['overrides']}; pass "
+                "paths.results=DIR for another setting"
+            )
+    for folder, rival in zip(folders, rivals, strict=True):
+        make_directory(root.parent.parent, folder)
+        contenders = {c.name: {"method": c.method, "ablation": c.ablation} for c in (method, rival)}
+        own = setting | {"rival": rival.name, "contenders": contenders}
+        atomic_write_text(folder / "setting.json", json.dumps(own, indent=2) + "\n")
+        path = folder / "command.txt"
+        commands = (read_plain_file(path, MAX_FILE_BYTES) or b"").decode("utf-8", "replace").splitlines()
+        atomic_write_text(path, "\n".join(dict.fromkeys([*commands, command])) + "\n")
+    return [Pair(method, rival, folder) for folder, rival in zip(folders, rivals, strict=True)]
+
+
+def main(argv: list[str] | None = None) -> None:
+    argv = sys.argv[1:] if argv is None else argv
+    parser = ArgumentParser(
+        prog="python -m pipeline.experiments.duel",
+        description=help_page(__doc__),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("overrides", nargs="*", help="method=A rival=B[,C..] and config overrides, e.g. budget=cpu")
+    parser.add_argument(
+        "--scenes", type=name_list, default=SCENES, help=f"comma-separated (default {','.join(SCENES)})"
+    )
+    parser.add_argument("--seeds", type=seed_list, default=SEEDS, help="comma-separated (default 100,101,102)")
+    parser.add_argument("--steps", type=step_list, default=STEPS, help="the recorded steps whose states are used")
+    parser.add_argument("--sets", type=int, default=2, help="candidate sets per state (set 0: the planner's own)")
+    parser.add_argument("--records", type=Path, default=Path("results/runs"), help="where the records are")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    args = parser.parse_intermixed_args(argv)
+    method, rivals, overrides = split_arguments(args.overrides)
+    try:
+        seeds = [check_seed(seed) for seed in args.seeds]
+    except ValueError as err:
+        fail(f"--seeds: {err}")
+    steps, scenes = list(args.steps), list(args.scenes)
+    if args.sets < 1 or args.threads < 1:
+        fail("--sets and --threads must be >= 1")
+    cfg = compose_run([*method.overrides, *overrides])
+    if cfg.planner.name != "argmax" or cfg.train.warm_start:
+        fail("the duel replays argmax episodes trained from scratch: drop planner= and train.warm_start=")
+    for scene in scenes:  # a missing scene or asset is one line now, before anything is written
+        try:
+            found = scene_config(scene)
+            if found["source"] == "mesh":
+                find_asset(found, Path(cfg.paths.assets))
+        except SceneError as err:
+            fail(str(err))
+    torch.set_num_threads(args.threads)
+    root = Path(cfg.paths.results) / "pilots" / DUEL
+    kept = [o for o in overrides if not o.lstrip("+~").startswith("paths.")]  # where files lie is no setting
+    setting = {"method": method.name, "overrides": kept, "budget": cfg.budget.name}
+    command = shlex.join(["python", "-m", "pipeline.experiments.duel", *argv])
+    pairs = open_pairs(root, method, rivals, setting, command)
+    settings = {path.parent: read_json(path, SETTING) for path in sorted(root.glob("*/setting.json"))}
+    same_setting = [folder for folder, made in settings.items() if made is not None and made["overrides"] == kept]
+    call = Call(pairs, overrides, seeds, steps, args.sets, args.records, args.threads, Outcomes(same_setting))
+    for scene in scenes:
+        duel_scene(call, scene)
+    for path in write_summaries(root, args.records):
+        print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    run_command(main, sys.argv[1:])

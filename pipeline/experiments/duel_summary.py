@@ -1,0 +1,246 @@
+"""The duel's tables, from the folders ``python -m pipeline.experiments.duel`` writes under
+``${paths.results}/pilots/duel/``, beside the recorded episodes of the same contenders.
+
+``summary.csv``: a row per pair and scene and one over its scenes (``scene=all``): ``n`` (the decisions whose
+picks differ), ``gain_mean, ci_low, ci_high`` (A's pick's held-out PSNR minus B's in dB, with the paired 95%
+Student-t interval over those ``n``), ``same_pick`` (the share of decisions where both pick the same candidate),
+``episode_diff, episode_ci_low, episode_ci_high`` (A's final PSNR minus B's in their finished episodes, paired by
+seed, and over scenes by scene and seed; empty unless both have at least 3 seeds on every scene of the row) and
+``cpu_hours`` (the duel's own, from its decisions' timings: each state's trainings, once where shared, and scorer
+preparations, each decision's scorings and its picks' outcomes, times the torch threads; an outcome shared with
+another pair is counted in both, so each pair's hours are what it costs alone).
+
+``details.csv``: per pair and scene, the decisions and states measured, the interval over per-state mean gains
+(a state's decisions share its models, so they are not independent; this interval takes the state as the unit),
+the share of states whose owner picks from its own planner draw what its record picked (``source_pick_recorded``:
+the replayed training reproduces the episode), and ``episode_cpu_hours``, the hours of the episodes compared
+(their records' per-step seconds times their torch threads).
+
+``summary.md``: both, with how many rows the duel and the episodes separate (interval excluding zero) and
+whether their signs agree where both do. ``python -m pipeline.experiments.duel_summary [paths.results=DIR]
+[--records DIR]`` rewrites the three.
+"""
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from pipeline.cli import ArgumentParser, description, run_command
+from pipeline.config.validation import compose_run
+from pipeline.experiments.decisions import DECISION
+from pipeline.records.checked import Each, Entries, Optional, Text, read_json, read_json_lines
+from pipeline.records.files import RecordError, make_directory
+from pipeline.records.store import atomic_write_text, record_status
+from pipeline.tables.load import load_run
+from pipeline.tables.render import markdown_table
+from pipeline.tables.stats import Interval
+
+DUEL = "duel"
+CONTENDER = {"method": Text(), "ablation": Text()}
+SETTING = {
+    "method": Text(),
+    "rival": Optional(Text()),
+    "overrides": Each(Text()),
+    "budget": Optional(Text()),
+    "contenders": Optional(Entries(CONTENDER)),
+}  # a pair's setting.json (the rival and contenders once written for the pair)
+ALL = "all"
+MIN_SEEDS = 3  # episodes compared only with this many paired seeds per scene
+COLUMNS = (
+    "method", "rival", "scene", "n", "gain_mean", "ci_low", "ci_high", "same_pick",
+    "episode_diff", "episode_ci_low", "episode_ci_high", "cpu_hours",
+)  # fmt: skip
+DETAIL_COLUMNS = (
+    "method", "rival", "scene", "decisions", "states", "state_n", "state_gain_mean", "state_ci_low",
+    "state_ci_high", "source_pick_recorded", "episode_n", "episode_cpu_hours",
+)  # fmt: skip
+
+
+def read_rows(path: Path) -> list[dict]:
+    """A pair's decisions, each checked (``DECISION``; a row cut off by a kill is left out)."""
+    return read_json_lines(path, DECISION)[0]
+
+
+def duel_cpu_hours(rows: list[dict]) -> float:
+    """CPU hours of ``rows`` (one pair's decisions): per state its trainings (once where both share a model) and
+    scorer preparations, per decision both scorings and both outcomes, times the threads."""
+    states, decisions = {}, 0.0
+    for r in rows:
+        a, b = r["seconds"]["method"], r["seconds"]["rival"]
+        train = a["train"] + (0.0 if r["shared_training"] else b["train"])
+        states[(r["scene"], r["seed"], r["step"])] = (train + a["prepare"] + b["prepare"]) * r["threads"]
+        decisions += (a["score"] + b["score"] + a.get("outcome", 0.0) + b.get("outcome", 0.0)) * r["threads"]
+    return (sum(states.values()) + decisions) / 3600.0
+
+
+def state_interval(rows: list[dict]) -> Interval:
+    """The interval over the states' mean gains (states with at least one decision whose picks differ)."""
+    frame = pd.DataFrame([r for r in rows if r.get("gain") is not None], columns=["scene", "seed", "step", "gain"])
+    return Interval.of(frame.groupby(["scene", "seed", "step"])["gain"].mean().to_numpy(float))
+
+
+def episodes(records: Path, scene: str, who: dict, budget: str) -> pd.DataFrame:
+    """The finished argmax episodes of contender ``who`` (``method``, ``ablation``) on ``scene``: per seed the
+    final PSNR and the cpu hours (the steps' seconds times the torch threads); records that fail verification
+    are left out."""
+    group = Path(records) / scene / f"{who['method']}-argmax-{who['ablation']}" / budget
+    out = []
+    for directory in sorted(group.glob("seed_*")):
+        try:
+            info, steps = load_run(directory)
+        except (RecordError, ValueError, OSError):
+            continue
+        if record_status(info, directory) == "done" and steps:
+            seconds = sum(sum(row.get("seconds", {}).values()) for row in steps) * info.get("torch_threads", 1)
+            out.append({"seed": int(info["seed"]), "psnr": steps[-1]["metrics"]["psnr"], "hours": seconds / 3600.0})
+    return pd.DataFrame(out, columns=["seed", "psnr", "hours"]).set_index("seed")
+
+
+def compare_episodes(records: Path, setting: dict, scenes: list[str]) -> tuple[Interval, float]:
+    """A's final PSNR minus B's paired by (scene, seed) over ``scenes``, and the cpu hours of those episodes; an
+    empty interval where a scene has fewer than ``MIN_SEEDS`` seeds of both."""
+    a, b = (setting["contenders"][setting[role]] for role in ("method", "rival"))
+    diffs, hours = [], 0.0
+    for scene in scenes:
+        ours, theirs = (episodes(records, scene, who, setting["budget"]) for who in (a, b))
+        common = ours.index.intersection(theirs.index)
+        if len(common) < MIN_SEEDS:
+            return Interval.of(np.array([])), math.nan
+        diffs.append((ours.loc[common, "psnr"] - theirs.loc[common, "psnr"]).to_numpy(float))
+        hours += float(ours.loc[common, "hours"].sum() + theirs.loc[common, "hours"].sum())
+    return Interval.of(np.concatenate(diffs)), hours
+
+
+def pair_rows(folder: Path, records: Path) -> tuple[list[dict], list[dict]]:
+    """One pair's ``summary.csv`` and ``details.csv`` rows: per scene, then over its scenes."""
+    setting = read_json(folder / "setting.json", SETTING)
+    if setting is None or "budget" not in setting or "contenders" not in setting:
+        raise RecordError(f"{folder / 'setting.json'}: missing or incomplete; a duel writes its setting there")
+    rows = read_rows(folder / "decisions.jsonl")
+    scenes = list(dict.fromkeys(r["scene"] for r in rows))
+    summary, details = [], []
+    for scene, chosen in [*((s, [s]) for s in scenes), *([(ALL, scenes)] if scenes else [])]:
+        part = [r for r in rows if r["scene"] in chosen]
+        gain = Interval.of(np.array([r["gain"] for r in part if r.get("gain") is not None], dtype=float))
+        episode, episode_hours = compare_episodes(records, setting, chosen)
+        names = {"method": setting["method"], "rival": setting["rival"], "scene": scene}
+        summary.append(
+            names
+            | {"n": gain.n, "gain_mean": gain.mean, "ci_low": gain.low, "ci_high": gain.high}
+            | {"same_pick": float(np.mean([r["same_pick"] for r in part]))}
+            | {"episode_diff": episode.mean, "episode_ci_low": episode.low, "episode_ci_high": episode.high}
+            | {"cpu_hours": duel_cpu_hours(part)}
+        )
+        state = state_interval(part)
+        recorded = [r["source_pick_recorded"] for r in part if r.get("source_pick_recorded") is not None]
+        details.append(
+            names
+            | {"decisions": len(part), "states": len({(r["scene"], r["seed"], r["step"]) for r in part})}
+            | {
+                "state_n": state.n,
+                "state_gain_mean": state.mean,
+                "state_ci_low": state.low,
+                "state_ci_high": state.high,
+            }
+            | {"source_pick_recorded": float(np.mean(recorded)) if recorded else math.nan}
+            | {"episode_n": episode.n, "episode_cpu_hours": episode_hours}
+        )
+    return summary, details
+
+
+def tables(root: Path, records: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """``summary.csv``'s and ``details.csv``'s frames over every pair folder under ``root``."""
+    summary, details = [], []
+    for setting in sorted(root.glob("*/setting.json")):
+        found = pair_rows(setting.parent, records)
+        summary += found[0]
+        details += found[1]
+    return pd.DataFrame(summary, columns=list(COLUMNS)), pd.DataFrame(details, columns=list(DETAIL_COLUMNS))
+
+
+def separates(low: float, high: float) -> bool:
+    """An interval excluding zero."""
+    return bool(low > 0.0 or high < 0.0)
+
+
+def _interval(mean: float, low: float, high: float) -> str:
+    if not math.isfinite(mean):
+        return "-"
+    text = f"{mean:+.2f}" + (f" [{low:+.2f}, {high:+.2f}]" if math.isfinite(low) else "")
+    return f"**{text}**" if math.isfinite(low) and separates(low, high) else text
+
+
+def summary_markdown(summary: pd.DataFrame, details: pd.DataFrame) -> str:
+    """``summary.md``: the pairs' rows and the count of rows each instrument separates."""
+    columns = ["method", "rival", "scene", "n", "one-step gain (dB)", "per-state gain (dB)", "same pick"]
+    columns += ["episodes: final PSNR diff (dB)", "duel cpu h", "episodes cpu h"]
+    cells = []
+    for (_, s), (_, d) in zip(summary.iterrows(), details.iterrows(), strict=True):
+        cells.append(
+            [s["method"], s["rival"], s["scene"], str(int(s["n"]))]
+            + [_interval(s["gain_mean"], s["ci_low"], s["ci_high"])]
+            + [_interval(d["state_gain_mean"], d["state_ci_low"], d["state_ci_high"]), f"{s['same_pick']:.0%}"]
+            + [_interval(s["episode_diff"], s["episode_ci_low"], s["episode_ci_high"]), f"{s['cpu_hours']:.2f}"]
+            + ["-" if not math.isfinite(d["episode_cpu_hours"]) else f"{d['episode_cpu_hours']:.2f}"]
+        )
+    scenes = summary[(summary["scene"] != ALL) & summary["episode_diff"].notna()]
+    duel = [separates(low, high) for low, high in zip(scenes["ci_low"], scenes["ci_high"], strict=True)]
+    runs = [separates(low, high) for low, high in zip(scenes["episode_ci_low"], scenes["episode_ci_high"], strict=True)]
+    both = [
+        (gain, diff)
+        for gain, diff, d, e in zip(scenes["gain_mean"], scenes["episode_diff"], duel, runs, strict=True)
+        if d and e
+    ]
+    agree = sum(int(np.sign(gain) == np.sign(diff)) for gain, diff in both)
+    same_sign = int((np.sign(scenes["gain_mean"]) == np.sign(scenes["episode_diff"])).sum())
+    width = (scenes["episode_ci_high"] - scenes["episode_ci_low"]) / (scenes["ci_high"] - scenes["ci_low"])
+    compared = details.loc[scenes.index]
+    cost = compared["episode_cpu_hours"].sum() / scenes["cpu_hours"].sum()
+    ratios = (
+        f" The means have the same sign in {same_sign} of {len(scenes)}; the episodes' interval is "
+        f"{width.median():.1f} times as wide as the duel's (median over rows), and their cpu hours "
+        f"{cost:.1f} times the duel's."
+        if len(scenes)
+        else ""
+    )
+    lines = [
+        "# Duels: paired one-step decisions",
+        "",
+        "A's pick minus B's pick in held-out PSNR after one step, where they differ (mean [95% Student-t "
+        "interval] over the n decisions; per state: over the states' mean gains), beside A's final PSNR minus "
+        "B's in their episodes (paired by seed). Bold: the interval excludes zero.",
+        "",
+        *markdown_table(columns, cells, left=3),
+        "",
+        f"Of {len(scenes)} pair-scene rows with episodes of both, the duel separates {sum(duel)} and the "
+        f"episodes {sum(runs)}; where both do ({len(both)}), their signs agree in {agree}.{ratios}",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def write_summaries(root: Path, records: Path) -> list[Path]:
+    """Write ``summary.csv``, ``details.csv`` and ``summary.md`` under ``root`` (atomically); their paths."""
+    summary, details = tables(root, records)
+    paths = [root / "summary.csv", root / "details.csv", root / "summary.md"]
+    atomic_write_text(paths[0], summary.to_csv(index=False, float_format="%.4g"))
+    atomic_write_text(paths[1], details.to_csv(index=False, float_format="%.4g"))
+    atomic_write_text(paths[2], summary_markdown(summary, details))
+    return paths
+
+
+def main(argv: list[str]) -> None:
+    parser = ArgumentParser(prog="python -m pipeline.experiments.duel_summary", description=description(__doc__))
+    parser.add_argument("overrides", nargs="*", help="config overrides, e.g. paths.results=results")
+    parser.add_argument("--records", type=Path, default=Path("results/runs"), help="where the episodes' records are")
+    args = parser.parse_intermixed_args(argv)
+    results = Path(compose_run(args.overrides).paths.results)
+    root = make_directory(results, results / "pilots" / DUEL)
+    for path in write_summaries(root, args.records):
+        print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    run_command(main, sys.argv[1:])

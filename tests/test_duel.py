@@ -1,0 +1,267 @@
+"""pipeline/experiments/duel.py, decisions.py and duel_summary.py: paired one-step decisions between two methods
+on the states of their recorded episodes, and the duel's tables."""
+
+import json
+import math
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from nvf.cameras import matrix_to_pose
+from pipeline.config.validation import compose_run
+from pipeline.episode.loop import Episode
+from pipeline.episode.runner import run_episode
+from pipeline.episode.settings import EpisodeSettings
+from pipeline.experiments import decisions, duel, duel_summary
+from pipeline.metrics.image import LpipsMetric
+from pipeline.records.checked import Number, Text
+from pipeline.records.store import RunRecord, run_dir
+from pipeline.scenes.loading import load_scene
+
+SMOKE = ["budget=smoke", "scene=default"]
+
+
+def test_contenders_are_methods_or_nvf_ablations():
+    assert decisions.contender("wd") == decisions.Contender("wd", "wd", "none")
+    assert decisions.contender("wo_vis") == decisions.Contender("wo_vis", "nvf", "wo_vis")
+    assert decisions.contender("wo_vis").overrides == ["method=nvf", "ablation=wo_vis"]
+    for bad, says in (("none", "unknown contender"), ("bogus", "conf/method"), ("../x", "plain name")):
+        with pytest.raises(ValueError, match=says):
+            decisions.contender(bad)
+
+
+@pytest.mark.parametrize(
+    ("argv", "says"),
+    [
+        (["method=nvf"], "name both contenders"),
+        (["method=nvf", "rival=bogus"], "unknown contender 'bogus'"),
+        (["method=nvf", "rival=wd/../x"], "not a plain name"),
+        (["method=nvf", "rival=wd", "seed=3"], "seed=3: the contenders and states are the duel's own"),
+        (["method=nvf", "rival=wd", "ablation=wo_vis"], "ablation=wo_vis"),
+        (["method=nvf", "rival=wd", "--steps", "0,x"], "--steps: '0,x'"),
+        (["method=nvf", "rival=wd", "planner=opt"], "argmax"),
+    ],
+)
+def test_bad_input_is_one_line(argv, says, capsys, tmp_path):
+    with pytest.raises(SystemExit) as exit_:
+        duel.main([*argv, f"paths.results={tmp_path}"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.startswith("error: ") and says in err and err.count("\n") == 1
+    assert not (tmp_path / "pilots").exists()  # nothing written
+
+
+def settings_of(name: str, *overrides: str) -> EpisodeSettings:
+    who = decisions.contender(name)
+    cfg = compose_run([*SMOKE, *who.overrides, *overrides])
+    return EpisodeSettings.of(cfg, load_scene(cfg.scene, Path(cfg.paths.assets)))
+
+
+def test_contenders_share_a_model_where_their_training_agrees():
+    """A plan serves another when its stages begin with the other's: NVF's (backbone, variance, visibility)
+    serves WD's, FisherRF's and Random's (backbone, no auxiliary loss) and w/o Vis.'s (backbone, variance: the
+    head it skips comes last), not ActiveNeRF's (its backbone trains with M25); a shorter plan serves no longer
+    one, and with the visibility head trained first w/o Vis. trains it too and shares again."""
+    plans = {name: decisions.training_plan(settings_of(name)) for name in ("nvf", "wd", "fisherrf", "random")}
+    plans |= {name: decisions.training_plan(settings_of(name)) for name in ("activenerf", "wo_vis")}
+    for name in ("wd", "fisherrf", "random", "wo_vis", "nvf"):
+        assert decisions.serves(plans["nvf"], plans[name]), name
+    assert not decisions.serves(plans["nvf"], plans["activenerf"])
+    assert not decisions.serves(plans["activenerf"], plans["wd"])
+    assert not decisions.serves(plans["wd"], plans["nvf"])
+    vis_first = [decisions.training_plan(settings_of(n, "train.stage_order=vis_first")) for n in ("nvf", "wo_vis")]
+    assert decisions.serves(vis_first[0], vis_first[1])
+    other_seed = decisions.training_plan(settings_of("wd", "seed=7"))
+    assert not decisions.serves(plans["nvf"], other_seed)
+
+
+@pytest.mark.parametrize("rival", ["wd", pytest.param("fisherrf", marks=pytest.mark.slow)])
+def test_a_shared_model_is_bitwise_the_model_of_the_shorter_training(rival):
+    """NVF's training trains the rival's model on the way: the rival's own training gives the same backbone and
+    occupancy grid bit for bit, and its scores of the same candidates are equal on both models."""
+    quick = ["train.backbone.iters=8", "train.variance.iters=2", "train.visibility.iters=2"]
+    cfg = compose_run([*SMOKE, *quick])
+    scene = load_scene(cfg.scene, Path(cfg.paths.assets))
+    lpips = LpipsMetric()
+    episodes = {name: Episode(settings_of(name, *quick), scene, torch.device("cpu"), lpips) for name in ("nvf", rival)}
+    try:
+        obs = episodes["nvf"].observations()
+        trained = decisions.train_models(episodes, obs, 2)
+        assert trained["nvf"] is trained[rival]
+        own, _ = episodes[rival].train(obs, 2)
+        shared = trained["nvf"].model
+        heads = {id(p) for group in ("variance", "visibility") for p in shared.field.parameter_groups()[group]}
+        state = {n: p for n, p in shared.named_parameters() if id(p) not in heads} | dict(shared.named_buffers())
+        theirs = dict(own.named_parameters()) | dict(own.named_buffers())
+        assert any("grid" in name for name in state)
+        for name, value in state.items():
+            assert torch.equal(value, theirs[name]), name
+        variance = zip(*(m.field.parameter_groups()["variance"] for m in (shared, own)), strict=True)
+        assert not all(torch.equal(a, b) for a, b in variance)  # NVF's variance head is trained, the rival's not
+        candidates = decisions.candidate_set(episodes["nvf"], shared, 2, 1)[:4]
+        episode = episodes[rival]
+        scores = [
+            decisions.pick(episode, m, decisions.prepared_scorer(episode, m, obs, 2), candidates, 2, 1).scores
+            for m in (shared, own)
+        ]
+        np.testing.assert_array_equal(scores[0], scores[1])
+    finally:
+        for episode in episodes.values():
+            episode.close()
+
+
+def test_json_lines_keep_whole_rows_and_drop_a_cut_one(tmp_path):
+    path = tmp_path / "decisions.jsonl"
+    shape = {"scene": Text(), "step": Number(0, 20, integer=True)}
+    first, second = decisions.JsonLines(path, shape), decisions.JsonLines(path, shape)
+    first.add([{"scene": "hotdog", "step": 0, "spearman": math.nan}])
+    second.add([{"scene": "hubble", "step": 0}, {"scene": "hubble", "step": 3}])
+    path.write_text(path.read_text() + '{"scene": "hub')
+    reopened = decisions.JsonLines(path, shape)
+    assert [(r["scene"], r["step"]) for r in reopened.rows] == [("hotdog", 0), ("hubble", 0), ("hubble", 3)]
+    assert reopened.rows[0]["spearman"] is None and path.read_text().endswith("\n")
+
+
+def test_a_second_setting_under_the_same_folder_is_refused(tmp_path, capsys):
+    folder = tmp_path / "pilots" / "duel" / "nvf_vs_wd"
+    folder.mkdir(parents=True)
+    (folder / "setting.json").write_text(json.dumps({"method": "nvf", "overrides": ["budget=smoke"]}))
+    with pytest.raises(SystemExit) as exit_:
+        duel.main(["method=nvf", "rival=wd", "budget=cpu", f"paths.results={tmp_path}"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and "holds a duel with overrides ['budget=smoke']" in err and err.count("\n") == 1
+    assert sorted(p.name for p in folder.iterdir()) == ["setting.json"]
+
+
+def write_episode(root: Path, method: str, seed: int, final_psnr: float, seconds: float) -> None:
+    """A finished two-step smoke record on 'hotdog' ending at ``final_psnr``, each step taking ``seconds``."""
+    record = RunRecord(run_dir(root, "hotdog", method, "argmax", "none", "smoke", seed))
+    keys = {"scene": "hotdog", "method": method, "planner": "argmax", "ablation": "none", "budget": "smoke"}
+    info = {**keys, "seed": seed, "scene_source": "mesh", "field": "hashgrid", "torch_threads": 2}
+    record.start(info | {"config": {"budget": {"horizon": 2}}}, repo=root)
+    for step, value in enumerate((10.0, final_psnr)):
+        row = {"step": step, "n_views": 3 + step, "status": "ok", "metrics": {"psnr": value}}
+        record.append_step(row | {"selected_pose": [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 2.0], "seconds": {"train": seconds}})
+    record.mark_done()
+
+
+def decision(step: int, gain: float | None, shared: bool = False, recorded: bool | None = None) -> dict:
+    seconds = {"train": 100.0, "prepare": 10.0, "score": 20.0} | ({"outcome": 30.0} if gain is not None else {})
+    row = {"scene": "hotdog", "seed": 100, "step": step, "same_pick": gain is None, "shared_training": shared}
+    row |= {"threads": 1, "seconds": {"method": seconds, "rival": seconds}, "source_pick_recorded": recorded}
+    return row | ({"gain": gain} if gain is not None else {})
+
+
+def test_summary_pairs_decisions_and_episodes(tmp_path):
+    """summary.csv's columns; the gain's interval over the decisions whose picks differ; the state interval
+    over per-state means; the episodes' final PSNR paired by seed (3 seeds) and their cpu hours; the duel's
+    cpu hours counting a state's training once (twice when not shared) and each decision's outcomes; the
+    summary's counts of rows separated, signs agreeing and the cost ratio."""
+    root, records = tmp_path / "duel", tmp_path / "runs"
+    for seed, lead in ((100, 0.5), (101, 0.7), (102, 0.9)):
+        write_episode(records, "nvf", seed, 20.0 + lead, 60.0)
+        write_episode(records, "wd", seed, 20.0, 30.0)
+    folder = root / "nvf_vs_wd"
+    folder.mkdir(parents=True)
+    contenders = {n: {"method": n, "ablation": "none"} for n in ("nvf", "wd")}
+    setting = {"method": "nvf", "rival": "wd", "overrides": ["budget=smoke"], "budget": "smoke"}
+    (folder / "setting.json").write_text(json.dumps(setting | {"contenders": contenders}))
+    rows = [decision(0, 0.2, recorded=True), decision(0, 0.4), decision(3, None, True, False), decision(3, 0.9, True)]
+    (folder / "decisions.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows) + '{"cut')
+    paths = duel_summary.write_summaries(root, records)
+    summary = duel_summary.pd.read_csv(paths[0])
+    assert tuple(summary.columns) == duel_summary.COLUMNS
+    assert list(summary["scene"]) == ["hotdog", "all"]
+    row, details = summary.iloc[0], duel_summary.pd.read_csv(paths[1]).iloc[0]
+    assert row["n"] == 3 and row["gain_mean"] == pytest.approx(0.5) and row["same_pick"] == 0.25
+    half = 4.302653 * np.std([0.2, 0.4, 0.9], ddof=1) / math.sqrt(3)  # t(0.975, 2) s / sqrt(3)
+    assert row["ci_low"] == pytest.approx(0.5 - half, rel=1e-3)
+    assert row["episode_diff"] == pytest.approx(0.7) and row["episode_ci_low"] > 0
+    # states: step 0 trains both (200 s) and step 3 once (100 s), each +20 s preparing; 4 rows x 40 s scoring;
+    # 3 rows x 60 s of outcomes
+    assert row["cpu_hours"] == pytest.approx((220 + 120 + 160 + 180) / 3600, rel=1e-3)
+    assert details["states"] == 2 and details["state_n"] == 2 and details["state_gain_mean"] == pytest.approx(0.6)
+    assert details["episode_cpu_hours"] == pytest.approx(3 * 2 * (120 + 60) / 3600, rel=1e-3)
+    assert details["source_pick_recorded"] == 0.5  # of the states' set-0 rows
+    text = paths[2].read_text()
+    assert "**+0.70 [" in text and "the duel separates 0 and the episodes 1" in text
+    assert "same sign in 1 of 1" in text and "cpu hours 1.6 times the duel's" in text  # 3 x 2 x 180 s / 680 s
+    write_episode(records, "wd", 103, 20.0, 30.0)  # a seed NVF lacks is not paired
+    assert duel_summary.pd.read_csv(duel_summary.write_summaries(root, records)[0]).iloc[0]["episode_diff"] == 0.7
+    for seed in (101, 102):
+        shutil.rmtree(run_dir(records, "hotdog", "wd", "argmax", "none", "smoke", seed))
+    assert math.isnan(duel_summary.tables(root, records)[0].iloc[0]["episode_diff"])  # one seed in common
+
+
+def test_one_step_outcome_of_a_pick():
+    """``with_view`` adds the ground truth at a pose to the observations; ``heldout_psnr`` trains the plain
+    backbone as the next step would (same seed: the same PSNR twice) and measures it on the evaluation views."""
+    cfg = compose_run(["budget=smoke", "train.backbone.iters=5"])
+    scene = load_scene(cfg.scene, Path(cfg.paths.assets))
+    episode = Episode(EpisodeSettings.of(cfg, scene), scene, torch.device("cpu"), LpipsMetric())
+    try:
+        obs = episode.observations()
+        pose = matrix_to_pose(scene.eval_poses[0].to(torch.float32))
+        more = decisions.with_view(obs, episode, pose)
+        assert more.num_images == obs.num_images + 1
+        torch.testing.assert_close(more.c2w[-1], scene.eval_poses[0].to(torch.float32), atol=1e-5, rtol=0)
+        first, _ = decisions.heldout_psnr(episode, more, 1)
+        again, _ = decisions.heldout_psnr(episode, more, 1)
+        assert math.isfinite(first) and first == again
+    finally:
+        episode.close()
+
+
+@pytest.fixture(scope="module")
+def smoke_records(tmp_path_factory) -> Path:
+    """Two-step smoke episodes of NVF, ActiveNeRF and WD (seed 100) on the default scene."""
+    outputs = tmp_path_factory.mktemp("records")
+    for method in ("nvf", "activenerf", "wd"):
+        cfg = compose_run([*SMOKE, "budget.horizon=2", f"method={method}", f"paths.outputs={outputs}"])
+        run_episode(cfg)
+    return outputs
+
+
+def read(folder: Path) -> list[dict]:
+    return [json.loads(line) for line in (folder / "decisions.jsonl").read_text().splitlines()]
+
+
+@pytest.mark.slow
+def test_duel_on_smoke_records_resumes_after_a_kill(smoke_records, tmp_path, capsys):
+    """NVF against ActiveNeRF (trained apart), WD (sharing NVF's model) and itself on steps 0 and 1 of seed 100
+    (step 0 from NVF's record, step 1 from the rival's), 2 sets each; then a kill-like cut of one folder's last
+    state: the same command measures that state alone and writes the same rows."""
+    argv = ["method=nvf", "rival=activenerf,wd,nvf", "budget=smoke", f"paths.results={tmp_path}", "--scenes"]
+    argv += ["default", "--seeds", "100", "--steps", "0,1", "--records", str(smoke_records)]
+    duel.main(argv)
+    root = tmp_path / "pilots" / "duel"
+    rows = {rival: read(root / f"nvf_vs_{rival}") for rival in ("activenerf", "wd", "nvf")}
+    for rival, found in rows.items():
+        assert [(r["step"], r["set"], r["source"]) for r in found] == [
+            (0, 0, "nvf"), (0, 1, "nvf"), (1, 0, rival), (1, 1, rival)
+        ]  # fmt: skip
+        assert all(r["source_pick_recorded"] for r in found if r["set"] == 0)
+        for r in found:
+            assert r["same_pick"] == (r["method_pick"] == r["rival_pick"])
+            assert r["same_pick"] or (math.isfinite(r["gain"]) and r["gain"] == r["method_psnr"] - r["rival_psnr"])
+    assert not any(r["shared_training"] for r in rows["activenerf"])
+    assert all(r["shared_training"] for r in rows["wd"] + rows["nvf"])
+    assert all(r["same_pick"] and "gain" not in r for r in rows["nvf"])
+    assert all(r["spearman"] is None or r["spearman"] == pytest.approx(1.0) for r in rows["nvf"])
+    summary = duel_summary.pd.read_csv(root / "summary.csv")
+    assert tuple(summary.columns) == duel_summary.COLUMNS
+    assert summary.set_index(["rival", "scene"]).loc[("nvf", "all"), "same_pick"] == 1.0
+    capsys.readouterr()
+    folder = root / "nvf_vs_activenerf"
+    lines = (folder / "decisions.jsonl").read_text().splitlines(keepends=True)
+    (folder / "decisions.jsonl").write_text("".join(lines[:2]) + lines[2][:40])  # killed while writing step 1
+    duel.main(argv)
+    out = capsys.readouterr().out
+    assert "step 0" not in out and "step 1 (activenerf's state): activenerf:" in out
+
+    def without_seconds(found):
+        return [{k: v for k, v in r.items() if k != "seconds"} for r in found]
+
+    assert without_seconds(read(folder)) == without_seconds(rows["activenerf"])
