@@ -128,7 +128,7 @@ def cuts(cut: Run, paper: Run, eval_views: int) -> list[dict]:
 
 
 def measure(cfg: Run, paper: Run, scene: Scene, eval_views: int, meter: StageMeter) -> list[str]:
-    """Step 0 of an episode of ``cfg`` on ``scene`` as stages measured by ``meter`` (``paper``: the paper's
+    """Step 0 of an episode of ``cfg`` on ``scene`` as stages timed by ``meter`` (``paper``: the paper's
     candidate count and Cycles samples); returns what could not run, one line each."""
     if eval_views < scene.eval_poses.shape[0]:
         scene = dataclasses.replace(scene, eval_poses=scene.eval_poses[:eval_views])
@@ -243,7 +243,7 @@ def paper_units(name: str, paper: Run, views: int) -> float:
 
 def stage_rows(scene: str, stages: list[Stage], predicted: dict[str, float], paper: Run, views: int) -> list[dict]:
     """The report's rows of one scene's stages, each with its memory prediction and its share of a paper
-    episode (the ground truth at the paper's Cycles samples where they were measured)."""
+    episode (the ground truth at the paper's Cycles samples where they ran)."""
     rates = {stage.name: stage.seconds_per_unit for stage in stages}
     rates["ground_truth"] = rates.get("ground_truth_paper_samples", rates["ground_truth"])
     rows = []

@@ -64,7 +64,7 @@ from pipeline.tables.load import load_run
 
 SURFACE_OFFSET = 0.01  # scene units: the surface point moves this far towards the candidate camera
 MIN_ACCUMULATION = 0.5  # PROTOCOL 4.2's surface rule
-MIN_OBJECT_FRACTION = 0.05  # novelty is measured on views whose object pixels fill at least this much
+MIN_OBJECT_FRACTION = 0.05  # novelty is taken on views whose object pixels fill at least this much
 
 SourceFn = Callable[[Float[Tensor, "S 3"]], Float[Tensor, " S"]]
 

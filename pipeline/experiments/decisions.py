@@ -264,8 +264,8 @@ def outcome_key(scene: str, seed: int, source: str, step: int, pose: list[float]
 
 
 class Outcomes:
-    """Outcomes measured so far, by ``outcome_key``: read from the ``outcomes.jsonl`` of ``folders``, a new one
-    appended to the file of the folder it was measured for."""
+    """Outcomes known so far, by ``outcome_key``: read from the ``outcomes.jsonl`` of ``folders``, a new one
+    appended to the file of the folder it was computed for."""
 
     def __init__(self, folders: list[Path]):
         self.known: dict[OutcomeKey, tuple[float, float]] = {}

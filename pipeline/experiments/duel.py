@@ -17,12 +17,12 @@ At a state each contender's model is trained as its own episode's step ``k`` tra
 training is identical share one). ``--sets`` candidate sets are drawn (set 0: the state's own planner draw at
 step ``k``; the others from their own seeded generators) and each contender picks from the same set as its
 episode would. Where the picks differ, the plain backbone is trained with each pick added (the seed of step
-``k+1``, the same for both) and measured on the scene's 20 evaluation views: the gain is A's pick's held-out
+``k+1``, the same for both) and evaluated on the scene's 20 evaluation views: the gain is A's pick's held-out
 PSNR minus B's, paired on the state (``pipeline.experiments.decisions``).
 
 Writes ``${paths.results}/pilots/duel/<A>_vs_<B>/``: ``decisions.jsonl`` (a row per scene, seed, step and set;
 each state's rows in one write, so a killed duel resumes after its last complete state), ``outcomes.jsonl``
-(every measured pick, reused by later calls), ``setting.json`` (the overrides: a call with other overrides under
+(every evaluated pick, reused by later calls), ``setting.json`` (the overrides: a call with other overrides under
 the same folder is refused) and ``command.txt``; then ``summary.csv``, ``details.csv`` and ``summary.md`` of every
 duel under ``pilots/duel/`` (``pipeline.experiments.duel_summary``). Torch runs with ``--threads`` threads
 (default 1). To use more cores run several processes on disjoint ``--scenes`` or ``--seeds``, one thread each:
@@ -81,7 +81,7 @@ OWN_KEYS = ("method", "rival", "ablation", "scene", "seed")  # the duel's own: n
 
 @dataclass
 class Pair:
-    """One duel, A against B: its folder and the states it has measured."""
+    """One duel, A against B: its folder and the states it has decided."""
 
     method: Contender
     rival: Contender
@@ -153,7 +153,7 @@ class State:
     recorded: int | None  # the owner's record's pick at this step
 
     def outcome(self, call: Call, pair: Pair, pose: torch.Tensor) -> tuple[float, float]:
-        """Held-out PSNR and seconds of the pick at ``pose`` (``heldout_psnr``), measured once per pose."""
+        """Held-out PSNR and seconds of the pick at ``pose`` (``heldout_psnr``), computed once per pose."""
         key = outcome_key(self.scene, self.seed, self.owner, self.step, pose.tolist())
         known = call.outcomes.get(key)
         if known is None:

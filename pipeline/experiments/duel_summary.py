@@ -10,7 +10,7 @@ seed, and over scenes by scene and seed; empty unless both have at least 3 seeds
 preparations, each decision's scorings and its picks' outcomes, times the torch threads; an outcome shared with
 another pair is counted in both, so each pair's hours are what it costs alone).
 
-``details.csv``: per pair and scene, the decisions and states measured, the interval over per-state mean gains
+``details.csv``: per pair and scene, the decisions and states counted, the interval over per-state mean gains
 (a state's decisions share its models, so they are not independent; this interval takes the state as the unit),
 the share of states whose owner picks from its own planner draw what its record picked (``source_pick_recorded``:
 the replayed training reproduces the episode), and ``episode_cpu_hours``, the hours of the episodes compared

@@ -13,7 +13,7 @@ poses selected at steps ``0..k-1``). At that state, under the setting's override
    their Spearman correlation, whether their argmax agree, how many candidates tie at each maximum, and each
    reward split into its terms (``pipeline.metrics.ranking.term_attribution``: the decisive term);
 3. where the two picks differ, the backbone is trained once with each pick added (the seed of step ``k+1``,
-   the same for both) and each model's held-out PSNR on the scene's 20 evaluation views is measured: the
+   the same for both) and each model's held-out PSNR is taken on the scene's 20 evaluation views: the
    one-step gain of NVF's pick over w/o Vis.'s, paired.
 
 The candidate sets, the one-step outcome and the rows' file are the duel's (``pipeline.experiments.decisions``;
@@ -204,7 +204,7 @@ def study_scene(
 
 
 def settings_of(overrides: list[str]) -> list[str]:
-    """A study's overrides as settings, sorted, without ``paths.*`` (where files are, not what is measured)."""
+    """A study's overrides as settings, sorted, without ``paths.*`` (where files are, not what is computed)."""
     return sorted(o for o in overrides if not o.startswith("paths."))
 
 
@@ -218,7 +218,7 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("--scenes", type=name_list, default=SCENES)
     parser.add_argument("--seeds", type=seed_list, default=SEEDS)
-    parser.add_argument("--steps", type=step_list, default=STEPS, help="the recorded steps whose states are measured")
+    parser.add_argument("--steps", type=step_list, default=STEPS, help="the recorded steps whose states are studied")
     parser.add_argument("--sets", type=int, default=3, help="candidate sets per state (0: the planner's own)")
     parser.add_argument("--records", type=Path, default=Path("results/runs"), help="where the NVF records are")
     parser.add_argument("--threads", type=int, default=1, help="torch threads")

@@ -3,12 +3,12 @@ the folders ``python -m pipeline.experiments.visibility_study`` writes under
 ``${paths.results}/pilots/visibility_study/``.
 
 Columns: ``setting, scene, visibility_source, label_auc, head_auc`` (the initial views' separation of seen
-from unseen object pixels, ``pipeline.bench visibility``), ``spearman_nvf_wo_vis`` (mean over the measured
+from unseen object pixels, ``pipeline.bench visibility``), ``spearman_nvf_wo_vis`` (mean over the studied
 candidate sets), ``onestep_gain_mean, onestep_ci_low, onestep_ci_high, n`` (NVF's pick minus w/o Vis.'s
 in held-out PSNR, dB, where they differ, with the 95% Student-t interval over the ``n`` disagreements),
 ``minutes_per_episode`` (NVF's and w/o Vis.'s mean in the setting's discrimination experiment when it has
 one, ``episode_minutes``, else empty), then
-``decisions`` (candidate sets measured), ``same_argmax_fraction``, ``nvf_decisive_term`` (the reward term
+``decisions`` (candidate sets studied), ``same_argmax_fraction``, ``nvf_decisive_term`` (the reward term
 deciding NVF's ranking most often), ``nvf_unknown_share`` (the unknown component's mean share of NVF's
 reward variance) and ``nvf_tied_fraction``, ``wo_vis_tied_fraction`` (the candidate sets whose maximum
 several candidates share: a pick by draw order).
