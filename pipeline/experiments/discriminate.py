@@ -252,6 +252,14 @@ def against_plain(runs: pd.DataFrame, plain: pd.DataFrame, entries: list[tuple[s
     return pd.DataFrame(rows)
 
 
+def interval_cells(group: pd.DataFrame) -> dict[str, str]:
+    """Per measure of ``group`` (rows with ``measure, mean_diff, ci_low, ci_high``), 'mean [low, high]' in dB."""
+    return {
+        row["measure"]: f"{row['mean_diff']:+.2f} [{row['ci_low']:+.2f}, {row['ci_high']:+.2f}]"
+        for _, row in group.iterrows()
+    }
+
+
 def against_plain_markdown(plain_label: str, changes: pd.DataFrame) -> list[str]:
     """The lines of ``against_plain``'s table for summary.md."""
     lines = [
@@ -262,10 +270,7 @@ def against_plain_markdown(plain_label: str, changes: pd.DataFrame) -> list[str]
     ]
     rows = []
     for (scene, entry), group in changes.groupby(["scene", "entry"], sort=False):
-        cells = {
-            row["measure"]: f"{row['mean_diff']:+.2f} [{row['ci_low']:+.2f}, {row['ci_high']:+.2f}]"
-            for _, row in group.iterrows()
-        }
+        cells = interval_cells(group)
         first = group.iloc[0]
         flat = [f"{v:.2f}" if math.isfinite(v) else "-" for v in (first["flat_steps"], first["plain_flat_steps"])]
         rows.append([scene, entry, cells["final_psnr"], cells["mean_psnr"], first["n"], *flat])
@@ -286,10 +291,7 @@ def markdown(label: str, details: pd.DataFrame, runs: pd.DataFrame) -> str:
     ]
     rows = []
     for (scene, name), group in details.groupby(["scene", "comparison"], sort=False):
-        cells = {
-            row["measure"]: f"{row['mean_diff']:+.2f} [{row['ci_low']:+.2f}, {row['ci_high']:+.2f}]"
-            for _, row in group.iterrows()
-        }
+        cells = interval_cells(group)
         first = group.iloc[0]
         rows.append(
             [
