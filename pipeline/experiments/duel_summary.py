@@ -173,6 +173,19 @@ def _interval(mean: float, low: float, high: float) -> str:
     return f"**{text}**" if math.isfinite(low) and separates(low, high) else text
 
 
+def _ratios(scenes: pd.DataFrame, details: pd.DataFrame) -> str:
+    """The sentence comparing the duel with the episodes over the rows that have both: the means' sign
+    agreement, the median ratio of the interval widths and the ratio of the cpu hours."""
+    same_sign = int((np.sign(scenes["gain_mean"]) == np.sign(scenes["episode_diff"])).sum())
+    width = (scenes["episode_ci_high"] - scenes["episode_ci_low"]) / (scenes["ci_high"] - scenes["ci_low"])
+    cost = details["episode_cpu_hours"].sum() / scenes["cpu_hours"].sum()
+    return (
+        f" The means have the same sign in {same_sign} of {len(scenes)}; the episodes' interval is "
+        f"{width.median():.1f} times as wide as the duel's (median over rows), and their cpu hours "
+        f"{cost:.1f} times the duel's."
+    )
+
+
 def summary_markdown(summary: pd.DataFrame, details: pd.DataFrame) -> str:
     """``summary.md``: the pairs' rows and the count of rows each instrument separates."""
     columns = ["method", "rival", "scene", "n", "one-step gain (dB)", "per-state gain (dB)", "same pick"]
@@ -195,17 +208,7 @@ def summary_markdown(summary: pd.DataFrame, details: pd.DataFrame) -> str:
         if d and e
     ]
     agree = sum(int(np.sign(gain) == np.sign(diff)) for gain, diff in both)
-    same_sign = int((np.sign(scenes["gain_mean"]) == np.sign(scenes["episode_diff"])).sum())
-    width = (scenes["episode_ci_high"] - scenes["episode_ci_low"]) / (scenes["ci_high"] - scenes["ci_low"])
-    compared = details.loc[scenes.index]
-    cost = compared["episode_cpu_hours"].sum() / scenes["cpu_hours"].sum()
-    ratios = (
-        f" The means have the same sign in {same_sign} of {len(scenes)}; the episodes' interval is "
-        f"{width.median():.1f} times as wide as the duel's (median over rows), and their cpu hours "
-        f"{cost:.1f} times the duel's."
-        if len(scenes)
-        else ""
-    )
+    ratios = _ratios(scenes, details.loc[scenes.index]) if len(scenes) else ""
     lines = [
         "# Duels: paired one-step decisions",
         "",
