@@ -25,6 +25,14 @@ def test_interval_is_the_paired_student_t_interval():
     assert one.n == 1 and one.mean == 0.5 and math.isnan(one.low) and math.isnan(one.high)
 
 
+def test_an_interval_as_text_and_whether_it_excludes_zero():
+    """The text the tables and the site show, and the mark: below zero counts as above does; undefined never."""
+    assert Interval(0.214, 0.012, 0.418, 5).text() == "+0.21 [+0.01, +0.42]"
+    assert Interval(0.214, 0.012, 0.418, 5).excludes_zero and Interval(-0.3, -0.5, -0.1, 5).excludes_zero
+    assert not Interval(0.1, -0.2, 0.4, 5).excludes_zero and not Interval(0.5, math.nan, math.nan, 1).excludes_zero
+    assert Interval(0.5, math.nan, math.nan, 1).text() == "+0.50" and Interval(*[math.nan] * 3, 0).text() == "-"
+
+
 def runs_frame() -> pd.DataFrame:
     """Two scenes, three seeds; NVF 1 dB over w/o Vis. on every seed; NeurAR the better baseline on 'a'."""
     rows = []

@@ -163,14 +163,12 @@ def tables(root: Path, records: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
 
 def separates(low: float, high: float) -> bool:
     """An interval excluding zero."""
-    return bool(low > 0.0 or high < 0.0)
+    return Interval(math.nan, low, high, 0).excludes_zero
 
 
 def _interval(mean: float, low: float, high: float) -> str:
-    if not math.isfinite(mean):
-        return "-"
-    text = f"{mean:+.2f}" + (f" [{low:+.2f}, {high:+.2f}]" if math.isfinite(low) else "")
-    return f"**{text}**" if math.isfinite(low) and separates(low, high) else text
+    interval = Interval(mean, low, high, 0)
+    return f"**{interval.text()}**" if interval.excludes_zero else interval.text()
 
 
 def _ratios(scenes: pd.DataFrame, details: pd.DataFrame) -> str:

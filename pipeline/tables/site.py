@@ -11,7 +11,6 @@ works while it stays beside them.
 """
 
 import html
-import math
 import os
 import re
 from collections.abc import Mapping
@@ -417,23 +416,15 @@ def pilots_page(pilots: Path, page: Path) -> str:
     return _page("Pilots", "".join(parts))
 
 
-def _interval_text(mean: float, low: float, high: float) -> tuple[str, bool]:
-    """'+0.21 [+0.01, +0.42]' ('-' without a mean, the mean alone without an interval) and whether the interval
-    excludes zero."""
-    if not math.isfinite(mean):
-        return "-", False
-    if not (math.isfinite(low) and math.isfinite(high)):
-        return f"{mean:+.2f}", False
-    return f"{mean:+.2f} [{low:+.2f}, {high:+.2f}]", bool(low > 0.0 or high < 0.0)
-
-
 def duel_cell(row: pd.Series) -> str:
     """One pair's cell: the one-step gain with its interval (bold where it excludes zero), its decisions, and the
     episodes' final-PSNR difference beneath (bold likewise)."""
-    gain, gain_separates = _interval_text(row["gain_mean"], row["ci_low"], row["ci_high"])
-    episode, episode_separates = _interval_text(row["episode_diff"], row["episode_ci_low"], row["episode_ci_high"])
-    gain_html = f"<strong>{html.escape(gain)}</strong>" if gain_separates else html.escape(gain)
-    episode_html = f"<strong>{html.escape(episode)}</strong>" if episode_separates else html.escape(episode)
+    gain = Interval(row["gain_mean"], row["ci_low"], row["ci_high"], int(row["n"]))
+    episode = Interval(row["episode_diff"], row["episode_ci_low"], row["episode_ci_high"], 0)
+    gain_html, episode_html = (
+        f"<strong>{html.escape(i.text())}</strong>" if i.excludes_zero else html.escape(i.text())
+        for i in (gain, episode)
+    )
     title = f"{int(row['n'])} differing decisions, same pick {row['same_pick']:.0%}, {row['cpu_hours']:.2f} cpu h"
     return (
         f'<td title="{html.escape(title)}">{gain_html} <span class="note">n={int(row["n"])}</span><br>'

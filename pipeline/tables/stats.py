@@ -41,6 +41,20 @@ class Interval:
         """The interval lies above zero (False when it is undefined)."""
         return bool(self.low > 0.0)
 
+    @property
+    def excludes_zero(self) -> bool:
+        """The interval lies above or below zero (False when it is undefined)."""
+        return bool(self.low > 0.0 or self.high < 0.0)
+
+    def text(self) -> str:
+        """'+0.21 [+0.01, +0.42]' in the unit of the differences; the mean alone without bounds, '-' without a
+        mean."""
+        if not math.isfinite(self.mean):
+            return "-"
+        if not (math.isfinite(self.low) and math.isfinite(self.high)):
+            return f"{self.mean:+.2f}"
+        return f"{self.mean:+.2f} [{self.low:+.2f}, {self.high:+.2f}]"
+
 
 def paired(a: pd.Series, b: pd.Series) -> Interval:
     """``Interval.of(a - b)`` over the keys (seeds, or (seed, scene) pairs) where both have a finite value."""
