@@ -20,6 +20,7 @@ from pipeline.metrics.image import LpipsMetric
 from pipeline.records.checked import Number, Text
 from pipeline.records.store import RunRecord, run_dir
 from pipeline.scenes.loading import load_scene
+from pipeline.tables.site import DUEL_COLUMNS
 
 SMOKE = ["budget=smoke", "scene=default"]
 
@@ -172,7 +173,7 @@ def test_summary_pairs_decisions_and_episodes(tmp_path):
     (folder / "decisions.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows) + '{"cut')
     paths = duel_summary.write_summaries(root, records)
     summary = duel_summary.pd.read_csv(paths[0])
-    assert tuple(summary.columns) == duel_summary.COLUMNS
+    assert tuple(summary.columns) == duel_summary.COLUMNS == tuple(DUEL_COLUMNS)  # the site reads what this writes
     assert list(summary["scene"]) == ["hotdog", "all"]
     row, details = summary.iloc[0], duel_summary.pd.read_csv(paths[1]).iloc[0]
     assert row["n"] == 3 and row["gain_mean"] == pytest.approx(0.5) and row["same_pick"] == 0.25

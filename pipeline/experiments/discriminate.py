@@ -255,7 +255,7 @@ def against_plain(runs: pd.DataFrame, plain: pd.DataFrame, entries: list[tuple[s
 def interval_cells(group: pd.DataFrame) -> dict[str, str]:
     """Per measure of ``group`` (rows with ``measure, mean_diff, ci_low, ci_high``), 'mean [low, high]' in dB."""
     return {
-        row["measure"]: f"{row['mean_diff']:+.2f} [{row['ci_low']:+.2f}, {row['ci_high']:+.2f}]"
+        row["measure"]: Interval(row["mean_diff"], row["ci_low"], row["ci_high"], int(row["n"])).text()
         for _, row in group.iterrows()
     }
 

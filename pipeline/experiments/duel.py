@@ -32,7 +32,6 @@ they append to the same folders side by side.
 import argparse
 import itertools
 import json
-import shlex
 import sys
 import time
 from dataclasses import dataclass, field
@@ -63,11 +62,11 @@ from pipeline.experiments.decisions import (
     with_view,
 )
 from pipeline.experiments.duel_summary import DUEL, SETTING, write_summaries
-from pipeline.experiments.options import SEEDS, name_list, seed_list, step_list
+from pipeline.experiments.options import SEEDS, add_command, name_list, seed_list, setting_overrides, step_list
 from pipeline.metrics.image import LpipsMetric
 from pipeline.metrics.ranking import spearman
-from pipeline.records.checked import MAX_FILE_BYTES, read_json
-from pipeline.records.files import make_directory, read_plain_file
+from pipeline.records.checked import read_json
+from pipeline.records.files import make_directory
 from pipeline.records.store import atomic_write_text, check_seed, run_dir
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.loading import find_asset, load_scene, scene_config
@@ -282,7 +281,7 @@ def split_arguments(positional: list[str]) -> tuple[Contender, list[Contender], 
         fail(str(err))
 
 
-def open_pairs(root: Path, method: Contender, rivals: list[Contender], setting: dict, command: str) -> list[Pair]:
+def open_pairs(root: Path, method: Contender, rivals: list[Contender], setting: dict, command: list[str]) -> list[Pair]:
     """Each pair's folder, its ``setting.json`` checked (another setting is refused before anything is written)
     or written, and the command added to its ``command.txt``."""
     folders = [root / f"{method.name}_vs_{rival.name}" for rival in rivals]
@@ -298,9 +297,7 @@ def open_pairs(root: Path, method: Contender, rivals: list[Contender], setting: 
         contenders = {c.name: {"method": c.method, "ablation": c.ablation} for c in (method, rival)}
         own = setting | {"rival": rival.name, "contenders": contenders}
         atomic_write_text(folder / "setting.json", json.dumps(own, indent=2) + "\n")
-        path = folder / "command.txt"
-        commands = (read_plain_file(path, MAX_FILE_BYTES) or b"").decode("utf-8", "replace").splitlines()
-        atomic_write_text(path, "\n".join(dict.fromkeys([*commands, command])) + "\n")
+        add_command(folder, command)
     return [Pair(method, rival, folder) for folder, rival in zip(folders, rivals, strict=True)]
 
 
@@ -341,10 +338,9 @@ def main(argv: list[str] | None = None) -> None:
             fail(str(err))
     torch.set_num_threads(args.threads)
     root = Path(cfg.paths.results) / "pilots" / DUEL
-    kept = [o for o in overrides if not o.lstrip("+~").startswith("paths.")]  # where files lie is no setting
+    kept = setting_overrides(overrides)
     setting = {"method": method.name, "overrides": kept, "budget": cfg.budget.name}
-    command = shlex.join(["python", "-m", "pipeline.experiments.duel", *argv])
-    pairs = open_pairs(root, method, rivals, setting, command)
+    pairs = open_pairs(root, method, rivals, setting, ["python", "-m", "pipeline.experiments.duel", *argv])
     settings = {path.parent: read_json(path, SETTING) for path in sorted(root.glob("*/setting.json"))}
     same_setting = [folder for folder, made in settings.items() if made is not None and made["overrides"] == kept]
     call = Call(pairs, overrides, seeds, steps, args.sets, args.records, args.threads, Outcomes(same_setting))

@@ -1,9 +1,16 @@
 """What the experiment commands share on their command lines: the tables' seeds and comma-separated lists,
-as argparse ``type=`` converters (a bad list is argparse's one ``error:`` line, ``pipeline.cli``)."""
+as argparse ``type=`` converters (a bad list is argparse's one ``error:`` line, ``pipeline.cli``); the overrides
+that make a setting; a folder's ``command.txt`` of the commands that wrote into it."""
 
 import argparse
+import shlex
 from collections.abc import Callable
+from pathlib import Path
 from typing import TypeVar
+
+from pipeline.records.checked import MAX_FILE_BYTES
+from pipeline.records.files import read_plain_file
+from pipeline.records.store import atomic_write_text
 
 SEEDS = (100, 101, 102)  # the tables' three seeds: every experiment's default
 T = TypeVar("T")
@@ -51,3 +58,16 @@ def _name(part: str) -> str:
     if not part.strip():
         raise ValueError("an empty name")
     return part.strip()
+
+
+def setting_overrides(overrides: list[str]) -> list[str]:
+    """The overrides that make a setting, in their order: ``paths.*`` (also ``+paths.*``, ``~paths.*``) says where
+    files lie, not what is computed."""
+    return [o for o in overrides if not o.lstrip("+~").startswith("paths.")]
+
+
+def add_command(folder: Path, words: list[str]) -> None:
+    """Add the command ``words`` to ``folder/command.txt`` (one per line, each once, in first-run order)."""
+    path = folder / "command.txt"
+    commands = (read_plain_file(path, MAX_FILE_BYTES) or b"").decode("utf-8", "replace").splitlines()
+    atomic_write_text(path, "\n".join(dict.fromkeys([*commands, shlex.join(words)])) + "\n")

@@ -35,7 +35,6 @@ have, every step one the records hold, and the folder's files must read back
 
 import dataclasses
 import json
-import shlex
 import sys
 import time
 from pathlib import Path
@@ -56,12 +55,12 @@ from pipeline.config.validation import compose_run
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.experiments.decisions import JsonLines, candidate_set, heldout_psnr, with_view
-from pipeline.experiments.options import SEEDS, name_list, seed_list, step_list
+from pipeline.experiments.options import SEEDS, add_command, name_list, seed_list, setting_overrides, step_list
 from pipeline.experiments.visibility_summary import DECISION, DIAGNOSTIC, SETTING, STUDY, write_summary, write_surface
 from pipeline.metrics.image import LpipsMetric
 from pipeline.metrics.ranking import render_for_terms, spearman, term_attribution, ties_at_max, view_terms
-from pipeline.records.checked import MAX_FILE_BYTES, read_json
-from pipeline.records.files import make_directory, read_plain_file
+from pipeline.records.checked import read_json
+from pipeline.records.files import make_directory
 from pipeline.records.store import atomic_write_text, check_key, check_seed, run_dir
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.loading import load_scene
@@ -205,7 +204,7 @@ def study_scene(
 
 def settings_of(overrides: list[str]) -> list[str]:
     """A study's overrides as settings, sorted, without ``paths.*`` (where files are, not what is computed)."""
-    return sorted(o for o in overrides if not o.startswith("paths."))
+    return sorted(setting_overrides(overrides))
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -247,9 +246,9 @@ def main(argv: list[str] | None = None) -> None:
         )
     decisions = JsonLines(out / "decisions.jsonl", DECISION)
     measured = {scene: read_json(out / f"{scene}_diagnostic.json", DIAGNOSTIC) is not None for scene in scenes}
-    command = ["python", "-m", "pipeline.experiments.visibility_study", *(sys.argv[1:] if argv is None else argv)]
-    commands = (read_plain_file(out / "command.txt", MAX_FILE_BYTES) or b"").decode("utf-8", "replace").splitlines()
-    atomic_write_text(out / "command.txt", "\n".join(dict.fromkeys([*commands, shlex.join(command)])) + "\n")
+    add_command(
+        out, ["python", "-m", "pipeline.experiments.visibility_study", *(sys.argv[1:] if argv is None else argv)]
+    )
     entropy, train = cfg.nvf.entropy, cfg.train
     setting = {
         "name": args.setting,

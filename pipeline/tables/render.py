@@ -13,6 +13,7 @@ import pandas as pd
 from pipeline.metrics.info import PAPER_METRICS
 from pipeline.tables.aggregate import MESH_LOS_MARK, NOT_IN_PAPER_MARK, ORACLE_FLAGS, Table
 from pipeline.tables.escape import csv_cell, markdown, plain, tex_escape
+from pipeline.tables.stats import Interval
 
 TIE_MARK = "≈"
 
@@ -38,9 +39,8 @@ def _versus_nvf(row: pd.Series) -> str:
     n = row.get("psnr_vs_nvf_n")
     if n is None or not n > 0:
         return "-"
-    low, high = row["psnr_vs_nvf_low"], row["psnr_vs_nvf_high"]
-    text = f"{row['psnr_vs_nvf_mean']:+.2f}" + (f" [{low:+.2f}, {high:+.2f}]" if pd.notna(low) else "")
-    return text + (f" (n={int(n)})" if n < row["n"] else "")
+    interval = Interval(row["psnr_vs_nvf_mean"], row["psnr_vs_nvf_low"], row["psnr_vs_nvf_high"], int(n))
+    return interval.text() + (f" (n={int(n)})" if n < row["n"] else "")
 
 
 def _grid(table: Table, label_header: str) -> tuple[list[str], list[list[str]], int]:
