@@ -36,6 +36,10 @@ from torch import Tensor, nn
 BACKENDS = ("auto", "torch", "cpp")
 _PRIMES = (1, 2654435761, 805459861)  # METHOD section 3 (pi)
 _CSRC = Path(__file__).resolve().parent / "csrc" / "hashgrid.cpp"
+# The C++ kernel requests table rows this many samples ahead of their use (software prefetch, 0 = off); the
+# outputs do not depend on it. 16 was the fastest at the paper's 2^19 table and costs nothing at 2^15
+# (results/bench/paper_profile.md).
+PREFETCH_AHEAD = 16
 
 
 def _to_int32(value: int) -> int:
@@ -153,28 +157,29 @@ class _CppHashGrid(torch.autograd.Function):
         n_dense: int,
         hash_mask: int,
         known: Tensor | None,
+        ahead: int,
     ):
         ctx.save_for_backward(table, u, levels, offsets)
-        ctx.meta = (n_dense, hash_mask)
+        ctx.meta = (n_dense, hash_mask, ahead)
         if known is not None:
             return known.clone()
         ext = cpp_extension()
         assert ext is not None, "the C++ kernel is used only once it has built"
-        return ext.forward(u, table, levels, offsets, n_dense, hash_mask)
+        return ext.forward(u, table, levels, offsets, n_dense, hash_mask, ahead)
 
     @staticmethod
     def backward(ctx, grad_out: Tensor):
         table, u, levels, offsets = ctx.saved_tensors
-        n_dense, hash_mask = ctx.meta
+        n_dense, hash_mask, ahead = ctx.meta
         grad_out = grad_out.contiguous()
         ext = cpp_extension()
         assert ext is not None, "the C++ kernel is used only once it has built"
         grad_table = grad_u = None
         if ctx.needs_input_grad[0]:
-            grad_table = ext.backward(grad_out, u, table.shape[0], levels, offsets, n_dense, hash_mask)
+            grad_table = ext.backward(grad_out, u, table.shape[0], levels, offsets, n_dense, hash_mask, ahead)
         if ctx.needs_input_grad[1]:
-            grad_u = ext.backward_input(grad_out, u, table, levels, offsets, n_dense, hash_mask)
-        return grad_table, grad_u, None, None, None, None, None
+            grad_u = ext.backward_input(grad_out, u, table, levels, offsets, n_dense, hash_mask, ahead)
+        return grad_table, grad_u, None, None, None, None, None, None
 
 
 class HashEncoding(nn.Module):
@@ -204,6 +209,7 @@ class HashEncoding(nn.Module):
         self.features_per_level = features_per_level
         self.table_size = 2**log2_hashmap_size
         self.backend = backend
+        self.prefetch_ahead = PREFETCH_AHEAD  # the C++ kernel's (no effect on the outputs; benchmarks set 0)
         self.resolutions = level_resolutions(num_levels, base_resolution, max_resolution)
         sizes = [min((res + 1) ** 3, self.table_size) for res in self.resolutions]
         dense = [(res + 1) ** 3 <= self.table_size for res in self.resolutions]
@@ -268,7 +274,14 @@ class HashEncoding(nn.Module):
         """
         if self.uses_cpp(u):
             return _CppHashGrid.apply(
-                self.table, u.contiguous(), self._levels, self._offsets, self.n_dense, self.table_size - 1, known
+                self.table,
+                u.contiguous(),
+                self._levels,
+                self._offsets,
+                self.n_dense,
+                self.table_size - 1,
+                known,
+                self.prefetch_ahead,
             )
         idx, weights = self.corner_indices(u)
         return _GatherInterp.apply(self.table, idx, weights).reshape(u.shape[0], self.out_dim)

@@ -56,6 +56,18 @@ class SceneModel(nn.Module):
             return self.field.density(x)[0]
         return self._density_where(x, self.grid.is_occupied(x))
 
+    def density_support(self) -> Float[Tensor, "2 3"]:
+        """A box (min, max) outside which :meth:`density` is 0: the occupied cells' bounds grown by half a cell
+        (for rounding) within the AABB when ``sampler.mask_density_with_grid``, else the AABB; an empty box
+        (min above max) when no cell is occupied. Visibility labels evaluate only the samples inside it (M17)."""
+        if not self.sampler_cfg.mask_density_with_grid:
+            return self.aabb
+        box = self.grid.occupied_box()
+        if box is None:
+            return self.aabb.flip(0)
+        half = 0.5 * self.grid.cell_size
+        return torch.stack([torch.maximum(box[0] - half, self.aabb[0]), torch.minimum(box[1] + half, self.aabb[1])])
+
     def observed_density(self, x: Float[Tensor, "N 3"]) -> Float[Tensor, " N"]:
         """:meth:`density`, read as 0 in cells no kept training sample reached (``grid.observed``):
         the line of sight of the collision-free sampler with ``planner.los_unobserved_free``

@@ -154,6 +154,10 @@ class OccupancyGrid(nn.Module):
             self._skip_cache = (key, (self._occupied_box(), self._block_grid()))
         return self._skip_cache[1]
 
+    def occupied_box(self) -> tuple[Float[Tensor, "3"], Float[Tensor, "3"]] | None:
+        """World bounds of the occupied cells (None if no cell is occupied), kept until ``occupied`` changes."""
+        return self._skip_structures()[0]
+
     def _occupied_box(self) -> tuple[Float[Tensor, "3"], Float[Tensor, "3"]] | None:
         """World bounds of the occupied cells (None if no cell is occupied)."""
         res = self.resolution

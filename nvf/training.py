@@ -513,6 +513,7 @@ def train_visibility_head(
     _require_images(obs)
     steps = _steps_per_iteration(cfg, "visibility")
     aabb = model.aabb
+    support = model.density_support()  # the grid is fixed in this stage
     c2w = obs.c2w.to(aabb.device)
     optimizer = torch.optim.Adam(model.field.parameter_groups()["visibility"], lr=cfg.visibility.lr, fused=True)
     rec = _Recorder("visibility", cfg.visibility.iters, progress, cfg.precision, aabb.device.type)
@@ -520,7 +521,7 @@ def train_visibility_head(
     for k in range(cfg.visibility.iters):
         u = torch.rand(cfg.visibility.batch, 3, generator=generator, device=generator.device).to(aabb)
         points = aabb[0] + u * (aabb[1] - aabb[0])
-        labels = visibility_labels(model.density, points, c2w, obs.intrinsics, cfg, generator=generator, aabb=aabb)
+        labels = visibility_labels(model.density, points, c2w, obs.intrinsics, cfg, generator=generator, aabb=support)
         no_dirs = torch.zeros_like(points)
         values = []
         for _ in range(steps):

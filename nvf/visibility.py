@@ -6,7 +6,7 @@ Labels are computed under ``no_grad`` with the **current** stage-1 density (METH
 from collections.abc import Callable
 
 import torch
-from jaxtyping import Bool, Float
+from jaxtyping import Bool, Float, Int
 from torch import Tensor
 
 from nvf.cameras import Intrinsics, project
@@ -27,6 +27,31 @@ def frustum_mask(
     return (depth > 0) & (depth < max_depth) & (u >= 0) & (u < intrinsics.width) & (v >= 0) & (v < intrinsics.height)
 
 
+def segment_fractions(
+    origin: Float[Tensor, "3"], seg: Float[Tensor, "P 3"], box: Float[Tensor, "2 3"]
+) -> tuple[Float[Tensor, " P"], Float[Tensor, " P"]]:
+    """Where ``origin + f seg`` lies inside ``box`` for ``f`` in ``[0, 1]``: ``[f_in, f_out]`` (slab test);
+    ``f_out < f_in`` when the segment misses the box."""
+    tiny = torch.where(seg >= 0, 1e-12, -1e-12)
+    inv = 1.0 / torch.where(seg.abs() > 1e-12, seg, tiny)
+    f1, f2 = (box[0] - origin) * inv, (box[1] - origin) * inv
+    return torch.minimum(f1, f2).amax(-1).clamp(min=0.0), torch.maximum(f1, f2).amin(-1).clamp(max=1.0)
+
+
+def _bins_in_box(
+    origin: Float[Tensor, "3"], seg: Float[Tensor, "C 3"], num_samples: int, box: Float[Tensor, "2 3"]
+) -> tuple[Int[Tensor, " S"], Int[Tensor, " S"]]:
+    """(row, bin) of the samples that can lie in ``box``, row-major: the bins between each segment's entry
+    into and exit from ``box``, with one bin of margin at each end for rounding."""
+    n_bins, device = num_samples - 1, seg.device
+    f_in, f_out = segment_fractions(origin, seg, box)
+    first = torch.floor(f_in * num_samples).long().sub_(1).clamp_(0, n_bins)
+    count = (torch.ceil(f_out * num_samples).long().add_(1).clamp_(0, n_bins) - first).clamp_(min=0)
+    row = torch.repeat_interleave(torch.arange(seg.shape[0], device=device), count)
+    start = torch.cumsum(count, 0) - count
+    return row, torch.arange(row.shape[0], device=device) - start[row] + first[row]
+
+
 @torch.no_grad()
 def segment_transmittance(
     density_fn: DensityFn,
@@ -37,15 +62,20 @@ def segment_transmittance(
     aabb: Float[Tensor, "2 3"] | None = None,
     chunk_samples: int = 1 << 18,
     margin: float = 0.0,
+    clip: bool = True,
 ) -> Float[Tensor, " P"]:
     """(M17) ``T(x) = exp(-sum_{k<K} sigma(y_k) delta)`` from ``origin`` to each point.
 
     ``K = num_samples`` stratified samples on ``[0, L]``, ``L = max(|x - o| - margin, 0)`` (``margin``
     0: METHOD's segment; above 0 it stops short of ``x``, a deviation, ``train.label_margin``), with
     ``delta = L / K``; the last interval is excluded, so ``K - 1`` densities per point. Sample ``k`` sits
-    at the centre of bin ``k`` (``generator=None``) or uniformly inside it. Samples outside ``aabb``
-    (if given) are not evaluated: the field's density is 0 there. At most ``chunk_samples``
-    positions are evaluated at once.
+    at the centre of bin ``k`` (``generator=None``) or uniformly inside it (one ``[chunk, K - 1]`` draw per
+    chunk of points). ``aabb``: a box outside which the density is 0 (the object AABB, or the model's
+    ``density_support``): samples outside it are not evaluated. With ``clip`` only the bins between a
+    segment's entry into and exit from the box are placed and tested; the samples inside it reach
+    ``density_fn`` in the same order either way, so the result is bitwise the same as with ``clip=False``,
+    which places every sample (the reference, for benchmarks and tests). At most ``chunk_samples`` samples
+    per chunk of points.
     """
     if num_samples < 1:
         raise ValueError(f"label_samples must be >= 1, got {num_samples}")
@@ -57,7 +87,6 @@ def segment_transmittance(
     optical = torch.zeros(points.shape[0], dtype=points.dtype, device=points.device)
     if n_bins == 0:
         return torch.ones_like(optical)
-    bins = torch.arange(n_bins, dtype=points.dtype, device=points.device)
     per_chunk = max(1, chunk_samples // n_bins)
     for start in range(0, points.shape[0], per_chunk):
         stop = min(start + per_chunk, points.shape[0])
@@ -66,16 +95,28 @@ def segment_transmittance(
         else:
             offsets = torch.rand(stop - start, n_bins, generator=generator, device=generator.device)
             offsets = offsets.to(device=points.device, dtype=points.dtype)
-        frac = (bins + offsets) / num_samples  # [C, K-1] in [0, (K-1)/K)
-        pos = origin + frac[..., None] * seg[start:stop, None, :]  # [C, K-1, 3]
-        if aabb is None:
-            sigma = density_fn(pos.reshape(-1, 3)).reshape(frac.shape)
-        else:
-            sigma = torch.zeros(frac.shape, dtype=points.dtype, device=points.device)
+        part = seg[start:stop]
+        if aabb is not None and clip:
+            row, k = _bins_in_box(origin, part, num_samples, aabb)
+            flat = row * n_bins + k
+            frac = (k.to(points.dtype) + offsets.view(-1)[flat]) / num_samples
+            pos = origin + frac[:, None] * part[row]
             inside = ((pos >= aabb[0]) & (pos <= aabb[1])).all(-1)
+            sigma = torch.zeros(offsets.shape, dtype=points.dtype, device=points.device)
             if inside.any():
-                sigma[inside] = density_fn(pos[inside]).to(sigma.dtype)
-        delta = torch.linalg.norm(seg[start:stop], dim=-1) / num_samples
+                sigma.view(-1)[flat[inside]] = density_fn(pos[inside]).to(sigma.dtype)
+        else:
+            bins = torch.arange(n_bins, dtype=points.dtype, device=points.device)
+            frac = (bins + offsets) / num_samples  # [C, K-1] in [0, (K-1)/K)
+            pos = origin + frac[..., None] * part[:, None, :]  # [C, K-1, 3]
+            if aabb is None:
+                sigma = density_fn(pos.reshape(-1, 3)).reshape(frac.shape)
+            else:
+                sigma = torch.zeros(frac.shape, dtype=points.dtype, device=points.device)
+                inside = ((pos >= aabb[0]) & (pos <= aabb[1])).all(-1)
+                if inside.any():
+                    sigma[inside] = density_fn(pos[inside]).to(sigma.dtype)
+        delta = torch.linalg.norm(part, dim=-1) / num_samples
         optical[start:stop] = sigma.sum(-1) * delta
     return torch.exp(-optical)
 
@@ -90,6 +131,7 @@ def visibility_labels(
     generator: torch.Generator | None = None,
     aabb: Float[Tensor, "2 3"] | None = None,
     chunk_samples: int = 1 << 18,
+    clip: bool = True,
 ) -> Float[Tensor, " N"]:
     """(M18) Soft label ``V*(x) = 1 - prod_{j in F(x)} (1 - T_j(x))`` in ``[0, 1]``.
 
@@ -97,8 +139,8 @@ def visibility_labels(
     every frustum get 0. Cameras are processed in order and a point whose running product is
     ``<= 0.01`` skips the rest, so labels saturate near 0.99. ``T_j`` is (M17) with
     ``cfg.label_samples`` samples, stopping ``cfg.label_margin`` short of the point (see
-    ``segment_transmittance`` for ``generator``, ``aabb`` and ``chunk_samples``); density is evaluated
-    only for in-frustum, not yet saturated pairs.
+    ``segment_transmittance`` for ``generator``, ``aabb``, ``chunk_samples`` and ``clip``); density is
+    evaluated only for in-frustum, not yet saturated pairs.
     """
     prod = torch.ones(points.shape[0], dtype=points.dtype, device=points.device)
     for j in range(c2w.shape[0]):
@@ -107,7 +149,15 @@ def visibility_labels(
         if idx.numel() == 0:
             continue
         trans = segment_transmittance(
-            density_fn, c2w[j, :3, 3], points[idx], cfg.label_samples, generator, aabb, chunk_samples, cfg.label_margin
+            density_fn,
+            c2w[j, :3, 3],
+            points[idx],
+            cfg.label_samples,
+            generator,
+            aabb,
+            chunk_samples,
+            cfg.label_margin,
+            clip,
         )
         prod[idx] = prod[idx] * (1.0 - trans)
     return 1.0 - prod

@@ -35,7 +35,7 @@ def label_visibility(
     its points (``cfg.label_samples``, ``label_max_depth``, ``label_margin``), with bin-centre samples."""
 
     def visibility(points: Float[Tensor, "S 3"]) -> Float[Tensor, " S"]:
-        return visibility_labels(model.density, points, c2w, intrinsics, cfg, aabb=model.aabb)
+        return visibility_labels(model.density, points, c2w, intrinsics, cfg, aabb=model.density_support())
 
     return visibility
 

@@ -165,3 +165,26 @@ def test_densegrid_input_gradients():
     u = torch.rand(10, 3, requires_grad=True)
     enc(u).sum().backward()
     assert u.grad is not None and torch.isfinite(u.grad).all() and u.grad.abs().sum() > 0
+
+
+@pytest.mark.parametrize("log2", [12, 19])
+def test_prefetch_distance_changes_no_bit(log2):
+    """The C++ kernel's software prefetch (``prefetch_ahead``) leaves its outputs, table gradients and point
+    gradients bitwise unchanged: it only requests table rows early."""
+    if cpp_extension() is None:
+        pytest.skip("C++ hash-grid kernel unavailable (no compiler or ninja)")
+    enc = HashEncoding(16, 2, log2, 16, 512, backend="cpp")
+    with torch.no_grad():
+        enc.table.normal_()
+    u = _points(3000)
+    grad = torch.randn(3000, enc.out_dim)
+    results = []
+    for ahead in (0, 3, 16):
+        enc.prefetch_ahead = ahead
+        points = u.clone().requires_grad_()
+        out = enc(points)
+        table_grad, point_grad = torch.autograd.grad(out, [enc.table, points], grad)
+        results.append((out, table_grad, point_grad))
+    for other in results[1:]:
+        for want, got in zip(results[0], other, strict=True):
+            assert torch.equal(want, got)

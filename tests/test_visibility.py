@@ -192,3 +192,28 @@ def test_exact_density_labels_of_the_default_scene_agree_with_line_of_sight():
     assert accuracy[200] >= 0.95
     assert accuracy[32] < accuracy[200]
     assert 0.2 < truth.float().mean().item() < 0.8  # both classes populated
+
+
+@pytest.mark.parametrize("jitter", [False, True])
+def test_clipped_bins_evaluate_the_reference_samples_bitwise(jitter):
+    """(M17) With ``clip`` only the bins between a segment's entry into and exit from the box are placed: the
+    density sees exactly the samples (same positions, same order) that placing every bin and testing it
+    gives, so the transmittances are bitwise the same; segments that miss the box evaluate nothing."""
+    box = torch.tensor([[-0.6, -0.4, -0.5], [0.7, 0.5, 0.3]])
+    origin = torch.tensor([0.3, -3.0, 0.2])
+    points = torch.rand(700, 3, generator=torch.Generator().manual_seed(2)) * 3.0 - 1.5
+    seen: dict[bool, list[torch.Tensor]] = {True: [], False: []}
+    out = {}
+    for clip in (False, True):
+
+        def density(x: torch.Tensor, clip: bool = clip) -> torch.Tensor:
+            seen[clip].append(x.clone())
+            return sphere_density(x) * 0.01 + x[:, 0].abs()
+
+        gen = torch.Generator().manual_seed(7) if jitter else None
+        out[clip] = segment_transmittance(density, origin, points, 64, gen, box, chunk_samples=2000, clip=clip)
+    assert torch.equal(out[True], out[False])
+    assert len(seen[True]) == len(seen[False]) > 1
+    for want, got in zip(seen[False], seen[True], strict=True):
+        assert torch.equal(want, got)
+    assert (out[True] < 1).any() and (out[True] == 1).any()  # some segments cross the box, some miss it

@@ -104,3 +104,37 @@ def test_a_margin_uncovers_the_shell_of_a_seen_surface():
         density, torch.tensor([[0.0, 0.45, 0.0]]), cam, INTR, TrainConfig(label_samples=400, label_margin=0.2)
     )
     assert back.item() < 0.01
+
+
+def test_labels_inside_the_density_support_are_bitwise_the_aabbs():
+    """(M17, M18) ``SceneModel.density_support`` (the occupied cells' box, grown by half a cell) bounds where
+    ``density`` is non-zero, so labels that evaluate only inside it are bitwise the labels over the whole AABB
+    (every bin placed, ``clip=False``); with no occupied cell the support is empty (free space everywhere)."""
+    model = small_model()
+    res = model.grid.resolution
+    cells = model.grid.occupied.view(res, res, res)
+    cells[:] = False
+    cells[3:9, 5:12, 2:7] = True  # a block off the centre: the support is well inside the AABB
+    support = model.density_support()
+    assert (support[0] > AABB[0]).all() and (support[1] < AABB[1]).all()
+    cams = torch.stack(
+        [
+            look_at(torch.tensor([0.2, -2.5, 0.4]), torch.zeros(3)),
+            look_at(torch.tensor([2.5, 0.3, 0.0]), torch.zeros(3)),
+        ]
+    )
+    cfg = TrainConfig(label_samples=40)
+    points = torch.rand(400, 3, generator=torch.Generator().manual_seed(1)) * 2 - 1
+
+    def density(x: torch.Tensor) -> torch.Tensor:  # the model's, dense enough to occlude
+        return 1e3 * model.density(x)
+
+    reference = visibility_labels(density, points, cams, INTR, cfg, torch.Generator().manual_seed(3), AABB, clip=False)
+    clipped = visibility_labels(density, points, cams, INTR, cfg, torch.Generator().manual_seed(3), support)
+    assert torch.equal(reference, clipped)
+    assert 0 < int((reference > 0.5).sum()) < points.shape[0]
+    model.grid.occupied[:] = False
+    empty = model.density_support()
+    assert (empty[0] > empty[1]).all()
+    free = visibility_labels(model.density, points, cams, INTR, cfg, aabb=AABB, clip=False)
+    assert torch.equal(visibility_labels(model.density, points, cams, INTR, cfg, aabb=empty), free)

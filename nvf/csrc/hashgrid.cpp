@@ -43,6 +43,17 @@ Levels read_levels(const torch::Tensor& levels, const torch::Tensor& offsets) {
 // for the sample-by-sample lookup it replaced.
 constexpr int64_t kBlock = 256;
 
+// Every kernel takes `ahead`: table rows are requested that many samples before they are used (software
+// prefetch; 0 turns it off). At the paper's 2^19 rows a level no longer fits in the caches and each corner
+// read waits on memory (nvf/encoding.py's PREFETCH_AHEAD, results/bench/paper_profile.md). The arithmetic
+// and its order do not depend on it, so the outputs are bitwise the same for every value.
+
+// Prefetch the 8 corner rows of sample s (for reading, or for writing with write = 1).
+template <int write>
+inline void prefetch_corners(const float* base, const uint32_t (&idx)[8][kBlock], int64_t s, int64_t row, int64_t col) {
+  for (int c = 0; c < 8; ++c) __builtin_prefetch(base + static_cast<int64_t>(idx[c][s]) * row + col, write);
+}
+
 // A block of samples' coordinates, one array per axis: block_points reads them once per block.
 struct BlockPoints {
   alignas(64) float xyz[3][kBlock];
@@ -101,7 +112,7 @@ void locate_block(const BlockPoints& points, int64_t m, int32_t res, bool dense,
 
 template <int FS>
 void forward_kernel(const float* u, const float* table, float* out, int64_t n, const Levels& lv, int64_t n_dense,
-                    uint32_t mask, int64_t f_dyn) {
+                    uint32_t mask, int64_t f_dyn, int64_t ahead) {
   const int64_t F = FS > 0 ? FS : f_dyn;
   const int64_t L = static_cast<int64_t>(lv.res.size());
   at::parallel_for(0, n, kBlock, [&](int64_t begin, int64_t end) {
@@ -113,7 +124,9 @@ void forward_kernel(const float* u, const float* table, float* out, int64_t n, c
       for (int64_t l = 0; l < L; ++l) {
         locate_block(*points, m, lv.res[l], l < n_dense, mask, *cells);
         const float* base = table + lv.offset[l] * F;
+        for (int64_t s = 0; s < std::min(m, ahead); ++s) prefetch_corners<0>(base, cells->idx, s, F, 0);
         for (int64_t s = 0; s < m; ++s) {
+          if (ahead > 0 && s + ahead < m) prefetch_corners<0>(base, cells->idx, s + ahead, F, 0);
           float* o = out + (b0 + s) * L * F + l * F;
           for (int64_t f = 0; f < F; ++f) {  // accumulated in a register: out may alias table
             float acc = 0.0f;
@@ -127,7 +140,7 @@ void forward_kernel(const float* u, const float* table, float* out, int64_t n, c
 }
 
 torch::Tensor forward(torch::Tensor u, torch::Tensor table, torch::Tensor levels, torch::Tensor offsets,
-                      int64_t n_dense, int64_t hash_mask) {
+                      int64_t n_dense, int64_t hash_mask, int64_t ahead) {
   TORCH_CHECK(u.device().is_cpu() && table.device().is_cpu(), "hashgrid kernel: CPU tensors only");
   TORCH_CHECK(u.scalar_type() == at::kFloat && table.scalar_type() == at::kFloat, "hashgrid kernel: float32 only");
   u = u.contiguous();
@@ -137,14 +150,14 @@ torch::Tensor forward(torch::Tensor u, torch::Tensor table, torch::Tensor levels
   auto out = torch::empty({n, L * F}, u.options());
   const uint32_t mask = static_cast<uint32_t>(hash_mask);
   if (F == 2)
-    forward_kernel<2>(u.data_ptr<float>(), table.data_ptr<float>(), out.data_ptr<float>(), n, lv, n_dense, mask, F);
+    forward_kernel<2>(u.data_ptr<float>(), table.data_ptr<float>(), out.data_ptr<float>(), n, lv, n_dense, mask, F, ahead);
   else
-    forward_kernel<0>(u.data_ptr<float>(), table.data_ptr<float>(), out.data_ptr<float>(), n, lv, n_dense, mask, F);
+    forward_kernel<0>(u.data_ptr<float>(), table.data_ptr<float>(), out.data_ptr<float>(), n, lv, n_dense, mask, F, ahead);
   return out;
 }
 
 torch::Tensor backward(torch::Tensor grad_out, torch::Tensor u, int64_t rows, torch::Tensor levels,
-                       torch::Tensor offsets, int64_t n_dense, int64_t hash_mask) {
+                       torch::Tensor offsets, int64_t n_dense, int64_t hash_mask, int64_t ahead) {
   grad_out = grad_out.contiguous();
   u = u.contiguous();
   const Levels lv = read_levels(levels, offsets);
@@ -174,7 +187,9 @@ torch::Tensor backward(torch::Tensor grad_out, torch::Tensor u, int64_t rows, to
           const int64_t f0 = (task % n_chunks) * chunk, f1 = std::min(F, f0 + chunk);
           float* base = tp + lv.offset[l] * F;
           locate_block(*points, m, lv.res[l], l < n_dense, mask, *cells);
+          for (int64_t s = 0; s < std::min(m, ahead); ++s) prefetch_corners<1>(base, cells->idx, s, F, f0);
           for (int64_t s = 0; s < m; ++s) {
+            if (ahead > 0 && s + ahead < m) prefetch_corners<1>(base, cells->idx, s + ahead, F, f0);
             const float* g = gp + (b0 + s) * L * F + l * F;
             for (int c = 0; c < 8; ++c) {
               float* t = base + static_cast<int64_t>(cells->idx[c][s]) * F;
@@ -192,7 +207,7 @@ torch::Tensor backward(torch::Tensor grad_out, torch::Tensor u, int64_t rows, to
 // grad_u[n, k] = sum_l sum_c <grad_out[n, l], table[idx_c]> * dw_c/du_k, with dw_c/du_k = N_l * (+-1) *
 // (the other two axes' weights); zero where u_k was clamped (u_k outside (0,1)), as torch's clamp.
 torch::Tensor backward_input(torch::Tensor grad_out, torch::Tensor u, torch::Tensor table, torch::Tensor levels,
-                             torch::Tensor offsets, int64_t n_dense, int64_t hash_mask) {
+                             torch::Tensor offsets, int64_t n_dense, int64_t hash_mask, int64_t ahead) {
   grad_out = grad_out.contiguous();
   u = u.contiguous();
   table = table.contiguous();
@@ -215,7 +230,9 @@ torch::Tensor backward_input(torch::Tensor grad_out, torch::Tensor u, torch::Ten
         locate_block(*points, m, lv.res[l], l < n_dense, mask, *cells);
         const float* base = tp + lv.offset[l] * F;
         const float res = static_cast<float>(lv.res[l]);
+        for (int64_t s = 0; s < std::min(m, ahead); ++s) prefetch_corners<0>(base, cells->idx, s, F, 0);
         for (int64_t s = 0; s < m; ++s) {
+          if (ahead > 0 && s + ahead < m) prefetch_corners<0>(base, cells->idx, s + ahead, F, 0);
           const float* g = gp + (b0 + s) * L * F + l * F;
           const float w[3][2] = {{1.0f - cells->frac[0][s], cells->frac[0][s]},
                                  {1.0f - cells->frac[1][s], cells->frac[1][s]},
