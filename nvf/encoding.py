@@ -19,23 +19,17 @@ Two interchangeable backends compute the same function:
 ``ninja`` package are needed), ``torch`` otherwise.
 """
 
-import functools
-import hashlib
-import logging
 import math
-import os
-import sys
-import warnings
-from pathlib import Path
 from types import ModuleType
 
 import torch
 from jaxtyping import Float, Int
 from torch import Tensor, nn
 
+from nvf import kernels
+
 BACKENDS = ("auto", "torch", "cpp")
 _PRIMES = (1, 2654435761, 805459861)  # METHOD section 3 (pi)
-_CSRC = Path(__file__).resolve().parent / "csrc" / "hashgrid.cpp"
 # The C++ kernel requests table rows this many samples ahead of their use (software prefetch, 0 = off); the
 # outputs do not depend on it. 16 was the fastest at the paper's 2^19 table and costs nothing at 2^15
 # (results/bench/paper_profile.md).
@@ -57,61 +51,9 @@ def level_resolutions(num_levels: int, base_resolution: int, max_resolution: int
     return [int(math.floor(base_resolution * growth**level + 1e-9)) for level in range(num_levels)]
 
 
-def _cflags() -> list[str]:
-    """``-O3 -fopenmp`` (without it ``at::parallel_for`` runs serially), ``-fno-trapping-math`` (lets gcc
-    vectorise the clamp and floor of the cell lookup; no value changes, the kernel reads no FP exception
-    flags), plus AVX2/FMA where the CPU has them (1.3x on the gather; results differ by rounding only)."""
-    simd = torch.backends.cpu.get_cpu_capability() in ("AVX2", "AVX512")
-    base = ["-O3", "-fopenmp", "-fno-trapping-math"]
-    return [*base, "-mavx2", "-mfma"] if simd else base
-
-
-def _build_dir(cflags: list[str]) -> Path:
-    """Per torch, Python, flags and source (path and content): two checkouts never rebuild each other's
-    kernel (ninja rebuilds whenever the recorded source path changes)."""
-    cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
-    flags = "".join(flag.lstrip("-") for flag in cflags)
-    source = hashlib.sha256(str(_CSRC).encode() + _CSRC.read_bytes()).hexdigest()[:12]
-    tag = f"torch{torch.__version__}-py{sys.version_info.major}{sys.version_info.minor}-{flags}-{source}".replace(
-        "+", "_"
-    )
-    path = cache / "nvf-bench" / "torch_extensions" / f"hashgrid-{tag}"
-    path.mkdir(parents=True, exist_ok=True)
-    return path
-
-
-def _quiet_import_load():
-    """``torch.utils.cpp_extension.load``, imported without its warning that a CUDA toolkit was found but no
-    CUDA runtime (true on a CPU machine with nvcc, and irrelevant to a CPU kernel)."""
-    logger = logging.getLogger("torch.utils.cpp_extension")
-    level = logger.level
-    logger.setLevel(logging.ERROR)
-    try:
-        from torch.utils.cpp_extension import load
-    finally:
-        logger.setLevel(level)
-    return load
-
-
-@functools.cache
 def cpp_extension() -> ModuleType | None:
-    """The compiled hash-grid kernels, built once per process; ``None`` if they cannot be built."""
-    try:
-        load = _quiet_import_load()
-        cflags = _cflags()
-        return load(
-            name="nvf_hashgrid",
-            sources=[str(_CSRC)],
-            extra_cflags=cflags,
-            extra_ldflags=["-fopenmp"],
-            build_directory=str(_build_dir(cflags)),
-            verbose=False,
-        )
-    except Exception as error:  # any build failure (no compiler, no ninja, ...) means fallback
-        warnings.warn(
-            f"nvf: hash-grid C++ kernel unavailable ({type(error).__name__}: {error}); using torch", stacklevel=2
-        )
-        return None
+    """The compiled hash-grid kernels (``nvf.kernels.hashgrid``); ``None`` if they cannot be built."""
+    return kernels.hashgrid()
 
 
 class _GatherInterp(torch.autograd.Function):

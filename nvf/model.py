@@ -1,6 +1,7 @@
 """The scene model: NVF field plus occupancy grid, rendering packed rays (METHOD.md sections 2 and 4)."""
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import torch
 from jaxtyping import Bool, Float, Int
@@ -13,6 +14,14 @@ from nvf.occupancy import OccupancyGrid
 from nvf.rendering import Samples, alpha_from_density, expected_depth, ray_sum, weights_from_alpha
 
 SAMPLERS = ("occupancy", "uniform")
+
+
+class DensitySupport(NamedTuple):
+    """Where a model's density can be non-zero: inside ``box`` (min, max) and, with ``grid``, in its occupied
+    cells (``SceneModel.density_support``)."""
+
+    box: Float[Tensor, "2 3"]
+    grid: OccupancyGrid | None
 
 
 @dataclass
@@ -56,17 +65,18 @@ class SceneModel(nn.Module):
             return self.field.density(x)[0]
         return self._density_where(x, self.grid.is_occupied(x))
 
-    def density_support(self) -> Float[Tensor, "2 3"]:
-        """A box (min, max) outside which :meth:`density` is 0: the occupied cells' bounds grown by half a cell
-        (for rounding) within the AABB when ``sampler.mask_density_with_grid``, else the AABB; an empty box
-        (min above max) when no cell is occupied. Visibility labels evaluate only the samples inside it (M17)."""
+    def density_support(self) -> "DensitySupport":
+        """Where :meth:`density` can be non-zero. With ``sampler.mask_density_with_grid``: the occupied cells
+        (``grid``) and their bounds grown by half a cell (for rounding) within the AABB (``box``; empty, min
+        above max, when no cell is occupied); else the AABB. Visibility labels evaluate only there (M17)."""
         if not self.sampler_cfg.mask_density_with_grid:
-            return self.aabb
+            return DensitySupport(self.aabb, None)
         box = self.grid.occupied_box()
         if box is None:
-            return self.aabb.flip(0)
+            return DensitySupport(self.aabb.flip(0), self.grid)
         half = 0.5 * self.grid.cell_size
-        return torch.stack([torch.maximum(box[0] - half, self.aabb[0]), torch.minimum(box[1] + half, self.aabb[1])])
+        lo, hi = torch.maximum(box[0] - half, self.aabb[0]), torch.minimum(box[1] + half, self.aabb[1])
+        return DensitySupport(torch.stack([lo, hi]), self.grid)
 
     def observed_density(self, x: Float[Tensor, "N 3"]) -> Float[Tensor, " N"]:
         """:meth:`density`, read as 0 in cells no kept training sample reached (``grid.observed``):

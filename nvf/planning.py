@@ -169,25 +169,51 @@ def score_poses(
     Each pose's rays are rendered in row-major chunks of ``chunk_rays`` (use a multiple of the
     scorer's depth chunk, 4096, for ``depth_mode=chunk``) with ``scorer.heads`` and
     ``scorer.sampler``; ``pixel_index`` (row-major id) is always passed. float64; raises
-    ``FloatingPointError`` on a non-finite score.
+    ``FloatingPointError`` on a non-finite score. ``score_poses_together`` with one scorer.
     """
+    return score_poses_together(model, [scorer], poses, intrinsics, chunk_rays)[0]
+
+
+@torch.no_grad()
+def score_poses_together(
+    model: nn.Module,
+    scorers: list[ViewScorer | WholeViewScorer],
+    poses: Float[Tensor, "m 7"],
+    intrinsics: Intrinsics,
+    chunk_rays: int,
+) -> list[Float[Tensor, " m"]]:
+    """``score_poses`` of every scorer on the same model: the per-pixel scorers with the same ``sampler`` read
+    one render of each chunk, with the union of their heads (a head's values do not depend on which other heads
+    are rendered, so each score is bitwise its own render's); a ``WholeViewScorer`` renders for itself."""
     cam_dirs = camera_directions(intrinsics, poses.device)
-    if isinstance(scorer, WholeViewScorer):
-        rays = (rays_from_camera_dirs(c2w, cam_dirs) for c2w in pose_to_matrix(poses))
-        scores = torch.stack([scorer.view_score(model, origins, dirs, chunk_rays) for origins, dirs in rays])
-        _check_finite(scores, "pose")
-        return scores
     num_pixels = cam_dirs.shape[0]
-    scores = torch.zeros(poses.shape[0], dtype=torch.float64, device=poses.device)
-    for i, c2w in enumerate(pose_to_matrix(poses)):
-        origins, dirs = rays_from_camera_dirs(c2w, cam_dirs)
-        for start in range(0, num_pixels, chunk_rays):
-            index = torch.arange(start, min(start + chunk_rays, num_pixels), device=poses.device)
-            result = model.render(origins[index], dirs[index], heads=scorer.heads, train=False, sampler=scorer.sampler)  # type: ignore[operator]  # a duck-typed nn.Module's attribute
-            scores[i] += scorer.pixel_scores(result, pixel_index=index).to(torch.float64).sum()
-    scores = scores / num_pixels
-    _check_finite(scores, "pose")
-    return scores
+    scores: list[Tensor | None] = [None] * len(scorers)
+    for j, scorer in enumerate(scorers):
+        if isinstance(scorer, WholeViewScorer):
+            rays = (rays_from_camera_dirs(c2w, cam_dirs) for c2w in pose_to_matrix(poses))
+            scores[j] = torch.stack([scorer.view_score(model, origins, dirs, chunk_rays) for origins, dirs in rays])
+    groups: dict[str, list[int]] = {}
+    for j, scorer in enumerate(scorers):
+        if not isinstance(scorer, WholeViewScorer):
+            groups.setdefault(scorer.sampler, []).append(j)
+    for sampler, members in groups.items():
+        heads = frozenset().union(*(scorers[j].heads for j in members))  # type: ignore[union-attr]  # ViewScorers only
+        sums = torch.zeros(len(members), poses.shape[0], dtype=torch.float64, device=poses.device)
+        for i, c2w in enumerate(pose_to_matrix(poses)):
+            origins, dirs = rays_from_camera_dirs(c2w, cam_dirs)
+            for start in range(0, num_pixels, chunk_rays):
+                index = torch.arange(start, min(start + chunk_rays, num_pixels), device=poses.device)
+                result = model.render(origins[index], dirs[index], heads=heads, train=False, sampler=sampler)  # type: ignore[operator]  # a duck-typed nn.Module's attribute
+                for g, j in enumerate(members):
+                    pixel = scorers[j].pixel_scores(result, pixel_index=index)  # type: ignore[union-attr]  # ViewScorers only
+                    sums[g, i] += pixel.to(torch.float64).sum()
+        for g, j in enumerate(members):
+            scores[j] = sums[g] / num_pixels
+    done = [found for found in scores if found is not None]
+    assert len(done) == len(scorers), "every scorer is a ViewScorer or a WholeViewScorer"
+    for found in done:
+        _check_finite(found, "pose")
+    return done
 
 
 @dataclass

@@ -521,7 +521,9 @@ def train_visibility_head(
     for k in range(cfg.visibility.iters):
         u = torch.rand(cfg.visibility.batch, 3, generator=generator, device=generator.device).to(aabb)
         points = aabb[0] + u * (aabb[1] - aabb[0])
-        labels = visibility_labels(model.density, points, c2w, obs.intrinsics, cfg, generator=generator, aabb=support)
+        labels = visibility_labels(
+            model.density, points, c2w, obs.intrinsics, cfg, generator=generator, aabb=support.box, grid=support.grid
+        )
         no_dirs = torch.zeros_like(points)
         values = []
         for _ in range(steps):

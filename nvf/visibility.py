@@ -9,8 +9,10 @@ import torch
 from jaxtyping import Bool, Float, Int
 from torch import Tensor
 
+from nvf import kernels
 from nvf.cameras import Intrinsics, project
 from nvf.config import TrainConfig
+from nvf.occupancy import OccupancyGrid
 
 SATURATION = 0.01  # M18: a point whose running product is <= this skips the remaining cameras
 
@@ -38,18 +40,49 @@ def segment_fractions(
     return torch.minimum(f1, f2).amax(-1).clamp(min=0.0), torch.maximum(f1, f2).amin(-1).clamp(max=1.0)
 
 
-def _bins_in_box(
+def _bin_range(
     origin: Float[Tensor, "3"], seg: Float[Tensor, "C 3"], num_samples: int, box: Float[Tensor, "2 3"]
-) -> tuple[Int[Tensor, " S"], Int[Tensor, " S"]]:
-    """(row, bin) of the samples that can lie in ``box``, row-major: the bins between each segment's entry
-    into and exit from ``box``, with one bin of margin at each end for rounding."""
-    n_bins, device = num_samples - 1, seg.device
+) -> tuple[Int[Tensor, " C"], Int[Tensor, " C"]]:
+    """First bin and bin count per segment: the bins between its entry into and exit from ``box``, with one
+    bin of margin at each end for rounding."""
+    n_bins = num_samples - 1
     f_in, f_out = segment_fractions(origin, seg, box)
     first = torch.floor(f_in * num_samples).long().sub_(1).clamp_(0, n_bins)
     count = (torch.ceil(f_out * num_samples).long().add_(1).clamp_(0, n_bins) - first).clamp_(min=0)
-    row = torch.repeat_interleave(torch.arange(seg.shape[0], device=device), count)
+    return first, count
+
+
+def _samples_in_box(
+    origin: Float[Tensor, "3"],
+    seg: Float[Tensor, "C 3"],
+    offsets: Float[Tensor, "C B"],
+    num_samples: int,
+    box: Float[Tensor, "2 3"],
+    grid: OccupancyGrid | None,
+) -> tuple[Int[Tensor, " S"], Float[Tensor, "S 3"]]:
+    """The chunk's samples inside ``box`` and, with ``grid``, in its occupied cells, row-major: each one's flat
+    bin index ``row * B + k`` and position. On the CPU with ``grid`` the C++ kernel (``nvf.kernels.labels``)
+    finds them, elsewhere torch; both compute the same float32 operations, so the samples are bitwise the same."""
+    n_bins = offsets.shape[1]
+    first, count = _bin_range(origin, seg, num_samples, box)
+    kernel = kernels.labels() if grid is not None and seg.device.type == "cpu" and seg.dtype == torch.float32 else None
+    if kernel is not None and grid is not None:
+        flat, pos = kernel.occupied_bins(
+            origin, seg, offsets, first, count, num_samples, box, grid.occupied, grid.aabb[0], grid.cell_size,
+            grid.resolution,
+        )  # fmt: skip
+        return flat, pos
+    row = torch.repeat_interleave(torch.arange(seg.shape[0], device=seg.device), count)
     start = torch.cumsum(count, 0) - count
-    return row, torch.arange(row.shape[0], device=device) - start[row] + first[row]
+    k = torch.arange(row.shape[0], device=seg.device) - start[row] + first[row]
+    flat = row * n_bins + k
+    frac = (k.to(seg.dtype) + offsets.view(-1)[flat]) / num_samples
+    pos = origin + frac[:, None] * seg[row]
+    keep = ((pos >= box[0]) & (pos <= box[1])).all(-1)
+    if grid is not None:
+        keep &= grid.is_occupied(pos)
+    index = keep.nonzero().squeeze(1)
+    return flat[index], pos[index]
 
 
 @torch.no_grad()
@@ -63,6 +96,7 @@ def segment_transmittance(
     chunk_samples: int = 1 << 18,
     margin: float = 0.0,
     clip: bool = True,
+    grid: OccupancyGrid | None = None,
 ) -> Float[Tensor, " P"]:
     """(M17) ``T(x) = exp(-sum_{k<K} sigma(y_k) delta)`` from ``origin`` to each point.
 
@@ -72,10 +106,11 @@ def segment_transmittance(
     at the centre of bin ``k`` (``generator=None``) or uniformly inside it (one ``[chunk, K - 1]`` draw per
     chunk of points). ``aabb``: a box outside which the density is 0 (the object AABB, or the model's
     ``density_support``): samples outside it are not evaluated. With ``clip`` only the bins between a
-    segment's entry into and exit from the box are placed and tested; the samples inside it reach
-    ``density_fn`` in the same order either way, so the result is bitwise the same as with ``clip=False``,
-    which places every sample (the reference, for benchmarks and tests). At most ``chunk_samples`` samples
-    per chunk of points.
+    segment's entry into and exit from the box are placed and tested, and with ``grid`` (the occupancy grid
+    whose empty cells ``density_fn`` reads as 0, ``SceneModel.density``) only the samples in its occupied
+    cells reach ``density_fn``; those are the samples in the same order that ``density_fn`` evaluates
+    either way, so the result is bitwise the same as with ``clip=False``, which places every sample (the
+    reference, for benchmarks and tests). At most ``chunk_samples`` samples per chunk of points.
     """
     if num_samples < 1:
         raise ValueError(f"label_samples must be >= 1, got {num_samples}")
@@ -97,14 +132,10 @@ def segment_transmittance(
             offsets = offsets.to(device=points.device, dtype=points.dtype)
         part = seg[start:stop]
         if aabb is not None and clip:
-            row, k = _bins_in_box(origin, part, num_samples, aabb)
-            flat = row * n_bins + k
-            frac = (k.to(points.dtype) + offsets.view(-1)[flat]) / num_samples
-            pos = origin + frac[:, None] * part[row]
-            inside = ((pos >= aabb[0]) & (pos <= aabb[1])).all(-1)
+            flat, pos = _samples_in_box(origin, part, offsets, num_samples, aabb, grid)
             sigma = torch.zeros(offsets.shape, dtype=points.dtype, device=points.device)
-            if inside.any():
-                sigma.view(-1)[flat[inside]] = density_fn(pos[inside]).to(sigma.dtype)
+            if flat.numel():
+                sigma.view(-1)[flat] = density_fn(pos).to(sigma.dtype)
         else:
             bins = torch.arange(n_bins, dtype=points.dtype, device=points.device)
             frac = (bins + offsets) / num_samples  # [C, K-1] in [0, (K-1)/K)
@@ -132,6 +163,7 @@ def visibility_labels(
     aabb: Float[Tensor, "2 3"] | None = None,
     chunk_samples: int = 1 << 18,
     clip: bool = True,
+    grid: OccupancyGrid | None = None,
 ) -> Float[Tensor, " N"]:
     """(M18) Soft label ``V*(x) = 1 - prod_{j in F(x)} (1 - T_j(x))`` in ``[0, 1]``.
 
@@ -139,8 +171,8 @@ def visibility_labels(
     every frustum get 0. Cameras are processed in order and a point whose running product is
     ``<= 0.01`` skips the rest, so labels saturate near 0.99. ``T_j`` is (M17) with
     ``cfg.label_samples`` samples, stopping ``cfg.label_margin`` short of the point (see
-    ``segment_transmittance`` for ``generator``, ``aabb``, ``chunk_samples`` and ``clip``); density is
-    evaluated only for in-frustum, not yet saturated pairs.
+    ``segment_transmittance`` for ``generator``, ``aabb``, ``chunk_samples``, ``clip`` and ``grid``); density
+    is evaluated only for in-frustum, not yet saturated pairs.
     """
     prod = torch.ones(points.shape[0], dtype=points.dtype, device=points.device)
     for j in range(c2w.shape[0]):
@@ -158,6 +190,7 @@ def visibility_labels(
             chunk_samples,
             cfg.label_margin,
             clip,
+            grid,
         )
         prod[idx] = prod[idx] * (1.0 - trans)
     return 1.0 - prod

@@ -35,7 +35,8 @@ def label_visibility(
     its points (``cfg.label_samples``, ``label_max_depth``, ``label_margin``), with bin-centre samples."""
 
     def visibility(points: Float[Tensor, "S 3"]) -> Float[Tensor, " S"]:
-        return visibility_labels(model.density, points, c2w, intrinsics, cfg, aabb=model.density_support())
+        support = model.density_support()
+        return visibility_labels(model.density, points, c2w, intrinsics, cfg, aabb=support.box, grid=support.grid)
 
     return visibility
 

@@ -113,6 +113,32 @@ def test_a_shared_model_is_bitwise_the_model_of_the_shorter_training(rival):
             episode.close()
 
 
+def test_a_backbone_trained_with_an_auxiliary_loss_serves_the_plan_without_it():
+    """ActiveNeRF's M25 trains only the variance head beside stage 1: NVF's model continued from ActiveNeRF's
+    backbone (its variance head reset, the generator where stage 1 left it) is bitwise NVF's own model, and
+    ActiveNeRF's is bitwise its own; stage 1 ran once."""
+    quick = ["train.backbone.iters=8", "train.variance.iters=2", "train.visibility.iters=2"]
+    cfg = compose_run([*SMOKE, *quick])
+    scene = load_scene(cfg.scene, Path(cfg.paths.assets))
+    lpips = LpipsMetric()
+    names = ("nvf", "activenerf", "wo_vis")
+    episodes = {name: Episode(settings_of(name, *quick), scene, torch.device("cpu"), lpips) for name in names}
+    try:
+        obs = episodes["nvf"].observations()
+        trained = decisions.train_models(episodes, obs, 2)
+        assert trained["activenerf"].continuation is not None and trained["nvf"].continuation is None
+        assert trained["wo_vis"] is trained["nvf"]
+        for name in ("nvf", "activenerf"):
+            own, _ = episodes[name].train(obs, 2)
+            ours = trained[name].model
+            theirs = dict(own.named_parameters()) | dict(own.named_buffers())
+            for key, value in (dict(ours.named_parameters()) | dict(ours.named_buffers())).items():
+                assert torch.equal(value, theirs[key]), (name, key)
+    finally:
+        for episode in episodes.values():
+            episode.close()
+
+
 def test_json_lines_keep_whole_rows_and_drop_a_cut_one(tmp_path):
     path = tmp_path / "decisions.jsonl"
     shape = {"scene": Text(), "step": Number(0, 20, integer=True)}

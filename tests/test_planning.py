@@ -467,3 +467,39 @@ def test_integration_with_the_scene_model():
     assert all(p.grad is None for p in model.parameters())
     again = select_next_view(model, scorer, c, BOX, current, INTR, tau, True, gens())
     assert torch.equal(sel.pose, again.pose)
+
+
+def test_scorers_scored_together_are_bitwise_their_own_scores():
+    """(M16) One render per chunk serves every per-pixel scorer of a sampler (the union of their heads): NVF,
+    w/o Vis., ActiveNeRF's and WD's rewards are bitwise the rewards each gets from its own render; a scorer of
+    another sampler renders for itself."""
+    from nvf.config import EntropyConfig, EntropySampler, FieldConfig, SamplerConfig
+    from nvf.model import SceneModel
+    from nvf.planning import score_poses_together
+    from nvf.uncertainty.baselines import RenderedVarianceScorer, WDScorer
+    from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
+
+    torch.manual_seed(2)
+    aabb = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+    model = SceneModel(
+        aabb, FieldConfig(log2_hashmap_size=10, num_levels=4, max_resolution=32), SamplerConfig(grid_resolution=16)
+    )
+    model.grid.occupied[:] = True
+    with torch.no_grad():
+        model.field.encoding.table.normal_(0.0, 1.0)
+    scorers = [
+        NVFEntropyScorer(EntropyConfig(), 1.0),
+        NVFEntropyScorer(EntropyConfig(use_visibility=False), 1.0),
+        RenderedVarianceScorer(),
+        WDScorer(),
+        NVFEntropyScorer(EntropyConfig(sampler=EntropySampler.uniform), 1.0),
+    ]
+    poses = torch.stack(
+        [matrix_to_pose(look_at(torch.tensor([2.5, y, 0.5]), torch.zeros(3))) for y in (-1.0, 0.0, 1.5)]
+    )
+    intr = Intrinsics.from_fov(12, 12)
+    together = score_poses_together(model, scorers, poses, intr, 50)
+    for scorer, scores in zip(scorers, together, strict=True):
+        alone = score_poses(model, scorer, poses, intr, 50)
+        assert torch.equal(scores, alone), scorer
+    assert not torch.equal(together[0], together[1])  # the visibility term matters on this model

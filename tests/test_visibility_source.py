@@ -115,8 +115,8 @@ def test_labels_inside_the_density_support_are_bitwise_the_aabbs():
     cells = model.grid.occupied.view(res, res, res)
     cells[:] = False
     cells[3:9, 5:12, 2:7] = True  # a block off the centre: the support is well inside the AABB
-    support = model.density_support()
-    assert (support[0] > AABB[0]).all() and (support[1] < AABB[1]).all()
+    support, grid = model.density_support()
+    assert grid is model.grid and (support[0] > AABB[0]).all() and (support[1] < AABB[1]).all()
     cams = torch.stack(
         [
             look_at(torch.tensor([0.2, -2.5, 0.4]), torch.zeros(3)),
@@ -130,11 +130,48 @@ def test_labels_inside_the_density_support_are_bitwise_the_aabbs():
         return 1e3 * model.density(x)
 
     reference = visibility_labels(density, points, cams, INTR, cfg, torch.Generator().manual_seed(3), AABB, clip=False)
-    clipped = visibility_labels(density, points, cams, INTR, cfg, torch.Generator().manual_seed(3), support)
+    clipped = visibility_labels(density, points, cams, INTR, cfg, torch.Generator().manual_seed(3), support, grid=grid)
+    boxed = visibility_labels(density, points, cams, INTR, cfg, torch.Generator().manual_seed(3), support)
+    assert torch.equal(reference, boxed)
     assert torch.equal(reference, clipped)
     assert 0 < int((reference > 0.5).sum()) < points.shape[0]
     model.grid.occupied[:] = False
-    empty = model.density_support()
+    empty, grid = model.density_support()
     assert (empty[0] > empty[1]).all()
     free = visibility_labels(model.density, points, cams, INTR, cfg, aabb=AABB, clip=False)
-    assert torch.equal(visibility_labels(model.density, points, cams, INTR, cfg, aabb=empty), free)
+    assert torch.equal(visibility_labels(model.density, points, cams, INTR, cfg, aabb=empty, grid=grid), free)
+
+
+def test_label_kernel_finds_the_torch_paths_samples(monkeypatch):
+    """(M17) On the CPU the C++ kernel (``nvf.kernels.labels``) finds the samples in occupied cells; the torch
+    path finds the same: the density sees bitwise the same positions in the same order, stratified or not."""
+    from nvf import kernels
+
+    if kernels.labels() is None:
+        pytest.skip("C++ label kernel unavailable (no compiler or ninja)")
+    model = small_model()
+    res = model.grid.resolution
+    model.grid.occupied.view(res, res, res)[:] = (
+        torch.rand(res, res, res, generator=torch.Generator().manual_seed(4)) < 0.3
+    )
+    support, grid = model.density_support()
+    origin = torch.tensor([0.3, -2.6, 0.4])
+    points = torch.rand(600, 3, generator=torch.Generator().manual_seed(5)) * 2 - 1
+    for jitter in (False, True):
+        seen: dict[str, list[torch.Tensor]] = {"cpp": [], "torch": []}
+        out = {}
+        for path in ("cpp", "torch"):
+            if path == "torch":
+                monkeypatch.setattr(kernels, "labels", lambda: None)
+
+            def density(x: torch.Tensor, path: str = path, seen: dict = seen) -> torch.Tensor:
+                seen[path].append(x.clone())
+                return 50.0 * model.density(x)
+
+            gen = torch.Generator().manual_seed(6) if jitter else None
+            out[path] = segment_transmittance(density, origin, points, 48, gen, support, 3000, grid=grid)
+            monkeypatch.undo()
+        assert torch.equal(out["cpp"], out["torch"])
+        assert len(seen["cpp"]) == len(seen["torch"]) > 1
+        for want, got in zip(seen["torch"], seen["cpp"], strict=True):
+            assert want.shape[0] > 0 and torch.equal(want, got)
