@@ -2,6 +2,7 @@
 from training-view rays, visual coverage of the observed poses, and uncertainty-error correlation.
 """
 
+import functools
 import math
 
 import numpy as np
@@ -20,7 +21,7 @@ from pipeline.metrics.arrays import as_numpy
 from pipeline.metrics.correlation import uncertainty_correlation
 from pipeline.metrics.coverage import seen_faces, visual_coverage
 from pipeline.metrics.geometry import GeometryMetrics, geometry_metrics, points_from_rays
-from pipeline.metrics.image import ImageMetrics, LpipsMetric, image_metrics, psnr
+from pipeline.metrics.image import ImageMetrics, LpipsFeatures, LpipsMetric, image_metrics, psnr
 from pipeline.scenes.ground_truth import Renderer
 from pipeline.scenes.scene import Scene
 
@@ -98,8 +99,8 @@ def reconstruct_points(
 
 
 class Evaluator:
-    """Holds the evaluation views' ground truth (RGB and its LPIPS features, computed once) and
-    computes a step's metrics (PROTOCOL 4)."""
+    """Holds the evaluation views' ground truth (RGB and its LPIPS features, computed once, when first needed)
+    and computes a step's metrics (PROTOCOL 4)."""
 
     def __init__(
         self,
@@ -112,13 +113,22 @@ class Evaluator:
         lpips: LpipsMetric,
     ):
         self.scene, self.budget, self.metrics, self.seed = scene, budget, metrics, seed
-        self.device, self.lpips = device, lpips
+        self.device, self.lpips, self.renderer = device, lpips, renderer
         size = budget.eval_size
         self.intrinsics = Intrinsics.from_fov(size, size)
-        k = budget.gt_samples
-        self.gt = np.stack([renderer.render_rgba(c2w, self.intrinsics, k)[..., :3] for c2w in scene.eval_poses])
-        self.gt_lpips = lpips.reference(self.gt)  # step-independent half of LPIPS (None without weights)
         self.patch = max(1, size // PATCHES_PER_SIDE)
+
+    @functools.cached_property
+    def gt(self) -> Float[np.ndarray, "V H W 3"]:
+        """The evaluation views' ground truth, rendered when first read (a command that evaluates nothing, such
+        as ``pipeline.experiments.paper_states`` without outcomes, renders none)."""
+        k = self.budget.gt_samples
+        return np.stack([self.renderer.render_rgba(c2w, self.intrinsics, k)[..., :3] for c2w in self.scene.eval_poses])
+
+    @functools.cached_property
+    def gt_lpips(self) -> LpipsFeatures | None:
+        """The step-independent half of LPIPS of ``gt`` (None without weights)."""
+        return self.lpips.reference(self.gt)
 
     def renders(
         self, model: SceneModel | SourcedVisibility, scorer: ViewScorer | None

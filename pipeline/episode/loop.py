@@ -6,6 +6,7 @@ written atomically once the step is complete, so a killed run resumes at its fir
 and, with the same seed, selects the same poses (every draw is seeded from (seed, step, purpose)).
 """
 
+import copy
 import dataclasses
 import math
 import time
@@ -62,6 +63,14 @@ class Episode:
     def close(self) -> None:
         """Release the ground-truth renderer (for Blender, end its process)."""
         self.renderer.close()
+
+    def as_method(self, settings: EpisodeSettings) -> "Episode":
+        """This episode under another method's ``settings`` of the same scene, budget and seed: its renderer,
+        observations and evaluator shared (not copied; only this episode closes them), its method and scorer the
+        other's. What a contender trains and scores at this episode's state."""
+        other = copy.copy(self)
+        other.settings, other.method, other.scorer, other.rival = settings, settings.method, settings.scorer(), None
+        return other
 
     def observe(self, c2w: torch.Tensor) -> None:
         """Render the ground truth at ``c2w`` and add it to the observations."""

@@ -1,0 +1,214 @@
+"""The tables of ``python -m pipeline.experiments.paper_states``, from its ``states.jsonl``; the shapes of its
+files as they are read back (``STATE``, ``SETTING``).
+
+``summary.csv``: a row per budget, scene (and ``all``, over the scenes) and rival of NVF (w/o Vis., FisherRF,
+ActiveNeRF): ``states``; ``spearman_mean, spearman_low, spearman_high`` (the rank correlation of NVF's and the
+rival's scores over a state's candidates: the mean over the states, and a 95% Student-t interval over them
+taken on Fisher's z, ``correlation_interval``);
+``same_pick`` (the share of states where both pick the same candidate); ``nvf_relative_std`` and
+``rival_relative_std`` (the mean over states of each score's standard deviation over its mean's magnitude:
+near 0, a flat score); ``auc_labels`` and ``auc_head`` (mean over states of the labels' and NVF's head's AUC
+against the mesh's line of sight); ``outcomes, gain_mean, gain_low, gain_high`` (where the picks differ and the
+outcome was taken: NVF's pick's held-out PSNR minus the rival's, dB, interval over those states) and
+``state_hours`` (mean wall-clock hours of a whole state at that budget, times its torch threads).
+
+``summary.md``: the same table, and beneath it each paper-budget row beside its cpu-budget twin.
+``python -m pipeline.experiments.paper_states_summary [paths.results=DIR]`` rewrites both.
+"""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from pipeline.cli import ArgumentParser, description, run_command
+from pipeline.config.validation import compose_run
+from pipeline.records.checked import Each, Entries, Number, Text, read_json_lines
+from pipeline.records.store import MAX_SEED, atomic_write_text
+from pipeline.records.verify import MAX_HORIZON
+from pipeline.tables.render import markdown_table
+from pipeline.tables.stats import Interval
+
+FOLDER = "paper_states"
+RIVALS = ("wo_vis", "fisherrf", "activenerf")
+ALL = "all"
+SETTING = {"overrides": Each(Text()), "state_budget": Text()}
+SPREAD = {
+    "count": Number(0, 1 << 31, integer=True),
+    "min": Number(),
+    "mean": Number(),
+    "max": Number(),
+    "std": Number(0.0),
+    "ties_at_max": Number(0, 1 << 31, integer=True),
+    "relative_std": Number(0.0, null=True),
+}
+SECONDS = {"train": Number(0.0), "prepare": Number(0.0), "score": Number(0.0)}
+STATE = {
+    "scene": Text(),
+    "seed": Number(0, MAX_SEED, integer=True),
+    "step": Number(0, MAX_HORIZON, integer=True),
+    "budget": Text(),
+    "state_budget": Text(),
+    "source": Text(),
+    "ground_truth": Text(),
+    "views": Number(1, 1 << 16, integer=True),
+    "candidates": Number(1, 1 << 31, integer=True),
+    "threads": Number(1, 4096, integer=True),
+    "contenders": Entries(
+        {"pick": Number(0, 1 << 31, integer=True), "spread": SPREAD, "shared_training": bool, "seconds": SECONDS}
+    ),
+    "against_nvf": Entries({"spearman": Number(-1.0, 1.0, null=True), "same_pick": bool}),
+    "visibility": {
+        "points": Number(1, 1 << 31, integer=True),
+        "seen_fraction": Number(0.0, 1.0),
+        "auc_labels": Number(0.0, 1.0, null=True),
+        "auc_head": Number(0.0, 1.0, null=True),
+    },
+    "outcomes": Entries(
+        {
+            "nvf_psnr": Number(0.0, 100.0),
+            "rival_psnr": Number(0.0, 100.0),
+            "gain": Number(-100.0, 100.0),
+            "seconds": Number(0.0),
+        }
+    ),
+    "seconds": Number(0.0),
+}
+COLUMNS = (
+    "budget", "scene", "rival", "states", "spearman_mean", "spearman_low", "spearman_high", "same_pick",
+    "nvf_relative_std", "rival_relative_std", "auc_labels", "auc_head", "outcomes", "gain_mean", "gain_low",
+    "gain_high", "state_hours",
+)  # fmt: skip
+
+
+def correlation_interval(values: np.ndarray) -> tuple[float, float, float]:
+    """Mean of correlations with a 95% interval over them, taken on Fisher's z (``atanh``, the scale on which a
+    correlation's error is about normal) and mapped back, so it stays inside [-1, 1]."""
+    values = values[np.isfinite(values)]
+    if len(values) == 0:
+        return float("nan"), float("nan"), float("nan")
+    z = Interval.of(np.arctanh(np.clip(values, -1 + 1e-9, 1 - 1e-9)))
+    return float(values.mean()), float(np.tanh(z.low)), float(np.tanh(z.high))
+
+
+def _mean(values: list) -> float:
+    kept = [v for v in values if v is not None]
+    return float(np.mean(kept)) if kept else float("nan")
+
+
+def summary_rows(states: list[dict]) -> list[dict]:
+    """The ``summary.csv`` rows of the module docstring."""
+    out = []
+    budgets = sorted({r["budget"] for r in states}, key=lambda b: (b != "paper", b))
+    for budget in budgets:
+        rows = [r for r in states if r["budget"] == budget]
+        scenes = sorted({r["scene"] for r in rows})
+        for scene in [*scenes, ALL]:
+            chosen = [r for r in rows if scene == ALL or r["scene"] == scene]
+            for rival in RIVALS:
+                have = [r for r in chosen if rival in r["against_nvf"]]
+                if not have:
+                    continue
+                rho = correlation_interval(np.array([r["against_nvf"][rival]["spearman"] for r in have], dtype=float))
+                gains = [r["outcomes"][rival]["gain"] for r in have if rival in r["outcomes"]]
+                gain = Interval.of(np.array(gains, dtype=float))
+                out.append(
+                    {
+                        "budget": budget,
+                        "scene": scene,
+                        "rival": rival,
+                        "states": len(have),
+                        "spearman_mean": rho[0],
+                        "spearman_low": rho[1],
+                        "spearman_high": rho[2],
+                        "same_pick": float(np.mean([r["against_nvf"][rival]["same_pick"] for r in have])),
+                        "nvf_relative_std": _mean([r["contenders"]["nvf"]["spread"]["relative_std"] for r in have]),
+                        "rival_relative_std": _mean([r["contenders"][rival]["spread"]["relative_std"] for r in have]),
+                        "auc_labels": _mean([r["visibility"]["auc_labels"] for r in have]),
+                        "auc_head": _mean([r["visibility"]["auc_head"] for r in have]),
+                        "outcomes": len(gains),
+                        "gain_mean": gain.mean,
+                        "gain_low": gain.low,
+                        "gain_high": gain.high,
+                        "state_hours": _mean([r["seconds"] * r["threads"] / 3600.0 for r in have]),
+                    }
+                )
+    return out
+
+
+def _cell(value: object) -> str:
+    if isinstance(value, float):
+        return "-" if not np.isfinite(value) else f"{value:.3f}"
+    return str(value)
+
+
+def twins(states: list[dict]) -> list[dict]:
+    """Each state trained at the paper's budget beside the same state at the cpu budget, per rival."""
+    cpu = {(r["scene"], r["seed"], r["step"]): r for r in states if r["budget"] == "cpu"}
+    out = []
+    for r in states:
+        if r["budget"] != "paper":
+            continue
+        twin = cpu.get((r["scene"], r["seed"], r["step"]))
+        for rival, found in r["against_nvf"].items():
+            other = None if twin is None else twin["against_nvf"].get(rival)
+            out.append(
+                {
+                    "scene": r["scene"],
+                    "seed": r["seed"],
+                    "step": r["step"],
+                    "rival": rival,
+                    "paper_spearman": found["spearman"],
+                    "cpu_spearman": None if other is None else other["spearman"],
+                    "paper_same_pick": found["same_pick"],
+                    "cpu_same_pick": None if other is None else other["same_pick"],
+                    "paper_gain": r["outcomes"].get(rival, {}).get("gain"),
+                    "paper_auc_head": r["visibility"]["auc_head"],
+                    "cpu_auc_head": None if twin is None else twin["visibility"]["auc_head"],
+                }
+            )
+    return out
+
+
+def write_summary(folder: Path) -> list[Path]:
+    """``summary.csv`` and ``summary.md`` of ``folder``'s states."""
+    states, _ = read_json_lines(folder / "states.jsonl", STATE)
+    rows = summary_rows(states)
+    table = pd.DataFrame(rows, columns=list(COLUMNS))
+    csv_path, md_path = folder / "summary.csv", folder / "summary.md"
+    atomic_write_text(csv_path, table.to_csv(index=False, float_format="%.4f"))
+    pairs = twins(states)
+    text = [
+        "# Paper-trained states: NVF's decisions against its rivals",
+        "",
+        f"{len(states)} states ({', '.join(sorted({r['budget'] for r in states}))}); written by "
+        "`python -m pipeline.experiments.paper_states_summary` from `states.jsonl`.",
+        "",
+        *markdown_table(list(COLUMNS), [[_cell(row[c]) for c in COLUMNS] for row in rows], left=3),
+        "",
+        "## Each paper-budget state beside its cpu-budget twin",
+        "",
+    ]
+    if pairs:
+        keys = list(pairs[0])
+        text += markdown_table(keys, [[_cell(p[k]) for k in keys] for p in pairs], left=4)
+    else:
+        text.append("No paper-budget state yet.")
+    atomic_write_text(md_path, "\n".join(text) + "\n")
+    return [csv_path, md_path]
+
+
+def main(argv: list[str]) -> None:
+    parser = ArgumentParser(
+        prog="python -m pipeline.experiments.paper_states_summary", description=description(__doc__)
+    )
+    parser.add_argument("overrides", nargs="*", help="paths.results=DIR")
+    args = parser.parse_args(argv)
+    cfg = compose_run(args.overrides)
+    for path in write_summary(Path(cfg.paths.results) / "pilots" / FOLDER):
+        print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    run_command(main, sys.argv[1:])

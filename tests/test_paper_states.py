@@ -1,0 +1,74 @@
+"""pipeline/experiments/paper_states.py and paper_states_summary.py: decisions at states of the committed cpu
+episodes, trained at another budget (the smoke budget here, the paper's in use)."""
+
+import json
+
+import pytest
+
+from pipeline.experiments import paper_states, paper_states_summary
+from pipeline.records.checked import read_json_lines
+
+
+@pytest.mark.parametrize(
+    ("argv", "says"),
+    [
+        (["--scenes", "default", "seed=3"], "seed=3: the contenders, states and budgets are the command's own"),
+        (["--scenes", "default", "budget=paper"], "budget=paper"),
+        (["--scenes", "default", "--budgets", "bogus"], "budget 'bogus'"),
+        (["--scenes", "default", "--outcomes", "nvf"], "--outcomes nvf"),
+        (["--scenes", "default", "--threads", "0"], "--threads 0"),
+        (["--scenes", "default", "--steps", "25"], "--steps asks for step 25"),
+        (["--scenes", "nosuch"], "nosuch"),
+    ],
+)
+def test_bad_input_is_one_line(argv, says, capsys, tmp_path):
+    with pytest.raises(SystemExit) as exit_:
+        paper_states.main([*argv, f"paths.results={tmp_path}"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.startswith("error: ") and says in err and err.count("\n") == 1
+    assert not (tmp_path / "pilots").exists()  # nothing written
+
+
+def test_states_of_cpu_records_at_another_budget_resume_and_summarise(tmp_path, capsys):
+    """Two states of the committed cpu episodes on the default scene (NVF's record at step 2, w/o Vis.'s at step 8),
+    trained at the smoke budget: a row per state with every contender's pick and spread, the comparisons with NVF,
+    the visibility AUCs and the outcomes asked for; a second call adds nothing; the summary reads them back."""
+    argv = ["--scenes", "default", "--steps", "2,8", "--budgets", "smoke", "--outcomes", "wo_vis,fisherrf"]
+    paper_states.main([*argv, f"paths.results={tmp_path}"])
+    folder = tmp_path / "pilots" / "paper_states"
+    rows, _ = read_json_lines(folder / "states.jsonl", paper_states_summary.STATE)
+    assert [(r["step"], r["source"], r["budget"], r["state_budget"]) for r in rows] == [
+        (2, "nvf", "smoke", "cpu"),
+        (8, "wo_vis", "smoke", "cpu"),
+    ]
+    for row in rows:
+        assert row["views"] == 3 + row["step"] and row["candidates"] == 8
+        assert set(row["contenders"]) == {"nvf", "wo_vis", "fisherrf", "activenerf"}
+        assert set(row["against_nvf"]) == {"wo_vis", "fisherrf", "activenerf"}
+        assert row["contenders"]["wo_vis"]["shared_training"] and not row["contenders"]["activenerf"]["shared_training"]
+        assert 0.0 <= row["visibility"]["auc_head"] <= 1.0 and 0.0 < row["visibility"]["seen_fraction"] < 1.0
+        for name, outcome in row["outcomes"].items():
+            assert name in ("wo_vis", "fisherrf") and not row["against_nvf"][name]["same_pick"]
+            assert outcome["gain"] == pytest.approx(outcome["nvf_psnr"] - outcome["rival_psnr"])
+        for name, found in row["against_nvf"].items():
+            if not found["same_pick"] and name in ("wo_vis", "fisherrf"):
+                assert name in row["outcomes"]
+    setting = json.loads((folder / "setting.json").read_text())
+    assert setting == {"overrides": [], "state_budget": "cpu"}
+    capsys.readouterr()
+    paper_states.main([*argv, f"paths.results={tmp_path}"])
+    assert "step" not in capsys.readouterr().out.split("wrote")[0]  # nothing left to measure
+    again, _ = read_json_lines(folder / "states.jsonl", paper_states_summary.STATE)
+    assert again == rows
+    summary = (folder / "summary.csv").read_text().splitlines()
+    assert summary[0].split(",") == list(paper_states_summary.COLUMNS)
+    assert len(summary) == 1 + 2 * 3  # (default, all) x 3 rivals
+    assert sum(len(r["outcomes"]) for r in rows) == sum(int(line.split(",")[12]) for line in summary[1:4])
+
+
+def test_correlation_interval_stays_inside_its_range():
+    import numpy as np
+
+    mean, low, high = paper_states_summary.correlation_interval(np.array([0.2, 0.99, 0.999, 1.0]))
+    assert -1.0 <= low < mean < high <= 1.0
+    assert np.isnan(paper_states_summary.correlation_interval(np.array([np.nan]))[0])
