@@ -12,6 +12,7 @@ import torch
 
 from nvf.cameras import matrix_to_pose
 from pipeline.config.validation import compose_run
+from pipeline.episode import shared_training
 from pipeline.episode.loop import Episode
 from pipeline.episode.runner import run_episode
 from pipeline.episode.settings import EpisodeSettings
@@ -65,17 +66,19 @@ def test_contenders_share_a_model_where_their_training_agrees():
     serves WD's, FisherRF's and Random's (backbone, no auxiliary loss) and w/o Vis.'s (backbone, variance: the
     head it skips comes last), not ActiveNeRF's (its backbone trains with M25); a shorter plan serves no longer
     one, and with the visibility head trained first w/o Vis. trains it too and shares again."""
-    plans = {name: decisions.training_plan(settings_of(name)) for name in ("nvf", "wd", "fisherrf", "random")}
-    plans |= {name: decisions.training_plan(settings_of(name)) for name in ("activenerf", "wo_vis")}
+    plans = {name: shared_training.training_plan(settings_of(name)) for name in ("nvf", "wd", "fisherrf", "random")}
+    plans |= {name: shared_training.training_plan(settings_of(name)) for name in ("activenerf", "wo_vis")}
     for name in ("wd", "fisherrf", "random", "wo_vis", "nvf"):
-        assert decisions.serves(plans["nvf"], plans[name]), name
-    assert not decisions.serves(plans["nvf"], plans["activenerf"])
-    assert not decisions.serves(plans["activenerf"], plans["wd"])
-    assert not decisions.serves(plans["wd"], plans["nvf"])
-    vis_first = [decisions.training_plan(settings_of(n, "train.stage_order=vis_first")) for n in ("nvf", "wo_vis")]
-    assert decisions.serves(vis_first[0], vis_first[1])
-    other_seed = decisions.training_plan(settings_of("wd", "seed=7"))
-    assert not decisions.serves(plans["nvf"], other_seed)
+        assert shared_training.serves(plans["nvf"], plans[name]), name
+    assert not shared_training.serves(plans["nvf"], plans["activenerf"])
+    assert not shared_training.serves(plans["activenerf"], plans["wd"])
+    assert not shared_training.serves(plans["wd"], plans["nvf"])
+    vis_first = [
+        shared_training.training_plan(settings_of(n, "train.stage_order=vis_first")) for n in ("nvf", "wo_vis")
+    ]
+    assert shared_training.serves(vis_first[0], vis_first[1])
+    other_seed = shared_training.training_plan(settings_of("wd", "seed=7"))
+    assert not shared_training.serves(plans["nvf"], other_seed)
 
 
 @pytest.mark.parametrize("rival", ["wd", pytest.param("fisherrf", marks=pytest.mark.slow)])
@@ -89,7 +92,7 @@ def test_a_shared_model_is_bitwise_the_model_of_the_shorter_training(rival):
     episodes = {name: Episode(settings_of(name, *quick), scene, torch.device("cpu"), lpips) for name in ("nvf", rival)}
     try:
         obs = episodes["nvf"].observations()
-        trained = decisions.train_models(episodes, obs, 2)
+        trained = shared_training.train_models(episodes, obs, 2)
         assert trained["nvf"] is trained[rival]
         own, _ = episodes[rival].train(obs, 2)
         shared = trained["nvf"].model
@@ -125,7 +128,7 @@ def test_a_backbone_trained_with_an_auxiliary_loss_serves_the_plan_without_it():
     episodes = {name: Episode(settings_of(name, *quick), scene, torch.device("cpu"), lpips) for name in names}
     try:
         obs = episodes["nvf"].observations()
-        trained = decisions.train_models(episodes, obs, 2)
+        trained = shared_training.train_models(episodes, obs, 2)
         assert trained["activenerf"].continuation is not None and trained["nvf"].continuation is None
         assert trained["wo_vis"] is trained["nvf"]
         for name in ("nvf", "activenerf"):

@@ -45,20 +45,19 @@ from pipeline.cli import ArgumentParser, fail, help_page, run_command
 from pipeline.config.validation import compose_run
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
+from pipeline.episode.shared_training import Trained, train_models
 from pipeline.experiments.decisions import (
     DECISION,
     Contender,
     JsonLines,
     Outcomes,
     Pick,
-    Trained,
     candidate_set,
     contender,
     heldout_psnr,
     outcome_key,
     pick,
     prepared_scorer,
-    train_models,
     with_view,
 )
 from pipeline.experiments.duel_summary import DUEL, SETTING, write_summaries

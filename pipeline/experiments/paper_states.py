@@ -51,15 +51,14 @@ from pipeline.config.catalog import declared
 from pipeline.config.validation import compose_run
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
+from pipeline.episode.shared_training import Trained, train_models
 from pipeline.experiments.decisions import (
     Contender,
     JsonLines,
-    Trained,
     candidate_set,
     contender,
     heldout_psnr,
     prepared_scorer,
-    train_models,
     with_view,
 )
 from pipeline.experiments.options import SEEDS, add_command, name_list, seed_list, setting_overrides, step_list
