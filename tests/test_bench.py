@@ -16,7 +16,7 @@ import torch
 from nvf.cameras import Intrinsics
 from nvf.training import train_backbone
 from pipeline.bench import __main__ as bench
-from pipeline.bench import device, episode, field, paper_shape, plan, train, visibility
+from pipeline.bench import device, episode, field, paper_profile, paper_shape, plan, speedups, train, visibility
 from pipeline.bench._models import CountingModel, load, observations
 from pipeline.config.catalog import method_configs
 from pipeline.config.validation import compose_run
@@ -315,3 +315,41 @@ def test_device_facts_name_the_device_auto_picks(tmp_path):
     report = json.loads(out.read_text())
     assert report["device_auto"] == ("cuda" if torch.cuda.is_available() else "cpu")
     assert len(report["cuda_devices"]) == torch.cuda.device_count() and report["memory_gib"] > 0
+
+
+@pytest.mark.slow
+def test_speedups_pair_each_change_with_the_code_it_replaced(tmp_path):
+    """``speedups`` at the smoke budget: every pair ran with positive seconds and a ratio spread, and every
+    speed-up's result is bitwise the replaced code's (labels M17-M18, the encoding, stage 1, scoring, the shared
+    stage 1)."""
+    out = tmp_path / "speedups.json"
+    speedups.main(
+        ["--budget", "smoke", "--views", "5", "--repeats", "2", "--out", str(out), f"paths.outputs={tmp_path}"]
+    )
+    pairs = json.loads(out.read_text())["pairs"]
+    assert set(pairs) == {"labels", "encoding", "backbone", "scoring", "stage_one"}
+    checked = 0
+    for pair in pairs.values():
+        assert all(seconds > 0 for seconds in pair["seconds"].values())
+        for found in (value for value in pair.values() if isinstance(value, dict) and "ratio" in value):
+            assert found["equal"] is True and found["ratio"]["n"] == 2 and found["ratio"]["median"] > 0
+            checked += 1
+    assert checked == 3 + 1 + 1 + 1 + 1
+
+
+@pytest.mark.slow
+def test_paper_profile_times_and_profiles_every_unit(tmp_path):
+    """``paper_profile`` at the smoke budget: each unit's seconds and its top operators, the labels' field queries
+    apart, and the encoding's rates at both table sizes; a second run reads the trained backbone from its cache."""
+    out = tmp_path / "paper_profile.json"
+    argv = ["--budget", "smoke", "--views", "5", "--out", str(out), f"paths.outputs={tmp_path}"]
+    paper_profile.main(argv)
+    report = json.loads(out.read_text())
+    units = report["units"]
+    assert {"backbone", "variance", "visibility", "score_nvf+wo_vis", "score_fisherrf", "evaluation"} <= set(units)
+    for unit in units.values():
+        assert unit["seconds"] > 0 and unit["top_ops"] and 0 < unit["top_ops"][0]["share"] <= 1
+    assert 0 < units["visibility"]["field_query_seconds"] < units["visibility"]["seconds"]
+    assert set(report["encoding"]) == {"2^19", "2^15"} and report["backbone_train_seconds"] > 0
+    paper_profile.main(argv)
+    assert json.loads(out.read_text())["backbone_train_seconds"] == 0.0  # read from the cache

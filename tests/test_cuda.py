@@ -12,14 +12,17 @@ import math
 import pytest
 import torch
 
-from nvf.cameras import Intrinsics, look_at, pixel_rays
-from nvf.config import EntropyConfig, FieldConfig, HashBackend, SamplerConfig
+from nvf.cameras import Intrinsics, look_at, matrix_to_pose, pixel_rays
+from nvf.config import EntropyConfig, FieldConfig, HashBackend, SamplerConfig, TrainConfig
 from nvf.device import resolve_device
 from nvf.encoding import HashEncoding, cpp_extension
 from nvf.model import SceneModel
+from nvf.planning import score_poses, score_poses_together
 from nvf.rendering import alpha_from_density, expected_depth, ray_sum, weights_from_alpha
 from nvf.uncertainty.entropy import upper_bound_and_depth
 from nvf.uncertainty.fisher import colour_parameters, exact_fisher_diagonal, probe_fisher_diagonal, rademacher
+from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
+from nvf.visibility import visibility_labels
 
 pytestmark = [
     pytest.mark.cuda,
@@ -163,3 +166,41 @@ def test_fisher_probes_match_the_cpu():
     draws = rademacher(4, 1000, torch.Generator(device=cuda()).manual_seed(8))
     assert draws.device.type == "cuda" and set(draws.unique().tolist()) == {-1.0, 1.0}
     assert math.isclose(float(draws.mean()), 0.0, abs_tol=0.05)
+
+
+def test_visibility_labels_inside_the_density_support_match_the_cpu():
+    """M17-M18 with the density support (the occupied cells' box and cells): CUDA's torch path labels the same
+    points as the CPU's C++ kernel, within rounding."""
+    generator = torch.Generator().manual_seed(9)
+    points = torch.rand(3000, 3, generator=generator) * 2.0 - 1.0
+    cams = torch.stack([look_at(torch.tensor(p), torch.zeros(3)) for p in ([0.2, -2.5, 0.4], [2.5, 0.3, 0.0])])
+    intr = Intrinsics.from_fov(32, 32)
+    cfg = TrainConfig(label_samples=64)
+    found = []
+    for device in (CPU, cuda()):
+        model = trained_like_model(device)
+        support = model.density_support()
+        x, c2w = on(device, points, cams)
+
+        def density(y: torch.Tensor, model: SceneModel = model) -> torch.Tensor:  # dense enough to occlude
+            return 50.0 * model.density(y)
+
+        labels = visibility_labels(density, x, c2w, intr, cfg, aabb=support.box, grid=support.grid)
+        found.append(labels.cpu())
+    assert 0 < int((found[0] > 0.5).sum()) < points.shape[0]
+    torch.testing.assert_close(found[1], found[0], rtol=1e-4, atol=1e-5)
+
+
+def test_scorers_scored_together_match_their_own_renders():
+    """M16: NVF's and w/o Vis.'s rewards from one render on CUDA equal each scorer's own render there, within
+    the rounding of CUDA's atomic segment sums, and the CPU's."""
+    model = trained_like_model(cuda())
+    scorers = [NVFEntropyScorer(EntropyConfig(), 1.0), NVFEntropyScorer(EntropyConfig(use_visibility=False), 1.0)]
+    poses = torch.stack([matrix_to_pose(look_at(torch.tensor([2.5, y, 0.5]), torch.zeros(3))) for y in (-1.0, 1.0)])
+    intr = Intrinsics.from_fov(16, 16)
+    together = score_poses_together(model, scorers, poses.to(cuda()), intr, 128)
+    cpu = score_poses_together(trained_like_model(CPU), scorers, poses, intr, 128)
+    for scorer, scores, on_cpu in zip(scorers, together, cpu, strict=True):
+        alone = score_poses(model, scorer, poses.to(cuda()), intr, 128)
+        torch.testing.assert_close(scores, alone, rtol=1e-6, atol=1e-9)
+        torch.testing.assert_close(scores.cpu(), on_cpu, rtol=1e-4, atol=1e-6)
