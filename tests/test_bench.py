@@ -353,3 +353,23 @@ def test_paper_profile_times_and_profiles_every_unit(tmp_path):
     assert set(report["encoding"]) == {"2^19", "2^15"} and report["backbone_train_seconds"] > 0
     paper_profile.main(argv)
     assert json.loads(out.read_text())["backbone_train_seconds"] == 0.0  # read from the cache
+
+
+@pytest.mark.slow
+def test_paper_shape_measures_a_whole_state_and_extrapolates_from_it(tmp_path):
+    """``paper_shape --full-state`` at the smoke budget: one whole state after 5 views at the budget's counts (the
+    four methods' trainings, one stage 1 for all, 8 candidates scored by each), its hours, and an episode
+    extrapolated from its rates beside the cut stages' one."""
+    out = tmp_path / "paper_shape.json"
+    paper_shape.main(
+        ["--budget", "smoke", "--scenes", "default", "render.backend=pyrender", "--full-state", "5", "--out", str(out)]
+    )
+    report = json.loads(out.read_text())
+    state = report["state"]
+    assert state["views"] == 5 and state["candidates"] == 8 and state["threads"] == torch.get_num_threads()
+    assert state["trainings"]["wo_vis"] == state["trainings"]["nvf"] == state["trainings"]["fisherrf"]
+    assert state["stages"]["nvf"]["backbone"] == state["stages"]["activenerf"]["backbone"]  # one stage 1
+    assert set(state["score_seconds"]) == {"nvf+wo_vis", "fisherrf", "activenerf"}
+    assert 0 < report["state_hours_cpu"] == pytest.approx(state["seconds"] * state["threads"] / 3600.0)
+    hours = report["extrapolated_episode_hours_cpu"]
+    assert hours["default"] > 0 and hours["default_from_state"] > 0

@@ -1,22 +1,29 @@
 """A trained state at the paper's sizes, for the benchmarks that measure one (``paper_profile``, ``speedups``,
-``paper_shape --state``): the scene's initial views plus the poses a committed NVF cpu episode selected before
-them (``recorded_episode``), and its backbone trained at the budget's counts (``trained_backbone``), kept on
-disk between benchmark runs (an hour of one thread at the paper's 5000 iterations)."""
+``paper_shape --full-state``): the scene's initial views plus the poses a committed NVF cpu episode selected
+before them (``recorded_episode``), its backbone trained at the budget's counts (``trained_backbone``), kept on
+disk between benchmark runs (half an hour of one thread at the paper's 5000 iterations), and a whole state as
+a decision takes it, timed (``measure_state``)."""
 
 import dataclasses
 import hashlib
 import json
+import time
 from pathlib import Path
 
 import torch
 
+from nvf.cameras import matrix_to_pose
 from nvf.model import SceneModel
-from nvf.seeding import seeded_generator
+from nvf.planning import candidate_poses, prepare_scorer, score_poses_together
+from nvf.seeding import generator_factory, seeded_generator
 from nvf.training import Observations, backbone_lr, train_model
+from nvf.uncertainty import ViewScorer
 from pipeline.cli import fail
 from pipeline.config.typed import Run
+from pipeline.config.validation import compose_run
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
+from pipeline.episode.shared_training import train_models
 from pipeline.metrics.image import LpipsMetric
 from pipeline.records.store import run_dir
 from pipeline.scenes.scene import Scene
@@ -95,3 +102,75 @@ def continued_backbone(
         return train_model(model, obs, train, {"backbone"}, s.entropy, generator).stages["backbone"]
     finally:
         model.grid.cfg = grid
+
+
+def state_candidates(episode: Episode, model: SceneModel, count: int | None = None) -> torch.Tensor:
+    """The candidate poses ``episode``'s planner draws at its next step from ``model`` (the step's own generator,
+    the filters of its method), the first ``count`` of them (all by default)."""
+    s, device = episode.settings, episode.device
+    step = len(episode.poses) - int(episode.scene.init_poses.shape[0])
+    poses = candidate_poses(
+        model,
+        s.planner,
+        episode.scene.camera_box.to(device),
+        matrix_to_pose(episode.poses[-1]).to(device),
+        s.tau,
+        s.collision_free,
+        generator_factory(s.seed, step, device)("candidates"),
+        line_of_sight=episode.renderer.unoccluded,
+    )
+    return poses if count is None else poses[:count]
+
+
+SCORED = {  # the methods a paper-size state scores, and their overrides
+    "nvf": [],
+    "wo_vis": ["ablation=wo_vis"],
+    "fisherrf": ["method=fisherrf"],
+    "activenerf": ["method=activenerf"],
+}
+
+
+def measure_state(cfg_overrides: list[str], episode: Episode) -> tuple[dict, SceneModel]:
+    """One paper-size state as a decision takes it, after ``episode``'s views: NVF's, w/o Vis.'s, FisherRF's and
+    ActiveNeRF's models trained at the budget's counts (``train_models``: one stage 1 for all four, NVF's model
+    serving w/o Vis. and FisherRF), NVF's planner's candidates drawn, FisherRF's Fisher diagonal prepared and every
+    candidate scored by each (one render for the per-pixel scorers of a model, timed apart from FisherRF's
+    whole-view scores). Returns the seconds of each part
+    and in all, the training stages' summaries and NVF's trained model (``cfg_overrides``: ``episode``'s own)."""
+    start = time.perf_counter()
+    obs, device = episode.observations(), episode.device
+    step = len(episode.poses) - int(episode.scene.init_poses.shape[0])
+    episodes = {
+        name: episode.as_method(EpisodeSettings.of(compose_run([*cfg_overrides, *overrides]), episode.scene))
+        for name, overrides in SCORED.items()
+    }
+    trained = train_models(episodes, obs, step)
+    s = episodes["nvf"].settings
+    generators = generator_factory(s.seed, step, device)
+    planning = trained["nvf"].model
+    candidates = state_candidates(episode, planning)
+    prepare, scorers = {}, {}
+    for name, one in episodes.items():
+        begin = time.perf_counter()
+        scorers[name] = prepare_scorer(one.scorer, trained[name].model, obs, generators, s.planner.score_chunk_rays)
+        prepare[name] = time.perf_counter() - begin
+    groups: dict[tuple[int, bool], list[str]] = {}  # (model, per pixel) -> scorers
+    for name in SCORED:
+        groups.setdefault((id(trained[name].model), isinstance(scorers[name], ViewScorer)), []).append(name)
+    score = {}
+    for names in groups.values():
+        chosen = [scorer for scorer in (scorers[name] for name in names) if scorer is not None]
+        begin = time.perf_counter()
+        model = trained[names[0]].model
+        score_poses_together(model, chosen, candidates, episode.plan_intrinsics, s.planner.score_chunk_rays)
+        score["+".join(names)] = time.perf_counter() - begin
+    report = {
+        "views": obs.num_images,
+        "candidates": int(candidates.shape[0]),
+        "trainings": {name: trained[name].seconds for name in SCORED},
+        "stages": {name: trained[name].stages for name in ("nvf", "activenerf")},
+        "prepare_seconds": prepare,
+        "score_seconds": score,
+        "seconds": time.perf_counter() - start,
+    }
+    return report, planning

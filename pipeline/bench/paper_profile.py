@@ -26,15 +26,14 @@ from typing import Any
 import torch
 import torch.profiler
 
-from nvf.cameras import matrix_to_pose
 from nvf.device import resolve_device, synchronize
 from nvf.encoding import HashEncoding
-from nvf.planning import candidate_poses, prepare_scorer, score_poses_together
+from nvf.planning import prepare_scorer, score_poses_together
 from nvf.seeding import generator_factory, seeded_generator
 from nvf.training import train_variance_head, train_visibility_head
 from pipeline.bench._models import load
 from pipeline.bench._report import report_path, write_report
-from pipeline.bench._state import continued_backbone, recorded_episode, trained_backbone
+from pipeline.bench._state import SCORED, continued_backbone, recorded_episode, state_candidates, trained_backbone
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.validation import compose_run
 from pipeline.episode.evaluation import render_view
@@ -46,12 +45,6 @@ TOP_OPS = 12
 BACKBONE_ITERS = 32  # two occupancy-grid update periods
 VARIANCE_ITERS = 5
 MAX_VIEWS = 64
-SCORED = {
-    "nvf": [],
-    "wo_vis": ["ablation=wo_vis"],
-    "activenerf": ["method=activenerf"],
-    "fisherrf": ["method=fisherrf"],
-}
 
 
 def parse_args(argv: list[str]):
@@ -159,16 +152,7 @@ def profile_state(cfg_overrides: list[str], episode: Episode, cache: Path | None
     _, units["variance"] = measured(lambda: train_variance_head(model, obs, variance, s.entropy, generator), device)
     units["variance"] |= {"unit": "iteration", "count": VARIANCE_ITERS}
     units["visibility"] = visibility_unit(model, obs, s, generator, device)
-    poses = candidate_poses(
-        model,
-        s.planner,
-        episode.scene.camera_box.to(device),
-        matrix_to_pose(episode.poses[-1]).to(device),
-        s.tau,
-        s.collision_free,
-        generator_factory(s.seed, step, device)("candidates"),
-        line_of_sight=episode.renderer.unoccluded,
-    )[:1]
+    poses = state_candidates(episode, model, 1)
     generators = generator_factory(s.seed, step, device)
     scorers, prepare = {}, {}
     for name, overrides in SCORED.items():

@@ -47,6 +47,7 @@ from nvf.visibility_source import SourcedVisibility
 from pipeline.bench._models import load
 from pipeline.bench._report import report_path, write_report
 from pipeline.bench._stages import GIB, PEAK_RSS, Stage, StageMeter
+from pipeline.bench._state import measure_state, recorded_episode
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.memory import EVAL_VIEWS, host_memory, stage_peaks
 from pipeline.config.typed import Run
@@ -67,6 +68,7 @@ CUTS = {
     "planner.opt.iters": 2,
     "render.samples": 16,
 }
+MAX_STATE_VIEWS = 64
 SIZE_KEYS = {  # the report's sizes: name -> key
     "image_px": "budget.image_size",
     "eval_px": "budget.eval_size",
@@ -93,7 +95,17 @@ def parse_args(argv: list[str]):
     parser.add_argument(
         "--out", type=Path, default=None, help="JSON report path (default: ${paths.results}/bench/paper_shape.json)"
     )
+    parser.add_argument(
+        "--full-state",
+        type=int,
+        default=0,
+        metavar="VIEWS",
+        help="also measure one whole state of the first scene after VIEWS views at the full counts (0: none)",
+    )
+    parser.add_argument("--records", type=Path, default=Path("results/runs"), help="the NVF cpu record a state takes")
     args = parser.parse_intermixed_args(argv)
+    if not 0 <= args.full_state <= MAX_STATE_VIEWS:
+        fail(f"--full-state {args.full_state}: must be 0..{MAX_STATE_VIEWS} views")
     if not 1 <= args.eval_views <= EVAL_VIEWS:
         fail(f"--eval-views {args.eval_views}: must be 1..{EVAL_VIEWS}")
     args.scenes = [name.strip() for name in args.scenes.split(",") if name.strip()]
@@ -276,6 +288,42 @@ def opt_extra_hours(rows: list[dict], paper: Run) -> float | None:
     return by_name["opt"]["extrapolated_hours"] + rescored * by_name["planning"]["seconds_per_unit"] / 3600.0
 
 
+def whole_state(overrides: list[str], paper: Run, scene: Scene, args) -> dict:
+    """``pipeline.bench._state.measure_state`` on the state after ``args.full_state`` views, at ``paper``'s full
+    counts, with the threads it ran on."""
+    device = resolve_device(str(paper.device))
+    episode = recorded_episode(paper, scene, args.full_state, args.records, device)
+    try:
+        found, _ = measure_state(overrides, episode)
+    finally:
+        episode.close()
+    return found | {"threads": torch.get_num_threads()}
+
+
+def state_episode_hours(state: dict, rows: list[dict], paper: Run, views: int) -> float:
+    """A paper episode extrapolated as ``stage_rows`` does, with the rates of the trained whole state where it has
+    them (stage 1, the heads, NVF's scoring per candidate with w/o Vis.'s beside it) and the cut stages' for the
+    rest (ground truth, candidates, evaluation, mesh metrics)."""
+    stages = state["stages"]["nvf"]
+    rates = {row["name"]: row["seconds_per_unit"] for row in rows}
+    rates["ground_truth"] = rates.get("ground_truth_paper_samples", rates["ground_truth"])
+    rates["backbone"] = stages["backbone"]["seconds"] / stages["backbone"]["iters"]
+    rates["variance"] = stages["variance"]["seconds"] / max(1.0, stages["variance"]["iters"])
+    rates["visibility"] = stages["visibility"]["seconds"] / (stages["visibility"]["iters"] * state["views"])
+    rates["planning"] = state["score_seconds"]["nvf+wo_vis"] / state["candidates"]
+    names = (
+        "ground_truth",
+        "backbone",
+        "variance",
+        "visibility",
+        "candidates",
+        "planning",
+        "evaluation",
+        "mesh_metrics",
+    )
+    return sum(rates[name] * paper_units(name, paper, views) for name in names if name in rates) / 3600.0
+
+
 def main(argv: list[str]) -> None:
     args = parse_args(argv)
     start = time.perf_counter()
@@ -300,6 +348,16 @@ def main(argv: list[str]) -> None:
         rows += found
         hours[name] = sum(row["extrapolated_hours"] or 0.0 for row in found if row["name"] != "opt")
         opt_hours[name] = opt_extra_hours(found, paper)
+    state = None
+    if args.full_state:
+        name = args.scenes[0]
+        _, paper = setups[name]
+        print(f"paper_shape: one whole state of {name} after {args.full_state} views at budget={args.budget}")
+        state = whole_state([f"budget={args.budget}", f"scene={name}", *args.overrides], paper, scenes[name], args)
+        state_rows = [row for row in rows if row["scene"] == name]
+        hours[f"{name}_from_state"] = state_episode_hours(
+            state, state_rows, paper, int(scenes[name].init_poses.shape[0])
+        )
     report = {
         "benchmark": "paper_shape",
         "command": " ".join(["python -m pipeline.bench paper_shape", *argv]),
@@ -316,6 +374,8 @@ def main(argv: list[str]) -> None:
         "cuts": cuts(first, first_paper, args.eval_views),
         "stages": rows,
         "problems": problems,
+        "state": state,
+        "state_hours_cpu": None if state is None or kind != "cpu" else state["seconds"] * state["threads"] / 3600.0,
         f"extrapolated_episode_hours_{kind}": hours,
         f"extrapolated_opt_extra_hours_{kind}": opt_hours,
         "fits_in_memory": all(

@@ -29,17 +29,16 @@ from typing import Any
 
 import torch
 
-from nvf.cameras import matrix_to_pose
 from nvf.device import resolve_device, synchronize
 from nvf.model import SceneModel
-from nvf.planning import candidate_poses, score_poses, score_poses_together
-from nvf.seeding import generator_factory, seeded_generator
+from nvf.planning import score_poses, score_poses_together
+from nvf.seeding import seeded_generator
 from nvf.uncertainty import ViewScorer
 from nvf.visibility import visibility_labels
 from pipeline.bench._models import load
 from pipeline.bench._paired import ratio_spread
 from pipeline.bench._report import report_path, write_report
-from pipeline.bench._state import continued_backbone, recorded_episode, trained_backbone
+from pipeline.bench._state import continued_backbone, recorded_episode, state_candidates, trained_backbone
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.validation import compose_run
 from pipeline.episode.loop import Episode
@@ -190,18 +189,8 @@ def backbone_pairs(model: SceneModel, episode: Episode, iters: int, repeats: int
 
 
 def scoring_pairs(cfg_overrides: list[str], model: SceneModel, episode: Episode, count: int, repeats: int) -> dict:
-    s, device = episode.settings, episode.device
-    step = len(episode.poses) - int(episode.scene.init_poses.shape[0])
-    poses = candidate_poses(
-        model,
-        s.planner,
-        episode.scene.camera_box.to(device),
-        matrix_to_pose(episode.poses[-1]).to(device),
-        s.tau,
-        s.collision_free,
-        generator_factory(s.seed, step, device)("candidates"),
-        line_of_sight=episode.renderer.unoccluded,
-    )[:count]
+    s = episode.settings
+    poses = state_candidates(episode, model, count)
     blind = EpisodeSettings.of(compose_run([*cfg_overrides, "ablation=wo_vis"]), episode.scene).scorer()
     nvf = s.scorer()
     assert isinstance(nvf, ViewScorer) and isinstance(blind, ViewScorer), "NVF and w/o Vis. score per pixel"

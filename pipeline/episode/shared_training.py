@@ -46,13 +46,15 @@ def serves(trained: tuple[tuple, tuple], wanted: tuple[tuple, tuple]) -> bool:
 
 @dataclass
 class Trained:
-    """A model trained at a state, the plan it was trained by and the seconds its training took; for a model whose
+    """A model trained at a state, the plan it was trained by, the seconds its training took and each stage's
+    summary (``nvf.training.TrainStats.stages``: iterations, seconds, samples per ray, ...); for a model whose
     backbone trained with an auxiliary loss (ActiveNeRF's M25), what another plan needs to continue from that
     backbone (``Continuation``)."""
 
     model: SceneModel
     plan: tuple[tuple, tuple]
     seconds: float
+    stages: dict[str, dict[str, float]]
     continuation: "Continuation | None" = None
 
 
@@ -88,13 +90,14 @@ def _train(episode: Episode, obs: Observations, step: int, plan: tuple[tuple, tu
     s, start = episode.settings, time.perf_counter()
     aux = type(s.method).aux_loss
     if aux is None or len(plan[1]) > 1:
-        model, _ = episode.train(obs, step)
-        return Trained(model, plan, time.perf_counter() - start)
+        model, stats = episode.train(obs, step)
+        return Trained(model, plan, time.perf_counter() - start, stats.stages)
     model = episode.new_model(step)
     initial = {k: v.clone() for k, v in model.field.variance_head.state_dict().items()}
     generator = seeded_generator(s.seed, step, "train", episode.device)
-    train_model(model, obs, s.train, s.stages, s.entropy, generator, aux)
-    return Trained(model, plan, time.perf_counter() - start, Continuation(initial, generator.get_state()))
+    stats = train_model(model, obs, s.train, s.stages, s.entropy, generator, aux)
+    continuation = Continuation(initial, generator.get_state())
+    return Trained(model, plan, time.perf_counter() - start, stats.stages, continuation)
 
 
 def _continue(base: Trained, episode: Episode, obs: Observations, plan: tuple[tuple, tuple]) -> Trained:
@@ -107,9 +110,10 @@ def _continue(base: Trained, episode: Episode, obs: Observations, plan: tuple[tu
     generator = torch.Generator(device=episode.device)
     generator.set_state(base.continuation.generator_state)
     later = [stage for stage in s.stages if stage != "backbone"]
+    stages = {"backbone": base.stages["backbone"]}
     if later:
-        train_model(model, obs, s.train, later, s.entropy, generator, None)
-    return Trained(model, plan, base.seconds + time.perf_counter() - start)
+        stages |= train_model(model, obs, s.train, later, s.entropy, generator, None).stages
+    return Trained(model, plan, base.seconds + time.perf_counter() - start, stages)
 
 
 def train_models(episodes: dict[str, Episode], obs: Observations, step: int) -> dict[str, Trained]:
