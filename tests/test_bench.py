@@ -5,6 +5,7 @@ where asserted)."""
 
 import json
 import math
+import os
 import subprocess
 import sys
 import time
@@ -373,3 +374,57 @@ def test_paper_shape_measures_a_whole_state_and_extrapolates_from_it(tmp_path):
     assert 0 < report["state_hours_cpu"] == pytest.approx(state["seconds"] * state["threads"] / 3600.0)
     hours = report["extrapolated_episode_hours_cpu"]
     assert hours["default"] > 0 and hours["default_from_state"] > 0
+
+
+@pytest.mark.parametrize(
+    ("make", "needle"),
+    [
+        (lambda tmp: "", "--out: name a file"),
+        (lambda tmp: str(tmp), "not a plain file"),
+        (lambda tmp: "/dev/null", "not a plain file"),
+        (lambda tmp: str(tmp / "missing" / "r.json"), "does not exist"),
+        (
+            lambda tmp: (tmp / "link.json").symlink_to(tmp / "elsewhere.json") or str(tmp / "link.json"),
+            "not a plain file",
+        ),
+        (lambda tmp: os.mkfifo(tmp / "fifo") or str(tmp / "fifo"), "not a plain file"),
+    ],
+)
+def test_a_report_path_is_checked_before_any_work(tmp_path, capsys, make, needle):
+    """``--out`` must name a plain file in an existing, writable folder; anything else is one line before the
+    benchmark runs (the field bench would take seconds first)."""
+    out = make(tmp_path)
+    with pytest.raises(SystemExit) as exit_:
+        field.main(["--out", out, "--iters", "1"])
+    err = capsys.readouterr().err.strip()
+    assert exit_.value.code == 2 and err.startswith("error: ") and needle in err and "\n" not in err
+    assert not (tmp_path / "elsewhere.json").exists()
+
+
+@pytest.mark.parametrize(
+    ("argv", "needle"),
+    [
+        (["--threads", "0"], "--threads 0: must be 1.."),
+        (["--threads", "4097"], "--threads 4097"),
+        (["--iters", "-1"], "--iters -1"),
+        (["--only", "nosuch"], "--only nosuch"),
+    ],
+)
+def test_field_bench_counts_are_bounded(tmp_path, capsys, argv, needle):
+    with pytest.raises(SystemExit) as exit_:
+        field.main([*argv, "--out", str(tmp_path / "field.json")])
+    err = capsys.readouterr().err.strip()
+    assert exit_.value.code == 2 and needle in err and "\n" not in err
+    assert not (tmp_path / "field.json").exists()
+
+
+def test_a_report_is_written_through_a_file_of_its_own(tmp_path):
+    """The report replaces the old one whole; a file named like a temporary one beside it is left alone."""
+    from pipeline.bench._report import write_report
+
+    out = tmp_path / "r.json"
+    (tmp_path / "r.tmp").write_text("someone else's")
+    write_report({"a": 1}, out)
+    write_report({"a": 2}, out)
+    assert json.loads(out.read_text()) == {"a": 2} and (tmp_path / "r.tmp").read_text() == "someone else's"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r.json", "r.tmp"]

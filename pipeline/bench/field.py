@@ -16,6 +16,7 @@ time divided by the thread count, which is robust to other jobs sharing the core
 ``results/bench/field.json`` and prints a table.
 """
 
+import os
 import statistics
 import time
 from collections.abc import Callable
@@ -200,6 +201,19 @@ def main(argv: list[str]) -> None:
     )
     parser.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="paths overrides, e.g. paths.results=results")
     args = parser.parse_intermixed_args(argv)
+    cores = len(os.sched_getaffinity(0))
+    for name, value, top in (
+        ("--threads", args.threads, cores),
+        ("--iters", args.iters, 1000),
+        ("--rays", args.rays, 1 << 20),
+        ("--samples-per-ray", args.samples_per_ray, 1024),
+        ("--chunk", args.chunk, 1 << 22),
+    ):
+        if not 1 <= value <= top:
+            fail(f"{name} {value}: must be 1..{top}" + (" (this machine's cores)" if name == "--threads" else ""))
+    unknown = [name for name in args.only or [] if name not in variants()]
+    if args.only is not None and (unknown or not args.only):
+        fail(f"--only {' '.join(unknown or args.only) or '(none)'}: name variants of {', '.join(variants())}")
     try:  # bad input is one line before the benchmark runs, not after
         out = report_path(args.out, paths_from_args(args.overrides, ("paths.results",))["results"], "field")
     except ValueError as err:

@@ -49,6 +49,7 @@ from pipeline.bench._report import report_path, write_report
 from pipeline.bench._stages import GIB, PEAK_RSS, Stage, StageMeter
 from pipeline.bench._state import measure_state, recorded_episode
 from pipeline.cli import ArgumentParser, description, fail
+from pipeline.config.catalog import declared
 from pipeline.config.memory import EVAL_VIEWS, host_memory, stage_peaks
 from pipeline.config.typed import Run
 from pipeline.config.validation import compose_run
@@ -104,6 +105,8 @@ def parse_args(argv: list[str]):
     )
     parser.add_argument("--records", type=Path, default=Path("results/runs"), help="the NVF cpu record a state takes")
     args = parser.parse_intermixed_args(argv)
+    if args.budget not in declared("budget"):
+        fail(f"--budget {args.budget!r}: not one of conf/budget ({', '.join(declared('budget'))})")
     if not 0 <= args.full_state <= MAX_STATE_VIEWS:
         fail(f"--full-state {args.full_state}: must be 0..{MAX_STATE_VIEWS} views")
     if not 1 <= args.eval_views <= EVAL_VIEWS:

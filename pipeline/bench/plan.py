@@ -275,6 +275,7 @@ def main(argv: list[str]) -> None:
     args = parse_args(argv)
     start = time.perf_counter()
     cfg = compose_run([f"planner.num_candidates={CANDIDATES}", *args.overrides])
+    args.out = report_path(args.out, cfg.paths.results, "plan")  # checked before any work
     precisions = parse_precisions(args.precisions, resolve_device(str(cfg.device)))
     methods = {name: build_method(m, {"nvf.entropy": cfg.nvf.entropy}) for name, m in method_configs().items()}
     fisher = next((method for method in methods.values() if isinstance(method, FisherRF)), None)
@@ -352,7 +353,6 @@ def main(argv: list[str]) -> None:
             "seconds": time.perf_counter() - start,
         }
     )
-    args.out = report_path(args.out, cfg.paths.results, "plan")
     write_report(report, args.out)
     print_report(report, list(work), precisions, per, ratios, setup.train_seconds, res)
     print(f"wrote {args.out}")

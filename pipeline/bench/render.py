@@ -54,6 +54,7 @@ def main(argv: list[str]) -> None:
     if min(args.res) < 8 or not 1 <= args.views <= 20 or args.samples < 1:
         fail("--res must be >= 8, --views in 1..20 and --samples >= 1")
     cfg = compose_run(args.overrides)
+    args.out = report_path(args.out, cfg.paths.results, "render")  # checked before any work
     python, threads = blender_python(cfg.paths.blender_python), os.cpu_count() or 1
     use_blender, rows, version, load_start = "blender" in args.backends, [], None, os.getloadavg()
     try:
@@ -100,7 +101,6 @@ def main(argv: list[str]) -> None:
         "load_average_1_5_15_min": {"start": load_start, "end": os.getloadavg()},
         "rows": rows,
     }
-    args.out = report_path(args.out, cfg.paths.results, "render")
     write_report(report, args.out)
     print(
         f"{'scene':<9}{'faces':>7}{'res':>5}{'pyrender ms':>13}{'Blender ms':>12}{'ratio':>8}{'ray cast ms':>13}"

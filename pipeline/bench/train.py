@@ -323,6 +323,7 @@ def main(argv: list[str]) -> None:
     start = time.perf_counter()
     cfg = compose_run(args.overrides)
     device = resolve_device(str(cfg.device))
+    args.out = report_path(args.out, cfg.paths.results, "train")  # checked before any work
     precisions = parse_precisions(args.precisions, device)
     scene = load(cfg)
     s = EpisodeSettings.of(cfg, scene)
@@ -369,7 +370,6 @@ def main(argv: list[str]) -> None:
         },
         "seconds": time.perf_counter() - start,
     }
-    args.out = report_path(args.out, cfg.paths.results, "train")
     write_report(report, args.out)
     print_report(report, s.sampler.update_every)
     print(f"wrote {args.out}")

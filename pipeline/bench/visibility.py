@@ -357,6 +357,7 @@ def main(argv: list[str]) -> None:
         parser.error("--step takes a number >= 0 and needs --record")
     start = time.perf_counter()
     cfg = compose_run(["planner.num_candidates=64", *args.overrides])
+    args.out = report_path(args.out, cfg.paths.results, "visibility")  # checked before any work
     try:
         extra = recorded_poses(args.record, args.step) if args.record is not None else None
     except (ValueError, OSError) as err:
@@ -365,7 +366,6 @@ def main(argv: list[str]) -> None:
     report["settings"]["overrides"] = args.overrides
     report["settings"]["state"] = None if args.record is None else {"record": str(args.record), "step": args.step}
     report["seconds"] = time.perf_counter() - start
-    args.out = report_path(args.out, cfg.paths.results, "visibility")
     write_report(report, args.out)
     print_report(report)
     print(f"{report['seconds']:.0f} s; wrote {args.out}")
