@@ -72,3 +72,28 @@ def test_correlation_interval_stays_inside_its_range():
     mean, low, high = paper_states_summary.correlation_interval(np.array([0.2, 0.99, 0.999, 1.0]))
     assert -1.0 <= low < mean < high <= 1.0
     assert np.isnan(paper_states_summary.correlation_interval(np.array([np.nan]))[0])
+
+
+def test_one_writer_per_scene_and_seed_and_no_state_twice(tmp_path, capsys):
+    """A second process on a scene and seed another holds is refused in one line; a row repeating a state is
+    refused on write, and a file holding one twice is refused on read (the summary names it)."""
+    from pipeline.cli import run_command
+    from pipeline.experiments.decisions import JsonLines
+    from pipeline.records.files import RecordError
+    from pipeline.records.lock import RunLock
+
+    folder = tmp_path / "pilots" / "paper_states"
+    folder.mkdir(parents=True)
+    argv = ["--scenes", "default", "--steps", "2", "--budgets", "smoke", f"paths.results={tmp_path}"]
+    with RunLock(folder / "default" / "seed_100", folder), pytest.raises(SystemExit) as exit_:
+        run_command(paper_states.main, argv)
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and "is being written by" in err and err.count("\n") == 1
+    paper_states.main(argv)
+    states = JsonLines(folder / "states.jsonl", paper_states_summary.STATE, paper_states_summary.state_key)
+    with pytest.raises(RecordError, match="already holds the row"):
+        states.add([states.rows[0]])
+    text = (folder / "states.jsonl").read_text()
+    (folder / "states.jsonl").write_text(text + text)
+    with pytest.raises(RecordError, match="twice"):
+        paper_states_summary.write_summary(folder)

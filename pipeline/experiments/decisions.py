@@ -17,6 +17,7 @@ a candidate set, each contender's pick from it, and the one-step outcome of a pi
 import os
 import re
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -38,7 +39,7 @@ from pipeline.episode.evaluation import render_view
 from pipeline.episode.loop import Episode
 from pipeline.metrics.image import psnr
 from pipeline.records.checked import Each, Flag, Number, Optional, Text, read_json_lines
-from pipeline.records.files import append_plain_file
+from pipeline.records.files import RecordError, append_plain_file
 from pipeline.records.store import MAX_SEED, atomic_write_text, dumps, to_jsonable
 from pipeline.records.verify import MAX_HORIZON
 
@@ -191,16 +192,41 @@ class JsonLines:
     through a symbolic link; a bad line is one ``RecordError`` naming it). Rows are appended in one write each
     call through the file layer (never into a file with another name), so a killed writer leaves whole rows (a
     row cut off by a kill is dropped when the file is next opened), and writers of other scenes or seeds can
-    append side by side."""
+    append side by side. With ``key`` (a row's identity, e.g. its scene, seed, step and set) a file holding two
+    rows of one key is refused when read, and ``add`` refuses a row whose key the file already holds, rows other
+    writers appended since included."""
 
-    def __init__(self, path: Path, shape: Any):
-        self.path = path
-        self.rows, whole = read_json_lines(path, shape)
+    def __init__(self, path: Path, shape: Any, key: Callable[[dict], tuple] | None = None):
+        self.path, self.shape, self.key = path, shape, key
+        self.rows, whole = self._read()
         if os.path.lexists(path) and os.lstat(path).st_size != whole:
             atomic_write_text(path, "".join(dumps(row) + "\n" for row in self.rows))
 
+    def _read(self) -> tuple[list[dict], int]:
+        rows, whole = read_json_lines(self.path, self.shape)
+        if self.key is not None:
+            seen: dict[tuple, int] = {}
+            for number, row in enumerate(rows, start=1):
+                found = self.key(row)
+                if found in seen:
+                    raise RecordError(
+                        f"{self.path}: line {number} repeats the row {found} of line {seen[found]} (two writers of "
+                        "one state?); delete one of them"
+                    )
+                seen[found] = number
+        return rows, whole
+
     def add(self, rows: list[dict[str, Any]]) -> None:
         rows = [to_jsonable(row) for row in rows]
+        if self.key is not None:
+            held = {self.key(row) for row in self._read()[0]}
+            for row in rows:
+                if self.key(row) in held:
+                    raise RecordError(
+                        f"{self.path} already holds the row {self.key(row)}: another process wrote it; run one "
+                        "writer per scene and seed"
+                    )
+                held.add(self.key(row))
         self.rows.extend(rows)
         append_plain_file(self.path, "".join(dumps(row) + "\n" for row in rows).encode(), "a duel's rows")
 

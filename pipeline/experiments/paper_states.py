@@ -62,11 +62,12 @@ from pipeline.experiments.decisions import (
     with_view,
 )
 from pipeline.experiments.options import SEEDS, add_command, name_list, seed_list, setting_overrides, step_list
-from pipeline.experiments.paper_states_summary import FOLDER, SETTING, STATE, write_summary
+from pipeline.experiments.paper_states_summary import FOLDER, SETTING, STATE, state_key, write_summary
 from pipeline.metrics.image import LpipsMetric
 from pipeline.metrics.ranking import auc, spearman
 from pipeline.records.checked import read_json
 from pipeline.records.files import make_directory
+from pipeline.records.lock import RunLock
 from pipeline.records.store import atomic_write_text, check_seed, run_dir
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.loading import find_asset, load_scene, scene_config
@@ -250,8 +251,8 @@ class Call:
 
 
 def run_scene(call: Call, scene_name: str, seeds: list[int], steps: list[int], budgets: list[str]) -> None:
-    """Every missing state of one scene, budget by budget."""
-    done = {(r["scene"], r["seed"], r["step"], r["budget"]) for r in call.states.rows}
+    """Every missing state of one scene, budget by budget; one writer per scene and seed (a lock), which reads
+    what is done once it holds it."""
     lpips = LpipsMetric()
     for budget in budgets:
         cfg = compose_run([f"scene={scene_name}", f"budget={budget}", *call.overrides])
@@ -260,31 +261,47 @@ def run_scene(call: Call, scene_name: str, seeds: list[int], steps: list[int], b
         except SceneError as err:
             fail(str(err))
         for seed in seeds:
-            by_owner: dict[str, list[int]] = {}
-            for i, k in enumerate(steps):
-                if (scene_name, seed, k, budget) not in done:
-                    by_owner.setdefault(state_owner(i, seed).name, []).append(k)
-            for name, ks in by_owner.items():
-                owner = contender(name)
-                rows = recorded_rows(call.records, scene_name, owner, seed, call.state_budget, max(ks))
-                settings = settings_of(scene, owner, seed, budget, call.overrides)
-                episode = Episode(settings, scene, resolve_device(cfg.device), lpips)
-                call.known.clear()
-                try:
-                    for k in sorted(ks):
-                        row = measure_state(call, scene, seed, k, owner, rows, budget, episode)
-                        call.states.add([row])
-                        verdicts = ", ".join(
-                            f"{n} {'same' if a['same_pick'] else 'differs'} (rho {a['spearman']})"
-                            for n, a in row["against_nvf"].items()
-                        )
-                        print(
-                            f"{scene_name} seed {seed} step {k} at {budget} ({name}'s state, "
-                            f"{row['seconds'] / 3600:.2f} h): {verdicts}",
-                            flush=True,
-                        )
-                finally:
-                    episode.close()
+            with RunLock(call.folder / scene_name / f"seed_{seed}", call.folder):
+                call.states = JsonLines(call.states.path, STATE, state_key)
+                done = {state_key(row) for row in call.states.rows}
+                by_owner: dict[str, list[int]] = {}
+                for i, k in enumerate(steps):
+                    if (scene_name, seed, k, budget) not in done:
+                        by_owner.setdefault(state_owner(i, seed).name, []).append(k)
+                for name, ks in by_owner.items():
+                    measure_owner(call, scene, seed, budget, contender(name), ks, lpips, resolve_device(cfg.device))
+
+
+def measure_owner(
+    call: Call,
+    scene: Scene,
+    seed: int,
+    budget: str,
+    owner: Contender,
+    steps: list[int],
+    lpips: LpipsMetric,
+    device: torch.device,
+) -> None:
+    """The states of ``owner``'s record at ``steps`` of one scene and seed at one budget, in one episode; each
+    state's row written once it is complete."""
+    rows = recorded_rows(call.records, scene.name, owner, seed, call.state_budget, max(steps))
+    episode = Episode(settings_of(scene, owner, seed, budget, call.overrides), scene, device, lpips)
+    call.known.clear()
+    try:
+        for k in sorted(steps):
+            row = measure_state(call, scene, seed, k, owner, rows, budget, episode)
+            call.states.add([row])
+            verdicts = ", ".join(
+                f"{n} {'same' if a['same_pick'] else 'differs'} (rho {a['spearman']})"
+                for n, a in row["against_nvf"].items()
+            )
+            hours = row["seconds"] / 3600
+            print(
+                f"{scene.name} seed {seed} step {k} at {budget} ({owner.name}'s state, {hours:.2f} h): {verdicts}",
+                flush=True,
+            )
+    finally:
+        episode.close()
 
 
 def open_folder(root: Path, setting: dict, command: list[str]) -> Path:
@@ -385,7 +402,7 @@ def main(argv: list[str] | None = None) -> None:
         list(args.outcomes),
         args.vis_points,
         args.threads,
-        JsonLines(folder / "states.jsonl", STATE),
+        JsonLines(folder / "states.jsonl", STATE, state_key),
     )
     for scene in args.scenes:
         run_scene(call, scene, seeds, list(args.steps), budgets)

@@ -25,6 +25,7 @@ import pandas as pd
 from pipeline.cli import ArgumentParser, description, run_command
 from pipeline.config.validation import compose_run
 from pipeline.records.checked import Each, Entries, Number, Text, read_json_lines
+from pipeline.records.files import RecordError
 from pipeline.records.store import MAX_SEED, atomic_write_text
 from pipeline.records.verify import MAX_HORIZON
 from pipeline.tables.render import markdown_table
@@ -75,6 +76,13 @@ STATE = {
     ),
     "seconds": Number(0.0),
 }
+
+
+def state_key(row: dict) -> tuple:
+    """A state row's identity: its scene, seed, step and budget (``states.jsonl`` holds one row of each)."""
+    return row["scene"], row["seed"], row["step"], row["budget"]
+
+
 COLUMNS = (
     "budget", "scene", "rival", "states", "spearman_mean", "spearman_low", "spearman_high", "same_pick",
     "nvf_relative_std", "rival_relative_std", "auc_labels", "auc_head", "outcomes", "gain_mean", "gain_low",
@@ -174,6 +182,10 @@ def twins(states: list[dict]) -> list[dict]:
 def write_summary(folder: Path) -> list[Path]:
     """``summary.csv`` and ``summary.md`` of ``folder``'s states."""
     states, _ = read_json_lines(folder / "states.jsonl", STATE)
+    identities = [state_key(row) for row in states]
+    repeated = next((key for key in identities if identities.count(key) > 1), None)
+    if repeated is not None:
+        raise RecordError(f"{folder / 'states.jsonl'} holds the state {repeated} twice; delete one of its rows")
     rows = summary_rows(states)
     table = pd.DataFrame(rows, columns=list(COLUMNS))
     csv_path, md_path = folder / "summary.csv", folder / "summary.md"
