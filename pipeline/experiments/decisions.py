@@ -176,6 +176,13 @@ DECISION = {
     "source_pick_recorded": Optional(Flag(null=True)),
     "seconds": {"method": SECONDS, "rival": SECONDS},
 }
+
+
+def decision_key(row: dict) -> tuple:
+    """A decision's identity in its pair's file: scene, seed, step and candidate set (one row each)."""
+    return row["scene"], row["seed"], row["step"], row["set"]
+
+
 OUTCOME = {
     "scene": Text(),
     "seed": Number(0, MAX_SEED, integer=True),

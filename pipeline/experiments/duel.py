@@ -20,18 +20,24 @@ episode would. Where the picks differ, the plain backbone is trained with each p
 ``k+1``, the same for both) and evaluated on the scene's 20 evaluation views: the gain is A's pick's held-out
 PSNR minus B's, paired on the state (``pipeline.experiments.decisions``).
 
-Writes ``${paths.results}/pilots/duel/<A>_vs_<B>/``: ``decisions.jsonl`` (a row per scene, seed, step and set;
-each state's rows in one write, so a killed duel resumes after its last complete state), ``outcomes.jsonl``
+Writes ``${paths.results}/pilots/duel/<A>_vs_<B>/``: ``decisions.jsonl`` (a row per scene, seed, step and set,
+a repeated one refused on write and on read; each state's rows in one write, and a state lacking a set's row,
+as a kill can leave it, is decided again for that set), ``outcomes.jsonl``
 (every evaluated pick, reused by later calls), ``setting.json`` (the overrides: a call with other overrides under
 the same folder is refused) and ``command.txt``; then ``summary.csv``, ``details.csv`` and ``summary.md`` of every
 duel under ``pilots/duel/`` (``pipeline.experiments.duel_summary``). Torch runs with ``--threads`` threads
-(default 1). To use more cores run several processes on disjoint ``--scenes`` or ``--seeds``, one thread each:
-they append to the same folders side by side.
+(1 to the machine's cores; default 1). To use more cores run several processes on disjoint ``--scenes`` or
+``--seeds``, one thread each: they append to the same folders side by side; a pair, scene and seed has one writer
+(the records' lock: a second process on it is refused in one line). Every record a state needs is read before
+anything is written; a contender against itself is refused.
 """
 
 import argparse
+import contextlib
+import dataclasses
 import itertools
 import json
+import os
 import sys
 import time
 from dataclasses import dataclass, field
@@ -54,6 +60,7 @@ from pipeline.experiments.decisions import (
     Pick,
     candidate_set,
     contender,
+    decision_key,
     heldout_psnr,
     outcome_key,
     pick,
@@ -66,6 +73,7 @@ from pipeline.metrics.image import LpipsMetric
 from pipeline.metrics.ranking import spearman
 from pipeline.records.checked import read_json
 from pipeline.records.files import make_directory
+from pipeline.records.lock import RunLock
 from pipeline.records.store import atomic_write_text, check_seed, run_dir
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.loading import find_asset, load_scene, scene_config
@@ -73,6 +81,7 @@ from pipeline.scenes.scene import Scene, SceneError
 from pipeline.tables.load import load_run
 
 SCENES = ("hotdog", "hubble", "default")
+MAX_SETS = 64
 STEPS = (0, 3, 6, 9, 12, 15, 18)
 OWN_KEYS = ("method", "rival", "ablation", "scene", "seed")  # the duel's own: not config overrides
 
@@ -85,19 +94,34 @@ class Pair:
     rival: Contender
     folder: Path
     decisions: JsonLines = field(init=False)
-    done: set[tuple[str, int, int]] = field(init=False)
+    done: dict[tuple[str, int, int], set[int]] = field(init=False)  # (scene, seed, step) -> its decided sets
 
     def __post_init__(self) -> None:
-        self.decisions = JsonLines(self.folder / "decisions.jsonl", DECISION)
-        self.done = {(r["scene"], r["seed"], r["step"]) for r in self.decisions.rows}
+        self.read()
+
+    def read(self) -> None:
+        """The pair's decisions as the file holds them now (another writer's of other seeds included)."""
+        self.decisions = JsonLines(self.folder / "decisions.jsonl", DECISION, decision_key)
+        self.done = {}
+        for r in self.decisions.rows:
+            self.done.setdefault((r["scene"], r["seed"], r["step"]), set()).add(r["set"])
+
+    def missing(self, scene: str, seed: int, step: int, sets: int) -> list[int]:
+        """The candidate sets of a state this pair has not decided (a state cut by a kill has some)."""
+        return [index for index in range(sets) if index not in self.done.get((scene, seed, step), set())]
 
     def owner(self, i: int, seed: int) -> Contender:
         """Whose record the ``i``-th listed step's state comes from for ``seed``: A's and B's alternately."""
-        return self.method if (i + seed) % 2 == 0 else self.rival
+        return Pair.owner_of(self.method, self.rival, i, seed)
+
+    @staticmethod
+    def owner_of(method: Contender, rival: Contender, i: int, seed: int) -> Contender:
+        return method if (i + seed) % 2 == 0 else rival
 
     def record(self, rows: list[dict]) -> None:
         self.decisions.add(rows)
-        self.done.update((r["scene"], r["seed"], r["step"]) for r in rows)
+        for r in rows:
+            self.done.setdefault((r["scene"], r["seed"], r["step"]), set()).add(r["set"])
 
 
 @dataclass
@@ -112,11 +136,13 @@ class Call:
     records: Path
     threads: int
     outcomes: Outcomes
+    budget: str  # of the records the states come from
 
 
-def recorded_rows(call: Call, scene: str, who: Contender, seed: int, budget: str) -> list[dict]:
-    """The step rows of ``who``'s recorded episode (verified, ``pipeline.records.verify``)."""
-    directory = run_dir(call.records, scene, who.method, "argmax", who.ablation, budget, seed)
+def recorded_rows(call: Call, scene: str, who: Contender, seed: int) -> list[dict]:
+    """The step rows of ``who``'s recorded episode (verified, ``pipeline.records.verify``), holding every step of
+    ``call.steps``."""
+    directory = run_dir(call.records, scene, who.method, "argmax", who.ablation, call.budget, seed)
     try:
         _, rows = load_run(directory)
     except (ValueError, OSError) as err:
@@ -164,7 +190,10 @@ def decision_rows(call: Call, pair: Pair, state: State) -> list[dict]:
     """The rows of one pair at one state, a row per candidate set."""
     a, b = pair.method.name, pair.rival.name
     rows = []
+    missing = pair.missing(state.scene, state.seed, state.step, len(state.candidates))
     for index, candidates in enumerate(state.candidates):
+        if index not in missing:
+            continue
         picks = {name: state.picks[(name, index)] for name in (a, b)}
         same = picks[a].index == picks[b].index
         x, y = picks[a].scores, picks[b].scores
@@ -243,25 +272,34 @@ def duel_scene(call: Call, scene_name: str) -> None:
         fail(str(err))
     lpips = LpipsMetric()
     for seed in call.seeds:
-        todo: dict[str, dict[int, list[Pair]]] = {}  # owner -> step -> pairs missing that state
-        owners: dict[str, Contender] = {}
-        for (i, k), pair in itertools.product(enumerate(call.steps), call.pairs):
-            if (scene_name, seed, k) not in pair.done:
-                who = pair.owner(i, seed)
-                owners[who.name] = who
-                todo.setdefault(who.name, {}).setdefault(k, []).append(pair)
-        for name, states in todo.items():
-            rows = recorded_rows(call, scene_name, owners[name], seed, cfg.budget.name)
-            contenders = {c.name: c for pairs in states.values() for p in pairs for c in (p.method, p.rival)}
-            episodes: dict[str, Episode] = {}
-            try:
-                for who in contenders.values():
-                    episodes[who.name] = open_episode(call, scene, who, seed, lpips)
-                for k in sorted(states):
-                    measure_state(call, episodes, name, rows, k, states[k])
-            finally:
-                for episode in episodes.values():
-                    episode.close()
+        with contextlib.ExitStack() as held:  # one writer per pair, scene and seed; what is done read under it
+            for pair in call.pairs:
+                held.enter_context(RunLock(pair.folder / scene_name / f"seed_{seed}", pair.folder))
+                pair.read()
+            duel_seed(call, scene, seed, lpips)
+
+
+def duel_seed(call: Call, scene: Scene, seed: int, lpips: LpipsMetric) -> None:
+    """Every state of one scene and seed that some pair has not decided for every candidate set."""
+    todo: dict[str, dict[int, list[Pair]]] = {}  # owner -> step -> pairs missing that state
+    owners: dict[str, Contender] = {}
+    for (i, k), pair in itertools.product(enumerate(call.steps), call.pairs):
+        if pair.missing(scene.name, seed, k, call.sets):
+            who = pair.owner(i, seed)
+            owners[who.name] = who
+            todo.setdefault(who.name, {}).setdefault(k, []).append(pair)
+    for name, states in todo.items():
+        rows = recorded_rows(call, scene.name, owners[name], seed)
+        contenders = {c.name: c for pairs in states.values() for p in pairs for c in (p.method, p.rival)}
+        episodes: dict[str, Episode] = {}
+        try:
+            for who in contenders.values():
+                episodes[who.name] = open_episode(call, scene, who, seed, lpips)
+            for k in sorted(states):
+                measure_state(call, episodes, name, rows, k, states[k])
+        finally:
+            for episode in episodes.values():
+                episode.close()
 
 
 def split_arguments(positional: list[str]) -> tuple[Contender, list[Contender], list[str]]:
@@ -275,9 +313,12 @@ def split_arguments(positional: list[str]) -> tuple[Contender, list[Contender], 
         fail(f"{own[0]}: the contenders and states are the duel's own; use method=, rival=, --scenes and --seeds")
     try:
         rivals = list(dict.fromkeys(contender(name) for name in named["rival"].split(",")))
-        return contender(named["method"]), rivals, overrides
+        method = contender(named["method"])
     except ValueError as err:
         fail(str(err))
+    if method in rivals:
+        fail(f"rival={method.name}: a contender against itself decides nothing; name another rival")
+    return method, rivals, overrides
 
 
 def open_pairs(root: Path, method: Contender, rivals: list[Contender], setting: dict, command: list[str]) -> list[Pair]:
@@ -323,8 +364,11 @@ def main(argv: list[str] | None = None) -> None:
     except ValueError as err:
         fail(f"--seeds: {err}")
     steps, scenes = list(args.steps), list(args.scenes)
-    if args.sets < 1 or args.threads < 1:
-        fail("--sets and --threads must be >= 1")
+    cores = len(os.sched_getaffinity(0))
+    if not 1 <= args.sets <= MAX_SETS:
+        fail(f"--sets {args.sets}: must be 1..{MAX_SETS}")
+    if not 1 <= args.threads <= cores:
+        fail(f"--threads {args.threads}: must be 1..{cores} (this machine's cores)")
     cfg = compose_run([*method.overrides, *overrides])
     if cfg.planner.name != "argmax" or cfg.train.warm_start:
         fail("the duel replays argmax episodes trained from scratch: drop planner= and train.warm_start=")
@@ -339,10 +383,14 @@ def main(argv: list[str] | None = None) -> None:
     root = Path(cfg.paths.results) / "pilots" / DUEL
     kept = setting_overrides(overrides)
     setting = {"method": method.name, "overrides": kept, "budget": cfg.budget.name}
+    planned = Call([], overrides, seeds, steps, args.sets, args.records, args.threads, Outcomes([]), cfg.budget.name)
+    for scene, seed, rival in itertools.product(scenes, seeds, rivals):  # every record a state needs, before writing
+        for i, _ in enumerate(steps):
+            recorded_rows(planned, scene, Pair.owner_of(method, rival, i, seed), seed)
     pairs = open_pairs(root, method, rivals, setting, ["python", "-m", "pipeline.experiments.duel", *argv])
     settings = {path.parent: read_json(path, SETTING) for path in sorted(root.glob("*/setting.json"))}
     same_setting = [folder for folder, made in settings.items() if made is not None and made["overrides"] == kept]
-    call = Call(pairs, overrides, seeds, steps, args.sets, args.records, args.threads, Outcomes(same_setting))
+    call = dataclasses.replace(planned, pairs=pairs, outcomes=Outcomes(same_setting))
     for scene in scenes:
         duel_scene(call, scene)
     for path in write_summaries(root, args.records):
