@@ -22,6 +22,7 @@ from typing import Any, ClassVar, Literal
 from beartype.door import is_bearable
 
 from nvf.config import EntropyConfig
+from nvf.coverage import FarthestViewScorer
 from nvf.training import AuxLoss, activenerf_loss, neurar_loss
 from nvf.uncertainty.baselines import ActiveRMAPScorer, AIRScorer, RenderedVarianceScorer, WDScorer
 from nvf.uncertainty.fisher import FisherRFScorer
@@ -193,6 +194,18 @@ class FisherRF(Method):
         if not self.prior_precision > 0:
             return f"prior_precision={self.prior_precision} must be > 0 (lambda, docs/METHOD.md M32)"
         return None
+
+
+@dataclass(frozen=True, kw_only=True)
+class FVS(Method):
+    """Farthest view sampling (NeRF Director, Xiao et al., CVPR 2024; not in the NVF paper): the candidate
+    farthest from every observed view (METHOD 18, M33), no uncertainty; stage 1 only, for the planner's filters
+    (M28, M29) and the evaluation. It scores whole views, so argmax planning only (-OPT is n/a)."""
+
+    score_unit: ClassVar[str] = "radians"  # a view distance
+
+    def scorer(self) -> StepScorer:
+        return FarthestViewScorer()
 
 
 def _expected(hint: Any) -> str:
