@@ -26,6 +26,7 @@ from nvf.coverage import FarthestViewScorer
 from nvf.training import AuxLoss, activenerf_loss, neurar_loss
 from nvf.uncertainty.baselines import ActiveRMAPScorer, AIRScorer, RenderedVarianceScorer, WDScorer
 from nvf.uncertainty.fisher import FisherRFScorer
+from nvf.uncertainty.laplace import BayesRaysScorer
 from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
 from nvf.uncertainty.scorers import StepScorer, ViewScorer
 
@@ -206,6 +207,29 @@ class FVS(Method):
 
     def scorer(self) -> StepScorer:
         return FarthestViewScorer()
+
+
+@dataclass(frozen=True, kw_only=True)
+class BayesRays(Method):
+    """Bayes' Rays (Goli et al., CVPR 2024; not in the NVF paper) on NVF's backbone: post-hoc Laplace
+    uncertainty of a spatial perturbation field, its diagonal Gauss-Newton Hessian over the training pixels and a
+    prior, rendered along the candidate's rays (METHOD 19, M34-M36). Stage 1 only; it scores whole views, so
+    argmax planning only (-OPT is n/a). ``cells_per_grid_cell``: the perturbation grid's cells a side per cell
+    of the occupancy grid (``grid_resolution``, the run's ``sampler.grid_resolution``), so it scales with the
+    budget as the grid does: 2 gives the reference's 256 at the paper's 128^3."""
+
+    cells_per_grid_cell: int
+    grid_resolution: int = run_setting("sampler.grid_resolution", lambda: 128)
+
+    score_unit: ClassVar[str] = "scaled log10 deviation"  # M36's rendered uncertainty in [0, 1]
+
+    def scorer(self) -> StepScorer:
+        return BayesRaysScorer(self.cells_per_grid_cell * self.grid_resolution)
+
+    def unsupported(self) -> str | None:
+        if self.cells_per_grid_cell < 1:
+            return f"cells_per_grid_cell={self.cells_per_grid_cell} must be at least 1 (docs/METHOD.md M34)"
+        return None
 
 
 def _expected(hint: Any) -> str:

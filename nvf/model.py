@@ -1,5 +1,6 @@
 """The scene model: NVF field plus occupancy grid, rendering packed rays (METHOD.md sections 2 and 4)."""
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -145,6 +146,7 @@ class SceneModel(nn.Module):
         generator: torch.Generator | None = None,
         sampler: str = "occupancy",
         image_idx: Int[Tensor, " R"] | None = None,
+        displacement: Callable[[Tensor], Tensor] | None = None,
     ) -> RenderResult:
         """Render rays ``o + t d`` (unit ``d``): sample, then M1-M3 on the kept samples.
 
@@ -156,6 +158,9 @@ class SceneModel(nn.Module):
         embedding (D8; ``None`` = image 0's). The skipping pass's results are reused for the kept samples:
         without autograd (``torch.no_grad``) their density and geometry features, with autograd their
         encoding (whose forward is then skipped; the density MLP reruns for its gradients).
+        ``displacement``: maps the kept samples' positions ``[S, 3]`` to where the field reads them (Bayes' Rays'
+        perturbation, M34: the positions plus a zero offset whose gradient is wanted); the values must be the
+        positions' own (the reused density or encoding is theirs).
         """
         density = encoded = None  # reused from the skipping pass: density without autograd, else encoding
         if sampler == "occupancy":
@@ -171,6 +176,8 @@ class SceneModel(nn.Module):
         n_rays = samples.n_rays
         sample_image = None if image_idx is None else image_idx[samples.ray_idx]
         positions = samples.positions(origins, dirs)
+        if displacement is not None:
+            positions = displacement(positions)
         out = self.field(positions, dirs[samples.ray_idx], heads, sample_image, density=density, encoded=encoded)
         alpha = alpha_from_density(out.sigma, samples.deltas)
         weights, trans = weights_from_alpha(alpha, samples.ray_idx, n_rays)

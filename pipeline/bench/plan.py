@@ -52,7 +52,7 @@ from pipeline.bench.field import matmul_gflops, mlp_flops
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.catalog import method_configs
 from pipeline.config.method import build_method
-from pipeline.config.validation import compose_run
+from pipeline.config.validation import compose_run, run_settings_of
 from pipeline.episode.settings import EpisodeSettings
 
 CANDIDATES = 512  # the paper's N; a later planner.num_candidates=... override wins
@@ -277,7 +277,7 @@ def main(argv: list[str]) -> None:
     cfg = compose_run([f"planner.num_candidates={CANDIDATES}", *args.overrides])
     args.out = report_path(args.out, cfg.paths.results, "plan")  # checked before any work
     precisions = parse_precisions(args.precisions, resolve_device(str(cfg.device)))
-    methods = {name: build_method(m, {"nvf.entropy": cfg.nvf.entropy}) for name, m in method_configs().items()}
+    methods = {name: build_method(m, run_settings_of(cfg)) for name, m in method_configs().items()}
     fisher = next((method for method in methods.values() if isinstance(method, FisherRF)), None)
     if args.probes is not None and fisher is None:
         fail("--probes: no method in conf/method is FisherRF (nvf.methods.FisherRF); declare it or drop --probes")

@@ -282,10 +282,16 @@ def typed_run(cfg: DictConfig) -> Run:
     return run_of(config, method, rival, {str(k): v for k, v in composed.items()})
 
 
+def run_settings_of(config: RunConfig) -> dict[str, object]:
+    """The run config's values a method may read as run settings (``nvf.methods.run_setting``): NVF's
+    ``nvf.entropy``, Bayes' Rays' ``sampler.grid_resolution``."""
+    return {"nvf.entropy": config.nvf.entropy, "sampler.grid_resolution": config.sampler.grid_resolution}
+
+
 def _method(cfg: DictConfig, config: RunConfig) -> Method:
-    """The method ``config.method`` declares, with ``config``'s run settings (``nvf.entropy``)."""
+    """The method ``config.method`` declares, with ``config``'s run settings (``run_settings_of``)."""
     try:
-        return build_method(config.method, {"nvf.entropy": config.nvf.entropy})
+        return build_method(config.method, run_settings_of(config))
     except MethodError as err:
         raise ConfigError(f"{err} (conf/method/{cfg.method.get('name')}.yaml)") from None
 
