@@ -16,7 +16,7 @@ from nvf.cameras import matrix_to_pose
 from nvf.model import SceneModel
 from nvf.planning import candidate_poses, prepare_scorer, score_poses_together
 from nvf.seeding import generator_factory, seeded_generator
-from nvf.training import Observations, backbone_lr, train_model
+from nvf.training import Observations, train_model
 from nvf.uncertainty import ViewScorer
 from pipeline.cli import fail
 from pipeline.config.typed import Run
@@ -88,14 +88,18 @@ def trained_backbone(episode: Episode, cache: Path | None) -> tuple[SceneModel, 
     return model, stats.stages["backbone"]["seconds"]
 
 
+CONTINUED_LR = 1e-5  # a continued stage 1's: Adam's first steps move every parameter by about the lr
+
+
 def continued_backbone(
     model: SceneModel, obs: Observations, s: EpisodeSettings, iters: int, generator: torch.Generator
 ) -> dict[str, float]:
-    """``iters`` more stage-1 iterations of a trained backbone, run as its last iterations run: at the lr of
-    iteration ``train.backbone.iters`` and with the occupancy grid past its warm-up (a continued run counts its
-    iterations from 0). Returns the stage's summary (``nvf.training.TrainStats``)."""
-    lr = backbone_lr(s.train, s.train.backbone.iters)
-    train = dataclasses.replace(s.train, backbone=dataclasses.replace(s.train.backbone, iters=iters, lr=lr))
+    """``iters`` more stage-1 iterations of a trained backbone, for timing them: the work of its last iterations
+    (the same batches, renders, losses, Adam steps and occupancy-grid updates past its warm-up; a continued run
+    counts its iterations from 0) at a small learning rate (``CONTINUED_LR``), since a fresh optimiser's first
+    steps at the schedule's would move the trained model (a loss jump that the collapse rule stops). Returns the
+    stage's summary (``nvf.training.TrainStats``)."""
+    train = dataclasses.replace(s.train, backbone=dataclasses.replace(s.train.backbone, iters=iters, lr=CONTINUED_LR))
     grid = model.grid.cfg
     model.grid.cfg = dataclasses.replace(grid, warmup_iters=0)
     try:
