@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# scripts/device_check.sh [--dry] --out DIR: what one lent GPU can show in at most 8 minutes, as JSON files
+# scripts/device_check.sh [--dry] [--force] --out DIR: what one lent GPU can show in at most 8 minutes, as JSON files
 # in DIR (flat, at most 8): device.json (nvidia-smi and torch's device facts), cuda_tests.json (the `cuda`
 # tests: each kernel on CUDA against the CPU, and a smoke episode), paper_shape.json and paper_shape_room.json
 # (budget=paper at the paper's sizes with counts cut, `python -m pipeline.bench paper_shape`; Room only where
@@ -7,17 +7,22 @@
 # summary.json (each step's command, exit status and seconds, and the end of its output where it failed).
 # Every step has its own time limit, so the whole stays under 8 minutes; a step that fails or runs out of
 # time is recorded and the next one runs. Exit status: 0 when every step passed, 1 otherwise, 2 on bad input.
+# A folder that already holds reports (*.json) is refused unless --force (they are then replaced). Room is
+# measured where NVF_ASSETS is set; where its asset is a .blend and Blender's Python is missing, the step is
+# recorded as skipped with the reason (the .blend is read by Blender).
 # --dry runs the same steps on this machine's CPU at smoke sizes (budget=smoke, a few iterations; each limit
 # x 3), in a few minutes: the check CI keeps from rotting. Python: $NVF_PYTHON, else .venv/bin/python, else
 # python3.
 set -uo pipefail
 
-usage="usage: scripts/device_check.sh [--dry] --out DIR"
+usage="usage: scripts/device_check.sh [--dry] [--force] --out DIR"
 dry=0
+force=0
 out=""
 while [ $# -gt 0 ]; do
     case "$1" in
         --dry) dry=1 ;;
+        --force) force=1 ;;
         --out) out="${2:-}"; shift ;;
         -h | --help) sed -n '2,12p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
         *) echo "error: unknown argument '$1'; $usage" >&2; exit 2 ;;
@@ -33,6 +38,11 @@ if ! mkdir -p "$out" || [ ! -w "$out" ]; then
     exit 2
 fi
 out="$(cd "$out" && pwd)"
+held="$(find "$out" -maxdepth 1 -name '*.json' -printf '%f ' 2>/dev/null | sed 's/ $//')"
+if [ -n "$held" ] && [ "$force" -eq 0 ]; then
+    echo "error: --out $out already holds reports ($held); pass --force to replace them, or name an empty folder" >&2
+    exit 2
+fi
 cd "$(dirname "$0")/.." || exit 2
 python="${NVF_PYTHON:-.venv/bin/python}"
 [ -x "$python" ] || python="$(command -v python3)"
@@ -56,6 +66,12 @@ step() {
     [ "$rc" -eq 0 ] || { echo "device_check: $name failed (exit status $rc); its output ends:"; tail -n 5 "$logs/$name.log"; }
 }
 
+# skip NAME REASON: a step that cannot run here, recorded with its reason (not a failure).
+skip() {
+    echo "device_check: $1 skipped: $2"
+    printf '%s\t%s\t%s\t%s\t%s\n' "$1" "skipped" "0" "0" "$2" >> "$steps"
+}
+
 if [ "$dry" -eq 1 ]; then
     slack=3  # the CPU is slower than a GPU: each limit x 3, a few minutes in all
     sizes=(--budget smoke)
@@ -75,7 +91,10 @@ step cuda_tests 120 "$python" -m pytest -m cuda tests/test_cuda.py tests/test_ep
     --junitxml="$logs/cuda_tests.xml"
 step paper_shape 120 "$python" -m pipeline.bench paper_shape "${sizes[@]}" --scenes default render.backend=pyrender \
     --out "$out/paper_shape.json"
-if [ -n "${NVF_ASSETS:-}" ]; then
+blender="${NVF_BLENDER_PYTHON:-.venv-blender/bin/python}"
+if [ -n "${NVF_ASSETS:-}" ] && [ -f "$NVF_ASSETS/room/room.blend" ] && [ ! -x "$blender" ]; then
+    skip paper_shape_room "Room's asset is room.blend, which Blender reads, and Blender's Python ($blender) is missing: make blender"
+elif [ -n "${NVF_ASSETS:-}" ]; then
     step paper_shape_room 90 "$python" -m pipeline.bench paper_shape "${sizes[@]}" --scenes room \
         render.backend=pyrender --out "$out/paper_shape_room.json"
 fi
@@ -113,6 +132,9 @@ if junit.is_file():
 rows = []
 for line in (logs / "steps.tsv").read_text().splitlines():
     name, rc, start, end, command = line.split("\t", 4)
+    if rc == "skipped":
+        rows.append({"step": name, "exit_status": 0, "seconds": 0.0, "skipped": command})
+        continue
     row = {"step": name, "exit_status": int(rc), "seconds": round(float(end) - float(start), 2), "command": command}
     if int(rc) != 0:
         row["output_tail"] = (logs / f"{name}.log").read_text(errors="replace").splitlines()[-20:]
