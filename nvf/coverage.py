@@ -49,7 +49,9 @@ class FarthestViewScorer:
         self, model: nn.Module, observations: Observations, generators: GeneratorFactory, chunk_rays: int
     ) -> "FarthestViews":
         c2w = observations.c2w.to(torch.float64)
-        aabb = model.aabb.to(torch.float64)  # type: ignore[operator]  # a duck-typed nn.Module's buffer
+        box = model.aabb
+        assert isinstance(box, Tensor), "a SceneModel's aabb buffer"
+        aabb = box.to(torch.float64)
         return FarthestViews(c2w[:, :3, 3], -c2w[:, :3, 2], 0.5 * (aabb[0] + aabb[1]))
 
 

@@ -328,14 +328,14 @@ def test_speedups_pair_each_change_with_the_code_it_replaced(tmp_path):
         ["--budget", "smoke", "--views", "5", "--repeats", "2", "--out", str(out), f"paths.outputs={tmp_path}"]
     )
     pairs = json.loads(out.read_text())["pairs"]
-    assert set(pairs) == {"labels", "encoding", "backbone", "scoring", "stage_one"}
+    assert set(pairs) == {"labels", "encoding", "backbone", "scoring", "fisherrf", "stage_one"}
     checked = 0
     for pair in pairs.values():
         assert all(seconds > 0 for seconds in pair["seconds"].values())
         for found in (value for value in pair.values() if isinstance(value, dict) and "ratio" in value):
             assert found["equal"] is True and found["ratio"]["n"] == 2 and found["ratio"]["median"] > 0
             checked += 1
-    assert checked == 3 + 1 + 1 + 1 + 1
+    assert checked == 3 + 1 + 1 + 1 + 1 + 1
 
 
 @pytest.mark.slow

@@ -35,7 +35,7 @@ def composer():
 def test_every_group_has_its_options():
     assert len(_options("scene")) == 18 and "default" in _options("scene")
     assert _options("method") == sorted(
-        ["random", "wd", "activermap", "air", "activenerf", "neurar", "nvf", "fisherrf"]
+        ["random", "wd", "activermap", "air", "activenerf", "neurar", "nvf", "fisherrf", "fvs", "bayesrays"]
     )
     assert _options("ablation") == sorted(["none", "wo_vis", "wo_var", "ind_rays", "loose"])
     assert _options("planner") == ["argmax", "opt"]

@@ -65,6 +65,7 @@ def probe_fisher_diagonal(
     """(M31) ``(1/K) sum_k (J^T s_k)^2``: one forward per chunk of rays and one backward per probe."""
     probes = signs.shape[0]
     sums = [torch.zeros(sum(p.numel() for p in params), device=origins.device) for _ in range(probes)]
+    parts = [total.split([p.numel() for p in params]) for total in sums]  # each parameter's slice, a view
     for start in range(0, origins.shape[0], chunk_rays):
         rgb = _rendered_colour(model, origins[start : start + chunk_rays], dirs[start : start + chunk_rays])
         if not rgb.requires_grad:
@@ -77,7 +78,9 @@ def probe_fisher_diagonal(
                 retain_graph=k < probes - 1,
                 allow_unused=True,
             )
-            sums[k] += _flat(grads, params)
+            for part, grad in zip(parts[k], grads, strict=True):  # added in place: no flat copy of every gradient
+                if grad is not None:
+                    part.add_(grad.reshape(-1))
     return torch.stack([s.double().square() for s in sums]).mean(0)
 
 

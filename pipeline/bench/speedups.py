@@ -11,6 +11,8 @@
 - ``backbone``: ``--backbone-iters`` stage-1 iterations continued from the trained state, prefetch off and on.
 - ``scoring``: NVF's and w/o Vis.'s scores of ``--candidates`` candidates at 300 px, each with its own render
   against one render serving both (``score_poses_together``).
+- ``fisherrf``: FisherRF's probe diagonal (M31) of one candidate at 300 px, each chunk's gradients copied into a
+  flat vector before they were added against added in place.
 - ``stage_one``: NVF's and ActiveNeRF's stage 1 (``--stage-iters`` iterations) trained apart against once, NVF's
   continued from ActiveNeRF's backbone (``pipeline.episode.shared_training``).
 
@@ -29,11 +31,13 @@ from typing import Any
 
 import torch
 
+from nvf.cameras import pixel_rays, pose_to_matrix
 from nvf.device import resolve_device, synchronize
 from nvf.model import SceneModel
 from nvf.planning import score_poses, score_poses_together
 from nvf.seeding import seeded_generator
 from nvf.uncertainty import ViewScorer
+from nvf.uncertainty.fisher import _flat, colour_parameters, probe_fisher_diagonal, rademacher
 from nvf.visibility import visibility_labels
 from pipeline.bench._models import load
 from pipeline.bench._paired import ratio_spread
@@ -205,6 +209,43 @@ def scoring_pairs(cfg_overrides: list[str], model: SceneModel, episode: Episode,
     return report | {"candidates": int(poses.shape[0])}
 
 
+def flat_probe_diagonal(
+    model: SceneModel, params: list, origins: torch.Tensor, dirs: torch.Tensor, signs: torch.Tensor, chunk: int
+) -> torch.Tensor:
+    """M31 as ``probe_fisher_diagonal`` computed it before: each chunk's gradient of every parameter copied into
+    one flat vector (``_flat``) before it was added (the code the in-place accumulation replaced)."""
+    probes = signs.shape[0]
+    sums = [torch.zeros(sum(p.numel() for p in params), device=origins.device) for _ in range(probes)]
+    for start in range(0, origins.shape[0], chunk):
+        with torch.enable_grad():
+            rgb = model.render(
+                origins[start : start + chunk], dirs[start : start + chunk], heads=frozenset({"rgb"})
+            ).rgb
+        for k in range(probes):
+            grads = torch.autograd.grad(
+                rgb, params, signs[k, start : start + chunk].to(rgb), retain_graph=k < probes - 1, allow_unused=True
+            )
+            sums[k] += _flat(grads, params)
+    return torch.stack([total.double().square() for total in sums]).mean(0)
+
+
+def fisher_pairs(model: SceneModel, episode: Episode, repeats: int) -> dict:
+    s = episode.settings
+    pose = state_candidates(episode, model, 1)[0]
+    origins, dirs = pixel_rays(pose_to_matrix(pose), episode.plan_intrinsics)
+    params = colour_parameters(model)
+    signs = rademacher(2, origins.shape[0], seeded_generator(s.seed, 0, "bench_probes", episode.device))
+    chunk = s.planner.score_chunk_rays
+    report = paired(
+        {
+            "flat": lambda: flat_probe_diagonal(model, params, origins, dirs, signs, chunk),
+            "in_place": lambda: probe_fisher_diagonal(model, params, origins, dirs, signs, chunk),
+        },
+        repeats,
+    )
+    return report | {"rays": int(origins.shape[0]), "parameters": sum(p.numel() for p in params)}
+
+
 def stage_one_pairs(cfg_overrides: list[str], episode: Episode, iters: int, repeats: int) -> dict:
     cut = [*cfg_overrides, f"train.backbone.iters={iters}", "train.variance.iters=1", "train.visibility.iters=1"]
     episodes = {
@@ -243,6 +284,7 @@ def main(argv: list[str]) -> None:
         found["encoding"] = encoding_pairs(model, episode, args.repeats)
         found["backbone"] = backbone_pairs(model, episode, args.backbone_iters, args.repeats)
         found["scoring"] = scoring_pairs(overrides, model, episode, args.candidates, args.repeats)
+        found["fisherrf"] = fisher_pairs(model, episode, args.repeats)
         found["stage_one"] = stage_one_pairs(overrides, episode, args.stage_iters, args.repeats)
     finally:
         episode.close()
