@@ -5,17 +5,27 @@ The state is ``budget=paper`` on ``--scene`` after ``--views`` views (the initia
 committed NVF cpu episode of seed 100), its backbone trained at the paper's 5000 iterations (kept in ``--cache``,
 default ``${paths.outputs}/bench_states``, so a second run skips it). Each unit runs once unprofiled (its
 seconds, wall and process CPU) and once under ``torch.profiler`` (its operators' self CPU time, the top
-``TOP_OPS``): ``backbone`` (stage 1, ``BACKBONE_ITERS`` iterations continued as its last ones run, occupancy-grid
-updates included), ``variance`` (stage 2, ``VARIANCE_ITERS`` iterations), ``visibility`` (stage 3, one iteration:
-labels against every training camera and the head's step; the seconds of the labels' field queries apart),
-``score_<method>`` (one candidate at 300 px: NVF, w/o Vis., both in one render, ActiveNeRF's rendered variance,
-FisherRF; FisherRF's preparation once per state apart), ``evaluation`` (one 512-px view: render, PSNR, SSIM,
-LPIPS) and ``mesh_metrics`` (one step's 500k points, Acc., Comp., C.R.). ``encoding`` times the hash grid's
-forward and backward on the same samples at the paper's 2^19 table and the cpu budget's 2^15. Writes
-``${paths.results}/bench/paper_profile.json`` (or ``--out``); ``results/bench/paper_profile.md`` reads it.
+``TOP_OPS``):
+
+- ``backbone``: stage 1, ``BACKBONE_ITERS`` iterations continued as its last ones run, occupancy-grid updates
+  included; ``marched_per_ray``: the samples its skipping pass evaluates, beside the ``samples_per_ray`` it keeps;
+- ``grid_update``: one M5 update past the warm-up, which stage 1 runs every ``sampler.update_every`` iterations
+  (``probes``: the cells it evaluates);
+- ``variance``: stage 2, ``VARIANCE_ITERS`` iterations;
+- ``visibility``: stage 3, one iteration (labels against every training camera and the head's step; the
+  seconds and samples of the labels' field queries apart);
+- ``score_<method>``: one candidate at 300 px (NVF, w/o Vis., both in one render, ActiveNeRF's rendered
+  variance, FisherRF; FisherRF's preparation, once per state, apart);
+- ``evaluation``: one 512-px view (render, PSNR, SSIM, LPIPS); ``mesh_metrics``: one step's 500k points (Acc.,
+  Comp., C.R.).
+
+``encoding`` times the hash grid's forward and backward on the same samples at the paper's 2^19 table and the
+cpu budget's 2^15. Writes ``${paths.results}/bench/paper_profile.json`` (or ``--out``);
+``results/bench/paper_profile.md`` reads it.
 """
 
 import dataclasses
+import math
 import os
 import platform
 import time
@@ -90,6 +100,23 @@ def measured(work: Callable[[], Any], device: torch.device) -> tuple[Any, dict]:
     return result, {"seconds": seconds, "process_seconds": cpu, "profiled_seconds": total / 1e6, "top_ops": ops}
 
 
+class MarchCounter:
+    """Counts the samples the model's occupancy grid marches (before alpha skipping) until ``restore``."""
+
+    def __init__(self, model) -> None:
+        self.grid, self.own, self.samples = model.grid, model.grid.march, 0
+
+        def march(*args, **kwargs):
+            found = self.own(*args, **kwargs)
+            self.samples += found.num_samples
+            return found
+
+        self.grid.march = march
+
+    def restore(self) -> None:
+        self.grid.march = self.own
+
+
 class TimedDensity:
     """A density function that counts its samples and its seconds."""
 
@@ -146,8 +173,21 @@ def profile_state(cfg_overrides: list[str], episode: Episode, cache: Path | None
     model, train_seconds = trained_backbone(episode, cache)
     units: dict[str, dict] = {}
     generator = seeded_generator(s.seed, step, "profile", device)
+    marched = MarchCounter(model)
     stats, units["backbone"] = measured(lambda: continued_backbone(model, obs, s, BACKBONE_ITERS, generator), device)
-    units["backbone"] |= {"unit": "iteration", "count": BACKBONE_ITERS, "samples_per_ray": stats.get("samples_per_ray")}
+    marched.restore()
+    rays = 2 * BACKBONE_ITERS * s.train.backbone.batch  # measured() runs the work twice
+    units["backbone"] |= {
+        "unit": "iteration",
+        "count": BACKBONE_ITERS,
+        "samples_per_ray": stats.get("samples_per_ray"),
+        "marched_per_ray": marched.samples / rays,
+    }
+    every = s.sampler.update_every
+    update = every * math.ceil(s.sampler.warmup_iters / every)  # the first update past the warm-up (M5)
+    _, units["grid_update"] = measured(lambda: model.update_grid(update, generator), device)
+    cells = model.grid.resolution**3
+    units["grid_update"] |= {"unit": "update", "count": 1, "probes": 2 * (cells // 4), "every": s.sampler.update_every}
     variance = dataclasses.replace(s.train, variance=dataclasses.replace(s.train.variance, iters=VARIANCE_ITERS))
     _, units["variance"] = measured(lambda: train_variance_head(model, obs, variance, s.entropy, generator), device)
     units["variance"] |= {"unit": "iteration", "count": VARIANCE_ITERS}
