@@ -51,3 +51,22 @@ def test_an_outside_method_runs_and_reaches_the_tables(tmp_path):
     subprocess.run(tables, cwd=REPO, env=env, check=True, capture_output=True)
     for table in ("all_runs", "methods"):
         assert "| DepthSpread§ |" in (results / "tables" / f"{table}.md").read_text(), table
+
+
+def test_an_outside_method_with_a_bad_class_is_one_line_naming_its_yaml(tmp_path):
+    """A ``_target_`` that does not import is one ``error:`` line (no Hydra log before it) naming the yaml where
+    Hydra's search path found it, and no run starts (only Hydra's own log folder is made)."""
+    method = tmp_path / "conf" / "method"
+    method.mkdir(parents=True)
+    text = (EXAMPLE / "conf" / "method" / "depth_spread.yaml").read_text()
+    (method / "depth_spread.yaml").write_text(text.replace("depth_spread.DepthSpread", "depth_spread.Nope"))
+    env = os.environ | {"PYTHONPATH": str(EXAMPLE)}
+    argv = ["method=depth_spread", "budget=smoke", f"hydra.searchpath=[file://{tmp_path / 'conf'}]"]
+    argv.append(f"paths.outputs={tmp_path / 'out'}")
+    done = subprocess.run(
+        [sys.executable, "-m", "pipeline.run", *argv], capture_output=True, text=True, env=env, cwd=REPO
+    )
+    assert done.returncode == 2 and done.stdout == ""
+    assert done.stderr.startswith("error: method._target_: cannot import method class 'depth_spread.Nope'")
+    assert done.stderr.count("\n") == 1 and f"({method / 'depth_spread.yaml'})" in done.stderr
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [".hydra"]

@@ -4,6 +4,7 @@ its field's type) from the node's other keys; the method's run settings (``nvf.m
 NVF's ``entropy``) are then filled in from the run's config."""
 
 import dataclasses
+import logging
 from collections.abc import Mapping
 from typing import Any
 
@@ -22,6 +23,9 @@ def method_class(target: Any) -> type[Method]:
     """The ``Method`` subclass at import path ``target`` (``package.module.Class``)."""
     if not isinstance(target, str) or not target:
         raise MethodError("method._target_ is missing: name the method's class, e.g. nvf.methods.NVF")
+    quiet = logging.getLogger("hydra.utils")  # Hydra logs its own [ERROR] before raising: the error line says it
+    level = quiet.level
+    quiet.setLevel(logging.CRITICAL)
     try:
         cls = get_class(target)
     except Exception as err:  # Hydra wraps import and attribute errors alike
@@ -29,6 +33,8 @@ def method_class(target: Any) -> type[Method]:
         raise MethodError(
             f"method._target_: cannot import method class {target!r}: {' '.join(str(cause).split())}"
         ) from None
+    finally:
+        quiet.setLevel(level)
     if not isinstance(cls, type) or not issubclass(cls, Method):
         raise MethodError(f"method._target_={target!r} is not a subclass of nvf.methods.Method")
     return cls

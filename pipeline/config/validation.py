@@ -13,6 +13,7 @@ from typing import Any
 
 import torch
 from hydra import compose, initialize_config_dir
+from hydra.core.hydra_config import HydraConfig
 from hydra.errors import HydraException
 from omegaconf import DictConfig, OmegaConf
 
@@ -288,12 +289,25 @@ def run_settings_of(config: RunConfig) -> dict[str, object]:
     return {"nvf.entropy": config.nvf.entropy, "sampler.grid_resolution": config.sampler.grid_resolution}
 
 
+def method_yaml(name: object) -> str:
+    """Where the method ``name``'s yaml was found: on Hydra's search path of the running command (an outside
+    method's ``hydra.searchpath``) or the project's ``conf/method/<name>.yaml``."""
+    relative = Path("method") / f"{name}.yaml"
+    if HydraConfig.initialized():
+        for source in HydraConfig.get().runtime.config_sources:
+            folder = str(source.path).removeprefix("file://")
+            found = Path(folder) / relative if folder else None
+            if found is not None and found.is_file():
+                return f"conf/{relative}" if found.parent.parent.resolve() == CONF.resolve() else str(found)
+    return f"conf/{relative}"
+
+
 def _method(cfg: DictConfig, config: RunConfig) -> Method:
     """The method ``config.method`` declares, with ``config``'s run settings (``run_settings_of``)."""
     try:
         return build_method(config.method, run_settings_of(config))
     except MethodError as err:
-        raise ConfigError(f"{err} (conf/method/{cfg.method.get('name')}.yaml)") from None
+        raise ConfigError(f"{err} ({method_yaml(cfg.method.get('name'))})") from None
 
 
 def _check_render(cfg: DictConfig) -> None:
