@@ -237,6 +237,35 @@ def test_summary_pairs_decisions_and_episodes(tmp_path):
     assert math.isnan(duel_summary.tables(root, records)[0].iloc[0]["episode_diff"])  # one seed in common
 
 
+def test_the_summary_refuses_what_it_cannot_pair(tmp_path):
+    """A pair folder without its setting, a setting naming no contender, a wrong --records and a linked pair folder
+    are each one RecordError (never a blank column or a vanished pair); a text cell that a spreadsheet would read
+    as a formula is written as text."""
+    root, records = tmp_path / "duel", tmp_path / "runs"
+    for seed in (100, 101, 102):
+        write_episode(records, "nvf", seed, 21.0, 60.0)
+        write_episode(records, "wd", seed, 20.0, 30.0)
+    folder = root / "nvf_vs_wd"
+    folder.mkdir(parents=True)
+    (folder / "decisions.jsonl").write_text(json.dumps(decision(0, 0.2) | {"scene": "=HYPERLINK(1)"}) + "\n")
+    with pytest.raises(RecordError, match="setting.json: missing or incomplete"):
+        duel_summary.write_summaries(root, records)
+    contenders = {"nvf": {"method": "nvf", "ablation": "none"}}
+    setting = {"method": "nvf", "rival": "wd", "overrides": [], "budget": "smoke"}
+    (folder / "setting.json").write_text(json.dumps(setting | {"contenders": contenders}))
+    with pytest.raises(RecordError, match="names no contender 'wd'"):
+        duel_summary.write_summaries(root, records)
+    contenders["wd"] = {"method": "wd", "ablation": "none"}
+    (folder / "setting.json").write_text(json.dumps(setting | {"contenders": contenders}))
+    with pytest.raises(RecordError, match="--records .*: no run records there"):
+        duel_summary.write_summaries(root, tmp_path / "nowhere")
+    paths = duel_summary.write_summaries(root, records)
+    assert "'=HYPERLINK(1)" in paths[0].read_text() and "\n=HYPERLINK" not in paths[0].read_text()
+    (root / "linked").symlink_to(folder)
+    with pytest.raises(RecordError, match="a link"):
+        duel_summary.write_summaries(root, records)
+
+
 def test_one_step_outcome_of_a_pick():
     """``with_view`` adds the ground truth at a pose to the observations; ``heldout_psnr`` trains the plain
     backbone as the next step would (same seed: the same PSNR twice) and measures it on the evaluation views."""

@@ -22,6 +22,7 @@ whether their signs agree where both do. ``python -m pipeline.experiments.duel_s
 """
 
 import math
+import os
 import sys
 from pathlib import Path
 
@@ -34,6 +35,7 @@ from pipeline.experiments.decisions import DECISION
 from pipeline.records.checked import Each, Entries, Optional, Text, read_json, read_json_lines
 from pipeline.records.files import RecordError, make_directory
 from pipeline.records.store import atomic_write_text, record_status
+from pipeline.tables.escape import csv_cell
 from pipeline.tables.load import load_run
 from pipeline.tables.render import markdown_table
 from pipeline.tables.stats import Interval
@@ -117,8 +119,11 @@ def compare_episodes(records: Path, setting: dict, scenes: list[str]) -> tuple[I
 def pair_rows(folder: Path, records: Path) -> tuple[list[dict], list[dict]]:
     """One pair's ``summary.csv`` and ``details.csv`` rows: per scene, then over its scenes."""
     setting = read_json(folder / "setting.json", SETTING)
-    if setting is None or "budget" not in setting or "contenders" not in setting:
+    if setting is None or "budget" not in setting or "contenders" not in setting or "rival" not in setting:
         raise RecordError(f"{folder / 'setting.json'}: missing or incomplete; a duel writes its setting there")
+    absent = [setting[role] for role in ("method", "rival") if setting[role] not in setting["contenders"]]
+    if absent:
+        raise RecordError(f"{folder / 'setting.json'}: names no contender {absent[0]!r}; a duel writes both there")
     rows = read_rows(folder / "decisions.jsonl")
     scenes = list(dict.fromkeys(r["scene"] for r in rows))
     summary, details = [], []
@@ -151,14 +156,46 @@ def pair_rows(folder: Path, records: Path) -> tuple[list[dict], list[dict]]:
     return summary, details
 
 
+def pair_folders(root: Path) -> list[Path]:
+    """Every pair folder under ``root`` (a folder holding a duel's ``setting.json`` or ``decisions.jsonl``), none
+    read through a link: a linked one is a ``RecordError`` naming it."""
+    folders = []
+    for entry in sorted(root.iterdir()) if root.is_dir() else []:
+        holds = any(os.path.lexists(entry / name) for name in ("setting.json", "decisions.jsonl"))
+        if entry.is_symlink() and holds:
+            raise RecordError(f"{entry}: a link; a duel's pair folder is read only where it lies")
+        if entry.is_dir() and holds:
+            folders.append(entry)
+    return folders
+
+
+def check_records(records: Path) -> None:
+    """``RecordError`` unless ``records`` is a folder of run records (``--records`` named wrong would leave every
+    episode column empty)."""
+    if not Path(records).is_dir() or next(Path(records).glob("*/*/*/seed_*/steps.jsonl"), None) is None:
+        raise RecordError(
+            f"--records {records}: no run records there (<scene>/<group>/<budget>/seed_<n>/steps.jsonl); name the "
+            "folder that holds the episodes the duels are compared with"
+        )
+
+
 def tables(root: Path, records: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
     """``summary.csv``'s and ``details.csv``'s frames over every pair folder under ``root``."""
+    check_records(records)
     summary, details = [], []
-    for setting in sorted(root.glob("*/setting.json")):
-        found = pair_rows(setting.parent, records)
+    for folder in pair_folders(root):
+        found = pair_rows(folder, records)
         summary += found[0]
         details += found[1]
     return pd.DataFrame(summary, columns=list(COLUMNS)), pd.DataFrame(details, columns=list(DETAIL_COLUMNS))
+
+
+def as_csv(frame: pd.DataFrame) -> str:
+    """``frame`` as CSV, its text columns' cells escaped so that no spreadsheet reads one as a formula."""
+    escaped = frame.copy()
+    for name in ("method", "rival", "scene"):
+        escaped[name] = escaped[name].map(csv_cell)
+    return escaped.to_csv(index=False, float_format="%.4g")
 
 
 def separates(low: float, high: float) -> bool:
@@ -226,8 +263,8 @@ def write_summaries(root: Path, records: Path) -> list[Path]:
     """Write ``summary.csv``, ``details.csv`` and ``summary.md`` under ``root`` (atomically); their paths."""
     summary, details = tables(root, records)
     paths = [root / "summary.csv", root / "details.csv", root / "summary.md"]
-    atomic_write_text(paths[0], summary.to_csv(index=False, float_format="%.4g"))
-    atomic_write_text(paths[1], details.to_csv(index=False, float_format="%.4g"))
+    atomic_write_text(paths[0], as_csv(summary))
+    atomic_write_text(paths[1], as_csv(details))
     atomic_write_text(paths[2], summary_markdown(summary, details))
     return paths
 
