@@ -14,6 +14,7 @@ import pytest
 from test_tables import make_run
 
 import pipeline.tables.__main__ as tables_cli
+from pipeline.records.files import RecordError
 from pipeline.records.images import map_range, save_step_images
 from pipeline.scenes.loading import scene_config
 from pipeline.tables.build import build_tables
@@ -138,6 +139,17 @@ def test_the_duel_page_is_a_matrix_of_gains_marked_where_the_interval_excludes_z
     build_tables(tmp_path / "out", [], results, assets=tmp_path / "none")
     assert 'href="duel.html"' in (results / "site" / "index.html").read_text()
     assert "&lt;b&gt;x" in (results / "site" / "duel.html").read_text()
+    wide = summary.copy()
+    wide.loc[1, ["ci_low", "ci_high"]] = [-577.4, 600.0]  # two decisions' t-interval: wider than any gain
+    wide.to_csv(results / DUEL_SUMMARY, index=False)
+    build_tables(tmp_path / "out", [], results, assets=tmp_path / "none")
+    assert "-577.40" in (results / "site" / "duel.html").read_text()
+    before = {path: path.read_bytes() for path in (results / "site").rglob("*.html")}
+    wide.loc[1, "same_pick"] = 7.0  # a share above 1: the summary does not read back
+    wide.to_csv(results / DUEL_SUMMARY, index=False)
+    with pytest.raises(RecordError, match="same_pick"):
+        build_tables(tmp_path / "out", [], results, assets=tmp_path / "none")
+    assert {path: path.read_bytes() for path in (results / "site").rglob("*.html")} == before  # all or nothing
 
 
 def test_tables_read_your_runs_and_with_committed_the_committed_ones(tmp_path, capsys, monkeypatch):

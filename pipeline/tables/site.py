@@ -41,18 +41,21 @@ from pipeline.tables.stats import LEVEL, Interval
 PLOTLY_JS = "plotly.min.js"
 DUEL_SUMMARY = Path("pilots", "duel", "summary.csv")  # pipeline.experiments.duel_summary's table
 DB = Number(-100.0, 100.0, null=True)  # a PSNR difference, or none
+# A 95% Student-t bound over differences in [-100, 100] dB: at two values t = 12.7 times their spread, so up to
+# about +-1400 dB; the writer's intervals are read back as it wrote them.
+INTERVAL_DB = Number(-2000.0, 2000.0, null=True)
 DUEL_COLUMNS = {
     "method": Text(),
     "rival": Text(),
     "scene": Text(),
     "n": Number(0, 2**31, integer=True),
     "gain_mean": DB,
-    "ci_low": DB,
-    "ci_high": DB,
+    "ci_low": INTERVAL_DB,
+    "ci_high": INTERVAL_DB,
     "same_pick": Number(0.0, 1.0, null=True),
     "episode_diff": DB,
-    "episode_ci_low": DB,
-    "episode_ci_high": DB,
+    "episode_ci_low": INTERVAL_DB,
+    "episode_ci_high": INTERVAL_DB,
     "cpu_hours": Number(0.0, null=True),
 }  # the duel summary's columns as the site reads them back (pipeline.records.checked)
 
@@ -102,27 +105,27 @@ def scene_page_name(scene: str, budget: str) -> str:
 
 
 def write_site(runs: Runs, pictures: Mapping[str, RunPictures], results: Path) -> list[Path]:
-    """Write the site under ``results / "site"`` from the runs and each run's pictures (by run directory);
-    returns the files written."""
+    """Write the site under ``results / "site"`` from the runs and each run's pictures (by run directory); every
+    page is made before any is written, so a page that cannot be made (a summary that does not read back) leaves
+    the site as it was. Returns the files written."""
     site = Path(results) / "site"
     done = runs.final[runs.final["status"] == "done"]
-    written = [site / PLOTLY_JS]
-    atomic_write_text(written[0], get_plotlyjs())  # plotly.js, its MIT licence in its first lines
+    pages_text: dict[Path, str] = {site / PLOTLY_JS: get_plotlyjs()}  # plotly.js, its MIT licence in its first lines
     pages = {}
     for (budget, scene), frame in done.groupby(["budget", "scene"]):
         path = site / scene_page_name(scene, budget)
         pages[(budget, scene)] = path
-        atomic_write_text(path, scene_page(runs, frame, pictures, scene, budget, path))
-        written.append(path)
-    duels, duel = read_csv(Path(results) / DUEL_SUMMARY, DUEL_COLUMNS), site / "duel.html"
+        pages_text[path] = scene_page(runs, frame, pictures, scene, budget, path)
+    duels = read_csv(Path(results) / DUEL_SUMMARY, DUEL_COLUMNS)
     if duels is not None:
-        atomic_write_text(duel, duel_page(duels))
-        written.append(duel)
+        pages_text[site / "duel.html"] = duel_page(duels)
     index = site / "index.html"
-    atomic_write_text(index, index_page(runs, done, pages, index, duels is not None))
+    pages_text[index] = index_page(runs, done, pages, index, duels is not None)
     pilots = site / "pilots.html"
-    atomic_write_text(pilots, pilots_page(Path(results) / "pilots", pilots))
-    return [*written, index, pilots]
+    pages_text[pilots] = pilots_page(Path(results) / "pilots", pilots)
+    for path, text in pages_text.items():
+        atomic_write_text(path, text)
+    return list(pages_text)
 
 
 def _page(title: str, body: str, home: str = "", plotly: bool = False) -> str:
