@@ -392,3 +392,17 @@ def test_plain_containers_resolve_on_request_and_refuse_the_other_kind():
         as_list(node["nested"])
     with pytest.raises(TypeError, match="mapping"):
         as_dict(node["items"])
+
+
+def test_the_candidate_draw_counts_every_drawn_pose(composer):
+    """``planner.num_candidates=10**9`` asked for 16 bytes a candidate and passed on a 24 GiB machine while its draw
+    needed 33.6 GB: the estimate counts the poses drawn (1.2 N, 3 N collision-free) and what each holds at the
+    draw's peak (its pose, the draw's intermediates, the density filter's encoding), and refuses it."""
+    from pipeline.config.memory import CANDIDATE_FLOATS, drawn_poses
+
+    run = typed_run(composer("planner.num_candidates=1000000000"))
+    assert drawn_poses(run) == 1_200_000_000
+    found = {a.key: a.nbytes for a in allocations(run)}["planner.num_candidates"]
+    assert found == CANDIDATE_FLOATS * 4 * 1_200_000_000 > 33.6e9
+    assert too_large(run, 24.0 * 2**30, 24.0 * 2**30, "24 GiB").startswith("planner.num_candidates=1000000000: ")
+    assert drawn_poses(typed_run(composer("scene=room", "planner.num_candidates=10"))) == 30

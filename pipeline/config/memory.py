@@ -100,8 +100,10 @@ def allocations(run: Run) -> list[Allocation]:
         ),
         Allocation(
             "planner.num_candidates",
-            4 * FLOAT32 * int(p.num_candidates),
-            "the candidate orientations drawn (float32 quaternions, at least planner.num_candidates)",
+            CANDIDATE_FLOATS * FLOAT32 * drawn_poses(run),
+            "the candidate draw (3 x planner.num_candidates poses for the collision-free sampler, else "
+            "planner.oversample x): per "
+            "pose its 7 float32s, the draw's intermediates and the density filter's hash encoding (M28)",
             on_device=True,
         ),
         Allocation(
@@ -217,6 +219,15 @@ def host_memory() -> float:
     return float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
 
 
+def drawn_poses(run: Run) -> int:
+    """The poses the planner draws for ``planner.num_candidates`` (METHOD 13): 3 N for the collision-free
+    sampler, else ``floor(planner.oversample N)``."""
+    p = run.planner
+    collision_free = p.collision_free if p.collision_free is not None else run.scene.collision_free
+    n = int(p.num_candidates)
+    return 3 * n if collision_free else math.floor(float(p.oversample) * n)
+
+
 def too_large(run: Run, host_bytes: float, device_bytes: float, device_name: str) -> str | None:
     """One line for the allocation that does not fit its memory by the largest factor (one that a single key
     sizes first, so the line names the key to lower), or None when all fit."""
@@ -256,6 +267,9 @@ POSE_SAMPLE_BYTES = 350.0  # -OPT: autograd through every head to the pose
 DENSITY_SAMPLE_BYTES = 55.0  # density alone without autograd (point clouds)
 LABEL_SAMPLE_BYTES = 600.0  # one M17 label position: its density without autograd (cpp encoding, the MLP in blocks)
 VIS_POINT_BYTES = 2048.0  # stage 3: the visibility MLPs' autograd per point
+# float32s a drawn candidate pose holds at the draw's peak: the pose (7), the draw's intermediates (positions,
+# quaternions, their norms: 11) and the density filter's hash encoding of its centre (32), M28
+CANDIDATE_FLOATS = 7 + 11 + 32
 LABEL_CHUNK = 1 << 18  # nvf.visibility.segment_transmittance's positions per chunk
 RENDER_CHUNK = 4096  # rays per call of an evaluation render (pipeline.episode.evaluation.RENDER_CHUNK)
 GT_POINT_BYTES = 4 * 24.0  # float64 xyz of a mesh sample, with the KD-tree and distances over it
