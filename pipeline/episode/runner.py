@@ -131,7 +131,7 @@ def run_episode(run: Run) -> Outcome:
 
 def _run_locked(run: Run, directory: Path, threads: int) -> Outcome:
     record = RunRecord(directory)
-    previous, _ = verified(record)
+    previous, rows = verified(record)
     status = record.status()
     settings = run_settings(run)
     changed = record.difference(settings) if previous else None
@@ -146,6 +146,12 @@ def _run_locked(run: Run, directory: Path, threads: int) -> Outcome:
         return Outcome(directory, "skipped")
     if status == "failed":
         raise StepFailed(f"run {directory} failed: {record.failure()} (delete it to run it again)")
+    started = previous.get("torch_threads")
+    if rows and isinstance(started, int) and started != threads:
+        raise RunRefused(
+            f"run {directory} was started with {started} torch threads and this process has {threads}; a record's "
+            f"numbers depend on the thread count: resume it with OMP_NUM_THREADS={started}, or delete it"
+        )
     print(f"run {directory}: building the scene and its ground truth (the step bar follows)", flush=True)
     torch.set_num_threads(threads)
     torch.manual_seed(int(run.seed))
