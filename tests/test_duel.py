@@ -348,3 +348,16 @@ def test_duel_on_smoke_records_resumes_after_a_kill(smoke_records, tmp_path, cap
     (folder / "decisions.jsonl").write_text("".join(lines[:3] + lines[:1]))
     with pytest.raises(RecordError, match="repeats the row"):
         duel.main(argv)
+
+
+def test_states_can_come_from_records_of_another_budget(tmp_path):
+    """``--state-budget cpu``: the committed cpu episodes' states (here step 2 of seed 100 on the default scene,
+    NVF's record), trained and scored at the run's budget (smoke here, the paper's in use); the setting says so."""
+    argv = ["method=nvf", "rival=wd", "budget=smoke", "--state-budget", "cpu", "--scenes", "default"]
+    duel.main([*argv, "--seeds", "100", "--steps", "2", "--sets", "1", f"paths.results={tmp_path}"])
+    folder = tmp_path / "pilots" / "duel" / "nvf_vs_wd"
+    rows = read(folder)
+    assert [(r["step"], r["set"], r["source"], r["candidates"]) for r in rows] == [(2, 0, "nvf", 8)]
+    assert json.loads((folder / "setting.json").read_text())["state_budget"] == "cpu"
+    with pytest.raises(SystemExit):
+        duel.main([*argv[:-4], "--state-budget", "bogus", f"paths.results={tmp_path / 'other'}"])

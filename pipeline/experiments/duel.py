@@ -11,7 +11,8 @@ the default).
 States: for scene ``s``, seed ``n`` and the ``i``-th listed step ``k``, the observations before step ``k`` (the
 initial views and the poses selected at steps ``0..k-1``) of A's record if ``(i + n)`` is even, else of B's, so
 each step comes from both trajectories over the seeds. Records: ``<records>/<scene>/<method>-argmax-<ablation>/
-<budget>/seed_<n>``, verified.
+<budget>/seed_<n>``, verified, of the run's budget or of ``--state-budget`` (``budget=paper --state-budget cpu``:
+the committed cpu episodes' states, trained and scored at the paper's counts; the setting says so).
 
 At a state each contender's model is trained as its own episode's step ``k`` trains it (contenders whose
 training is identical share one). ``--sets`` candidate sets are drawn (set 0: the state's own planner draw at
@@ -48,6 +49,7 @@ import torch
 from nvf.device import resolve_device
 from nvf.training import Observations
 from pipeline.cli import ArgumentParser, fail, help_page, run_command
+from pipeline.config.catalog import declared
 from pipeline.config.validation import compose_run
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
@@ -356,6 +358,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--steps", type=step_list, default=STEPS, help="the recorded steps whose states are used")
     parser.add_argument("--sets", type=int, default=2, help="candidate sets per state (set 0: the planner's own)")
     parser.add_argument("--records", type=Path, default=Path("results/runs"), help="where the records are")
+    parser.add_argument(
+        "--state-budget", default=None, help="the budget of the records the states come from (default: the run's)"
+    )
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     args = parser.parse_intermixed_args(argv)
     method, rivals, overrides = split_arguments(args.overrides)
@@ -382,8 +387,13 @@ def main(argv: list[str] | None = None) -> None:
     torch.set_num_threads(args.threads)
     root = Path(cfg.paths.results) / "pilots" / DUEL
     kept = setting_overrides(overrides)
+    state_budget = cfg.budget.name if args.state_budget is None else args.state_budget
+    if state_budget not in declared("budget"):
+        fail(f"--state-budget {state_budget!r}: not one of conf/budget ({', '.join(declared('budget'))})")
     setting = {"method": method.name, "overrides": kept, "budget": cfg.budget.name}
-    planned = Call([], overrides, seeds, steps, args.sets, args.records, args.threads, Outcomes([]), cfg.budget.name)
+    if state_budget != cfg.budget.name:
+        setting["state_budget"] = state_budget  # the states' records are of another budget
+    planned = Call([], overrides, seeds, steps, args.sets, args.records, args.threads, Outcomes([]), state_budget)
     for scene, seed, rival in itertools.product(scenes, seeds, rivals):  # every record a state needs, before writing
         for i, _ in enumerate(steps):
             recorded_rows(planned, scene, Pair.owner_of(method, rival, i, seed), seed)

@@ -48,6 +48,7 @@ SETTING = {
     "overrides": Each(Text()),
     "budget": Optional(Text()),
     "contenders": Optional(Entries(CONTENDER)),
+    "state_budget": Optional(Text()),
 }  # a pair's setting.json (the rival and contenders once written for the pair)
 ALL = "all"
 MIN_SEEDS = 3  # episodes compared only with this many paired seeds per scene
