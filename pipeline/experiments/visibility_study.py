@@ -3,9 +3,9 @@
 change help? Paired one-step measurements on the states of recorded NVF episodes.
 
 For each scene, seed and sampled step ``k`` of the committed NVF record (``<records>/<scene>/nvf-argmax-none/
-<budget>/seed_<seed>``), the state is the record's observations before step ``k`` (the initial views and the
-poses selected at steps ``0..k-1``). At that state, under the setting's overrides (say
-``nvf.entropy.logdet_coeff=1.0``):
+<budget>/seed_<seed>``, of the run's budget or of ``--state-budget``), the state is the record's observations
+before step ``k`` (the initial views and the poses selected at steps ``0..k-1``). At that state, under the
+setting's overrides (say ``nvf.entropy.logdet_coeff=1.0``):
 
 1. a model is trained as the episode's step ``k`` trains it (same seed, the method's stages);
 2. ``--sets`` candidate sets are drawn (set 0 is the planner's own draw at step ``k``, the others come from
@@ -35,6 +35,7 @@ have, every step one the records hold, and the folder's files must read back
 
 import dataclasses
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -50,6 +51,7 @@ from nvf.training import Observations
 from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
 from pipeline.bench.visibility import visibility_report
 from pipeline.cli import ArgumentParser, description, fail, run_command
+from pipeline.config.catalog import declared
 from pipeline.config.typed import Run
 from pipeline.config.validation import compose_run
 from pipeline.episode.loop import Episode
@@ -69,6 +71,7 @@ from pipeline.tables.load import load_run
 
 SCENES = ("hotdog", "hubble", "default")
 STEPS = (0, 3, 6, 9, 12, 15, 18)
+MAX_SETS = 64
 
 
 def recorded_rows(records: Path, scene: str, seed: int, budget: str, steps: list[int]) -> list[dict]:
@@ -156,9 +159,10 @@ def study_scene(
     sets: int,
     records: Path,
     decisions: JsonLines,
+    state_budget: str,
 ) -> None:
     """Every missing (seed, step) state of one scene (``run``: the scene's config with the setting's
-    ``overrides``)."""
+    ``overrides``; ``state_budget``: the budget of the records the states come from)."""
     scene_name = run.scene.name
     scene = load_scene(run.scene, Path(run.paths.assets), blender_python(run.paths.blender_python))
     lpips = LpipsMetric()
@@ -166,7 +170,7 @@ def study_scene(
         todo = [k for k in steps if not done(decisions, scene_name, seed, k)]
         if not todo:
             continue
-        rows = recorded_rows(records, scene_name, seed, run.budget.name, steps)
+        rows = recorded_rows(records, scene_name, seed, state_budget, steps)
         seeded = compose_run([f"scene={scene_name}", f"seed={seed}", *overrides])
         episode = Episode(EpisodeSettings.of(seeded, scene), scene, resolve_device(seeded.device), lpips)
         try:
@@ -220,7 +224,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--steps", type=step_list, default=STEPS, help="the recorded steps whose states are studied")
     parser.add_argument("--sets", type=int, default=3, help="candidate sets per state (0: the planner's own)")
     parser.add_argument("--records", type=Path, default=Path("results/runs"), help="where the NVF records are")
-    parser.add_argument("--threads", type=int, default=1, help="torch threads")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (1 to the machine's cores)")
+    parser.add_argument(
+        "--state-budget", default=None, help="the budget of the records the states come from (default: the run's)"
+    )
     args = parser.parse_intermixed_args(sys.argv[1:] if argv is None else argv)
     try:
         check_key("--setting", args.setting, "option")
@@ -228,14 +235,20 @@ def main(argv: list[str] | None = None) -> None:
     except ValueError as err:
         parser.error(str(err))
     steps = list(args.steps)
-    if args.sets < 1 or args.threads < 1:
-        parser.error("--sets and --threads must be >= 1")
+    cores = len(os.sched_getaffinity(0))
+    if not 1 <= args.sets <= MAX_SETS:
+        fail(f"--sets {args.sets}: must be 1..{MAX_SETS}")
+    if not 1 <= args.threads <= cores:
+        fail(f"--threads {args.threads}: must be 1..{cores} (this machine's cores)")
     torch.set_num_threads(args.threads)
     cfg = compose_run(args.overrides)
+    state_budget = cfg.budget.name if args.state_budget is None else args.state_budget
+    if state_budget not in declared("budget"):
+        fail(f"--state-budget {state_budget!r}: not one of conf/budget ({', '.join(declared('budget'))})")
     scenes = list(args.scenes)
     for scene in scenes:  # a bad scene, seed or step is one line now, not after the diagnostics' minutes
         for seed in seeds:
-            recorded_rows(args.records, scene, seed, cfg.budget.name, steps)
+            recorded_rows(args.records, scene, seed, state_budget, steps)
     results = Path(cfg.paths.results)
     out = make_directory(results, results / "pilots" / STUDY / args.setting)
     made = read_json(out / "setting.json", SETTING)
@@ -257,7 +270,7 @@ def main(argv: list[str] | None = None) -> None:
         "logdet_coeff": entropy.logdet_coeff,
         "label_margin": train.label_margin,
         "budget": cfg.budget.name,
-    }
+    } | ({"state_budget": state_budget} if state_budget != cfg.budget.name else {})
     if made is None:
         atomic_write_text(out / "setting.json", json.dumps(setting, indent=2) + "\n")
     for scene in scenes:
@@ -269,7 +282,7 @@ def main(argv: list[str] | None = None) -> None:
             )
             atomic_write_text(out / f"{scene}_diagnostic.json", json.dumps(report, indent=2) + "\n")
         try:
-            study_scene(scene_cfg, args.overrides, seeds, steps, args.sets, args.records, decisions)
+            study_scene(scene_cfg, args.overrides, seeds, steps, args.sets, args.records, decisions, state_budget)
         except SceneError as err:
             fail(str(err))
     write_summary(Path(cfg.paths.results) / "pilots" / STUDY)

@@ -75,6 +75,7 @@ SETTING = {
     "overrides": Optional(Each(Text())),
     "visibility_source": Optional(Text()),
     "budget": Optional(Text()),
+    "state_budget": Optional(Text()),
 }
 COUNT = Number(0, 2**31, integer=True)
 DECISION = {
