@@ -220,7 +220,7 @@ def measure_state(
         found = {}
         for who in ("nvf", name):
             pose = candidates[picks[who]]
-            key = tuple(round(float(v), 7) for v in pose.tolist())
+            key = (k, *(round(float(v), 7) for v in pose.tolist()))  # a pick's outcome at this state
             if key not in call.known:
                 call.known[key] = heldout_psnr(episode, with_view(obs, episode, pose), k + 1)
             found[who] = call.known[key]
@@ -247,7 +247,7 @@ class Call:
     vis_points: int
     threads: int
     states: JsonLines
-    known: dict = dataclasses.field(default_factory=dict)  # outcomes of this process by pose
+    known: dict = dataclasses.field(default_factory=dict)  # outcomes of this process by step and pose
 
 
 def run_scene(call: Call, scene_name: str, seeds: list[int], steps: list[int], budgets: list[str]) -> None:
