@@ -327,7 +327,7 @@ def test_a_dead_worker_is_one_line(lit):
 @needs_blender
 @pytest.mark.slow
 def test_a_smoke_episode_on_blender_ground_truth_records_it(tmp_path):
-    """render.backend=blender end to end: the run is done and its record names the backend, samples and asset
+    """Render.backend=blender end to end: the run is done and its record names the backend, samples and asset
     file; the ground truth in its images is Cycles' (lit), not pyrender's."""
     assets = tmp_path / "assets"
     build_blend(assets)
@@ -392,8 +392,8 @@ def _gone(pid_file: Path) -> bool:
     return False
 
 
-def test_case_7_a_worker_that_never_answers_is_stopped_after_the_timeout(tmp_path):
-    """Issue 30, case 7: a Blender worker that never answered hung the run forever. Each request now waits at
+def test_a_worker_that_never_answers_is_stopped_after_the_timeout(tmp_path):
+    """A Blender worker that never answered hung the run forever. Each request now waits at
     most ``timeout`` seconds; then the worker is killed and the request fails with one line."""
     silent, silent_pid = _fake_worker(tmp_path, "silent")
     start = time.monotonic()
@@ -411,8 +411,8 @@ def test_case_7_a_worker_that_never_answers_is_stopped_after_the_timeout(tmp_pat
     renderer.close()
 
 
-def test_case_7_a_run_whose_worker_hangs_fails_in_one_line_leaving_no_lock_or_process(tmp_path):
-    """Issue 30, case 7, end to end: ``python -m pipeline.run`` with a worker that stops answering exits 1 with
+def test_a_run_whose_worker_hangs_fails_in_one_line_leaving_no_lock_or_process(tmp_path):
+    """End to end: ``python -m pipeline.run`` with a worker that stops answering exits 1 with
     one ``error:`` line naming the timeout; the worker is gone, the run's lock free, the run left to resume."""
     hangs, pid_file = _fake_worker(tmp_path, "hangs_on_render")
     out = tmp_path / "out"

@@ -92,10 +92,8 @@ CORRUPT = [
 
 
 @pytest.mark.parametrize(("case", "damage", "problem"), CORRUPT, ids=[c[0] for c in CORRUPT])
-def test_issue_39_case_10_a_corrupt_summary_is_one_line_and_nothing_is_written(
-    tmp_path, command, case, damage, problem
-):
-    """Issue 39, case 10: the budget curve on a corrupt summary.csv gave a traceback. Now the file is read back
+def test_a_corrupt_summary_is_one_line_and_nothing_is_written(tmp_path, command, case, damage, problem):
+    """The budget curve on a corrupt summary.csv gave a traceback. Now the file is read back
     checked: one line naming the file, the row and the column, exit 2, no curve written."""
     write_summary(tmp_path, "cpu", WIN, 5.0)
     write_summary(tmp_path, "smoke", WIN, 1.0)

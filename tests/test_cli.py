@@ -50,8 +50,8 @@ def _command(*args: str) -> tuple[int, list[str]]:
     ],
     ids=["outputs_in_proc", "unset_environment_variable", "self_reference", "tables_unclosed_interpolation"],
 )
-def test_issue_39_case_6_a_path_that_cannot_be_used_or_resolved_is_one_line(args, needle):
-    """Issue 39, case 6: ``paths.outputs=/proc/x``, ``${oc.env:UNSET}``, a self-referencing interpolation and a tables
+def test_a_path_that_cannot_be_used_or_resolved_is_one_line(args, needle):
+    """``paths.outputs=/proc/x``, ``${oc.env:UNSET}``, a self-referencing interpolation and a tables
     ``paths.results=${`` were tracebacks (exit 1). Now each is one ``error:`` line naming the key, exit 2."""
     status, err = _command(*args)
     assert status == BAD_INPUT and len(err) == 1 and err[0].startswith(needle), err

@@ -246,8 +246,8 @@ def test_every_positive_size_key_has_an_allocation_or_a_reason_it_has_none():
 
 
 @pytest.mark.parametrize(("key", "value", "overrides"), SCALED, ids=[key for key, _, _ in SCALED])
-def test_case_6_every_size_key_beyond_memory_is_refused_naming_it(composer, key, value, overrides):
-    """Issue 30, case 6: ``train.label_samples=1000000000`` allocated ~8.9 GB and died with an allocator traceback
+def test_every_size_key_beyond_memory_is_refused_naming_it(composer, key, value, overrides):
+    """``train.label_samples=1000000000`` allocated ~8.9 GB and died with an allocator traceback
     after 26 s; ``budget.horizon=1000000000`` ran until killed. Every size key now has its allocation in the
     estimate (here against 1 GiB), so a value far beyond memory is refused before the run, naming the key."""
     cfg = composer(*overrides, f"{key}={value}")

@@ -178,8 +178,8 @@ def test_against_plain_pairs_each_entry_the_setting_acts_on_with_the_plain_budge
 
 
 @pytest.mark.parametrize("label", ["../../../../escaped", "/tmp/nvf-bench-escaped", "a/b", ".."])
-def test_issue_39_case_3_a_label_is_a_plain_name(tmp_path, monkeypatch, capsys, label):
-    """Issue 39, case 3: a ``--label`` climbing out of its folder (four ``..``) or an absolute path wrote the
+def test_a_label_is_a_plain_name(tmp_path, monkeypatch, capsys, label):
+    """A ``--label`` climbing out of its folder (four ``..``) or an absolute path wrote the
     experiment's csv and md files outside ``paths.results``. A label is checked as a run key is: one line, status 2,
     nothing written."""
     monkeypatch.setattr(discriminate, "per_seed", lambda *args: runs_frame())

@@ -167,8 +167,8 @@ def test_a_second_writer_of_a_run_is_one_line_and_exit_2(tmp_path):
     assert (directory / "run.json").read_text() == "{}"
 
 
-def test_case_5_a_bad_seed_is_one_line_alone_and_inside_a_sweep(tmp_path):
-    """Issue 30, case 5: ``seed=-1`` was a ValueError traceback from records/store.py (also inside sweeps), and
+def test_a_bad_seed_is_one_line_alone_and_inside_a_sweep(tmp_path):
+    """``seed=-1`` was a ValueError traceback from records/store.py (also inside sweeps), and
     ``seed=99999999999999999999`` an overflow in torch. Alone: one ``error:`` line, exit 2; in a sweep, each job
     fails with that line as its reason, no traceback."""
     proc = _cli(tmp_path, "seed=-1")
@@ -202,8 +202,8 @@ def test_a_malformed_record_is_refused_before_any_work(tmp_path):
     ],
     ids=["zero_quaternion", "translation_1e308"],
 )
-def test_issue_39_case_11_resuming_a_row_with_an_impossible_pose_is_one_line(tmp_path, pose, problem):
-    """Issue 39, case 11: resuming an unfinished record whose step row held a zero quaternion or a 1e308 translation
+def test_resuming_a_row_with_an_impossible_pose_is_one_line(tmp_path, pose, problem):
+    """Resuming an unfinished record whose step row held a zero quaternion or a 1e308 translation
     was a traceback. Now the record is refused before any work, naming the file, the step and the pose."""
     cfg = _cfg(tmp_path, "method=random", "budget.horizon=2")
     directory = tmp_path / "default" / "random-argmax-none" / "smoke" / "seed_100"
@@ -215,8 +215,8 @@ def test_issue_39_case_11_resuming_a_row_with_an_impossible_pose_is_one_line(tmp
     assert sorted(p.name for p in directory.iterdir()) == ["run.json", "steps.jsonl"]
 
 
-def test_issue_39_case_13_a_finished_run_skipped_without_its_pictures_draws_them(tmp_path):
-    """Issue 39, case 13: a run killed right after its DONE marker was skipped on the next run, which printed the
+def test_a_finished_run_skipped_without_its_pictures_draws_them(tmp_path):
+    """A run killed right after its DONE marker was skipped on the next run, which printed the
     paths of grid.png, psnr.png, trajectory.png and summary.md, never drawn. Now the skipped run draws what it lacks
     (the code a finishing run draws them with) and prints only files that are there."""
     cfg = _cfg(tmp_path, "method=random", "budget.horizon=2")

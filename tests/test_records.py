@@ -293,8 +293,8 @@ def _take_and_release(root: Path, seconds: float, results) -> None:
     results.put((held, refused, overlaps, errors))
 
 
-def test_case_8_six_processes_racing_for_one_lock_never_fail_nor_overlap(tmp_path):
-    """Issue 30, case 8: six processes taking and releasing RunLock on one run folder raised FileExistsError
+def test_six_processes_racing_for_one_lock_never_fail_nor_overlap(tmp_path):
+    """Six processes taking and releasing RunLock on one run folder raised FileExistsError
     from mkdir (a releaser removed the folder between another's mkdir and its check). Now nothing is ever
     removed: every attempt either holds the lock alone or is refused with RunLocked."""
     context = multiprocessing.get_context("fork")
@@ -310,8 +310,8 @@ def test_case_8_six_processes_racing_for_one_lock_never_fail_nor_overlap(tmp_pat
     assert sum(outcome[0] for outcome in outcomes) > 0 and sum(outcome[1] for outcome in outcomes) > 0
 
 
-def test_case_1_a_symlinked_lock_file_is_refused_never_followed(tmp_path):
-    """Issue 30, case 1: with the lock file a symbolic link to another file, pipeline.run exited 0 and the
+def test_a_symlinked_lock_file_is_refused_never_followed(tmp_path):
+    """With the lock file a symbolic link to another file, pipeline.run exited 0 and the
     target's contents were replaced by the holder's line. Now the lock is opened with O_NOFOLLOW: one line."""
     victim = tmp_path / "precious.txt"
     victim.write_text("precious\n")
@@ -327,8 +327,8 @@ def test_case_1_a_symlinked_lock_file_is_refused_never_followed(tmp_path):
     assert victim.read_text() == "precious\n" and not (out / "inside.txt").exists()
 
 
-def test_issue_39_case_1_a_hard_linked_lock_file_is_refused_never_truncated(tmp_path):
-    """Issue 39, case 1: a lock file hard-linked to a file outside paths.outputs was opened and truncated (O_NOFOLLOW
+def test_a_hard_linked_lock_file_is_refused_never_truncated(tmp_path):
+    """A lock file hard-linked to a file outside paths.outputs was opened and truncated (O_NOFOLLOW
     stops symbolic links, not hard links): the file under its other name was emptied. Now it is one line."""
     victim = tmp_path / "precious.txt"
     victim.write_text("precious\n")
@@ -342,8 +342,8 @@ def test_issue_39_case_1_a_hard_linked_lock_file_is_refused_never_truncated(tmp_
     assert victim.read_text() == "precious\n"
 
 
-def test_case_1_a_run_path_through_a_symlink_leaving_its_root_is_refused(tmp_path):
-    """Issue 30, case 1: directory links were followed too. A component of the run directory, or an entry in
+def test_a_run_path_through_a_symlink_leaving_its_root_is_refused(tmp_path):
+    """Directory links were followed too. A component of the run directory, or an entry in
     it (its images/), that links outside paths.outputs is refused naming it; a link inside the root is fine."""
     out, elsewhere = tmp_path / "out", tmp_path / "elsewhere"
     elsewhere.mkdir()
@@ -369,8 +369,8 @@ def test_case_1_a_run_path_through_a_symlink_leaving_its_root_is_refused(tmp_pat
     assert not list(elsewhere.iterdir())
 
 
-def test_case_5_a_lock_that_is_a_directory_or_a_run_path_taken_by_a_file_is_one_line(tmp_path):
-    """Issue 30, case 5: a lock file that is a directory, and a run directory path taken by a plain file,
+def test_a_lock_that_is_a_directory_or_a_run_path_taken_by_a_file_is_one_line(tmp_path):
+    """A lock file that is a directory, and a run directory path taken by a plain file,
     were tracebacks (IsADirectoryError, NotADirectoryError). Now each is one RecordError line."""
     out, directory = tmp_path / "out", tmp_path / "out" / "default" / "nvf-argmax-none" / "smoke" / "seed_100"
     lock = RunLock(directory, out).path
@@ -634,8 +634,8 @@ def test_records_finished_before_the_record_digest_are_checked_against_their_row
         verified(record)
 
 
-def test_issue_39_case_12_a_record_from_a_version_that_takes_a_digest_must_have_one(tmp_path):
-    """Issue 39, case 12: a record whose ``record_digest`` was deleted and a metric edited was accepted as a legacy
+def test_a_record_from_a_version_that_takes_a_digest_must_have_one(tmp_path):
+    """A record whose ``record_digest`` was deleted and a metric edited was accepted as a legacy
     record. Which versions take a digest is read from the record itself: every one writes ``candidate_filters`` into
     run.json and none before did, so such a record without a digest is refused; an older one is still read."""
     record = RunRecord(run_dir(tmp_path, "lego_proxy", "nvf", "argmax", "none", "smoke", 100))

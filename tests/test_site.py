@@ -117,7 +117,7 @@ def test_the_site_links_every_picture_and_needs_no_network(tmp_path):
 
 
 def test_the_duel_page_is_a_matrix_of_gains_marked_where_the_interval_excludes_zero(tmp_path):
-    """duel.html from pilots/duel/summary.csv: a matrix per scene, a gain whose interval excludes zero in bold, one
+    """Duel.html from pilots/duel/summary.csv: a matrix per scene, a gain whose interval excludes zero in bold, one
     that spans zero not, names escaped; the overview links it only when the table exists."""
     from pipeline.tables.site import DUEL_SUMMARY, duel_page
 
@@ -216,8 +216,8 @@ def test_every_entry_point_has_a_plain_help_page(name, capsys):
     assert f"python -m pipeline.{name}" in page and "``" not in page and len(page.splitlines()) >= 5
 
 
-def test_issue_39_case_4_a_pilot_note_is_text_and_a_linked_note_is_not_read(tmp_path):
-    """Issue 39, case 4: a pilot README with raw HTML (``<img src=x onerror=...>``) went into pilots.html live (its
+def test_a_pilot_note_is_text_and_a_linked_note_is_not_read(tmp_path):
+    """A pilot README with raw HTML (``<img src=x onerror=...>``) went into pilots.html live (its
     script ran in headless Chromium), and a README that is a symbolic link to a system file was rendered too. Now
     raw HTML is shown as text, links go only to http(s), mailto and the files beside the note, and a linked note is
     one line saying it is not shown."""

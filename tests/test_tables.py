@@ -242,7 +242,7 @@ def test_the_same_run_with_other_settings_is_left_out_and_listed(tmp_path):
 
 
 def test_two_finished_copies_with_different_rows_are_both_named_and_neither_tabulated(tmp_path):
-    """Case 2 of issue 30: a copy of a finished run under another folder with its final PSNR set to 99 and its
+    """A copy of a finished run under another folder with its final PSNR set to 99 and its
     digest recomputed replaced the real run without a word. Now both are named in one line and neither counts
     until one is removed; then the other counts."""
     real = make_run(tmp_path / "out", seed=100, final={"psnr": 20.0})
@@ -488,11 +488,11 @@ def test_a_method_the_paper_lacks_is_marked_and_compared_with_nvf(tmp_path):
     assert "§" not in read(tables / "table1_opt.md")
 
 
-# ----------------------------------------------------------------------------- hostile records (issue 30)
+# ----------------------------------------------------------------------------- hostile records
 
 
-def test_case_1_a_results_folder_linked_outside_is_refused_before_anything_is_written(tmp_path, capsys):
-    """Issue 30, case 1: a ``tables/`` link under paths.results made pipeline.tables write 23 files outside it.
+def test_a_results_folder_linked_outside_is_refused_before_anything_is_written(tmp_path, capsys):
+    """A ``tables/`` link under paths.results made pipeline.tables write 23 files outside it.
     Now a link out of paths.results is one ``error:`` line, exit 2, and nothing is written anywhere."""
     make_run(tmp_path / "out", seed=100)
     results, elsewhere = tmp_path / "res", tmp_path / "elsewhere"
@@ -511,7 +511,7 @@ def test_case_1_a_results_folder_linked_outside_is_refused_before_anything_is_wr
         (results / linked).unlink()
 
 
-def test_case_1_records_behind_a_link_leaving_their_root_are_skipped(tmp_path):
+def test_records_behind_a_link_leaving_their_root_are_skipped(tmp_path):
     """A run folder reached through a link out of paths.outputs is one skip line, never read."""
     make_run(tmp_path / "elsewhere", scene="room", seed=100)
     make_run(tmp_path / "out", seed=100)
@@ -560,8 +560,8 @@ CRAFTED = [
 
 
 @pytest.mark.parametrize(("case", "info", "row", "problem"), CRAFTED, ids=[c[0] for c in CRAFTED])
-def test_case_3_one_crafted_record_is_one_skip_line_and_the_tables_go_on(tmp_path, capsys, case, info, row, problem):
-    """Issue 30, case 3: one crafted record stopped pipeline.tables (exit 1, a traceback: OverflowError,
+def test_one_crafted_record_is_one_skip_line_and_the_tables_go_on(tmp_path, capsys, case, info, row, problem):
+    """One crafted record stopped pipeline.tables (exit 1, a traceback: OverflowError,
     RecursionError, File name too long after runs.csv was written). Now it is one skip line, the other
     records are tabulated, and the command exits 0."""
     make_run(tmp_path / "out", seed=101, final={"psnr": 21.0})
@@ -580,7 +580,7 @@ def test_case_3_one_crafted_record_is_one_skip_line_and_the_tables_go_on(tmp_pat
     assert "| 21.00 " in read(tmp_path / "res" / "tables" / "all_runs.md")
 
 
-def test_case_3_long_names_are_shortened_before_any_file_is_written(tmp_path):
+def test_long_names_are_shortened_before_any_file_is_written(tmp_path):
     """Names of the longest allowed length (64 characters each) still give figure names a file system takes
     (at most 200 characters, cut with a hash), decided before runs.csv is written."""
     names = {"scene": "s" * 64, "method": "m" * 64, "planner": "p" * 64, "ablation": "a" * 64}
@@ -598,8 +598,8 @@ def test_case_3_long_names_are_shortened_before_any_file_is_written(tmp_path):
     assert all(len(p.name) <= 200 for p in written)
 
 
-def test_case_4_record_text_is_escaped_in_markdown_latex_and_csv(tmp_path):
-    """Issue 30, case 4: a config value ``a|b\\n| injected | row |\\n\\input{...}`` put a live ``\\input`` line in
+def test_record_text_is_escaped_in_markdown_latex_and_csv(tmp_path):
+    """A config value ``a|b\\n| injected | row |\\n\\input{...}`` put a live ``\\input`` line in
     all_runs.tex and an extra row in the .md tables. A value with line breaks is refused (one skip line); one
     without is escaped: no extra cell, row or line, no live LaTeX command."""
     named = NamedConfigs(CONF).named(("hubble", "nvf", "argmax", "none", "smoke"))
@@ -627,8 +627,8 @@ def test_case_4_record_text_is_escaped_in_markdown_latex_and_csv(tmp_path):
 
 
 @pytest.mark.parametrize("psnr", [-1e308, 1e308])
-def test_issue_39_case_2_a_metric_outside_its_range_is_one_skip_line_and_the_site_is_written(tmp_path, capsys, psnr):
-    """Issue 39, case 2: a record whose PSNR is -1e308 (finite, its digest recomputed) stopped pipeline.tables in
+def test_a_metric_outside_its_range_is_one_skip_line_and_the_site_is_written(tmp_path, capsys, psnr):
+    """A record whose PSNR is -1e308 (finite, its digest recomputed) stopped pipeline.tables in
     the figures (``arange: cannot compute length``), so no site was written; +1e308 showed as ``inf ± inf``. Now
     the record is skipped in one line naming the file and the metric, and the others are tabulated."""
     make_run(tmp_path / "out", seed=101, final={"psnr": 21.0})
@@ -645,8 +645,8 @@ def test_issue_39_case_2_a_metric_outside_its_range_is_one_skip_line_and_the_sit
     assert "| 21.00 " in tables and "inf" not in tables
 
 
-def test_issue_39_case_5_labels_render_as_text_in_every_table(tmp_path):
-    """Issue 39, case 5: labels holding Markdown (``**99.99 ± 0.01**``, a link to a ``javascript:`` address) stayed
+def test_labels_render_as_text_in_every_table(tmp_path):
+    """Labels holding Markdown (``**99.99 ± 0.01**``, a link to a ``javascript:`` address) stayed
     live in the .md tables, the site's table turned ``**...**`` into ``<strong>`` (the "significant best" mark), and
     runs.csv wrote a cell starting with ``=`` (a spreadsheet formula) as it was. Now each renders as text."""
     import html
@@ -667,8 +667,8 @@ def test_issue_39_case_5_labels_render_as_text_in_every_table(tmp_path):
     assert crafted.is_done() and not (cells.map(lambda cell: cell.startswith(("=", "@", "+"))).any().any())
 
 
-def test_case_9_every_tables_error_line_starts_with_error(tmp_path, capsys):
-    """Issue 30, case 9: pipeline.tables' errors began ``pipeline.tables: error:``, unlike every other command."""
+def test_every_tables_error_line_starts_with_error(tmp_path, capsys):
+    """Pipeline.tables' errors began ``pipeline.tables: error:``, unlike every other command."""
     a_file = tmp_path / "file"
     a_file.write_text("x")
     for args in (["paths.foo=1"], [f"paths.results={a_file}"]):

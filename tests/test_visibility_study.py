@@ -116,7 +116,7 @@ def write_finished_run(root: Path, method: str, ablation: str, seed: int, vis_ar
 
 
 def test_surface_table_pairs_nvf_with_wo_vis_over_seeds_at_every_step(tmp_path):
-    """surface.csv: per step the mean uncovered surface of NVF, w/o Vis. and Random, and NVF minus w/o Vis.
+    """Surface.csv: per step the mean uncovered surface of NVF, w/o Vis. and Random, and NVF minus w/o Vis.
     paired by seed (the seeds where both have a record)."""
     for seed, lead in ((100, 0.15), (101, 0.2), (102, 0.25)):
         write_finished_run(tmp_path, "nvf", "none", seed, [0.2, 0.3, 0.4 + lead])
@@ -193,7 +193,7 @@ def test_study_on_a_smoke_record(tmp_path):
     assert (folder / "decisions.jsonl").read_text() == before  # finished states are not measured again
 
 
-# ----------------------------------------------------------------------------- hostile input (issue 39)
+# ----------------------------------------------------------------------------- hostile input
 
 DIAGNOSTIC = {"sources": {"head": {"auc_mean": 0.7}, "labels": {"auc_mean": 0.8}}}
 SUMMARY_DAMAGE = [
@@ -213,10 +213,8 @@ SUMMARY_DAMAGE = [
 
 
 @pytest.mark.parametrize(("case", "name", "damage", "line"), SUMMARY_DAMAGE, ids=[d[0] for d in SUMMARY_DAMAGE])
-def test_issue_39_case_7_a_damaged_study_file_is_one_line_and_nothing_is_written(
-    tmp_path, command, case, name, damage, line
-):
-    """Issue 39, case 7: the visibility summary on a type-corrupt decisions.jsonl, a broken setting.json or a
+def test_a_damaged_study_file_is_one_line_and_nothing_is_written(tmp_path, command, case, name, damage, line):
+    """The visibility summary on a type-corrupt decisions.jsonl, a broken setting.json or a
     bad diagnostic gave a traceback in every variant. Now each is one ``error:`` line naming the file, the line and
     the key, exit 2, and no summary is written; a last line cut by a kill is left out (a study may be writing)."""
     study = tmp_path / "results" / "pilots" / "visibility_study"
@@ -259,8 +257,8 @@ def _study_folder(tmp_path: Path, overrides: list[str]) -> tuple[list[str], Path
     return [*argv, "--seeds", "100", "--steps", "1", "--records", str(tmp_path / "runs")], folder
 
 
-def test_issue_39_case_7_a_study_refuses_a_bad_seed_and_a_bad_line_before_any_work(tmp_path, command):
-    """Issue 39, case 7: the visibility study gave a traceback on a bad middle line of decisions.jsonl, and on
+def test_a_study_refuses_a_bad_seed_and_a_bad_line_before_any_work(tmp_path, command):
+    """The visibility study gave a traceback on a bad middle line of decisions.jsonl, and on
     ``--seeds -5`` after computing for minutes. Both are one line and exit 2 before any work."""
     argv, folder = _study_folder(tmp_path, ["budget=smoke"])
     status, err = command("pipeline.experiments.visibility_study", [*argv, "--seeds", "-5"])
@@ -274,8 +272,8 @@ def test_issue_39_case_7_a_study_refuses_a_bad_seed_and_a_bad_line_before_any_wo
     assert {path.name: path.read_bytes() for path in folder.iterdir()} == before
 
 
-def test_issue_39_case_8_a_study_folder_takes_one_set_of_overrides_and_steps_the_record_holds(tmp_path, command):
-    """Issue 39, case 8: ``--setting s1`` run twice with other overrides appended rows of both settings to one folder
+def test_a_study_folder_takes_one_set_of_overrides_and_steps_the_record_holds(tmp_path, command):
+    """``--setting s1`` run twice with other overrides appended rows of both settings to one folder
     and rewrote setting.json; ``--steps 50`` on a 3-step record wrote a "step 50" row. Both are refused in one line."""
     argv, folder = _study_folder(tmp_path, ["budget=smoke"])
     before = {path.name: path.read_bytes() for path in folder.iterdir()}
@@ -287,8 +285,8 @@ def test_issue_39_case_8_a_study_folder_takes_one_set_of_overrides_and_steps_the
     assert status == 2 and len(err) == 1 and "--steps 50: the record" in err[0] and "holds steps 0 to 2" in err[0]
 
 
-def test_issue_39_case_9_a_decisions_file_linked_elsewhere_is_neither_read_nor_appended_to(tmp_path, command):
-    """Issue 39, case 9: a decisions.jsonl that is a symbolic link to a file outside the study was read and appended
+def test_a_decisions_file_linked_elsewhere_is_neither_read_nor_appended_to(tmp_path, command):
+    """A decisions.jsonl that is a symbolic link to a file outside the study was read and appended
     to. Now it is one line, exit 2, and the file it points to is unchanged."""
     argv, folder = _study_folder(tmp_path, ["budget=smoke"])
     outside = tmp_path / "elsewhere.jsonl"
