@@ -179,6 +179,7 @@ class TrainConfig:
     label_samples: int = 200  # M17: samples on each camera-to-point segment
     label_max_depth: float = 10.0
     label_margin: float = 0.0  # M17 deviation: the camera-to-point segment stops this far (scene units) short of x
+    label_cutoff: float = 0.0  # M17 early stop: a segment stops once its transmittance is below this (0: never)
     warm_start: bool = False  # deviation: reuse the previous step's weights instead of retraining
     precision: Precision = Precision.fp32
 

@@ -3,6 +3,7 @@
 Labels are computed under ``no_grad`` with the **current** stage-1 density (METHOD.md 9.1, 15.8).
 """
 
+import math
 from collections.abc import Callable
 
 import torch
@@ -15,6 +16,7 @@ from nvf.config import TrainConfig
 from nvf.occupancy import OccupancyGrid
 
 SATURATION = 0.01  # M18: a point whose running product is <= this skips the remaining cameras
+STOP_BLOCK = 32  # M17's early stop (``cutoff``): bins evaluated per segment between two transmittance checks
 
 DensityFn = Callable[[Tensor], Tensor]  # positions [S,3] -> density sigma [S] (0 outside the AABB)
 
@@ -59,12 +61,14 @@ def _samples_in_box(
     num_samples: int,
     box: Float[Tensor, "2 3"],
     grid: OccupancyGrid | None,
+    first: Int[Tensor, " C"],
+    count: Int[Tensor, " C"],
 ) -> tuple[Int[Tensor, " S"], Float[Tensor, "S 3"]]:
-    """The chunk's samples inside ``box`` and, with ``grid``, in its occupied cells, row-major: each one's flat
-    bin index ``row * B + k`` and position. On the CPU with ``grid`` the C++ kernel (``nvf.kernels.labels``)
-    finds them, elsewhere torch; both compute the same float32 operations, so the samples are bitwise the same."""
+    """The samples of bins ``first .. first + count - 1`` of each segment that lie inside ``box`` and, with
+    ``grid``, in its occupied cells, row-major: each one's flat bin index ``row * B + k`` and position. On the CPU
+    with ``grid`` the C++ kernel (``nvf.kernels.labels``) finds them, elsewhere torch; both compute the same
+    float32 operations, so the samples are bitwise the same."""
     n_bins = offsets.shape[1]
-    first, count = _bin_range(origin, seg, num_samples, box)
     kernel = kernels.labels() if grid is not None and seg.device.type == "cpu" and seg.dtype == torch.float32 else None
     if kernel is not None and grid is not None:
         flat, pos = kernel.occupied_bins(
@@ -97,6 +101,7 @@ def segment_transmittance(
     margin: float = 0.0,
     clip: bool = True,
     grid: OccupancyGrid | None = None,
+    cutoff: float = 0.0,
 ) -> Float[Tensor, " P"]:
     """(M17) ``T(x) = exp(-sum_{k<K} sigma(y_k) delta)`` from ``origin`` to each point.
 
@@ -111,6 +116,12 @@ def segment_transmittance(
     cells reach ``density_fn``; those are the samples in the same order that ``density_fn`` evaluates
     either way, so the result is bitwise the same as with ``clip=False``, which places every sample (the
     reference, for benchmarks and tests). At most ``chunk_samples`` samples per chunk of points.
+
+    ``cutoff`` above 0 (with ``aabb`` and ``clip``; M17's early stop, ``train.label_cutoff``): a segment's bins
+    are evaluated from the camera outwards, ``STOP_BLOCK`` at a time, and a segment whose transmittance so far
+    is below ``cutoff`` evaluates no more; its result is that transmittance, which is at least the exact one
+    and below ``cutoff``, so each ``T`` is off by less than ``cutoff`` (and by rounding: the sums are taken
+    in another order).
     """
     if num_samples < 1:
         raise ValueError(f"label_samples must be >= 1, got {num_samples}")
@@ -131,8 +142,15 @@ def segment_transmittance(
             offsets = torch.rand(stop - start, n_bins, generator=generator, device=generator.device)
             offsets = offsets.to(device=points.device, dtype=points.dtype)
         part = seg[start:stop]
+        delta = torch.linalg.norm(part, dim=-1) / num_samples
+        if aabb is not None and clip and cutoff > 0:
+            optical[start:stop] = _stopped_optical_depth(
+                density_fn, origin, part, offsets, num_samples, aabb, grid, delta, cutoff
+            )
+            continue
         if aabb is not None and clip:
-            flat, pos = _samples_in_box(origin, part, offsets, num_samples, aabb, grid)
+            first, count = _bin_range(origin, part, num_samples, aabb)
+            flat, pos = _samples_in_box(origin, part, offsets, num_samples, aabb, grid, first, count)
             sigma = torch.zeros(offsets.shape, dtype=points.dtype, device=points.device)
             if flat.numel():
                 sigma.view(-1)[flat] = density_fn(pos).to(sigma.dtype)
@@ -147,9 +165,40 @@ def segment_transmittance(
                 inside = ((pos >= aabb[0]) & (pos <= aabb[1])).all(-1)
                 if inside.any():
                     sigma[inside] = density_fn(pos[inside]).to(sigma.dtype)
-        delta = torch.linalg.norm(part, dim=-1) / num_samples
         optical[start:stop] = sigma.sum(-1) * delta
     return torch.exp(-optical)
+
+
+def _stopped_optical_depth(
+    density_fn: DensityFn,
+    origin: Float[Tensor, "3"],
+    seg: Float[Tensor, "C 3"],
+    offsets: Float[Tensor, "C B"],
+    num_samples: int,
+    box: Float[Tensor, "2 3"],
+    grid: OccupancyGrid | None,
+    delta: Float[Tensor, " C"],
+    cutoff: float,
+) -> Float[Tensor, " C"]:
+    """M17's optical depth ``sum_k sigma(y_k) delta`` of each segment with the early stop of
+    ``segment_transmittance``: the in-box bins ``STOP_BLOCK`` at a time from the camera outwards, a segment
+    dropped once its optical depth reaches ``-ln(cutoff)``."""
+    first, count = _bin_range(origin, seg, num_samples, box)
+    limit = -math.log(cutoff)
+    optical = torch.zeros(seg.shape[0], dtype=seg.dtype, device=seg.device)
+    rows = (count > 0).nonzero().squeeze(1)
+    done = 0
+    while rows.numel():
+        block_count = (count[rows] - done).clamp(max=STOP_BLOCK)
+        flat, pos = _samples_in_box(
+            origin, seg[rows], offsets[rows], num_samples, box, grid, first[rows] + done, block_count
+        )
+        if flat.numel():
+            sigma = density_fn(pos).to(seg.dtype)
+            optical.index_add_(0, rows[flat // offsets.shape[1]], sigma * delta[rows[flat // offsets.shape[1]]])
+        done += STOP_BLOCK
+        rows = rows[(count[rows] > done) & (optical[rows] < limit)]
+    return optical
 
 
 @torch.no_grad()
@@ -170,9 +219,11 @@ def visibility_labels(
     ``F(x)``: the cameras whose frustum (``cfg.label_max_depth``) contains ``x``; points outside
     every frustum get 0. Cameras are processed in order and a point whose running product is
     ``<= 0.01`` skips the rest, so labels saturate near 0.99. ``T_j`` is (M17) with
-    ``cfg.label_samples`` samples, stopping ``cfg.label_margin`` short of the point (see
-    ``segment_transmittance`` for ``generator``, ``aabb``, ``chunk_samples``, ``clip`` and ``grid``); density
-    is evaluated only for in-frustum, not yet saturated pairs.
+    ``cfg.label_samples`` samples, stopping ``cfg.label_margin`` short of the point, and with ``aabb`` and ``clip``
+    a segment stops once its transmittance is below ``cfg.label_cutoff`` (see ``segment_transmittance`` for
+    ``generator``, ``aabb``, ``chunk_samples``, ``clip``, ``grid`` and the cutoff; each label is then off by less
+    than the cutoff times the number of cameras); density is evaluated only for in-frustum, not yet saturated
+    pairs.
     """
     prod = torch.ones(points.shape[0], dtype=points.dtype, device=points.device)
     for j in range(c2w.shape[0]):
@@ -191,6 +242,7 @@ def visibility_labels(
             cfg.label_margin,
             clip,
             grid,
+            cfg.label_cutoff if aabb is not None and clip else 0.0,
         )
         prod[idx] = prod[idx] * (1.0 - trans)
     return 1.0 - prod

@@ -322,7 +322,8 @@ def test_device_facts_name_the_device_auto_picks(tmp_path):
 def test_speedups_pair_each_change_with_the_code_it_replaced(tmp_path):
     """``speedups`` at the smoke budget: every pair ran with positive seconds and a ratio spread, and every
     speed-up's result is bitwise the replaced code's (labels M17-M18, the encoding, stage 1, scoring, the shared
-    stage 1)."""
+    stage 1), but the labels' early stop, which stays within the paper-size tolerance (mean absolute difference
+    <= 0.005, none above 0.05). ``--only`` runs the named pairs alone; an unknown name is one line."""
     out = tmp_path / "speedups.json"
     speedups.main(
         ["--budget", "smoke", "--views", "5", "--repeats", "2", "--out", str(out), f"paths.outputs={tmp_path}"]
@@ -332,10 +333,24 @@ def test_speedups_pair_each_change_with_the_code_it_replaced(tmp_path):
     checked = 0
     for pair in pairs.values():
         assert all(seconds > 0 for seconds in pair["seconds"].values())
-        for found in (value for value in pair.values() if isinstance(value, dict) and "ratio" in value):
-            assert found["equal"] is True and found["ratio"]["n"] == 2 and found["ratio"]["median"] > 0
+        for name, found in pair.items():
+            if not (isinstance(found, dict) and "ratio" in found):
+                continue
+            assert found["ratio"]["n"] == 2 and found["ratio"]["median"] > 0
+            if name == "cutoff":
+                tolerance = found["tolerance"]
+                assert tolerance["mean_abs"] <= 0.005 and tolerance["max_abs"] <= 0.05
+            else:
+                assert found["equal"] is True
             checked += 1
-    assert checked == 3 + 1 + 1 + 1 + 1 + 1
+    assert checked == 4 + 1 + 1 + 1 + 1 + 1
+    only = tmp_path / "labels.json"
+    argv = ["--budget", "smoke", "--views", "5", "--repeats", "1", f"paths.outputs={tmp_path}"]
+    speedups.main([*argv, "--out", str(only), "--only", "labels"])
+    assert set(json.loads(only.read_text())["pairs"]) == {"labels"}
+    with pytest.raises(SystemExit) as exit_info:
+        speedups.main([*argv, "--out", str(only), "--only", "nosuch"])
+    assert exit_info.value.code == 2
 
 
 @pytest.mark.slow

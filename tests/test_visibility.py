@@ -217,3 +217,52 @@ def test_clipped_bins_evaluate_the_reference_samples_bitwise(jitter):
     for want, got in zip(seen[False], seen[True], strict=True):
         assert torch.equal(want, got)
     assert (out[True] < 1).any() and (out[True] == 1).any()  # some segments cross the box, some miss it
+
+
+def _occluders(x: torch.Tensor) -> torch.Tensor:
+    """Two opaque slabs and a thin fog: segments that die early, late, or never."""
+    slab = ((x[:, 1] > -0.2) & (x[:, 1] < 0.0)) | ((x[:, 0] > 0.3) & (x[:, 0] < 0.5))
+    return torch.where(slab, 60.0, 0.05)
+
+
+@pytest.mark.parametrize("jitter", [False, True])
+def test_early_stop_keeps_each_transmittance_within_the_cutoff(jitter):
+    """(M17, early stop) With ``cutoff`` a segment stops once its transmittance falls below it: each ``T`` is at
+    least the exact one (less optical depth is summed) and off by less than the cutoff (plus float rounding), and
+    the density is asked for fewer samples. ``cutoff=0`` is the exact path, bitwise."""
+    origin = torch.tensor([0.1, -3.0, 0.2])
+    points = torch.rand(900, 3, generator=torch.Generator().manual_seed(8)) * 2 - 1
+    asked: dict[float, int] = {}
+    out = {}
+    for cutoff in (0.0, 1e-3):
+
+        def density(x: torch.Tensor, cutoff: float = cutoff) -> torch.Tensor:
+            asked[cutoff] = asked.get(cutoff, 0) + x.shape[0]
+            return _occluders(x)
+
+        gen = torch.Generator().manual_seed(9) if jitter else None
+        out[cutoff] = segment_transmittance(density, origin, points, 200, gen, AABB, 5000, cutoff=cutoff)
+    exact, stopped = out[0.0], out[1e-3]
+    assert ((stopped - exact).abs() < 1e-3 + 1e-6).all() and (stopped >= exact - 1e-6).all()
+    assert (exact < 1e-3).sum() > 100 and (exact > 0.5).sum() > 100  # both kinds of segment are there
+    assert asked[1e-3] < 0.8 * asked[0.0]
+    gen = torch.Generator().manual_seed(9) if jitter else None
+    assert torch.equal(exact, segment_transmittance(_occluders, origin, points, 200, gen, AABB, 5000))
+
+
+def test_early_stop_labels_stay_within_the_stated_tolerance():
+    """(M17, M18) Labels with ``train.label_cutoff=1e-3`` against the exact labels on the same samples: mean
+    absolute difference <= 0.005 and none off by more than 0.05 (the tolerance of the paper-size speed-up), over
+    six cameras around the occluders."""
+    cams = [torch.tensor(p) for p in ([0.1, -3.0, 0.2], [3.0, 0.2, 0.1], [-2.0, 2.0, 1.0], [0.0, 0.5, 3.0])]
+    cams += [torch.tensor([-3.0, -0.5, 0.3]), torch.tensor([0.4, 3.0, -0.6])]
+    c2w = torch.stack([look_at(p, torch.zeros(3)) for p in cams])
+    points = torch.rand(3000, 3, generator=torch.Generator().manual_seed(10)) * 2 - 1
+    intr = Intrinsics.from_fov(64, 64, 90.0)
+    labels = {}
+    for cutoff in (0.0, 1e-3):
+        cfg = TrainConfig(label_samples=200, label_cutoff=cutoff)
+        labels[cutoff] = visibility_labels(_occluders, points, c2w, intr, cfg, torch.Generator().manual_seed(1), AABB)
+    diff = (labels[1e-3] - labels[0.0]).abs()
+    assert diff.mean() <= 0.005 and diff.max() <= 0.05
+    assert 0.1 < (labels[0.0] > 0.5).float().mean() < 0.9

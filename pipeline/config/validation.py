@@ -235,6 +235,10 @@ def validate(cfg: DictConfig) -> Run:
         )
     if cfg.train.label_margin < 0:
         raise ConfigError(f"train.label_margin={cfg.train.label_margin} must be >= 0 (scene units; 0 = METHOD's M17)")
+    if not 0.0 <= cfg.train.label_cutoff < 1.0:
+        raise ConfigError(
+            f"train.label_cutoff={cfg.train.label_cutoff} must be in [0, 1) (a transmittance; 0 = every sample of M17)"
+        )
     if not 0.0 < cfg.planner.opt.ray_fraction <= 1.0:
         raise ConfigError(f"planner.opt.ray_fraction={cfg.planner.opt.ray_fraction} must be in (0, 1]")
     if cfg.planner.oversample < 1.0:

@@ -36,6 +36,7 @@ LEGACY_DEFAULTS: dict[str, Any] = {
     "render.backend": "pyrender",  # flat colours, budget.gt_samples^2 rays per pixel
     "render.samples": None,  # Cycles' samples per pixel: no Cycles then
     "train.label_margin": 0.0,  # M17's segment ran all the way to the point
+    "train.label_cutoff": 0.0,  # M17's segment evaluated every sample, however dark it was
     "nvf.entropy.visibility_source": "head",  # v from the visibility head
 }
 DEFINED_BY_NAME = ("method", "ablation", "scene")  # groups whose keys other than name describe the named option
@@ -138,7 +139,13 @@ def with_legacy_defaults(recorded: Any, other: Any) -> Any:
     return filled
 
 
-VISIBILITY_HEAD_KEYS = ("train.visibility", "train.label_samples", "train.label_max_depth", "train.label_margin")
+VISIBILITY_HEAD_KEYS = (
+    "train.visibility",
+    "train.label_samples",
+    "train.label_max_depth",
+    "train.label_margin",
+    "train.label_cutoff",
+)
 VARIANCE_HEAD_KEYS = ("train.variance", "train.var_loss_background")
 
 
