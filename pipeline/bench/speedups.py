@@ -19,9 +19,10 @@
 - ``stage_one``: NVF's and ActiveNeRF's stage 1 (``--stage-iters`` iterations) trained apart against once, NVF's
   continued from ActiveNeRF's backbone (``pipeline.episode.shared_training``).
 
-``--only NAME ..`` runs the named pairs alone. Each pair runs ``--repeats`` times, the two alternating; a ratio is the replaced code's seconds over today's
-(above 1: faster), given as median, min and max over the repeats, with ``equal``: whether both gave bitwise the
-same result (the equivalence the tests check). Writes ``${paths.results}/bench/speedups.json`` (or ``--out``).
+``--only NAME ..`` runs the named pairs alone. Each pair runs ``--repeats`` times, the two alternating; a ratio
+is the replaced code's seconds over today's (above 1: faster), given as median, min and max over the repeats,
+with ``equal``: whether both gave bitwise the same result (the equivalence the tests check). Writes
+``${paths.results}/bench/speedups.json`` (or ``--out``).
 """
 
 import copy
