@@ -19,7 +19,7 @@ from pipeline.episode.runner import run_episode
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.experiments import decisions, duel, duel_summary
 from pipeline.metrics.image import LpipsMetric
-from pipeline.records.checked import Number, Text
+from pipeline.records.checked_files import Number, Text
 from pipeline.records.files import RecordError
 from pipeline.records.lock import RunLock
 from pipeline.records.store import RunRecord, run_dir

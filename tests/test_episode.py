@@ -16,7 +16,7 @@ import torch
 from hydra import compose, initialize_config_dir
 
 from pipeline.config.schema import register_configs
-from pipeline.config.typed import Run
+from pipeline.config.typed_run import Run
 from pipeline.config.validation import validate
 from pipeline.episode.loop import Episode
 from pipeline.episode.runner import Outcome, RunRefused, StepFailed, run_episode, run_settings, torch_threads

@@ -1,10 +1,10 @@
-"""pipeline/config/named.py: the settings a run record holds beyond its named config groups."""
+"""pipeline/config/settings_beyond_groups.py: the settings a run record holds beyond its named config groups."""
 
 import copy
 
 from hydra import compose, initialize_config_dir
 
-from pipeline.config.named import NamedConfigs
+from pipeline.config.settings_beyond_groups import NamedConfigs
 from pipeline.config.validation import typed_run
 from pipeline.episode.runner import run_settings
 from pipeline.repo import CONF

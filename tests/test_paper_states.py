@@ -6,7 +6,7 @@ import json
 import pytest
 
 from pipeline.experiments import paper_states, paper_states_summary
-from pipeline.records.checked import read_json_lines
+from pipeline.records.checked_files import read_json_lines
 
 
 @pytest.mark.parametrize(

@@ -21,8 +21,8 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from nvf.cameras import Intrinsics
-from pipeline.config.named import NamedConfigs
 from pipeline.config.schema import register_configs
+from pipeline.config.settings_beyond_groups import NamedConfigs
 from pipeline.records.compat import LEGACY_DEFAULTS, with_legacy_defaults
 from pipeline.records.lock import RunLock, RunLocked
 from pipeline.records.store import (

@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from pipeline.config.named import NamedConfigs
+from pipeline.config.settings_beyond_groups import NamedConfigs
 from pipeline.config.validation import compose_run
 from pipeline.records.store import DIGEST_KEY, RunRecord, record_digest, run_dir
 from pipeline.repo import CONF, REPO
@@ -355,9 +355,10 @@ def test_summarize_run_lists_steps_and_the_paper_row(tmp_path):
 
 def test_tables_load_without_torch_open3d_or_lpips():
     """Regenerating tables needs only the metrics' data (pipeline.metrics.info), not the metrics' code, and
-    composing a run's named config groups (pipeline.config.named) needs only the schema, not the method library."""
+    composing a run's named config groups (pipeline.config.settings_beyond_groups) needs only the schema, not the
+    method library."""
     code = (
-        "import sys, pipeline.repo, pipeline.tables.__main__, pipeline.config.named as o; "
+        "import sys, pipeline.repo, pipeline.tables.__main__, pipeline.config.settings_beyond_groups as o; "
         "o.NamedConfigs(pipeline.repo.CONF).named(('hubble', 'nvf', 'argmax', 'none', 'smoke')); "
         "print(sorted({'torch', 'open3d', 'lpips'} & set(sys.modules)))"
     )

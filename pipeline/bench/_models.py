@@ -26,7 +26,7 @@ from nvf.seeding import seeded_generator
 from nvf.training import Observations, train_model
 from pipeline.bench._paired import IterationClock, Turn, lockstep
 from pipeline.cli import fail
-from pipeline.config.typed import Run
+from pipeline.config.typed_run import Run
 from pipeline.episode.evaluation import RENDER_CHUNK
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.image import off_edge_psnr, psnr

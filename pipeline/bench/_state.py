@@ -19,7 +19,7 @@ from nvf.seeding import generator_factory, seeded_generator
 from nvf.training import Observations, train_model
 from nvf.uncertainty import ViewScorer
 from pipeline.cli import fail
-from pipeline.config.typed import Run
+from pipeline.config.typed_run import Run
 from pipeline.config.validation import compose_run
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings

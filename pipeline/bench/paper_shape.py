@@ -51,7 +51,7 @@ from pipeline.bench._state import measure_state, recorded_episode
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.catalog import declared
 from pipeline.config.memory import EVAL_VIEWS, host_memory, stage_peaks
-from pipeline.config.typed import Run
+from pipeline.config.typed_run import Run
 from pipeline.config.validation import compose_run
 from pipeline.episode.loop import Episode
 from pipeline.episode.runner import torch_threads

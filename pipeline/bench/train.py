@@ -5,7 +5,7 @@ scene=default``), for each training precision side by side.
 On the scene's 20 evaluation views as training views, one model per ``train.precision`` in ``--precisions``
 (the first is the reference) from the same initial weights and seed, trained in lockstep
 (``pipeline.bench._paired``): stage 1's kept samples per second, inference's, the matmul limit and the field
-and MLP floors (``pipeline.bench._floor``), and held-out PSNR, per precision with paired ratios against the
+and MLP floors (``pipeline.bench._field_floor``), and held-out PSNR, per precision with paired ratios against the
 reference. Rates from wall time and (``*_cpu``) from process CPU time / threads. The models run on the run's
 device (``device``, CUDA where present). Writes ``results/bench/train.json`` (or ``--out``) and prints a
 table; results/bench/README.md ("train.json") defines every field of the report.
@@ -27,7 +27,7 @@ from nvf.encoding import cpp_extension
 from nvf.field import HEADS
 from nvf.precision import precision_dtype
 from nvf.training import Observations, train_backbone
-from pipeline.bench._floor import field_floor
+from pipeline.bench._field_floor import field_floor
 from pipeline.bench._models import (
     HELD_OUT_VIEWS,
     RGB,
@@ -45,7 +45,7 @@ from pipeline.bench._paired import IterationClock, ratio_spread
 from pipeline.bench._report import report_path, write_report
 from pipeline.bench.field import matmul_gflops, mlp_flops
 from pipeline.cli import ArgumentParser, description
-from pipeline.config.typed import Run
+from pipeline.config.typed_run import Run
 from pipeline.config.validation import compose_run
 from pipeline.episode.evaluation import RENDER_CHUNK
 from pipeline.episode.settings import EpisodeSettings

@@ -49,7 +49,7 @@ from nvf.visibility_source import SOURCES, label_visibility
 from pipeline.bench._models import InitialViewModel
 from pipeline.bench._report import report_path, write_report
 from pipeline.cli import ArgumentParser, description, fail
-from pipeline.config.typed import Run
+from pipeline.config.typed_run import Run
 from pipeline.config.validation import compose_run
 from pipeline.metrics.ranking import (
     auc,

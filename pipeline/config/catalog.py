@@ -9,7 +9,7 @@ from typing import Any
 
 from omegaconf import OmegaConf
 
-from pipeline.config.plain import as_dict
+from pipeline.config.plain_containers import as_dict
 from pipeline.repo import CONF
 
 

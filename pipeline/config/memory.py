@@ -16,7 +16,7 @@ import os
 from dataclasses import dataclass
 
 from nvf.config import FieldConfig
-from pipeline.config.typed import Run
+from pipeline.config.typed_run import Run
 
 GIB = float(1 << 30)
 EVAL_VIEWS = 20  # PROTOCOL 2.4: every scene has 20 evaluation views

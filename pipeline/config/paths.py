@@ -10,7 +10,7 @@ from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from pipeline.cli import error_line
-from pipeline.config.plain import as_dict
+from pipeline.config.plain_containers import as_dict
 from pipeline.config.schema import PathsConfig
 from pipeline.repo import CONF
 

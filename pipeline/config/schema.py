@@ -4,7 +4,7 @@ It embeds the method library's own dataclasses (``nvf.config``), so every value 
 imports nothing heavier than them: tables can compose configs without loading torch. The conf files set
 only what differs from these defaults. The method's node is its yaml: the keys of its own dataclass
 (``nvf.methods``), built and checked with the rest when an entry point turns the composed config into the
-typed ``pipeline.config.typed.Run`` that everything below it reads.
+typed ``pipeline.config.typed_run.Run`` that everything below it reads.
 """
 
 import dataclasses
@@ -136,7 +136,7 @@ class RunConfig:
 
     paths: PathsConfig = dataclasses.field(default_factory=PathsConfig)
     scene: SceneConfig = dataclasses.field(default_factory=SceneConfig)
-    # the method's yaml node (a mapping): pipeline.config.typed.Run holds the nvf.methods.Method built from it
+    # the method's yaml node (a mapping): pipeline.config.typed_run.Run holds the nvf.methods.Method built from it
     method: Any = dataclasses.field(default_factory=dict)
     ablation: AblationConfig = dataclasses.field(default_factory=AblationConfig)
     planner: PlannerConfig = dataclasses.field(default_factory=PlannerConfig)

@@ -5,7 +5,7 @@ at its first missing step, and record every step atomically; a step that cannot 
 failed with a one-line reason. A Blender worker that does not answer in time (``render.timeout``) stops
 the run with a one-line reason and leaves it to resume.
 
-It takes the typed run (``pipeline.config.typed.Run``, validated by the entry point): its composed form
+It takes the typed run (``pipeline.config.typed_run.Run``, validated by the entry point): its composed form
 is recorded (run.json), and the episode gets the settings built from it (``pipeline.episode.settings``).
 The summary and pictures of a finished run are the entry point's (``pipeline.run``), from the ``Outcome``.
 """
@@ -23,7 +23,7 @@ from nvf.device import resolve_device
 from nvf.planning import NoCandidatesError
 from nvf.training import TrainingDiverged
 from pipeline.cli import BadInput, Failed
-from pipeline.config.typed import Run
+from pipeline.config.typed_run import Run
 from pipeline.config.validation import ConfigError
 from pipeline.episode.loop import Episode
 from pipeline.episode.progress import EpisodeProgress

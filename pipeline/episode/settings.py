@@ -1,4 +1,4 @@
-"""The typed, resolved settings of one run: built once from the typed run config (``pipeline.config.typed.Run``)
+"""The typed, resolved settings of one run: built once from the typed run config (``pipeline.config.typed_run.Run``)
 and the scene, and the only settings the episode and everything under it read (the scene's defaults filled
 in: the density threshold and the collision-free sampler)."""
 
@@ -10,7 +10,7 @@ from nvf.methods import Method
 from nvf.training import stages_to_train
 from nvf.uncertainty import StepScorer, ViewScorer
 from pipeline.config.schema import BudgetConfig, MetricsConfig, RenderConfig, StepMetrics
-from pipeline.config.typed import Run
+from pipeline.config.typed_run import Run
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.scene import Scene
 

@@ -26,7 +26,7 @@ from matplotlib.figure import Figure
 
 from pipeline.cli import fail, help_page, run_command
 from pipeline.config.paths import paths_from_args
-from pipeline.records.checked import Number, Text, read_csv
+from pipeline.records.checked_files import Number, Text, read_csv
 from pipeline.records.files import check_directory, escaping_link
 from pipeline.records.images import save_figure
 from pipeline.records.store import atomic_write_text

@@ -38,7 +38,7 @@ from pipeline.config.catalog import ablation_configs, declared
 from pipeline.episode.evaluation import render_view
 from pipeline.episode.loop import Episode
 from pipeline.metrics.image import psnr
-from pipeline.records.checked import Each, Flag, Number, Optional, Text, read_json_lines
+from pipeline.records.checked_files import Each, Flag, Number, Optional, Text, read_json_lines
 from pipeline.records.files import RecordError, append_plain_file
 from pipeline.records.store import MAX_SEED, atomic_write_text, dumps, to_jsonable
 from pipeline.records.verify import MAX_HORIZON
@@ -195,8 +195,8 @@ OUTCOME = {
 
 
 class JsonLines:
-    """The rows of a JSON-lines file, each checked against ``shape`` when read (``pipeline.records.checked``: never
-    through a symbolic link; a bad line is one ``RecordError`` naming it). Rows are appended in one write each
+    """The rows of a JSON-lines file, each checked against ``shape`` when read (``pipeline.records.checked_files``:
+    never through a symbolic link; a bad line is one ``RecordError`` naming it). Rows are appended in one write each
     call through the file layer (never into a file with another name), so a killed writer leaves whole rows (a
     row cut off by a kill is dropped when the file is next opened), and writers of other scenes or seeds can
     append side by side. With ``key`` (a row's identity, e.g. its scene, seed, step and set) a file holding two

@@ -36,10 +36,10 @@ import pandas as pd
 
 from pipeline.cli import ArgumentParser, description, fail, run_command
 from pipeline.config.catalog import members, method_configs
-from pipeline.config.named import config_label
+from pipeline.config.settings_beyond_groups import config_label
 from pipeline.config.validation import compose_run
 from pipeline.experiments.options import SEEDS, name_list, seed_list
-from pipeline.records.checked import Number, Optional, Text, read_csv
+from pipeline.records.checked_files import Number, Optional, Text, read_csv
 from pipeline.records.files import make_directory
 from pipeline.records.store import MAX_SEED, RunRecord, atomic_write_text, check_key, record_status, run_dir
 from pipeline.repo import REPO

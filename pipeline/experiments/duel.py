@@ -73,7 +73,7 @@ from pipeline.experiments.duel_summary import DUEL, SETTING, write_summaries
 from pipeline.experiments.options import SEEDS, add_command, name_list, seed_list, setting_overrides, step_list
 from pipeline.metrics.image import LpipsMetric
 from pipeline.metrics.ranking import spearman
-from pipeline.records.checked import read_json
+from pipeline.records.checked_files import read_json
 from pipeline.records.files import make_directory
 from pipeline.records.lock import RunLock
 from pipeline.records.store import atomic_write_text, check_seed, run_dir

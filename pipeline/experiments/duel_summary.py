@@ -32,7 +32,7 @@ import pandas as pd
 from pipeline.cli import ArgumentParser, description, run_command
 from pipeline.config.validation import compose_run
 from pipeline.experiments.decisions import DECISION
-from pipeline.records.checked import Each, Entries, Optional, Text, read_json, read_json_lines
+from pipeline.records.checked_files import Each, Entries, Optional, Text, read_json, read_json_lines
 from pipeline.records.files import RecordError, make_directory
 from pipeline.records.store import atomic_write_text, record_status
 from pipeline.tables.escape import csv_cell

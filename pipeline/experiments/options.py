@@ -8,7 +8,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TypeVar
 
-from pipeline.records.checked import MAX_FILE_BYTES
+from pipeline.records.checked_files import MAX_FILE_BYTES
 from pipeline.records.files import read_plain_file
 from pipeline.records.store import atomic_write_text
 

@@ -65,7 +65,7 @@ from pipeline.experiments.options import SEEDS, add_command, name_list, seed_lis
 from pipeline.experiments.paper_states_summary import FOLDER, SETTING, STATE, state_key, write_summary
 from pipeline.metrics.image import LpipsMetric
 from pipeline.metrics.ranking import auc, spearman
-from pipeline.records.checked import read_json
+from pipeline.records.checked_files import read_json
 from pipeline.records.files import make_directory
 from pipeline.records.lock import RunLock
 from pipeline.records.store import atomic_write_text, check_seed, run_dir

@@ -24,7 +24,7 @@ import pandas as pd
 
 from pipeline.cli import ArgumentParser, description, run_command
 from pipeline.config.validation import compose_run
-from pipeline.records.checked import Each, Entries, Number, Text, read_json_lines
+from pipeline.records.checked_files import Each, Entries, Number, Text, read_json_lines
 from pipeline.records.files import RecordError
 from pipeline.records.store import MAX_SEED, atomic_write_text
 from pipeline.records.verify import MAX_HORIZON

@@ -44,7 +44,7 @@ from nvf.uncertainty import ViewScorer
 from pipeline.cli import ArgumentParser, BadInput, description, fail, run_command
 from pipeline.config.catalog import ablation_configs, method_configs
 from pipeline.config.method import build_method
-from pipeline.config.named import config_label
+from pipeline.config.settings_beyond_groups import config_label
 from pipeline.config.validation import compose_run
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings

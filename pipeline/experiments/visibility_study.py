@@ -52,7 +52,7 @@ from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
 from pipeline.bench.visibility import visibility_report
 from pipeline.cli import ArgumentParser, description, fail, run_command
 from pipeline.config.catalog import declared
-from pipeline.config.typed import Run
+from pipeline.config.typed_run import Run
 from pipeline.config.validation import compose_run
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
@@ -61,7 +61,7 @@ from pipeline.experiments.options import SEEDS, add_command, name_list, seed_lis
 from pipeline.experiments.visibility_summary import DECISION, DIAGNOSTIC, SETTING, STUDY, write_summary, write_surface
 from pipeline.metrics.image import LpipsMetric
 from pipeline.metrics.ranking import render_for_terms, spearman, term_attribution, ties_at_max, view_terms
-from pipeline.records.checked import read_json
+from pipeline.records.checked_files import read_json
 from pipeline.records.files import make_directory
 from pipeline.records.store import atomic_write_text, check_key, check_seed, run_dir
 from pipeline.scenes.blender import blender_python

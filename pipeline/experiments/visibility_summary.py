@@ -18,7 +18,7 @@ several candidates share: a pick by draw order).
 scene and step the mean over seeds and NVF minus w/o Vis. paired over seeds with its 95% interval.
 
 ``python -m pipeline.experiments.visibility_summary [paths.results=DIR] [--records DIR]`` rewrites both. The
-study's files are read back checked (``pipeline.records.checked``: ``SETTING``, ``DECISION``, ``DIAGNOSTIC``, and
+study's files are read back checked (``pipeline.records.checked_files``: ``SETTING``, ``DECISION``, ``DIAGNOSTIC``, and
 the discrimination experiment's ``PER_SEED`` columns): one that fails is one ``error:`` line naming the file, the
 line and the key, and nothing is written.
 """
@@ -33,9 +33,9 @@ import numpy as np
 import pandas as pd
 
 from pipeline.cli import ArgumentParser, description, run_command
-from pipeline.config.named import config_label
+from pipeline.config.settings_beyond_groups import config_label
 from pipeline.config.validation import compose_run
-from pipeline.records.checked import Each, Entries, Number, Optional, Text, read_csv, read_json, read_json_lines
+from pipeline.records.checked_files import Each, Entries, Number, Optional, Text, read_csv, read_json, read_json_lines
 from pipeline.records.files import escaping_link, make_directory
 from pipeline.records.store import MAX_SEED, atomic_write_text
 from pipeline.records.verify import MAX_HORIZON

@@ -3,7 +3,7 @@ and the groups that are not settings at all.
 
 A record written before a key was added to the config was made with the behaviour the key's default
 then reproduced. ``LEGACY_DEFAULTS`` holds that value for every such key (one place: the resume check,
-``pipeline.records.store.run_difference``, and the tables, ``pipeline.config.named``, both read it),
+``pipeline.records.store.run_difference``, and the tables, ``pipeline.config.settings_beyond_groups``, both read it),
 so an old record is never "a different run" over a key it could not hold. Add a key here when adding
 it to the config changes what old records would be compared against.
 

@@ -32,7 +32,7 @@ from hydra.core.global_hydra import GlobalHydra
 from torch import Tensor
 
 from pipeline.config.catalog import declared
-from pipeline.config.plain import as_dict
+from pipeline.config.plain_containers import as_dict
 from pipeline.config.schema import SceneConfig, register_configs
 from pipeline.repo import CONF, REPO
 from pipeline.scenes import procedural

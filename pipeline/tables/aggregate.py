@@ -12,7 +12,7 @@ import pandas as pd
 from jaxtyping import Float
 from omegaconf import OmegaConf
 
-from pipeline.config.plain import as_dict, as_list
+from pipeline.config.plain_containers import as_dict, as_list
 from pipeline.metrics.info import PAPER_METRICS
 from pipeline.repo import CONF
 from pipeline.tables.labels import METRIC_KEYS, OBJECT_MEAN

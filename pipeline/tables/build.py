@@ -3,8 +3,8 @@ with the paper, curves and image grids, and the results site (with the pictures 
 
 from pathlib import Path
 
-from pipeline.config.named import NamedConfigs
 from pipeline.config.paths import configured_paths
+from pipeline.config.settings_beyond_groups import NamedConfigs
 from pipeline.records.files import check_directory, make_directory
 from pipeline.records.store import atomic_write_text
 from pipeline.repo import CONF

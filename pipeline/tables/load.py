@@ -14,7 +14,7 @@ from typing import Any
 
 import pandas as pd
 
-from pipeline.config.named import GROUPS, NamedConfigs
+from pipeline.config.settings_beyond_groups import GROUPS, NamedConfigs
 from pipeline.records.compat import line_of_sight_filtered
 from pipeline.records.files import escaping_link
 from pipeline.records.store import IDENTITY_KEYS, RECORD_FILES, RecordError, RunRecord, first_difference, run_difference

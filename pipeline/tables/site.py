@@ -28,7 +28,7 @@ from markdown.extensions import Extension
 from markdown.treeprocessors import Treeprocessor
 from plotly.offline import get_plotlyjs
 
-from pipeline.records.checked import Number, Text, read_csv
+from pipeline.records.checked_files import Number, Text, read_csv
 from pipeline.records.files import RecordError, escaping_link, is_plain_file, read_plain_file
 from pipeline.records.store import atomic_write_text
 from pipeline.tables.aggregate import SPECS, Table, build_table
@@ -57,7 +57,7 @@ DUEL_COLUMNS = {
     "episode_ci_low": INTERVAL_DB,
     "episode_ci_high": INTERVAL_DB,
     "cpu_hours": Number(0.0, null=True),
-}  # the duel summary's columns as the site reads them back (pipeline.records.checked)
+}  # the duel summary's columns as the site reads them back (pipeline.records.checked_files)
 
 STYLE = """
 body { font-family: system-ui, sans-serif; margin: 1.5em auto; max-width: 1300px; padding: 0 1em; color: #222; }

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from pipeline.config.named import NamedConfigs
+from pipeline.config.settings_beyond_groups import NamedConfigs
 from pipeline.metrics.info import PAPER_METRICS
 from pipeline.records.files import is_plain_file
 from pipeline.records.store import atomic_write_text, record_status

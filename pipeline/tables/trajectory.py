@@ -19,7 +19,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Polygon, Rectangle
 from scipy.spatial.transform import Rotation
 
-from pipeline.config.named import GROUPS, NamedConfigs
+from pipeline.config.settings_beyond_groups import GROUPS, NamedConfigs
 from pipeline.records.images import save_figure
 from pipeline.tables.escape import plot_text
 from pipeline.tables.load import effective_config
