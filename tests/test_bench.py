@@ -17,10 +17,21 @@ import torch
 from nvf.cameras import Intrinsics
 from nvf.training import train_backbone
 from pipeline.bench import __main__ as bench
-from pipeline.bench import device, episode, field, paper_profile, paper_shape, plan, speedups, train, visibility
-from pipeline.bench._models import CountingModel, load, observations
+from pipeline.bench import (
+    device_facts,
+    episode,
+    field_throughput,
+    paper_profile,
+    paper_shape,
+    plan,
+    speedups,
+    train,
+    visibility_diagnostic,
+)
+from pipeline.bench._models import CountingModel
 from pipeline.config.catalog import method_configs
 from pipeline.config.validation import compose_run
+from pipeline.diagnostics.initial_view_model import load, observations
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.scenes.ground_truth import open_renderer
 
@@ -36,18 +47,23 @@ def _assert_positive(path: Path, keys: list[str]) -> dict:
 
 
 def test_benchmarks_are_dispatched():
-    assert {"train", "plan", "episode", "visibility"} <= set(bench.available())
+    """Every benchmark keeps its command name, whatever its module is called (``field``: field_throughput.py)."""
+    commands = {"device", "field", "render", "train", "plan", "episode", "visibility", "paper_shape", "paper_profile"}
+    assert commands | {"speedups"} == set(bench.available())
+    assert bench.modules()["field"] == "field_throughput" and bench.modules()["train"] == "train"
+    page = bench.help_page(bench.available())
+    assert all(f"  {name} " in page for name in commands)
 
 
 def test_field_bench_writes_its_variant_and_refuses_a_bad_argument_before_running(tmp_path, capsys):
     out = tmp_path / "field.json"
     args = ["--only", "hash2^15-torch", "--rays", "32", "--samples-per-ray", "4", "--chunk", "128", "--iters", "1"]
-    field.main([*args, "--out", str(out)])
+    field_throughput.main([*args, "--out", str(out)])
     variant = json.loads(out.read_text())["variants"]["hash2^15-torch"]
     assert math.isfinite(variant["train_samples_per_s"]) and variant["train_samples_per_s"] > 0
     capsys.readouterr()
     with pytest.raises(SystemExit) as exit_:
-        field.main([*args, f"paths.results={tmp_path / 'r'}", "paths.outputs=x"])
+        field_throughput.main([*args, f"paths.results={tmp_path / 'r'}", "paths.outputs=x"])
     assert exit_.value.code == 2
     assert capsys.readouterr().err.strip() == "error: unknown argument 'paths.outputs=x': use paths.results=DIR"
     assert not (tmp_path / "r").exists()
@@ -223,7 +239,7 @@ def test_visibility_bench_writes_separation_ranking_and_terms(tmp_path):
     has no unknown component."""
     out = tmp_path / "visibility.json"
     args = ["budget=smoke", "planner.num_candidates=8", "planner.resolution=48", "--sets", "1", "--out", str(out)]
-    visibility.main(args)
+    visibility_diagnostic.main(args)
     report = json.loads(out.read_text())
     assert len(report["sets"]) == 1 and report["settings"]["budget"] == "smoke"
     one = report["sets"][0]
@@ -244,7 +260,7 @@ def test_visibility_bench_writes_separation_ranking_and_terms(tmp_path):
 )
 def test_visibility_bench_refuses_bad_arguments(argv, says, capsys):
     with pytest.raises(SystemExit) as exit_:
-        visibility.main(argv)
+        visibility_diagnostic.main(argv)
     assert exit_.value.code == 2 and says in capsys.readouterr().err
 
 
@@ -312,7 +328,7 @@ def test_paper_shape_counts_a_paper_episode_from_its_rates(tmp_path):
 
 def test_device_facts_name_the_device_auto_picks(tmp_path):
     out = tmp_path / "device.json"
-    device.main(["--out", str(out)])
+    device_facts.main(["--out", str(out)])
     report = json.loads(out.read_text())
     assert report["device_auto"] == ("cuda" if torch.cuda.is_available() else "cpu")
     assert len(report["cuda_devices"]) == torch.cuda.device_count() and report["memory_gib"] > 0
@@ -410,7 +426,7 @@ def test_a_report_path_is_checked_before_any_work(tmp_path, capsys, make, needle
     benchmark runs (the field bench would take seconds first)."""
     out = make(tmp_path)
     with pytest.raises(SystemExit) as exit_:
-        field.main(["--out", out, "--iters", "1"])
+        field_throughput.main(["--out", out, "--iters", "1"])
     err = capsys.readouterr().err.strip()
     assert exit_.value.code == 2 and err.startswith("error: ") and needle in err and "\n" not in err
     assert not (tmp_path / "elsewhere.json").exists()
@@ -427,7 +443,7 @@ def test_a_report_path_is_checked_before_any_work(tmp_path, capsys, make, needle
 )
 def test_field_bench_counts_are_bounded(tmp_path, capsys, argv, needle):
     with pytest.raises(SystemExit) as exit_:
-        field.main([*argv, "--out", str(tmp_path / "field.json")])
+        field_throughput.main([*argv, "--out", str(tmp_path / "field.json")])
     err = capsys.readouterr().err.strip()
     assert exit_.value.code == 2 and needle in err and "\n" not in err
     assert not (tmp_path / "field.json").exists()

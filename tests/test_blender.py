@@ -38,7 +38,7 @@ from pipeline.scenes.blender import (
 )
 from pipeline.scenes.blender_worker import linear_to_srgb
 from pipeline.scenes.loading import load_scene, scene_config
-from pipeline.scenes.render import GroundTruthRenderer
+from pipeline.scenes.mesh_renderer import GroundTruthRenderer
 from pipeline.scenes.scene import SceneError
 
 PYTHON = blender_python()

@@ -30,7 +30,7 @@ from pipeline.episode.evaluation import Evaluator
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.image import LpipsMetric
 from pipeline.scenes.loading import load_scene
-from pipeline.scenes.render import GroundTruthRenderer
+from pipeline.scenes.mesh_renderer import GroundTruthRenderer
 
 CHUNK = 8192
 

@@ -14,12 +14,13 @@ from nvf.planning import score_poses
 from nvf.training import train_model
 from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
 from nvf.visibility import visibility_labels
-from pipeline.bench._models import held_out_poses, observations, view_psnr
+from pipeline.bench._models import held_out_poses, view_psnr
 from pipeline.config.validation import compose_run
+from pipeline.diagnostics.initial_view_model import observations
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.image import edge_pixels, off_edge_psnr, psnr
 from pipeline.scenes.loading import load_scene
-from pipeline.scenes.render import GroundTruthRenderer
+from pipeline.scenes.mesh_renderer import GroundTruthRenderer
 
 pytestmark = pytest.mark.slow
 HEAD_STAGES = ("variance", "visibility")

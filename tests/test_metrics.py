@@ -11,11 +11,11 @@ from skimage.metrics import structural_similarity
 
 from pipeline.metrics import image as metrics
 from pipeline.metrics.correlation import uncertainty_correlation
-from pipeline.metrics.coverage import seen_faces, visual_coverage
 from pipeline.metrics.geometry import geometry_metrics, points_from_rays
 from pipeline.metrics.image import LpipsMetric, image_metrics, psnr, psnr_from_mse, rgb_mse, ssim
 from pipeline.metrics.info import METRICS, PAPER_METRICS
 from pipeline.metrics.lpips_weights import LpipsUnavailable, default_sources, load_lpips_alex
+from pipeline.metrics.visual_coverage import seen_faces, visual_coverage
 
 # Published LPIPS(alex, v0.1) of the IQA-PyTorch calibration pairs (ResultsCalibra; files under NVF_CALIBRATION,
 # README.md).

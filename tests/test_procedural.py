@@ -43,7 +43,7 @@ def test_proxy_keeps_thin_structures():
 
 def test_default_object_self_occludes():
     """The ball under the arch is hidden from straight above and seen through the arch from the side."""
-    from pipeline.scenes.render import GroundTruthRenderer
+    from pipeline.scenes.mesh_renderer import GroundTruthRenderer
 
     mesh = default_object()
     yellow = np.all(mesh.visual.face_colors[:, :3] == [240, 200, 30], axis=1)

@@ -7,7 +7,7 @@ import torch
 import trimesh
 
 from nvf.cameras import Intrinsics, look_at, pixel_rays, project
-from pipeline.scenes.render import GroundTruthRenderer, resolve_backend
+from pipeline.scenes.mesh_renderer import GroundTruthRenderer, resolve_backend
 
 INTR = Intrinsics.from_fov(96, 80)  # non-square on purpose: width and height must not be swapped
 

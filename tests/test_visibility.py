@@ -9,7 +9,7 @@ from nvf.cameras import Intrinsics, look_at
 from nvf.config import TrainConfig
 from nvf.visibility import SATURATION, frustum_mask, segment_transmittance, visibility_labels
 from pipeline.scenes.loading import load_scene
-from pipeline.scenes.render import GroundTruthRenderer
+from pipeline.scenes.mesh_renderer import GroundTruthRenderer
 
 RADIUS = 0.5
 INTR = Intrinsics.from_fov(16, 16, 90.0)

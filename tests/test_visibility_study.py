@@ -24,7 +24,7 @@ from pipeline.experiments.visibility_summary import (
     write_summary,
 )
 from pipeline.records.store import RunRecord, run_dir
-from pipeline.scenes.render import MeshRays
+from pipeline.scenes.mesh_renderer import MeshRays
 
 
 def decision_row(scene, step, gain=None, spearman=0.99, decisive="unknown", share=0.9):

@@ -1,8 +1,10 @@
-"""``python -m pipeline.bench NAME [args]``: run the benchmark module ``pipeline/bench/NAME.py``; its report
-goes to ``${paths.results}/bench/`` and ``python -m pipeline.bench NAME --help`` lists its options.
+"""``python -m pipeline.bench NAME [args]``: run the benchmark NAME, a module of this package; its report goes to
+``${paths.results}/bench/`` and ``python -m pipeline.bench NAME --help`` lists its options.
 
 Each benchmark is a module of this package exposing ``main(argv: list[str]) -> None``; adding a
-benchmark is adding a module. A missing or unknown name is one ``error:`` line on stderr and exit status 2.
+benchmark is adding a module. Its command is the module's name, or the shorter name ``COMMANDS`` gives it
+(``field`` runs ``field_throughput.py``). A missing or unknown name is one ``error:`` line on stderr and exit
+status 2.
 """
 
 import ast
@@ -14,10 +16,25 @@ from pathlib import Path
 
 from pipeline.cli import description, fail, run_command
 
+# module -> its command, where the command is shorter than the module's name (a name that says what the module
+# measures; the command names stay as they were)
+COMMANDS = {
+    "device_facts": "device",
+    "field_throughput": "field",
+    "ground_truth_speed": "render",
+    "visibility_diagnostic": "visibility",
+}
+
+
+def modules() -> dict[str, str]:
+    """Each benchmark's command -> its module in this package."""
+    found = [m.name for m in pkgutil.iter_modules([str(Path(__file__).parent)]) if not m.name.startswith("_")]
+    return {COMMANDS.get(name, name): name for name in found}
+
 
 def available() -> list[str]:
-    """Names of the benchmark modules in this package."""
-    return sorted(m.name for m in pkgutil.iter_modules([str(Path(__file__).parent)]) if not m.name.startswith("_"))
+    """The benchmarks' command names."""
+    return sorted(modules())
 
 
 def help_page(names: list[str]) -> str:
@@ -29,7 +46,8 @@ def help_page(names: list[str]) -> str:
     ]
     lines += ["", "benchmarks:"]
     for name in names:
-        doc = ast.get_docstring(ast.parse((Path(__file__).parent / f"{name}.py").read_text(encoding="utf-8")))
+        module = modules()[name]
+        doc = ast.get_docstring(ast.parse((Path(__file__).parent / f"{module}.py").read_text(encoding="utf-8")))
         lines += textwrap.wrap(description(doc), 100, initial_indent=f"  {name:<11} ", subsequent_indent=" " * 14)
     return "\n".join(lines)
 
@@ -43,7 +61,7 @@ def main(argv: list[str]) -> None:
         raise SystemExit(0)
     if argv[0] not in names:
         fail(f"unknown benchmark '{argv[0]}'; choose one of: {', '.join(names)}")
-    importlib.import_module(f"pipeline.bench.{argv[0]}").main(argv[1:])
+    importlib.import_module(f"pipeline.bench.{modules()[argv[0]]}").main(argv[1:])
 
 
 if __name__ == "__main__":

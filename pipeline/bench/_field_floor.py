@@ -6,7 +6,7 @@ import torch
 from nvf.model import SceneModel
 from nvf.training import Observations
 from pipeline.bench._models import RGB
-from pipeline.bench.field import median_seconds
+from pipeline.bench.field_throughput import median_seconds
 
 
 def field_floor(

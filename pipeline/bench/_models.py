@@ -1,43 +1,37 @@
-"""What the benchmarks share: the scene and its ground-truth views (``load``, ``observations``), a model
-that counts its samples (``CountingModel``), models trained side by side from the same initial weights
-(``same_initial_models``, ``train_in_lockstep``), the model of an episode's first planning step
-(``InitialViewModel``) and held-out PSNR (``held_out_poses``, ``view_psnr``)."""
+"""What the benchmarks share: a model that counts its samples (``CountingModel``), models trained side by side
+from the same initial weights (``same_initial_models``, ``train_in_lockstep``; ``train_side_by_side``: the model
+of an episode's first planning step, ``pipeline.diagnostics.initial_view_model.InitialViewModel``, per
+precision), held-out PSNR (``held_out_poses``, ``view_psnr``) and the precisions compared."""
 
 import dataclasses
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import torch
 from jaxtyping import Float
 from torch import Tensor
 
-from nvf.cameras import Intrinsics, look_at, matrix_to_pose
+from nvf.cameras import Intrinsics, look_at
 from nvf.config import STAGES, Precision
 from nvf.device import resolve_device
 from nvf.field import FieldOutput
 from nvf.model import RenderResult, SceneModel
-from nvf.planning import candidate_poses
 from nvf.precision import PRECISIONS, supported_precisions, unsupported_reason
 from nvf.rendering import Samples
-from nvf.seeding import seeded_generator
-from nvf.training import Observations, train_model
+from nvf.training import train_model
 from pipeline.bench._paired import IterationClock, Turn, lockstep
 from pipeline.cli import fail
 from pipeline.config.typed_run import Run
+from pipeline.diagnostics.initial_view_model import CPU, InitialViewModel, load, observations
 from pipeline.episode.evaluation import RENDER_CHUNK
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.image import off_edge_psnr, psnr
-from pipeline.scenes.blender import blender_python
 from pipeline.scenes.ground_truth import Renderer
-from pipeline.scenes.loading import load_scene
-from pipeline.scenes.render import GroundTruthRenderer
-from pipeline.scenes.scene import Scene, SceneError
+from pipeline.scenes.mesh_renderer import GroundTruthRenderer
+from pipeline.scenes.scene import Scene
 
 HELD_OUT_VIEWS = 5
-CPU = torch.device("cpu")
 
 
 RGB = frozenset({"rgb"})
@@ -86,27 +80,6 @@ def report_settings(
     }
 
 
-def load(cfg: Run) -> Scene:
-    """The configured scene; a missing mesh exits with one line (status 2)."""
-    try:
-        return load_scene(cfg.scene, Path(cfg.paths.assets), blender_python(cfg.paths.blender_python))
-    except SceneError as err:
-        fail(str(err))
-
-
-def observations(
-    renderer: Renderer,
-    poses: Float[Tensor, "n 4 4"],
-    intr: Intrinsics,
-    gt_samples: int = 1,
-    device: torch.device = CPU,
-) -> Observations:
-    """Ground-truth RGBA views at ``poses`` (RGB black where the mask is empty), each pixel the mean of
-    ``gt_samples^2`` sub-pixel samples (``render_rgba``; Blender's: 1, Cycles' own samples), on ``device``."""
-    images = np.stack([renderer.render_rgba(c2w, intr, gt_samples) for c2w in poses])
-    return Observations(torch.from_numpy(images).to(device), poses.to(device, torch.float32), intr)
-
-
 def same_initial_models(
     cfg: Run, scene: Scene, s: EpisodeSettings, names: list[str], model_cls: type[CountingModel]
 ) -> dict[str, CountingModel]:
@@ -139,87 +112,36 @@ def train_in_lockstep(
     return clocks
 
 
-@dataclass
-class InitialViewModel:
-    """A full NVF model (all three stages, at the budget) trained on the scene's initial views (and
-    ``extra_poses`` after them: a later state of an episode): the model of an episode's first planning
-    step, shared by the ``plan`` and ``visibility`` benchmarks."""
+def train_side_by_side(
+    cfg: Run, precisions: list[str]
+) -> tuple[dict[str, InitialViewModel], dict[str, IterationClock]]:
+    """One ``InitialViewModel`` per ``train.precision``, its model a ``CountingModel``, from the same initial
+    weights and seed, all three stages trained in lockstep (``train_in_lockstep``)."""
+    scene = load(cfg)
+    s = EpisodeSettings.of(cfg, scene)
+    size = int(cfg.budget.image_size)
+    renderer = GroundTruthRenderer(scene.mesh)
+    device = resolve_device(str(cfg.device))
+    obs = observations(renderer, scene.init_poses, Intrinsics.from_fov(size, size), device=device)
+    models = same_initial_models(cfg, scene, s, precisions, CountingModel)
 
-    cfg: Run
-    scene: Scene
-    settings: EpisodeSettings
-    renderer: GroundTruthRenderer
-    obs: Observations
-    model: SceneModel
-    train_seconds: float
-
-    @staticmethod
-    def train(
-        cfg: Run, model_cls: type[SceneModel] = SceneModel, extra_poses: Float[Tensor, "k 4 4"] | None = None
-    ) -> "InitialViewModel":
-        scene = load(cfg)
-        s = EpisodeSettings.of(cfg, scene)
-        size = int(cfg.budget.image_size)
-        renderer = GroundTruthRenderer(scene.mesh)
-        poses = (
-            scene.init_poses if extra_poses is None else torch.cat([scene.init_poses, extra_poses.to(scene.init_poses)])
-        )
-        device = resolve_device(str(cfg.device))
-        obs = observations(renderer, poses, Intrinsics.from_fov(size, size), device=device)
-        torch.manual_seed(int(cfg.seed))
-        model = model_cls(scene.object_aabb, s.field, s.sampler).to(device)
+    def train(name: str, model: CountingModel, progress: IterationClock) -> None:
         generator = torch.Generator(device).manual_seed(int(cfg.seed))
-        stats = train_model(model, obs, s.train, STAGES, s.entropy, generator)
-        return InitialViewModel(cfg, scene, s, renderer, obs, model, stats.seconds)
-
-    @staticmethod
-    def train_side_by_side(
-        cfg: Run, precisions: list[str]
-    ) -> tuple[dict[str, "InitialViewModel"], dict[str, IterationClock]]:
-        """One ``CountingModel`` per ``train.precision``, from the same initial weights and seed, all three
-        stages trained in lockstep (``train_in_lockstep``)."""
-        scene = load(cfg)
-        s = EpisodeSettings.of(cfg, scene)
-        size = int(cfg.budget.image_size)
-        renderer = GroundTruthRenderer(scene.mesh)
-        device = resolve_device(str(cfg.device))
-        obs = observations(renderer, scene.init_poses, Intrinsics.from_fov(size, size), device=device)
-        models = same_initial_models(cfg, scene, s, precisions, CountingModel)
-
-        def train(name: str, model: CountingModel, progress: IterationClock) -> None:
-            generator = torch.Generator(device).manual_seed(int(cfg.seed))
-            train_model(
-                model,
-                obs,
-                dataclasses.replace(s.train, precision=Precision(name)),
-                STAGES,
-                s.entropy,
-                generator,
-                progress=progress,
-            )
-
-        clocks = train_in_lockstep(models, sum(getattr(s.train, stage).iters for stage in STAGES), train)
-        setups = {
-            name: InitialViewModel(cfg, scene, s, renderer, obs, models[name], clocks[name].wall[-1])
-            for name in precisions
-        }
-        return setups, clocks
-
-    def candidates(self, step: int) -> Float[Tensor, "m 7"]:
-        """The candidate poses the planner would draw at ``step`` (METHOD 13, M28/M29 filters), from
-        the last observed view."""
-        s, device = self.settings, self.model.aabb.device
-        current = matrix_to_pose(self.obs.c2w[-1].to(torch.float32))
-        return candidate_poses(
-            self.model,
-            s.planner,
-            self.scene.camera_box.to(device),
-            current,
-            s.tau,
-            s.collision_free,
-            seeded_generator(int(self.cfg.seed), step, "candidates", device),
-            line_of_sight=self.renderer.unoccluded,
+        train_model(
+            model,
+            obs,
+            dataclasses.replace(s.train, precision=Precision(name)),
+            STAGES,
+            s.entropy,
+            generator,
+            progress=progress,
         )
+
+    clocks = train_in_lockstep(models, sum(getattr(s.train, stage).iters for stage in STAGES), train)
+    setups = {
+        name: InitialViewModel(cfg, scene, s, renderer, obs, models[name], clocks[name].wall[-1]) for name in precisions
+    }
+    return setups, clocks
 
 
 def held_out_poses(

@@ -11,8 +11,8 @@ from nvf.cameras import Intrinsics
 from nvf.planning import argmax_first, score_poses
 from nvf.seeding import generator_factory
 from nvf.uncertainty.fisher import FisherRFScorer
-from pipeline.bench._models import InitialViewModel
 from pipeline.cli import fail
+from pipeline.diagnostics.initial_view_model import InitialViewModel
 from pipeline.metrics.ranking import spearman
 
 

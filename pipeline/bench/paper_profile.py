@@ -41,11 +41,11 @@ from nvf.encoding import HashEncoding
 from nvf.planning import prepare_scorer, score_poses_together
 from nvf.seeding import generator_factory, seeded_generator
 from nvf.training import train_variance_head, train_visibility_head
-from pipeline.bench._models import load
 from pipeline.bench._report import report_path, write_report
 from pipeline.bench._state import SCORED, continued_backbone, recorded_episode, state_candidates, trained_backbone
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.validation import compose_run
+from pipeline.diagnostics.initial_view_model import load
 from pipeline.episode.evaluation import render_view
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings

@@ -44,7 +44,6 @@ from nvf.seeding import generator_factory, seeded_generator
 from nvf.training import Observations, train_model
 from nvf.uncertainty import ViewScorer
 from nvf.visibility_source import SourcedVisibility
-from pipeline.bench._models import load
 from pipeline.bench._report import report_path, write_report
 from pipeline.bench._stages import GIB, PEAK_RSS, Stage, StageMeter
 from pipeline.bench._state import measure_state, recorded_episode
@@ -53,6 +52,7 @@ from pipeline.config.catalog import declared
 from pipeline.config.memory import EVAL_VIEWS, host_memory, stage_peaks
 from pipeline.config.typed_run import Run
 from pipeline.config.validation import compose_run
+from pipeline.diagnostics.initial_view_model import load
 from pipeline.episode.loop import Episode
 from pipeline.episode.runner import torch_threads
 from pipeline.episode.settings import EpisodeSettings

@@ -39,20 +39,21 @@ from nvf.uncertainty import StepScorer, ViewScorer, WholeViewScorer
 from pipeline.bench._models import (
     RGB,
     CountingModel,
-    InitialViewModel,
     held_out_poses,
     parse_precisions,
     report_settings,
+    train_side_by_side,
     view_psnr,
 )
 from pipeline.bench._paired import IterationClock, ratio_spread
 from pipeline.bench._probes import parse_probes, probes_study
 from pipeline.bench._report import report_path, write_report
-from pipeline.bench.field import matmul_gflops, mlp_flops
+from pipeline.bench.field_throughput import matmul_gflops, mlp_flops
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.catalog import method_configs
 from pipeline.config.method import build_method
 from pipeline.config.validation import compose_run, run_settings_of
+from pipeline.diagnostics.initial_view_model import InitialViewModel
 from pipeline.episode.settings import EpisodeSettings
 
 CANDIDATES = 512  # the paper's N; a later planner.num_candidates=... override wins
@@ -281,7 +282,7 @@ def main(argv: list[str]) -> None:
     fisher = next((method for method in methods.values() if isinstance(method, FisherRF)), None)
     if args.probes is not None and fisher is None:
         fail("--probes: no method in conf/method is FisherRF (nvf.methods.FisherRF); declare it or drop --probes")
-    setups, clocks = InitialViewModel.train_side_by_side(cfg, precisions)
+    setups, clocks = train_side_by_side(cfg, precisions)
     base = precisions[0]
     setup = setups[base]  # scoring: the reference precision's model with its MLPs in each precision
     s, obs, model = setup.settings, setup.obs, setup.model

@@ -44,12 +44,12 @@ from nvf.seeding import seeded_generator
 from nvf.uncertainty import ViewScorer
 from nvf.uncertainty.fisher import _flat, colour_parameters, probe_fisher_diagonal, rademacher
 from nvf.visibility import visibility_labels
-from pipeline.bench._models import load
 from pipeline.bench._paired import ratio_spread
 from pipeline.bench._report import report_path, write_report
 from pipeline.bench._state import continued_backbone, recorded_episode, state_candidates, trained_backbone
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.validation import compose_run
+from pipeline.diagnostics.initial_view_model import load
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.episode.shared_training import train_models

@@ -33,8 +33,6 @@ from pipeline.bench._models import (
     RGB,
     CountingModel,
     held_out_poses,
-    load,
-    observations,
     parse_precisions,
     report_settings,
     same_initial_models,
@@ -43,10 +41,11 @@ from pipeline.bench._models import (
 )
 from pipeline.bench._paired import IterationClock, ratio_spread
 from pipeline.bench._report import report_path, write_report
-from pipeline.bench.field import matmul_gflops, mlp_flops
+from pipeline.bench.field_throughput import matmul_gflops, mlp_flops
 from pipeline.cli import ArgumentParser, description
 from pipeline.config.typed_run import Run
 from pipeline.config.validation import compose_run
+from pipeline.diagnostics.initial_view_model import load, observations
 from pipeline.episode.evaluation import RENDER_CHUNK
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.scenes.ground_truth import Renderer, ground_truth_info, open_renderer

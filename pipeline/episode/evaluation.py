@@ -19,9 +19,9 @@ from nvf.visibility_source import SourcedVisibility
 from pipeline.config.schema import BudgetConfig, MetricsConfig
 from pipeline.metrics.arrays import as_numpy
 from pipeline.metrics.correlation import uncertainty_correlation
-from pipeline.metrics.coverage import seen_faces, visual_coverage
 from pipeline.metrics.geometry import GeometryMetrics, geometry_metrics, points_from_rays
 from pipeline.metrics.image import ImageMetrics, LpipsFeatures, LpipsMetric, image_metrics, psnr
+from pipeline.metrics.visual_coverage import seen_faces, visual_coverage
 from pipeline.scenes.ground_truth import Renderer
 from pipeline.scenes.scene import Scene
 

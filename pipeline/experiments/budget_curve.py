@@ -30,7 +30,7 @@ from pipeline.records.checked_files import Number, Text, read_csv
 from pipeline.records.files import check_directory, escaping_link
 from pipeline.records.images import save_figure
 from pipeline.records.store import atomic_write_text
-from pipeline.tables.render import markdown_table
+from pipeline.tables.table_formats import markdown_table
 
 SCENES = ("hotdog", "hubble", "default")
 RULE_COMPARISONS = ("nvf-wo_vis", "nvf-best_baseline")

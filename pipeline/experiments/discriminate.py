@@ -46,8 +46,8 @@ from pipeline.repo import REPO
 from pipeline.scenes.loading import find_asset, scene_config
 from pipeline.scenes.scene import SceneError
 from pipeline.tables.load import collect_runs, load_run
-from pipeline.tables.render import markdown_table
 from pipeline.tables.stats import Interval
+from pipeline.tables.table_formats import markdown_table
 
 EXPERIMENT = "discriminate"  # what a method or scene lists under ``experiments`` to join this one
 SCENES = tuple(members("scene", EXPERIMENT))  # every scene that declares it, by name

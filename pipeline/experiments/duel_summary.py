@@ -37,8 +37,8 @@ from pipeline.records.files import RecordError, make_directory
 from pipeline.records.store import atomic_write_text, record_status
 from pipeline.tables.escape import csv_cell
 from pipeline.tables.load import load_run
-from pipeline.tables.render import markdown_table
 from pipeline.tables.stats import Interval
+from pipeline.tables.table_formats import markdown_table
 
 DUEL = "duel"
 CONTENDER = {"method": Text(), "ablation": Text()}

@@ -28,8 +28,8 @@ from pipeline.records.checked_files import Each, Entries, Number, Text, read_jso
 from pipeline.records.files import RecordError
 from pipeline.records.store import MAX_SEED, atomic_write_text
 from pipeline.records.verify import MAX_HORIZON
-from pipeline.tables.render import markdown_table
 from pipeline.tables.stats import Interval
+from pipeline.tables.table_formats import markdown_table
 
 FOLDER = "paper_states"
 RIVALS = ("wo_vis", "fisherrf", "activenerf")

@@ -57,7 +57,7 @@ from pipeline.scenes.loading import load_scene
 from pipeline.scenes.scene import Scene, SceneError
 from pipeline.tables.aggregate import mean_std_valid
 from pipeline.tables.labels import row_name
-from pipeline.tables.render import markdown_table
+from pipeline.tables.table_formats import markdown_table
 
 S = 0.16665  # PROTOCOL 2.3: the reference's scale unit s (Hubble's partial views)
 PARTIAL_VIEWS = 20

@@ -20,8 +20,9 @@ The candidate sets, the one-step outcome and the rows' file are the duel's (``pi
 ``python -m pipeline.experiments.duel method=nvf rival=wo_vis`` is the same comparison on states from both
 records, without the terms).
 
-It also runs ``pipeline.bench visibility``'s report on each scene's initial views (3 sets of 64 candidates,
-the sources ``head`` and ``labels``, plus ``nvf.entropy.visibility_source`` when that is ``mesh``).
+It also runs the visibility diagnostic (``pipeline.diagnostics.visibility_report``, what ``python -m pipeline.bench
+visibility`` reports) on each scene's initial views (3 sets of 64 candidates, the sources ``head`` and ``labels``,
+plus ``nvf.entropy.visibility_source`` when that is ``mesh``).
 
 Writes ``${paths.results}/pilots/visibility_study/<setting>/``: ``decisions.jsonl`` (a row per scene, seed,
 step and set; a killed study resumes after its last complete row), ``<scene>_diagnostic.json``,
@@ -49,11 +50,11 @@ from nvf.methods import NVF
 from nvf.planning import argmax_first, score_poses
 from nvf.training import Observations
 from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
-from pipeline.bench.visibility import visibility_report
 from pipeline.cli import ArgumentParser, description, fail, run_command
 from pipeline.config.catalog import declared
 from pipeline.config.typed_run import Run
 from pipeline.config.validation import compose_run
+from pipeline.diagnostics.visibility_report import visibility_report
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.experiments.decisions import JsonLines, candidate_set, heldout_psnr, with_view

@@ -30,7 +30,7 @@ from nvf.cameras import Intrinsics
 from pipeline.config.schema import RenderConfig
 from pipeline.repo import REPO
 from pipeline.scenes.blender_worker import one_line, read_message, write_message
-from pipeline.scenes.render import GTView, MeshRays, as_pose, base_color_texture_mesh, corner_colors
+from pipeline.scenes.mesh_renderer import GTView, MeshRays, as_pose, base_color_texture_mesh, corner_colors
 from pipeline.scenes.scene import Scene, SceneError
 
 DEFAULT_PYTHON = ".venv-blender/bin/python"

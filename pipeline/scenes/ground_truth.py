@@ -7,7 +7,7 @@ import torch
 
 from pipeline.config.schema import RenderConfig
 from pipeline.scenes.blender import BlenderRenderer, missing_python
-from pipeline.scenes.render import GroundTruthRenderer
+from pipeline.scenes.mesh_renderer import GroundTruthRenderer
 from pipeline.scenes.scene import Scene, SceneError
 
 Renderer = GroundTruthRenderer | BlenderRenderer

@@ -13,9 +13,9 @@ from pipeline.tables.compare import paper_comparison
 from pipeline.tables.escape import csv_cell
 from pipeline.tables.figures import curves, file_name, image_grid, safe_name
 from pipeline.tables.load import Runs, collect_runs, load_run
-from pipeline.tables.render import LABEL_HEADERS, render
 from pipeline.tables.site import RunPictures, write_site
 from pipeline.tables.summary import run_title
+from pipeline.tables.table_formats import LABEL_HEADERS, render
 from pipeline.tables.trajectory import outline_of_config, recorded_scene, trajectory_figure
 
 OUTPUT_DIRECTORIES = ("tables", "figures", "figures/grids", "site", "site/runs")  # under paths.results

@@ -35,8 +35,8 @@ from pipeline.tables.aggregate import SPECS, Table, build_table
 from pipeline.tables.figures import safe_name
 from pipeline.tables.load import Runs
 from pipeline.tables.paper import paper_numbers
-from pipeline.tables.render import html_table
 from pipeline.tables.stats import LEVEL, Interval
+from pipeline.tables.table_formats import html_table
 
 PLOTLY_JS = "plotly.min.js"
 DUEL_SUMMARY = Path("pilots", "duel", "summary.csv")  # pipeline.experiments.duel_summary's table

@@ -25,7 +25,7 @@ from pipeline.config.schema import RenderConfig
 from pipeline.config.validation import compose_run
 from pipeline.scenes.blender import BlenderRenderer, blender_python
 from pipeline.scenes.loading import load_scene
-from pipeline.scenes.render import GroundTruthRenderer
+from pipeline.scenes.mesh_renderer import GroundTruthRenderer
 from pipeline.scenes.scene import SceneError
 
 

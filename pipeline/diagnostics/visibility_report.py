@@ -1,11 +1,10 @@
-"""``python -m pipeline.bench visibility [--out PATH] [--sets N] [--sources head,labels,mesh] [--record DIR --step K]
-[overrides]``:
-how well each visibility source tells seen from unseen object pixels of candidate views (METHOD 9,
-M17-M19), how much it changes NVF's ranking of the candidates against w/o Vis., and which term of the
-reward decides each ranking (default ``budget=cpu scene=default``).
+"""The visibility diagnostic: how well each visibility source tells seen from unseen object pixels of candidate
+views (METHOD 9, M17-M19), how much it changes NVF's ranking of the candidates against w/o Vis., and which term of
+the reward decides each ranking. ``python -m pipeline.bench visibility`` runs it on a scene's initial views or a
+recorded state, ``python -m pipeline.experiments.visibility_study`` on each state it studies.
 
-Trains one full NVF model (all three stages, at the budget) on the scene's initial views (with ``--record`` and
-``--step K``: and the views a recorded episode selected at steps ``0..K-1``, its state at step ``K``). For each of
+``visibility_report`` trains one full NVF model (all three stages, at the budget, ``InitialViewModel``) on the
+scene's initial views (and on given poses after them: a recorded episode's state). For each of
 ``N`` candidate sets (``nvf.planning.candidate_poses`` drawn as the planner's step ``k`` would,
 ``planner.num_candidates`` poses, rendered at ``planner.resolution``) and each visibility source
 (``nvf.visibility_source``: ``head``, the trained head; ``labels``, M17-M18 at the scored samples, what a
@@ -26,16 +25,12 @@ perfect head would predict; ``mesh``, the scene mesh's line of sight to the trai
   saw) and with their novelty (the unseen share of their object pixels, over the views whose object pixels
   fill 5% of the image or more): a score that rewards seeing the object follows the first, one that rewards
   new surface the second and the third.
-
-Writes ``results/bench/visibility.json`` (or ``--out``) and prints a table per source.
 """
 
 import dataclasses
 import math
 import statistics
-import time
 from collections.abc import Callable
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -45,12 +40,9 @@ from torch import Tensor
 from nvf.cameras import Intrinsics, pose_to_matrix
 from nvf.rendering import ray_sum
 from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
-from nvf.visibility_source import SOURCES, label_visibility
-from pipeline.bench._models import InitialViewModel
-from pipeline.bench._report import report_path, write_report
-from pipeline.cli import ArgumentParser, description, fail
+from nvf.visibility_source import label_visibility
 from pipeline.config.typed_run import Run
-from pipeline.config.validation import compose_run
+from pipeline.diagnostics.initial_view_model import InitialViewModel
 from pipeline.metrics.ranking import (
     auc,
     render_for_terms,
@@ -60,7 +52,6 @@ from pipeline.metrics.ranking import (
     ties_at_max,
     view_terms,
 )
-from pipeline.tables.load import load_run
 
 SURFACE_OFFSET = 0.01  # scene units: the surface point moves this far towards the candidate camera
 MIN_ACCUMULATION = 0.5  # PROTOCOL 4.2's surface rule
@@ -230,16 +221,6 @@ def summarise(sets: list[dict], sources: list[str]) -> dict:
     }
 
 
-def recorded_poses(record: Path, step: int) -> Float[Tensor, "k 4 4"]:
-    """The poses a recorded episode selected before ``step`` (its state at ``step``, after the initial views)."""
-    _, rows = load_run(record)
-    if step > len(rows):
-        raise ValueError(f"{record} has {len(rows)} steps; --step {step} needs that many")
-    return pose_to_matrix(
-        torch.tensor([row["selected_pose"] for row in rows[:step]], dtype=torch.float32).reshape(-1, 7)
-    )
-
-
 def visibility_report(cfg: Run, sets: int, sources: list[str], extra: Tensor | None = None) -> dict:
     """Train the model of ``cfg`` on the initial views (and the poses ``extra`` after them) and report
     ``sets`` candidate sets (see the module doc)."""
@@ -274,98 +255,3 @@ def visibility_report(cfg: Run, sets: int, sources: list[str], extra: Tensor | N
             "head_lr": {stage: getattr(s.train, stage).lr for stage in ("variance", "visibility")},
         },
     }
-
-
-def _show(value: float | None, spec: str) -> str:
-    return "-" if value is None else format(value, spec)
-
-
-def print_report(report: dict) -> None:
-    """A table per source and candidate set (rho: NVF vs w/o Vis.; rho cov / new / nov: NVF vs object coverage,
-    unseen coverage and novelty)."""
-    columns = (
-        ("source", 8),
-        ("set", 4),
-        ("pixels", 7),
-        ("seen", 6),
-        ("shell", 7),
-        ("AUC", 7),
-        ("rho", 7),
-        ("same", 6),
-        ("ties", 5),
-        ("rho cov", 8),
-        ("rho new", 8),
-        ("rho nov", 8),
-        ("decisive NVF", 22),
-        ("w/o Vis.", 20),
-    )
-    print("".join(f"{name:>{width}}" for name, width in columns))
-    for name in report["sources"]:
-        for r in report["sets"]:
-            x, blind = r["sources"][name], r["wo_vis"]
-            share = x["terms"][x["decisive"]]["share"] if x["decisive"] else None
-            blind_share = blind["terms"][blind["decisive"]]["share"] if blind["decisive"] else None
-            cells = (
-                name,
-                r["set"],
-                r["object_pixels"],
-                _show(r["seen_fraction"], ".2f"),
-                _show(r["shell_median"], ".3f"),
-                _show(x["auc"], ".3f"),
-                _show(x["spearman_nvf_wo_vis"], ".3f"),
-                x["same_argmax"],
-                x["ties_at_max"],
-                _show(x["coverage_spearman"], ".3f"),
-                _show(x["unseen_coverage_spearman"], ".3f"),
-                _show(x["novelty_spearman"], ".3f"),
-                f"{x['decisive']} ({_show(share, '.2f')})",
-                f"{blind['decisive']} ({_show(blind_share, '.2f')})",
-            )
-            print("".join(f"{str(cell):>{width}}" for cell, (_, width) in zip(cells, columns, strict=True)))
-    blind = report["sets"]
-    print(
-        "w/o Vis. rho cov "
-        + ", ".join(_show(r["wo_vis"]["coverage_spearman"], ".3f") for r in blind)
-        + "; rho new "
-        + ", ".join(_show(r["wo_vis"]["unseen_coverage_spearman"], ".3f") for r in blind)
-        + "; rho nov "
-        + ", ".join(_show(r["wo_vis"]["novelty_spearman"], ".3f") for r in blind)
-    )
-
-
-def main(argv: list[str]) -> None:
-    parser = ArgumentParser(prog="python -m pipeline.bench visibility", description=description(__doc__))
-    parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. train.label_margin=0.05")
-    parser.add_argument(
-        "--out", type=Path, default=None, help="JSON report path (default: ${paths.results}/bench/visibility.json)"
-    )
-    parser.add_argument("--sets", type=int, default=3, help="candidate sets (the planner's draws at steps 0..N-1)")
-    parser.add_argument(
-        "--sources", default=",".join(SOURCES), help=f"visibility sources, a subset of {','.join(SOURCES)}"
-    )
-    parser.add_argument("--record", type=Path, default=None, help="a recorded episode whose state at --step to measure")
-    parser.add_argument(
-        "--step", type=int, default=0, help="with --record: the state before this step (its views so far)"
-    )
-    args = parser.parse_intermixed_args(argv)
-    sources = args.sources.split(",")
-    if args.sets < 1:
-        parser.error("--sets must be >= 1")
-    if not sources or any(name not in SOURCES for name in sources):
-        parser.error(f"--sources={args.sources!r}: use a comma-separated subset of {','.join(SOURCES)}")
-    if args.step < 0 or (args.step > 0 and args.record is None):
-        parser.error("--step takes a number >= 0 and needs --record")
-    start = time.perf_counter()
-    cfg = compose_run(["planner.num_candidates=64", *args.overrides])
-    args.out = report_path(args.out, cfg.paths.results, "visibility")  # checked before any work
-    try:
-        extra = recorded_poses(args.record, args.step) if args.record is not None else None
-    except (ValueError, OSError) as err:
-        fail(str(err))
-    report = visibility_report(cfg, args.sets, sources, extra)
-    report["settings"]["overrides"] = args.overrides
-    report["settings"]["state"] = None if args.record is None else {"record": str(args.record), "step": args.step}
-    report["seconds"] = time.perf_counter() - start
-    write_report(report, args.out)
-    print_report(report)
-    print(f"{report['seconds']:.0f} s; wrote {args.out}")
