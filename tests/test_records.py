@@ -21,6 +21,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from nvf.cameras import Intrinsics
+from pipeline.atomic_write import atomic_write_text, temp_file
 from pipeline.config.schema import register_configs
 from pipeline.config.settings_beyond_groups import NamedConfigs
 from pipeline.records.compat import LEGACY_DEFAULTS, with_legacy_defaults
@@ -31,12 +32,10 @@ from pipeline.records.store import (
     LEGACY_DIGEST_KEY,
     RecordError,
     RunRecord,
-    atomic_write_text,
     check_key,
     read_steps,
     run_difference,
     run_dir,
-    temp_file,
     to_jsonable,
 )
 from pipeline.records.verify import verified

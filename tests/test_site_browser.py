@@ -104,7 +104,7 @@ def test_the_smoke_sweeps_site_loads_in_chromium(site, browser, tmp_path):
 def test_a_pilot_notes_html_does_not_run_in_chromium(browser, tmp_path):
     """In a browser: a pilot README's raw HTML (an image whose onerror runs a script, a script
     element, a javascript: link) is shown as text on pilots.html and runs nothing."""
-    from pipeline.records.store import atomic_write_text
+    from pipeline.atomic_write import atomic_write_text
     from pipeline.tables.site import pilots_page
 
     (tmp_path / "pilots" / "hostile").mkdir(parents=True)

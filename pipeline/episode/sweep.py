@@ -21,9 +21,9 @@ from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
+from pipeline.atomic_write import atomic_write_text
 from pipeline.cli import error_line
 from pipeline.config.validation import ConfigError, check_paths
-from pipeline.records.store import atomic_write_text
 
 JOB_REPORT = "job_report.json"
 STATUSES = ("done", "skipped", "failed")

@@ -24,12 +24,12 @@ from pathlib import Path
 import pandas as pd
 from matplotlib.figure import Figure
 
+from pipeline.atomic_write import atomic_write_text
 from pipeline.cli import fail, help_page, run_command
 from pipeline.config.paths import paths_from_args
 from pipeline.records.checked_files import Number, Text, read_csv
 from pipeline.records.files import check_directory, escaping_link
 from pipeline.records.images import save_figure
-from pipeline.records.store import atomic_write_text
 from pipeline.tables.table_formats import markdown_table
 
 SCENES = ("hotdog", "hubble", "default")

@@ -34,13 +34,14 @@ from nvf.seeding import generator_factory, seeded_generator
 from nvf.training import Observations, train_model
 from nvf.uncertainty import ViewScorer, WholeViewScorer
 from nvf.visibility_source import SourcedVisibility
+from pipeline.atomic_write import atomic_write_text
 from pipeline.config.catalog import ablation_configs, declared
 from pipeline.episode.evaluation import render_view
 from pipeline.episode.loop import Episode
 from pipeline.metrics.image import psnr
 from pipeline.records.checked_files import Each, Flag, Number, Optional, Text, read_json_lines
 from pipeline.records.files import RecordError, append_plain_file
-from pipeline.records.store import MAX_SEED, atomic_write_text, dumps, to_jsonable
+from pipeline.records.store import MAX_SEED, dumps, to_jsonable
 from pipeline.records.verify import MAX_HORIZON
 
 PLAIN_NAME = re.compile(r"[A-Za-z0-9_.-]+")

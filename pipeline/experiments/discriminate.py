@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pipeline.atomic_write import atomic_write_text
 from pipeline.cli import ArgumentParser, description, fail, run_command
 from pipeline.config.catalog import members, method_configs
 from pipeline.config.settings_beyond_groups import config_label
@@ -41,7 +42,7 @@ from pipeline.config.validation import compose_run
 from pipeline.experiments.options import SEEDS, name_list, seed_list
 from pipeline.records.checked_files import Number, Optional, Text, read_csv
 from pipeline.records.files import make_directory
-from pipeline.records.store import MAX_SEED, RunRecord, atomic_write_text, check_key, record_status, run_dir
+from pipeline.records.store import MAX_SEED, RunRecord, check_key, record_status, run_dir
 from pipeline.repo import REPO
 from pipeline.scenes.loading import find_asset, scene_config
 from pipeline.scenes.scene import SceneError

@@ -29,12 +29,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pipeline.atomic_write import atomic_write_text
 from pipeline.cli import ArgumentParser, description, run_command
 from pipeline.config.validation import compose_run
 from pipeline.experiments.decisions import DECISION
 from pipeline.records.checked_files import Each, Entries, Optional, Text, read_json, read_json_lines
 from pipeline.records.files import RecordError, make_directory
-from pipeline.records.store import atomic_write_text, record_status
+from pipeline.records.store import record_status
 from pipeline.tables.escape import csv_cell
 from pipeline.tables.load import load_run
 from pipeline.tables.stats import Interval

@@ -8,9 +8,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TypeVar
 
+from pipeline.atomic_write import atomic_write_text
 from pipeline.records.checked_files import MAX_FILE_BYTES
 from pipeline.records.files import read_plain_file
-from pipeline.records.store import atomic_write_text
 
 SEEDS = (100, 101, 102)  # the tables' three seeds: every experiment's default
 T = TypeVar("T")

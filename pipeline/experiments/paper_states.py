@@ -46,6 +46,7 @@ from nvf.device import resolve_device
 from nvf.planning import ScoreSummary, argmax_first, score_poses_together
 from nvf.training import Observations
 from nvf.visibility import visibility_labels
+from pipeline.atomic_write import atomic_write_text
 from pipeline.cli import ArgumentParser, fail, help_page, run_command
 from pipeline.config.catalog import declared
 from pipeline.config.validation import compose_run
@@ -68,7 +69,7 @@ from pipeline.metrics.ranking import auc, spearman
 from pipeline.records.checked_files import read_json
 from pipeline.records.files import make_directory
 from pipeline.records.lock import RunLock
-from pipeline.records.store import atomic_write_text, check_seed, run_dir
+from pipeline.records.store import check_seed, run_dir
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.loading import find_asset, load_scene, scene_config
 from pipeline.scenes.scene import Scene, SceneError

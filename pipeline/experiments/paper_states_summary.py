@@ -22,11 +22,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pipeline.atomic_write import atomic_write_text
 from pipeline.cli import ArgumentParser, description, run_command
 from pipeline.config.validation import compose_run
 from pipeline.records.checked_files import Each, Entries, Number, Text, read_json_lines
 from pipeline.records.files import RecordError
-from pipeline.records.store import MAX_SEED, atomic_write_text
+from pipeline.records.store import MAX_SEED
 from pipeline.records.verify import MAX_HORIZON
 from pipeline.tables.stats import Interval
 from pipeline.tables.table_formats import markdown_table

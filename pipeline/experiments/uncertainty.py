@@ -41,6 +41,7 @@ from nvf.device import resolve_device
 from nvf.model import SceneModel
 from nvf.training import Observations
 from nvf.uncertainty import ViewScorer
+from pipeline.atomic_write import atomic_write_bytes, atomic_write_text
 from pipeline.cli import ArgumentParser, BadInput, description, fail, run_command
 from pipeline.config.catalog import ablation_configs, method_configs
 from pipeline.config.method import build_method
@@ -51,7 +52,7 @@ from pipeline.episode.settings import EpisodeSettings
 from pipeline.experiments.options import SEEDS, seed_list
 from pipeline.metrics.image import LpipsMetric
 from pipeline.records.images import colorize, save_figure
-from pipeline.records.store import atomic_write_bytes, atomic_write_text, to_jsonable
+from pipeline.records.store import to_jsonable
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.loading import load_scene
 from pipeline.scenes.scene import Scene, SceneError

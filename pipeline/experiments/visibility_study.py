@@ -50,6 +50,7 @@ from nvf.methods import NVF
 from nvf.planning import argmax_first, score_poses
 from nvf.training import Observations
 from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
+from pipeline.atomic_write import atomic_write_text
 from pipeline.cli import ArgumentParser, description, fail, run_command
 from pipeline.config.catalog import declared
 from pipeline.config.typed_run import Run
@@ -64,7 +65,7 @@ from pipeline.metrics.image import LpipsMetric
 from pipeline.metrics.ranking import render_for_terms, spearman, term_attribution, ties_at_max, view_terms
 from pipeline.records.checked_files import read_json
 from pipeline.records.files import make_directory
-from pipeline.records.store import atomic_write_text, check_key, check_seed, run_dir
+from pipeline.records.store import check_key, check_seed, run_dir
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.loading import load_scene
 from pipeline.scenes.scene import SceneError

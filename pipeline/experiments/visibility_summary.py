@@ -32,12 +32,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pipeline.atomic_write import atomic_write_text
 from pipeline.cli import ArgumentParser, description, run_command
 from pipeline.config.settings_beyond_groups import config_label
 from pipeline.config.validation import compose_run
 from pipeline.records.checked_files import Each, Entries, Number, Optional, Text, read_csv, read_json, read_json_lines
 from pipeline.records.files import escaping_link, make_directory
-from pipeline.records.store import MAX_SEED, atomic_write_text
+from pipeline.records.store import MAX_SEED
 from pipeline.records.verify import MAX_HORIZON
 from pipeline.tables.load import collect_runs
 from pipeline.tables.stats import Interval, paired

@@ -8,7 +8,7 @@ root (a run folder linked from another place under ``paths.outputs``) is followe
 not a link to anything, it is the file itself under a second name, possibly outside the folder, and
 writing through it changes the file under that name too. Such a file is opened only when it has no
 other name (``open_in_place``); every other file is written to a new temp file and renamed over its name
-(``pipeline.records.store.atomic_write_bytes``), which never writes into an existing file.
+(``pipeline.atomic_write.atomic_write_bytes``), which never writes into an existing file.
 
 Every problem raises ``RecordError``: one line naming the path and what to do.
 """

@@ -12,7 +12,7 @@ from jaxtyping import Float
 from matplotlib.figure import Figure
 from PIL import Image, PngImagePlugin
 
-from pipeline.records.store import atomic_write_bytes
+from pipeline.atomic_write import atomic_write_bytes
 
 
 def to_uint8(image: Float[np.ndarray, "H W 3"]) -> np.ndarray:

@@ -1,8 +1,8 @@
 """Run records: one directory per run with run.json, steps.jsonl and a DONE or FAILED marker.
 
 Layout: ``<outputs>/<scene>/<method>-<planner>-<ablation>/<budget>/seed_<seed>/``, derived only
-from validated keys. Every write is atomic (temp file in the same directory, fsync, ``os.replace``,
-fsync of the directory): a killed run leaves the old file or the new one, never a half-written row.
+from validated keys. Every write is atomic (``pipeline.atomic_write``: temp file in the same directory, fsync,
+``os.replace``, fsync of the directory): a killed run leaves the old file or the new one, never a half-written row.
 Values are strict JSON: numpy/torch scalars and arrays become numbers and lists, and non-finite
 floats (NaN, inf) are written as ``null``; readers (``pipeline.tables``) read ``null`` back as NaN.
 """
@@ -14,7 +14,6 @@ import json
 import math
 import os
 import re
-import secrets
 import subprocess
 import warnings
 from collections.abc import Mapping, Sequence
@@ -23,6 +22,7 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
+from pipeline.atomic_write import TEMP_SUFFIX, atomic_write_text
 from pipeline.metrics.info import METRICS
 from pipeline.records.compat import drop_not_settings, drop_retired, with_legacy_defaults
 from pipeline.records.files import RecordError, is_plain_file, read_plain_file
@@ -38,7 +38,6 @@ STEPS = "steps.jsonl"
 DONE = "DONE"
 FAILED = "FAILED"
 RECORD_FILES = (RUN_JSON, STEPS, DONE, FAILED)  # written only by the run's lock holder
-TEMP_SUFFIX = ".tmp"
 DIGEST_KEY = "record_digest"  # run.json: record_digest of run.json and steps.jsonl, written when the run finishes
 LEGACY_DIGEST_KEY = "steps_digest"  # run.json of records finished before DIGEST_KEY: file_digest of steps.jsonl alone
 MAX_RECORD_BYTES = 16 << 20  # run.json, steps.jsonl, DONE, FAILED: a 1000-step record holds about 2 MB
@@ -115,45 +114,6 @@ def to_jsonable(value: Any) -> Any:
 def utc_now() -> str:
     """Current UTC time, ISO 8601 with seconds."""
     return datetime.now(UTC).isoformat(timespec="seconds")
-
-
-def atomic_write_text(path: Path, text: str) -> None:
-    """Write ``text`` (UTF-8) to ``path`` atomically (``atomic_write_bytes``)."""
-    atomic_write_bytes(path, text.encode("utf-8"))
-
-
-def temp_file(path: Path) -> tuple[int, Path]:
-    """A new, empty temp file beside ``path``, unique to this writer: ``.<name>.<pid>.<random>.tmp``.
-
-    Opened write-only with mode 0o666 less the umask, the mode any new file of this process gets
-    (``tempfile.mkstemp`` would make it 0600). Returns the descriptor and the path."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    while True:
-        tmp = path.parent / f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}{TEMP_SUFFIX}"
-        try:
-            return os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666), tmp
-        except FileExistsError:
-            continue
-
-
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` via a temp file of this writer in the same directory (``temp_file``),
-    fsync and ``os.replace``; the file's mode follows the umask."""
-    fd, tmp = temp_file(path)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    dir_fd = os.open(path.parent, os.O_RDONLY)
-    try:
-        os.fsync(dir_fd)
-    finally:
-        os.close(dir_fd)
 
 
 def file_digest(data: bytes) -> str:

@@ -54,7 +54,7 @@ def show(scene: Scene, renderer, out_dir: Path, res: int) -> Path:
     import matplotlib.pyplot as plt
     from matplotlib.patches import Rectangle
 
-    from pipeline.records.store import atomic_write_bytes
+    from pipeline.atomic_write import atomic_write_bytes
     from pipeline.scenes.blender import BlenderRenderer
 
     intr = Intrinsics.from_fov(res, res)

@@ -3,10 +3,10 @@ with the paper, curves and image grids, and the results site (with the pictures 
 
 from pathlib import Path
 
+from pipeline.atomic_write import atomic_write_text
 from pipeline.config.paths import configured_paths
 from pipeline.config.settings_beyond_groups import NamedConfigs
 from pipeline.records.files import check_directory, make_directory
-from pipeline.records.store import atomic_write_text
 from pipeline.repo import CONF
 from pipeline.tables.aggregate import GROUP, SPECS, build_table
 from pipeline.tables.compare import paper_comparison

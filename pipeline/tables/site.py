@@ -28,9 +28,9 @@ from markdown.extensions import Extension
 from markdown.treeprocessors import Treeprocessor
 from plotly.offline import get_plotlyjs
 
+from pipeline.atomic_write import atomic_write_text
 from pipeline.records.checked_files import Number, Text, read_csv
 from pipeline.records.files import RecordError, escaping_link, is_plain_file, read_plain_file
-from pipeline.records.store import atomic_write_text
 from pipeline.tables.aggregate import SPECS, Table, build_table
 from pipeline.tables.figures import safe_name
 from pipeline.tables.load import Runs

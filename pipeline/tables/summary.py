@@ -7,10 +7,11 @@ from pathlib import Path
 
 import pandas as pd
 
+from pipeline.atomic_write import atomic_write_text
 from pipeline.config.settings_beyond_groups import NamedConfigs
 from pipeline.metrics.info import PAPER_METRICS
 from pipeline.records.files import is_plain_file
-from pipeline.records.store import atomic_write_text, record_status
+from pipeline.records.store import record_status
 from pipeline.repo import CONF
 from pipeline.tables.escape import markdown
 from pipeline.tables.figures import image_grid, step_curve, step_images

@@ -1,0 +1,49 @@
+"""Files written atomically: the new content goes to a temp file of this writer beside the target, is flushed to
+disk and renamed over the target's name, and the directory is synced, so a reader (or a process killed mid-write)
+sees the old file or the new one, never a half-written one, and a write never goes into an existing file (nor
+through a link planted at its name). Every file the harness writes goes through here; no heavy imports."""
+
+import os
+import secrets
+from pathlib import Path
+
+TEMP_SUFFIX = ".tmp"  # a temp file's name: .<name>.<pid>.<random>.tmp beside its target
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    """Write ``text`` (UTF-8) to ``path`` atomically (``atomic_write_bytes``)."""
+    atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def temp_file(path: Path) -> tuple[int, Path]:
+    """A new, empty temp file beside ``path``, unique to this writer: ``.<name>.<pid>.<random>.tmp``.
+
+    Opened write-only with mode 0o666 less the umask, the mode any new file of this process gets
+    (``tempfile.mkstemp`` would make it 0600). Returns the descriptor and the path."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    while True:
+        tmp = path.parent / f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}{TEMP_SUFFIX}"
+        try:
+            return os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666), tmp
+        except FileExistsError:
+            continue
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` via a temp file of this writer in the same directory (``temp_file``),
+    fsync and ``os.replace``; the file's mode follows the umask."""
+    fd, tmp = temp_file(path)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    dir_fd = os.open(path.parent, os.O_RDONLY)
+    try:
+        os.fsync(dir_fd)
+    finally:
+        os.close(dir_fd)
