@@ -1,16 +1,17 @@
 """Next-best-view methods (METHOD.md section 12): a method is its view scorer and, where it has one, the
 auxiliary loss it adds to stage 1.
 
-One frozen dataclass per method: its fields are what ``conf/method/<name>.yaml`` declares. Every method
-has a name, a table label and row order (``rank``), the training stages it needs (``stages``; a method
-whose score reads the variance or visibility head trains it there) and the paper tables and experiments
-it belongs to (``experiments``); a subclass adds its own settings as fields, a fixed set of values as a
+One frozen dataclass per method: its fields are what ``conf/method/<name>.yaml`` declares of the method itself.
+Every method has a name and the training stages it needs (``stages``; a method whose score reads the variance or
+visibility head trains it there); a subclass adds its own settings as fields, a fixed set of values as a
 ``Literal``, and checks each value against its field's type when built (``__post_init__``). Fields have no
 defaults: the yaml is their one default. The one exception is a field declared with ``run_setting(key)``:
 its value is the run's config at ``key`` (NVF's entropy settings, ``nvf.entropy``, which the variance
 head's loss reads too), filled in by the pipeline, never set in the yaml. The yaml names the class in
 ``_target_`` and the pipeline builds it with Hydra's ``instantiate`` (``pipeline.config.method``), so
-adding a method is one subclass (here or in any importable module) and one yaml file.
+adding a method is one subclass (here or in any importable module) and one yaml file. How results show a
+method (its label, row order and the experiments it joins) is the harness's: the same yaml declares it, but it
+is no part of the method.
 """
 
 import dataclasses
@@ -53,10 +54,7 @@ class Method:
     """
 
     name: str
-    label: str  # as printed in tables
-    rank: int  # row order in tables
     stages: list[str]  # a subsequence of nvf.config.STAGES starting with backbone
-    experiments: list[str]  # the conf/experiment sweeps (and pipeline.experiments.discriminate) it joins
 
     aux_loss: ClassVar[AuxLoss | None] = None
     score_unit: ClassVar[str] = ""

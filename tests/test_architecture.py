@@ -1,7 +1,14 @@
 """The shape of the code itself: module names that say what they hold, each once."""
 
+import dataclasses
 from collections import defaultdict
 from pathlib import Path
+
+import pytest
+
+from nvf.methods import NVF, Method
+from pipeline.config.catalog import method_configs
+from pipeline.config.method import PRESENTATION_KEYS, MethodError, build_method, presentation
 
 REPO = Path(__file__).resolve().parents[1]
 PACKAGES = ("nvf", "pipeline")
@@ -18,3 +25,17 @@ def test_no_two_modules_share_a_file_name():
                 where[path.name].append(str(path.relative_to(REPO)))
     shared = {name: paths for name, paths in where.items() if len(paths) > 1}
     assert not shared, shared
+
+
+def test_the_method_library_knows_nothing_of_tables():
+    """How results show a method (its label, row order, the experiments it joins) is the harness's: a method
+    yaml declares it beside the method's own keys, ``build_method`` checks it, and no ``nvf.methods.Method``
+    field holds it."""
+    assert set(PRESENTATION_KEYS) == {"label", "rank", "experiments"}
+    assert not {f.name for f in dataclasses.fields(Method)} & set(PRESENTATION_KEYS)
+    node = method_configs()["nvf"]
+    assert isinstance(build_method(node), NVF) and presentation(node).label == "NVF"
+    for key, value, says in (("rank", "first", "method.rank='first' must be a int"), ("label", None, "is missing")):
+        changed = {k: v for k, v in node.items() if k != key} | ({key: value} if value is not None else {})
+        with pytest.raises(MethodError, match=says):
+            build_method(changed)

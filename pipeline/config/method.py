@@ -1,13 +1,17 @@
 """A run's method from its config node (``conf/method/<name>.yaml``): Hydra's ``instantiate`` builds the
 class the node's ``_target_`` names (an ``nvf.methods.Method`` dataclass, which checks each value against
-its field's type) from the node's other keys; the method's run settings (``nvf.methods.run_setting``, e.g.
+its field's type) from the node's keys but the presentation's (``Presentation``: how results show the method,
+which the method library knows nothing of); the method's run settings (``nvf.methods.run_setting``, e.g.
 NVF's ``entropy``) are then filled in from the run's config."""
 
 import dataclasses
 import logging
+import typing
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
+from beartype.door import is_bearable
 from hydra.utils import get_class, instantiate
 
 from nvf.config import STAGES
@@ -17,6 +21,37 @@ from pipeline.cli import BadInput
 
 class MethodError(BadInput, ValueError):
     """A method node that cannot be built; the message is one line naming the key."""
+
+
+@dataclass(frozen=True)
+class Presentation:
+    """How results show a method, declared in its yaml beside the method's own keys: harness metadata that the
+    tables (``pipeline.tables.labels``) and the experiments' sweeps (``pipeline.config.catalog.members``) read
+    from the yaml and the records, never from the built method."""
+
+    label: str
+    """The method's row name in tables and figures."""
+    rank: int
+    """Its row order in tables (the paper's order; smaller first)."""
+    experiments: list[str]
+    """The paper tables' sweeps (``conf/experiment``) and ``pipeline.experiments.discriminate`` it joins."""
+
+
+PRESENTATION_KEYS = tuple(f.name for f in dataclasses.fields(Presentation))
+
+
+def presentation(node: Mapping[str, Any]) -> Presentation:
+    """The presentation a method node declares; ``MethodError`` (one line naming the key) for a key that is
+    missing or of the wrong type."""
+    hints = typing.get_type_hints(Presentation)
+    for key in PRESENTATION_KEYS:
+        if key not in node:
+            raise MethodError(f"method.{key} is missing: every method declares it ({Presentation.__name__})")
+        value, hint = node[key], hints[key]
+        items = value if isinstance(value, list) else []
+        if not is_bearable(value, hint) or not all(is_bearable([item], hint) for item in items):
+            raise MethodError(f"method.{key}={value!r} must be a {getattr(hint, '__name__', str(hint))}")
+    return Presentation(**{key: node[key] for key in PRESENTATION_KEYS})
 
 
 def method_class(target: Any) -> type[Method]:
@@ -41,10 +76,10 @@ def method_class(target: Any) -> type[Method]:
 
 
 def key_problem(cls: type[Method], keys: set[str]) -> str | None:
-    """The first of ``keys`` that ``cls`` does not declare in its yaml, or the first it declares that is
-    missing, as one line; None when they match."""
+    """The first of ``keys`` that ``cls`` does not declare in its yaml (its fields and the presentation's keys),
+    or the first it declares that is missing, as one line; None when they match."""
     from_run = run_settings(cls)
-    declared = {f.name for f in dataclasses.fields(cls)} - set(from_run)
+    declared = ({f.name for f in dataclasses.fields(cls)} - set(from_run)) | set(PRESENTATION_KEYS)
     for key in sorted(keys & set(from_run)):
         return f"method.{key} is the run's {from_run[key]}: set {from_run[key]}.* instead of method.{key}"
     unknown = sorted(keys - declared)
@@ -63,13 +98,16 @@ def build_method(node: Mapping[str, Any], run: Mapping[str, Any] | None = None) 
     """The method a config node (a plain mapping) declares, its run settings taken from ``run`` (the run
     config's values by key, e.g. ``{"nvf.entropy": EntropyConfig(...)}``; the class defaults where absent);
     ``MethodError`` (one line) when its class cannot be imported, a key is unknown, missing or of the wrong
-    type, its stages are not a start of ``nvf.config.STAGES``'s order beginning with the backbone, or it asks
-    for an alternative that is not implemented."""
+    type (the ``Presentation``'s keys included, which the built method does not hold), its stages are not a start
+    of ``nvf.config.STAGES``'s order beginning with the backbone, or it asks for an alternative that is not
+    implemented."""
     plain = dict(node)
     cls = method_class(plain.get("_target_"))
     problem = key_problem(cls, set(plain) - {"_target_"})
     if problem is not None:
         raise MethodError(problem)
+    presentation(plain)  # checked here, read by the tables from the yaml and the records
+    plain = {key: value for key, value in plain.items() if key not in PRESENTATION_KEYS}
     from_run = {name: run[key] for name, key in run_settings(cls).items() if run is not None and key in run}
     try:
         method = dataclasses.replace(instantiate(plain, _convert_="all"), **from_run)

@@ -6,8 +6,8 @@ that reaches the background. Views where the model is unsure *where* the surface
 space it has not filled, win. It needs no head beyond the backbone, so it trains stage 1 alone.
 
 Everything a method needs is here: a frozen ``nvf.methods.Method`` subclass whose fields are its yaml's keys
-(``conf/method/depth_spread.yaml``), with one setting of its own, and a scorer that follows
-``nvf.uncertainty.scorers.ViewScorer``.
+(``conf/method/depth_spread.yaml``; ``label``, ``rank`` and ``experiments`` there are how results show it, read by
+the harness), with one setting of its own, and a scorer that follows ``nvf.uncertainty.scorers.ViewScorer``.
 """
 
 from dataclasses import dataclass
