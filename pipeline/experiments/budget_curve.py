@@ -27,7 +27,8 @@ from matplotlib.figure import Figure
 from pipeline.atomic_write import atomic_write_text
 from pipeline.cli import fail, help_page, run_command
 from pipeline.config.paths import paths_from_args
-from pipeline.records.checked_files import Number, Text, read_csv
+from pipeline.records.checked_files import read_csv
+from pipeline.records.experiment_columns import DISCRIMINATE_SUMMARY_COLUMNS
 from pipeline.records.files import check_directory, escaping_link
 from pipeline.records.images import save_figure
 from pipeline.tables.table_formats import markdown_table
@@ -35,16 +36,7 @@ from pipeline.tables.table_formats import markdown_table
 SCENES = ("hotdog", "hubble", "default")
 RULE_COMPARISONS = ("nvf-wo_vis", "nvf-best_baseline")
 MAX_MINUTES = 15.0
-DIFFERENCE = Number(-100.0, 100.0, null=True)  # dB; an interval of one seed is empty
-SUMMARY = {
-    "scene": Text(),
-    "comparison": Text(),
-    "mean_diff": DIFFERENCE,
-    "ci_low": DIFFERENCE,
-    "ci_high": DIFFERENCE,
-    "n": Number(0, 2**31, integer=True),
-    "minutes_per_episode": Number(0.0),
-}
+SUMMARY = DISCRIMINATE_SUMMARY_COLUMNS  # a discrimination experiment's summary.csv, as its writer declares it
 
 
 @dataclass(frozen=True)

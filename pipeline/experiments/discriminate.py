@@ -40,9 +40,10 @@ from pipeline.config.catalog import members, method_configs
 from pipeline.config.settings_beyond_groups import config_label
 from pipeline.config.validation import compose_run
 from pipeline.experiments.options import SEEDS, name_list, seed_list
-from pipeline.records.checked_files import Number, Optional, Text, read_csv
+from pipeline.records.checked_files import read_csv
+from pipeline.records.experiment_columns import DISCRIMINATE_PER_SEED_COLUMNS, DISCRIMINATE_SUMMARY_COLUMNS, only
 from pipeline.records.files import make_directory
-from pipeline.records.store import MAX_SEED, RunRecord, check_key, record_status, run_dir
+from pipeline.records.store import RunRecord, check_key, record_status, run_dir
 from pipeline.repo import REPO
 from pipeline.scenes.loading import find_asset, scene_config
 from pipeline.scenes.scene import SceneError
@@ -62,18 +63,11 @@ BASELINES = tuple(
 ENTRIES = (NVF, WO_VIS, IND_RAYS, *BASELINES)
 EXTRA = {NVF: "diagnostics.rank_against=wo_vis"}  # an entry's measurement beyond the run
 COMPARISONS = (("nvf-wo_vis", WO_VIS), ("nvf-ind_rays", IND_RAYS), ("nvf-best_baseline", None))
-SUMMARY_COLUMNS = ("scene", "comparison", "mean_diff", "ci_low", "ci_high", "n", "minutes_per_episode")
-PSNR = Number(0.0, 100.0)
+SUMMARY_COLUMNS = tuple(DISCRIMINATE_SUMMARY_COLUMNS)  # summary.csv's, declared with their shapes in pipeline.records
 # what against_plain reads of the plain budget's per_seed.csv (read back checked; flat_steps empty where undefined)
-PER_SEED = {
-    "scene": Text(),
-    "method": Text(),
-    "ablation": Text(),
-    "seed": Number(0, MAX_SEED, integer=True),
-    "final_psnr": PSNR,
-    "mean_psnr": PSNR,
-    "flat_steps": Optional(Number(0.0, 1.0, null=True)),  # not in the oldest files
-}
+PER_SEED = only(
+    DISCRIMINATE_PER_SEED_COLUMNS, "scene", "method", "ablation", "seed", "final_psnr", "mean_psnr", "flat_steps"
+)
 
 
 def entry_labels(overrides: list[str]) -> dict[tuple[str, str], str]:
@@ -170,21 +164,7 @@ def per_seed(
                 "flat_steps": flat_steps(steps),
             }
         )
-    return pd.DataFrame(
-        rows,
-        columns=[
-            "scene",
-            "method",
-            "ablation",
-            "seed",
-            "final_psnr",
-            "mean_psnr",
-            "minutes",
-            "spearman",
-            "same_choice",
-            "flat_steps",
-        ],
-    )
+    return pd.DataFrame(rows, columns=list(DISCRIMINATE_PER_SEED_COLUMNS))
 
 
 def compare(runs: pd.DataFrame) -> pd.DataFrame:

@@ -34,6 +34,7 @@ from pipeline.cli import ArgumentParser, description, run_command
 from pipeline.config.validation import compose_run
 from pipeline.experiments.decisions import DECISION
 from pipeline.records.checked_files import Each, Entries, Optional, Text, read_json, read_json_lines
+from pipeline.records.experiment_columns import DUEL_DETAIL_COLUMNS, DUEL_SUMMARY_COLUMNS
 from pipeline.records.files import RecordError, make_directory
 from pipeline.records.store import record_status
 from pipeline.tables.escape import csv_cell
@@ -53,14 +54,8 @@ SETTING = {
 }  # a pair's setting.json (the rival and contenders once written for the pair)
 ALL = "all"
 MIN_SEEDS = 3  # episodes compared only with this many paired seeds per scene
-COLUMNS = (
-    "method", "rival", "scene", "n", "gain_mean", "ci_low", "ci_high", "same_pick",
-    "episode_diff", "episode_ci_low", "episode_ci_high", "cpu_hours",
-)  # fmt: skip
-DETAIL_COLUMNS = (
-    "method", "rival", "scene", "decisions", "states", "state_n", "state_gain_mean", "state_ci_low",
-    "state_ci_high", "source_pick_recorded", "episode_n", "episode_cpu_hours",
-)  # fmt: skip
+COLUMNS = tuple(DUEL_SUMMARY_COLUMNS)  # summary.csv's, declared with their shapes in pipeline.records
+DETAIL_COLUMNS = tuple(DUEL_DETAIL_COLUMNS)  # details.csv's
 
 
 def read_rows(path: Path) -> list[dict]:

@@ -37,6 +37,12 @@ from pipeline.cli import ArgumentParser, description, run_command
 from pipeline.config.settings_beyond_groups import config_label
 from pipeline.config.validation import compose_run
 from pipeline.records.checked_files import Each, Entries, Number, Optional, Text, read_csv, read_json, read_json_lines
+from pipeline.records.experiment_columns import (
+    DISCRIMINATE_PER_SEED_COLUMNS,
+    STUDY_SUMMARY_COLUMNS,
+    STUDY_SURFACE_COLUMNS,
+    only,
+)
 from pipeline.records.files import escaping_link, make_directory
 from pipeline.records.store import MAX_SEED
 from pipeline.records.verify import MAX_HORIZON
@@ -44,30 +50,10 @@ from pipeline.tables.load import collect_runs
 from pipeline.tables.stats import Interval, paired
 
 STUDY = "visibility_study"
-COLUMNS = (
-    "setting",
-    "scene",
-    "visibility_source",
-    "label_auc",
-    "head_auc",
-    "spearman_nvf_wo_vis",
-    "onestep_gain_mean",
-    "onestep_ci_low",
-    "onestep_ci_high",
-    "n",
-    "minutes_per_episode",
-    "decisions",
-    "same_argmax_fraction",
-    "nvf_decisive_term",
-    "nvf_unknown_share",
-    "nvf_tied_fraction",
-    "wo_vis_tied_fraction",
-)
+COLUMNS = tuple(STUDY_SUMMARY_COLUMNS)  # summary.csv's, declared with their shapes in pipeline.records
 ALL_SCENES = "all"
 SURFACE_ENTRIES = {"nvf": ("nvf", "none"), "wo_vis": ("nvf", "wo_vis"), "random": ("random", "none")}
-SURFACE_COLUMNS = (
-    "scene", "step", "nvf_vis_area", "wo_vis_vis_area", "random_vis_area", "nvf_minus_wo_vis", "ci_low", "ci_high", "n",
-)  # fmt: skip
+SURFACE_COLUMNS = tuple(STUDY_SURFACE_COLUMNS)  # surface.csv's
 
 
 # what the summary and the study read of the study's files (the other keys are kept, not read)
@@ -91,7 +77,7 @@ DECISION = {
     "gain": Optional(Number(-100.0, 100.0)),  # dB
 }
 DIAGNOSTIC = {"sources": Optional(Entries({"auc_mean": Optional(Number(0.0, 1.0, null=True))}))}
-PER_SEED = {"scene": Text(), "method": Text(), "ablation": Text(), "minutes": Number(0.0)}
+PER_SEED = only(DISCRIMINATE_PER_SEED_COLUMNS, "scene", "method", "ablation", "minutes")
 
 
 def _rows(folder: Path) -> list[dict]:

@@ -29,7 +29,8 @@ from markdown.treeprocessors import Treeprocessor
 from plotly.offline import get_plotlyjs
 
 from pipeline.atomic_write import atomic_write_text
-from pipeline.records.checked_files import Number, Text, read_csv
+from pipeline.records.checked_files import read_csv
+from pipeline.records.experiment_columns import DUEL_SUMMARY_COLUMNS
 from pipeline.records.files import RecordError, escaping_link, is_plain_file, read_plain_file
 from pipeline.tables.aggregate import SPECS, Table, build_table
 from pipeline.tables.figures import safe_name
@@ -40,24 +41,7 @@ from pipeline.tables.table_formats import html_table
 
 PLOTLY_JS = "plotly.min.js"
 DUEL_SUMMARY = Path("pilots", "duel", "summary.csv")  # pipeline.experiments.duel_summary's table
-DB = Number(-100.0, 100.0, null=True)  # a PSNR difference, or none
-# A 95% Student-t bound over differences in [-100, 100] dB: at two values t = 12.7 times their spread, so up to
-# about +-1400 dB; the writer's intervals are read back as it wrote them.
-INTERVAL_DB = Number(-2000.0, 2000.0, null=True)
-DUEL_COLUMNS = {
-    "method": Text(),
-    "rival": Text(),
-    "scene": Text(),
-    "n": Number(0, 2**31, integer=True),
-    "gain_mean": DB,
-    "ci_low": INTERVAL_DB,
-    "ci_high": INTERVAL_DB,
-    "same_pick": Number(0.0, 1.0, null=True),
-    "episode_diff": DB,
-    "episode_ci_low": INTERVAL_DB,
-    "episode_ci_high": INTERVAL_DB,
-    "cpu_hours": Number(0.0, null=True),
-}  # the duel summary's columns as the site reads them back (pipeline.records.checked_files)
+DUEL_COLUMNS = DUEL_SUMMARY_COLUMNS  # the duel summary's columns as its writer declares them, read back checked
 
 STYLE = """
 body { font-family: system-ui, sans-serif; margin: 1.5em auto; max-width: 1300px; padding: 0 1em; color: #222; }
