@@ -94,18 +94,31 @@ class FieldConfig:
     """Backbone and heads (METHOD.md section 3)."""
 
     kind: FieldKind = FieldKind.hashgrid
+    """The backbone's encoding: ``hashgrid`` (Instant-NGP, the paper's) or ``densegrid`` (DVGO-style, cheap on CPU)."""
     num_levels: int = 16
+    """Hash-grid levels, resolutions growing geometrically from ``base_resolution`` to ``max_resolution``."""
     features_per_level: int = 2
+    """Features per hash-grid level (the encoding is ``num_levels x features_per_level`` wide)."""
     log2_hashmap_size: int = 19
+    """log2 of a hash-grid level's table entries (a coarser level with fewer vertices is indexed densely)."""
     base_resolution: int = 16
+    """The coarsest hash-grid level's resolution."""
     max_resolution: int = 512
-    dense_resolution: int = 128  # densegrid only
-    dense_features: int = 32  # densegrid only: feature channels per voxel
+    """The finest hash-grid level's resolution."""
+    dense_resolution: int = 128
+    """Voxels per side of the dense grid (densegrid only)."""
+    dense_features: int = 32
+    """Feature channels per voxel (densegrid only)."""
     hidden_dim: int = 64
+    """Width of the MLPs' hidden layers (density MLP, colour and variance heads)."""
     geo_feat_dim: int = 15
-    mlp_bias: bool = False  # tiny-cuda-nn fused MLPs have no biases
-    appearance_embedding: bool = False  # D8: the reference's per-image embedding
-    backend: HashBackend = HashBackend.auto  # hash-grid gather/scatter
+    """Geometry features the density MLP passes to the heads beside the density."""
+    mlp_bias: bool = False
+    """Bias terms in the MLPs' layers (tiny-cuda-nn's fused MLPs, the reference's, have none)."""
+    appearance_embedding: bool = False
+    """D8: the reference's per-image appearance embedding in the colour and variance heads' input."""
+    backend: HashBackend = HashBackend.auto
+    """The hash grid's gather/scatter: ``torch``, ``cpp`` (the CPU kernel) or ``auto`` (cpp where it builds)."""
 
 
 @dataclass
@@ -113,42 +126,73 @@ class SamplerConfig:
     """Occupancy grid and ray marching (METHOD.md section 4, M5, M6)."""
 
     grid_resolution: int = 128
-    step_size: float = 4.0 * math.sqrt(3.0) / 1000.0  # D16: the same for every scene
+    """Occupancy-grid cells per side over the object AABB (M5)."""
+    step_size: float = 4.0 * math.sqrt(3.0) / 1000.0
+    """D16: the marching step near the camera, in scene units, the same for every scene (M6)."""
     cone_angle: float = 0.004
+    """The marching step grows as ``cone_angle x t`` once that is longer than ``step_size`` (M6)."""
     near: float = 0.05
+    """Where marching starts along a ray, in scene units."""
     far: float = 1000.0
+    """Where marching ends along a ray (clipped to the grid), in scene units."""
     alpha_threshold: float = 0.01
+    """A marched sample with opacity below ``min(alpha_threshold, mean occupancy)`` is skipped."""
     early_stop_eps: float = 1e-4
+    """A ray stops once its transmittance falls below this."""
     update_every: int = 16
+    """Stage-1 iterations between occupancy-grid updates (M5)."""
     warmup_iters: int = 256
+    """Stage-1 iterations during which an update probes every cell (later: a quarter uniformly, a quarter occupied)."""
     occ_threshold: float = 0.01
+    """A cell is occupied when its value exceeds ``min(mean occupancy, occ_threshold)`` (M5)."""
     occ_decay: float = 0.95
-    inference_jitter: bool = False  # D15: the reference jitters every render
+    """M5: a probed cell's value becomes ``max(occ_decay x value, density x step_size)``."""
+    inference_jitter: bool = False
+    """D15: the reference's random start offset on every render, not only in training."""
     max_samples_per_ray: int = 1024
-    mask_density_with_grid: bool = True  # labels and filters read sigma = 0 in empty grid cells
-    uniform_samples: int = 50  # entropy sampler=uniform: stratified on [0, uniform_far]
+    """Marched samples kept per ray at most (the first ones)."""
+    mask_density_with_grid: bool = True
+    """Labels and planning filters read density 0 in cells the grid marks empty, the density as rendered."""
+    uniform_samples: int = 50
+    """``nvf.entropy.sampler=uniform``: stratified samples per ray on ``[0, uniform_far]``."""
     uniform_far: float = 10.0
+    """``nvf.entropy.sampler=uniform``: the far end of the stratified samples, in scene units."""
 
 
 @dataclass
 class EntropyConfig:
     """NVF view entropy and its ablation switches (METHOD.md sections 5-8, 11)."""
 
-    logdet_coeff: float = 0.5  # D1: the reference uses 1.0
+    logdet_coeff: float = 0.5
+    """M10's ``c`` on the components' log-variances: 0.5 the entropy of a Gaussian (D1: the reference uses 1.0)."""
     bound: Bound = Bound.huber
-    use_visibility: bool = True  # false: w/o Vis.
-    use_variance: bool = True  # false: w/o Var.
-    d0: float | int | str | None = None  # M13: None = the scene's (1.0, Room 6.0); 0 disables (Ind. Rays); "auto"
-    corr: Correlation = Correlation.quadratic  # M13
+    """The ray entropy: ``huber`` (M10's upper bound) or ``moment_matched`` (M12, the Loose ablation)."""
+    use_visibility: bool = True
+    """Read the visibility ``v`` in M7 and M9 (false: w/o Vis.)."""
+    use_variance: bool = True
+    """Read the variance head's ``q`` (false: w/o Var., every seen component at ``var_bg``)."""
+    d0: float | int | str | None = None
+    """M13's correlation length: null the scene's (1.0, Room 6.0), 0 none (Ind. Rays), ``auto`` or a number."""
+    corr: Correlation = Correlation.quadratic
+    """M13's correlation of neighbouring pixels: ``quadratic`` (the paper's) or ``exp``."""
     depth_mode: DepthMode = DepthMode.pixel
-    chunk_rays: int = 4096  # depth_mode=chunk: row-major chunk size
+    """M15's depth per pixel, or per ``chunk_rays`` chunk as the reference's bug has it (D3)."""
+    chunk_rays: int = 4096
+    """``depth_mode=chunk``: the row-major chunk that shares one depth."""
     sampler: EntropySampler = EntropySampler.occupancy
+    """The samples the entropy is scored on: the marched ones (``occupancy``) or ``uniform`` ones (section 4)."""
     beta: float = 0.95
+    """M7's share of the NeRF's density in an unseen interval."""
     alpha_un: float = 1.0 - math.exp(-0.01)
+    """M7's prior opacity of one unseen sample."""
     mu_un: float = 0.5
+    """The colour prior's mean of unseen space, per channel (M9)."""
     var_un: float = 1.0
+    """The colour prior's variance of unseen space, per channel (M9)."""
     var_bg: float = 1e-4
-    visibility_source: VisibilitySource = VisibilitySource.head  # v of M7/M9
+    """The black background's colour variance, per channel (M9, M11's floor)."""
+    visibility_source: VisibilitySource = VisibilitySource.head
+    """Where the score reads ``v`` of M7 and M9: the ``head``, M17-M18 ``labels``, or the ``mesh`` (an oracle)."""
 
 
 @dataclass
@@ -156,8 +200,11 @@ class StageBudget:
     """Iterations, batch size (rays or points) and learning rate of one training stage."""
 
     iters: int
+    """The stage's iterations."""
     batch: int
+    """Rays (backbone, variance head) or points (visibility head) per iteration."""
     lr: float
+    """Adam's learning rate (the backbone's decays from it, ``train.lr_decay_horizon``)."""
 
 
 STAGES = ("backbone", "variance", "visibility")  # TrainConfig's stages, in training order
@@ -168,20 +215,35 @@ class TrainConfig:
     """The three training stages (METHOD.md section 10)."""
 
     backbone: StageBudget = field(default_factory=lambda: StageBudget(5000, 4096, 1e-2))
+    """Stage 1: hash grid, density MLP and colour head on the RGB loss (M20)."""
     variance: StageBudget = field(default_factory=lambda: StageBudget(500, 4096, 1e-3))
+    """Stage 2: the variance head on the mixture's likelihood (M21)."""
     visibility: StageBudget = field(default_factory=lambda: StageBudget(500, 65536, 1e-3))
+    """Stage 3: the visibility head on its labels (M17-M19)."""
     schedule: Schedule = Schedule.paper
-    target_samples: int = 1 << 18  # schedule=reference: kept samples per batch of the dynamic batch (D5)
+    """``paper``: one Adam step per iteration on a fixed batch; ``reference``: the reference's (D5-D7)."""
+    target_samples: int = 1 << 18
+    """``schedule=reference``: the kept samples per batch its dynamic batch aims at (D5)."""
     stage_order: StageOrder = StageOrder.var_first
-    var_loss_background: VarianceBackground = VarianceBackground.random  # M21
+    """Train the variance head before the visibility head (``var_first``) or after it (``vis_first``)."""
+    var_loss_background: VarianceBackground = VarianceBackground.random
+    """M21's ground truth on each ray's ``random`` background (M4), or on ``black``."""
     ablation_affects_training: bool = False
-    lr_decay_horizon: int = 10000  # backbone lr(k) = lr * 0.01 ** (k / horizon)
-    label_samples: int = 200  # M17: samples on each camera-to-point segment
+    """Let w/o Var. and w/o Vis. change the variance loss's mixture, as the reference does (section 11)."""
+    lr_decay_horizon: int = 10000
+    """The backbone's lr decays as ``lr x 0.01^(k / horizon)`` over iterations ``k``."""
+    label_samples: int = 200
+    """M17: stratified samples on each camera-to-point segment."""
     label_max_depth: float = 10.0
-    label_margin: float = 0.0  # M17 deviation: the camera-to-point segment stops this far (scene units) short of x
-    label_cutoff: float = 0.0  # M17 early stop: a segment stops once its transmittance is below this (0: never)
-    warm_start: bool = False  # deviation: reuse the previous step's weights instead of retraining
+    """M17: a camera labels a point only within this camera depth, in scene units."""
+    label_margin: float = 0.0
+    """M17 deviation: the camera-to-point segment stops this far (scene units) short of the point."""
+    label_cutoff: float = 0.0
+    """M17 early stop: a segment stops once its transmittance is below this (0: never)."""
+    warm_start: bool = False
+    """Deviation: start each step from the previous step's weights instead of fresh ones."""
     precision: Precision = Precision.fp32
+    """The MLPs' layers in training: ``fp32``, ``bf16`` or ``fp16`` (``nvf.precision``)."""
 
 
 @dataclass
@@ -189,11 +251,17 @@ class OptConfig:
     """Gradient refinement of the top candidates, -OPT (METHOD.md section 14)."""
 
     top_k: int = 3
+    """The best candidates refined."""
     iters: int = 20
+    """Adam steps per refinement."""
     lr: float = 1e-4
+    """Adam's learning rate on the pose parameters."""
     ray_fraction: float = 0.1
+    """The share of each chunk's rays rendered per step."""
     chunk_rays: int = 4096
+    """Row-major chunk of the planning image from which ``ray_fraction`` of the rays is drawn."""
     param: PoseParam = PoseParam.quat_raw
+    """The refined parameters: the raw ``[qx, qy, qz, qw, x, y, z]`` (``quat_raw``) or an ``se3`` update."""
 
 
 @dataclass
@@ -201,15 +269,28 @@ class PlannerConfig:
     """Candidate poses, filters and selection (METHOD.md section 13)."""
 
     name: Planner = Planner.argmax
+    """``argmax`` of the candidates' scores, or ``opt`` (-OPT: the best refined by gradient, METHOD 14)."""
     num_candidates: int = 512
-    oversample: float = 1.2  # base sampler draws floor(1.2 N); collision-free draws 3 N
-    resolution: int = 300  # planning image side (f = W / 2)
-    density_threshold: float | None = None  # None: the scene's tau (1e-4, Hubble 1e-3)
-    collision_free: bool | None = None  # None: the scene's choice (Room only)
+    """Candidate poses scored per step (fewer when the filters leave fewer)."""
+    oversample: float = 1.2
+    """The base sampler draws ``floor(oversample x N)`` poses before its filters; the collision-free one ``3 N``."""
+    resolution: int = 300
+    """Planning image side in pixels (90 degree field of view)."""
+    density_threshold: float | None = None
+    """M28's ``tau``: a candidate's camera centre must have density below it (null: the scene's)."""
+    collision_free: bool | None = None
+    """M29's collision-free sampler (null: the scene's choice, Room only)."""
     los_samples: int = 200
+    """M29: samples on the segment from the current camera to a candidate."""
     los_threshold: float = 0.95
-    los_unobserved_free: bool = False  # M29 deviation: density 0 in cells no training sample reached
-    los_source: LineOfSightSource = LineOfSightSource.model  # M29
+    """M29: the transmittance that segment must exceed."""
+    los_unobserved_free: bool = False
+    """M29 deviation: density 0 in cells no training sample reached."""
+    los_source: LineOfSightSource = LineOfSightSource.model
+    """M29's line of sight from the ``model`` (METHOD) or the scene ``mesh`` (a deviation, an oracle)."""
     random_filters: bool = False
+    """D25: Random's candidates go through the filters too."""
     score_chunk_rays: int = 8192
+    """Rays rendered at once when scoring candidates (memory, not results)."""
     opt: OptConfig = field(default_factory=OptConfig)
+    """-OPT's refinement (``planner=opt``)."""

@@ -54,7 +54,9 @@ class Method:
     """
 
     name: str
-    stages: list[str]  # a subsequence of nvf.config.STAGES starting with backbone
+    """The method's name (its yaml file's, and its runs' folder's)."""
+    stages: list[str]
+    """The training stages it needs: a start of ``nvf.config.STAGES``, ``backbone`` first."""
 
     aux_loss: ClassVar[AuxLoss | None] = None
     score_unit: ClassVar[str] = ""
@@ -105,7 +107,8 @@ class WD(Method):
 class ActiveRMAP(Method):
     """Binary opacity entropy summed along the ray (M23)."""
 
-    occlusion_weighted: bool  # M23's alternative: each sample's entropy weighted by its transmittance
+    occlusion_weighted: bool
+    """M23's alternative: each sample's entropy weighted by its transmittance."""
 
     score_unit: ClassVar[str] = "nats"  # an entropy
 
@@ -117,8 +120,10 @@ class ActiveRMAP(Method):
 class AIR(Method):
     """Occlusion-aware opacity entropy, mean over the ray's samples (M24, the recommended variant)."""
 
-    reduce: Literal["mean", "sum"]  # over the ray's samples
-    view_score: Literal["pixel_mean", "topk"]  # topk: the paper's alternative, not implemented
+    reduce: Literal["mean", "sum"]
+    """M24: the mean or the sum over the ray's samples."""
+    view_score: Literal["pixel_mean", "topk"]
+    """M24: the mean over the planning image's pixels; ``topk`` (the paper's alternative) is not implemented."""
 
     score_unit: ClassVar[str] = "nats"  # an entropy
     not_implemented: ClassVar[dict[str, tuple[Any, Any]]] = {"view_score": ("topk", "pixel_mean")}
@@ -131,7 +136,8 @@ class AIR(Method):
 class ActiveNeRF(Method):
     """Rendered variance (M26) of a variance head trained in stage 1 on its NLL (M25, variant A)."""
 
-    variant: Literal["A", "B"]  # M25; B is not implemented
+    variant: Literal["A", "B"]
+    """M25's variant; B is not implemented."""
 
     score_unit: ClassVar[str] = "colour variance"  # of colours in [0, 1]
     aux_loss: ClassVar[AuxLoss | None] = staticmethod(activenerf_loss)
@@ -145,8 +151,10 @@ class ActiveNeRF(Method):
 class NeurAR(Method):
     """Rendered variance (M26) of a variance head regressed in stage 1 on the squared residual (M27)."""
 
-    loss: Literal["residual_mse", "nll"]  # M27; nll is not implemented
-    detach: bool  # M27's target detached from the backbone; False is not implemented
+    loss: Literal["residual_mse", "nll"]
+    """M27's loss; ``nll`` is not implemented."""
+    detach: bool
+    """M27's target detached from the backbone; false is not implemented."""
 
     score_unit: ClassVar[str] = "colour variance"  # of colours in [0, 1]
     aux_loss: ClassVar[AuxLoss | None] = staticmethod(neurar_loss)
@@ -166,6 +174,7 @@ class NVF(Method):
     length, a number), which the variance head's loss (M21) reads too."""
 
     entropy: EntropyConfig = run_setting("nvf.entropy", lambda: EntropyConfig(d0=1.0))
+    """Its view entropy's settings: the run's ``nvf.entropy``, ``d0`` resolved on the scene (a run setting)."""
 
     score_unit: ClassVar[str] = "nats"  # an entropy
 
@@ -181,8 +190,10 @@ class FisherRF(Method):
     expected information gain about the backbone's parameters, ``sum_j diag(H_c)_j / (diag(H_D)_j + lambda)``
     (METHOD 17, M30-M32). Stage 1 only; it scores whole views, so argmax planning only (-OPT is n/a)."""
 
-    probes: int  # K, Rademacher probes per view (M31); docs/BUDGETS.md says why its value
-    prior_precision: float  # lambda (M32); FisherRF's code default
+    probes: int
+    """K, Rademacher probes per view (M31); docs/BUDGETS.md says why its value."""
+    prior_precision: float
+    """lambda (M32); FisherRF's code default."""
 
     def scorer(self) -> StepScorer:
         return FisherRFScorer(self.probes, self.prior_precision)
@@ -217,7 +228,9 @@ class BayesRays(Method):
     budget as the grid does: 2 gives the reference's 256 at the paper's 128^3."""
 
     cells_per_grid_cell: int
+    """The perturbation grid's cells a side per cell of the occupancy grid (M34)."""
     grid_resolution: int = run_setting("sampler.grid_resolution", lambda: 128)
+    """The run's ``sampler.grid_resolution`` (a run setting)."""
 
     score_unit: ClassVar[str] = "scaled log10 deviation"  # M36's rendered uncertainty in [0, 1]
 

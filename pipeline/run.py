@@ -1,4 +1,6 @@
 """Entry point: ``python -m pipeline.run [overrides]`` runs one episode; ``-m`` sweeps (Hydra).
+``python -m pipeline.run --help-keys [overrides]`` lists every config key with its default and what it does
+(``pipeline.config.key_help``), before Hydra reads the command line.
 
 ``pipeline.episode.runner`` validates, locks, verifies, records and resumes; a finished run's summary and
 pictures are drawn here (``pipeline.tables.summary.finish_run``), and so are those of a finished run that is
@@ -23,6 +25,7 @@ from hydra.types import RunMode
 from omegaconf import DictConfig
 
 from pipeline.cli import EXPECTED, exit_with, run_command
+from pipeline.config import key_help
 from pipeline.config.schema import register_configs
 from pipeline.config.validation import validate
 from pipeline.episode.runner import run_episode
@@ -30,6 +33,7 @@ from pipeline.tables.summary import finish_run, missing_pictures, recorded_outli
 from pipeline.tables.trajectory import outline_of_scene
 
 register_configs()
+HELP_KEYS = "--help-keys"  # every config key, its default and its line (pipeline.config.key_help)
 
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
@@ -72,8 +76,11 @@ def main(cfg: DictConfig) -> dict:
 def hydra_main() -> None:
     """``main`` behind Hydra, which raises its errors (a config it cannot compose, an override it cannot
     resolve, an unknown group option or key) to ``run_command`` instead of printing a report; Ctrl-C says how
-    to resume."""
+    to resume. ``--help-keys`` lists the config keys instead (the other arguments are overrides)."""
     os.environ["HYDRA_FULL_ERROR"] = "1"
+    if HELP_KEYS in sys.argv[1:]:
+        key_help.main([arg for arg in sys.argv[1:] if arg != HELP_KEYS])
+        return
     try:
         main()
     except KeyboardInterrupt:

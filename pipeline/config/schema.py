@@ -26,9 +26,13 @@ class PathsConfig:
     ``paths.results=results``), and Blender's Python (relative to the repository root)."""
 
     assets: str = "${oc.env:NVF_ASSETS,data/assets}"
+    """The scenes' mesh files, ``<scene>/<scene>.<ext>`` (``NVF_ASSETS`` where set)."""
     outputs: str = "outputs"
+    """Where runs are recorded: ``<scene>/<method>-<planner>-<ablation>/<budget>/seed_<seed>/``."""
     results: str = "${paths.outputs}/results"
-    blender_python: str = "${oc.env:NVF_BLENDER_PYTHON,.venv-blender/bin/python}"  # Blender's Python (bpy)
+    """Where tables, figures, the site and benchmark reports go."""
+    blender_python: str = "${oc.env:NVF_BLENDER_PYTHON,.venv-blender/bin/python}"
+    """Blender's Python with ``bpy`` (``NVF_BLENDER_PYTHON`` where set), for ``render.backend=blender``."""
 
 
 class RenderBackend(StrEnum):
@@ -48,10 +52,12 @@ class RenderConfig:
     Depth, hit mask and face ids come from the same ray cast with either."""
 
     backend: RenderBackend = RenderBackend.pyrender
-    samples: int = 64  # Cycles samples per pixel (blender only)
-    # seconds Blender's worker may take to answer one request (a view, opening a scene; blender only) before the
-    # run stops, left to resume: a 512-px view takes 24-75 s at 64 samples on a 2-core CPU (docs/BUDGETS.md)
+    """The ground truth's RGB: ``pyrender`` (flat, unlit) or ``blender`` (Cycles, lit; the paper's)."""
+    samples: int = 64
+    """Cycles samples per pixel (blender only)."""
     timeout: float = 1800.0
+    """Seconds Blender's worker may take to answer one request (a view, opening a scene; blender only) before the
+    run stops, left to resume: a 512-px view takes 24-75 s at 64 samples on a 2-core CPU (docs/BUDGETS.md)."""
 
 
 @dataclass
@@ -59,7 +65,9 @@ class AssetFile:
     """A development file name of a scene's mesh (tried after ``<name>/<name>.<ext>``) and its up axis."""
 
     path: str = MISSING
-    up: str = "z"  # z | y (a Y-up file is rotated (x, y, z) -> (x, -z, y))
+    """The file, relative to ``paths.assets``."""
+    up: str = "z"
+    """Its up axis: ``z``, or ``y`` (a Y-up file is rotated (x, y, z) -> (x, -z, y))."""
 
 
 @dataclass
@@ -68,24 +76,43 @@ class SceneConfig:
     it): where its mesh comes from, its boxes (``[[min x, y, z], [max x, y, z]]``), constants and view rigs."""
 
     name: str = MISSING
-    kind: str = "object"  # object | room
-    source: str = "mesh"  # mesh | proxy | procedural
-    recipe: str | None = None  # proxy / procedural: the builder in pipeline.scenes.procedural
-    paper_scene: str | None = None  # the paper scene it is or stands in for (tables set the paper's numbers beside it)
-    nerf_asset: bool = False  # one of the paper's eight NeRF-asset scenes: averaged into the object-scene mean
-    rank: int = 100  # order in tables
-    experiments: list[str] = dataclasses.field(default_factory=list)  # the paper tables (conf/experiment) it joins
+    """The scene's name (its yaml's and its asset folder's)."""
+    kind: str = "object"
+    """``object`` or ``room`` (tables average object scenes apart)."""
+    source: str = "mesh"
+    """Where its mesh comes from: ``mesh`` (an asset file), ``proxy`` or ``procedural`` (built from ``recipe``)."""
+    recipe: str | None = None
+    """``proxy`` / ``procedural``: the builder in pipeline.scenes.procedural."""
+    paper_scene: str | None = None
+    """The paper scene it is or stands in for (tables set the paper's numbers beside it)."""
+    nerf_asset: bool = False
+    """One of the paper's eight NeRF-asset scenes: averaged into the object-scene mean."""
+    rank: int = 100
+    """Its order in tables."""
+    experiments: list[str] = dataclasses.field(default_factory=list)
+    """The paper tables (conf/experiment) and experiments it joins."""
     files: list[AssetFile] = dataclasses.field(default_factory=list)
-    fit_tight_box: bool = False  # scale the mesh uniformly into the tight box (Hubble)
-    object_aabb: list[list[float]] = MISSING  # normalises the field, bounds the occupancy grid and labels
-    camera_box: list[list[float]] = MISSING  # candidate positions and -OPT clipping
-    tight_box: list[list[float]] = MISSING  # the ground-truth mesh's bounds
-    density_threshold: float = 1e-4  # tau (M28)
-    d0: float = 1.0  # M13's correlation length
-    cr_threshold: float = 0.01  # C.R. distance (PROTOCOL 4.2)
-    collision_free: bool = False  # M29's collision-free candidate sampler (Room)
-    init_views: dict[str, Any] = dataclasses.field(default_factory=dict)  # a rig of pipeline.scenes.views
+    """Development file names of its mesh, tried after ``<name>/<name>.<ext>``."""
+    fit_tight_box: bool = False
+    """Scale the mesh uniformly into the tight box (Hubble)."""
+    object_aabb: list[list[float]] = MISSING
+    """Normalises the field, bounds the occupancy grid and the visibility labels' points."""
+    camera_box: list[list[float]] = MISSING
+    """Where candidate positions are drawn, and -OPT's clipping."""
+    tight_box: list[list[float]] = MISSING
+    """The ground-truth mesh's bounds."""
+    density_threshold: float = 1e-4
+    """M28's ``tau``: a candidate's camera centre must have density below it."""
+    d0: float = 1.0
+    """M13's correlation length (NVF's ``nvf.entropy.d0=null`` takes it)."""
+    cr_threshold: float = 0.01
+    """The completion ratio's distance, in scene units (PROTOCOL 4.2)."""
+    collision_free: bool = False
+    """M29's collision-free candidate sampler (Room)."""
+    init_views: dict[str, Any] = dataclasses.field(default_factory=dict)
+    """The initial views: a rig of pipeline.scenes.views and its settings."""
     eval_views: dict[str, Any] = dataclasses.field(default_factory=dict)
+    """The evaluation views: a rig of pipeline.scenes.views and its settings."""
 
 
 @dataclass
@@ -93,9 +120,13 @@ class AblationConfig:
     """One NVF ablation (``conf/ablation/<name>.yaml``): the score switches it sets, its table label and order."""
 
     name: str = "none"
+    """The ablation's name (``none``: full NVF)."""
     label: str = "NVF"
+    """Its row name in tables."""
     rank: int = 100
-    of: str = "nvf"  # the method it ablates
+    """Its row order in tables."""
+    of: str = "nvf"
+    """The method it ablates."""
 
 
 @dataclass
@@ -103,18 +134,29 @@ class BudgetConfig:
     """What a budget scales besides training, planning and field sizes (docs/BUDGETS.md)."""
 
     name: str = "paper"
-    image_size: int = 512  # ground truth and training images (square, 90 degree FoV)
-    eval_size: int = 512  # evaluation renders of the 20 evaluation views
-    horizon: int = 20  # active-mapping steps
-    gt_points: int = 500_000  # area-uniform samples of the GT mesh (PROTOCOL 4.2)
-    recon_points: int = 500_000  # reconstructed points from training-view rays
-    recon_batch: int = 16_384  # pixels drawn per point-cloud batch
-    gt_samples: int = 1  # each ground-truth pixel (training, evaluation) the mean of k x k sub-pixel samples
+    """The budget's name (``paper``, ``cpu``, ``smoke``): tables never average runs of different budgets."""
+    image_size: int = 512
+    """Ground-truth and training images, pixels per side (square, 90 degree field of view)."""
+    eval_size: int = 512
+    """Evaluation renders of the 20 evaluation views, pixels per side."""
+    horizon: int = 20
+    """Active-mapping steps."""
+    gt_points: int = 500_000
+    """Area-uniform samples of the ground-truth mesh (PROTOCOL 4.2)."""
+    recon_points: int = 500_000
+    """Reconstructed points from training-view rays (PROTOCOL 4.2)."""
+    recon_batch: int = 16_384
+    """Pixels drawn per point-cloud batch."""
+    gt_samples: int = 1
+    """Each ground-truth pixel (training, evaluation) the mean of k x k sub-pixel samples."""
 
 
 @dataclass
 class MetricsConfig:
-    ssim_data_range: float | None = None  # None: inferred from the image stacks (PROTOCOL 4.1); or 1.0
+    """How the image metrics are computed (PROTOCOL 4.1)."""
+
+    ssim_data_range: float | None = None
+    """SSIM's data range: null inferred from the image stacks (PROTOCOL 4.1), or a number such as 1.0."""
 
 
 @dataclass
@@ -122,12 +164,16 @@ class DiagnosticsConfig:
     """Extra measurements recorded in each step's row; they never change a run's views or metrics, so they
     are not settings (records made with and without them are the same run)."""
 
-    rank_against: str | None = None  # an ablation (conf/ablation) whose score ranks the same candidates too
+    rank_against: str | None = None
+    """An ablation (conf/ablation) whose score ranks the same candidates too (its agreement in each row)."""
 
 
 @dataclass
 class NvfConfig:
+    """NVF's own settings, shared by its ablations and the variance head's loss."""
+
     entropy: EntropyConfig = dataclasses.field(default_factory=EntropyConfig)
+    """NVF's view entropy (METHOD.md sections 5-8)."""
 
 
 @dataclass
@@ -135,23 +181,40 @@ class RunConfig:
     """One run = (scene, method, planner, ablation, budget, seed)."""
 
     paths: PathsConfig = dataclasses.field(default_factory=PathsConfig)
+    """Where assets, records and results live."""
     scene: SceneConfig = dataclasses.field(default_factory=SceneConfig)
-    # the method's yaml node (a mapping): pipeline.config.typed_run.Run holds the nvf.methods.Method built from it
+    """The scene observed (``scene=<name>``, conf/scene)."""
     method: Any = dataclasses.field(default_factory=dict)
+    """The method's yaml node (a mapping, ``method=<name>``, conf/method): pipeline.config.typed_run.Run holds the
+    nvf.methods.Method built from it."""
     ablation: AblationConfig = dataclasses.field(default_factory=AblationConfig)
+    """NVF's ablation (``ablation=<name>``, conf/ablation; ``none``: full NVF)."""
     planner: PlannerConfig = dataclasses.field(default_factory=PlannerConfig)
+    """Candidate poses, filters and selection (``planner=argmax`` or ``opt``)."""
     budget: BudgetConfig = dataclasses.field(default_factory=BudgetConfig)
+    """Image sizes, horizon and point counts (``budget=paper``, ``cpu`` or ``smoke``)."""
     render: RenderConfig = dataclasses.field(default_factory=RenderConfig)
+    """The ground-truth renderer."""
     field: FieldConfig = dataclasses.field(default_factory=FieldConfig)
+    """The backbone and heads."""
     sampler: SamplerConfig = dataclasses.field(default_factory=SamplerConfig)
+    """Occupancy grid and ray marching."""
     train: TrainConfig = dataclasses.field(default_factory=TrainConfig)
+    """The three training stages."""
     nvf: NvfConfig = dataclasses.field(default_factory=NvfConfig)
+    """NVF's view entropy, read by NVF, its ablations and the variance head's loss."""
     metrics: MetricsConfig = dataclasses.field(default_factory=MetricsConfig)
+    """How the image metrics are computed."""
     diagnostics: DiagnosticsConfig = dataclasses.field(default_factory=DiagnosticsConfig)
+    """Extra measurements that never change the run."""
     seed: int = 100
-    device: str = "auto"  # auto | cpu | cuda | cuda:N
+    """The run's seed: every random draw comes from a generator seeded from (seed, step, purpose)."""
+    device: str = "auto"
+    """Where the model runs: ``auto`` (CUDA where torch sees it), ``cpu``, ``cuda`` or ``cuda:N``."""
     save_images: bool = True
+    """Save each step's pictures (ground truth, prediction, score map, depth) beside the record."""
     step_metrics: StepMetrics = StepMetrics.all
+    """``all``: every metric at every step; ``psnr``: PSNR alone before the last step (not a setting)."""
 
 
 def register_configs() -> None:

@@ -51,6 +51,7 @@ class DepthSpread(Method):
     background; 0 scores only the spread of what the ray hits)."""
 
     background_weight: float
+    """A ray into the background scores as this much depth variance (0: only the spread of what it hits)."""
 
     score_unit: ClassVar[str] = "squared depth"
 
