@@ -41,6 +41,7 @@ class ConfigError(BadInput, ValueError):
 
 # D1: the corrected entropy's log-determinant coefficient, the paper's 0.5 or the reference code's 1.0
 LOGDET_COEFFS = (0.5, 1.0)
+MIN_EVAL_SIZE = 32  # budget.eval_size: LPIPS' AlexNet needs inputs of at least this many pixels a side
 
 _POSITIVE = (
     "budget.image_size",
@@ -248,8 +249,11 @@ def validate(cfg: DictConfig) -> Run:
             f"field.max_resolution={cfg.field.max_resolution} is below "
             f"field.base_resolution={cfg.field.base_resolution}"
         )
-    if cfg.budget.eval_size < 32:
-        raise ConfigError(f"budget.eval_size={cfg.budget.eval_size} must be >= 32 (LPIPS' AlexNet needs 32x32 inputs)")
+    if cfg.budget.eval_size < MIN_EVAL_SIZE:
+        raise ConfigError(
+            f"budget.eval_size={cfg.budget.eval_size} must be >= {MIN_EVAL_SIZE} (LPIPS' AlexNet needs "
+            f"{MIN_EVAL_SIZE}x{MIN_EVAL_SIZE} inputs)"
+        )
     rival = cfg.diagnostics.rank_against
     if rival is not None and rival not in declared("ablation"):
         raise ConfigError(f"diagnostics.rank_against={rival!r} is not one of {', '.join(declared('ablation'))}")
