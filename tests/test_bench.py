@@ -386,7 +386,8 @@ def test_paper_shape_measures_a_whole_state_and_extrapolates_from_it(tmp_path):
     assert state["trainings"]["wo_vis"] == state["trainings"]["nvf"] == state["trainings"]["fisherrf"]
     assert state["stages"]["nvf"]["backbone"] == state["stages"]["activenerf"]["backbone"]  # one stage 1
     assert set(state["score_seconds"]) == {"nvf+wo_vis", "fisherrf", "activenerf"}
-    assert 0 < report["state_hours_cpu"] == pytest.approx(state["seconds"] * state["threads"] / 3600.0)
+    assert 0 < report["state_hours_cpu"] == pytest.approx(state["process_seconds"] / 3600.0)
+    assert state["process_seconds"] <= 1.2 * state["seconds"] * state["threads"]  # CPU time, not more
     hours = report["extrapolated_episode_hours_cpu"]
     assert hours["default"] > 0 and hours["default_from_state"] > 0
 

@@ -139,9 +139,10 @@ def measure_state(cfg_overrides: list[str], episode: Episode) -> tuple[dict, Sce
     ActiveNeRF's models trained at the budget's counts (``train_models``: one stage 1 for all four, NVF's model
     serving w/o Vis. and FisherRF), NVF's planner's candidates drawn, FisherRF's Fisher diagonal prepared and every
     candidate scored by each (one render for the per-pixel scorers of a model, timed apart from FisherRF's
-    whole-view scores). Returns the seconds of each part
-    and in all, the training stages' summaries and NVF's trained model (``cfg_overrides``: ``episode``'s own)."""
-    start = time.perf_counter()
+    whole-view scores). Returns the seconds of each part and in all (wall clock, and ``process_seconds``: the CPU
+    time of this process, all its threads, which a busy machine does not inflate as much), the training stages'
+    summaries and NVF's trained model (``cfg_overrides``: ``episode``'s own)."""
+    start, cpu_start = time.perf_counter(), time.process_time()
     obs, device = episode.observations(), episode.device
     step = len(episode.poses) - int(episode.scene.init_poses.shape[0])
     episodes = {
@@ -176,5 +177,6 @@ def measure_state(cfg_overrides: list[str], episode: Episode) -> tuple[dict, Sce
         "prepare_seconds": prepare,
         "score_seconds": score,
         "seconds": time.perf_counter() - start,
+        "process_seconds": time.process_time() - cpu_start,
     }
     return report, planning
