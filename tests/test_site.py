@@ -116,9 +116,10 @@ def test_the_site_links_every_picture_and_needs_no_network(tmp_path):
     assert all((site / src).resolve().is_file() for src in links(site / "pilots.html").images)
 
 
-def test_the_duel_page_is_a_matrix_of_gains_marked_where_the_interval_excludes_zero(tmp_path):
-    """Duel.html from pilots/duel/summary.csv: a matrix per scene, a gain whose interval excludes zero in bold, one
-    that spans zero not, names escaped; the overview links it only when the table exists."""
+def test_the_duel_page_lists_a_row_per_rival_marked_where_the_interval_excludes_zero(tmp_path):
+    """Duel.html from pilots/duel/summary.csv: per scene one row per rival (a long table, as narrow for one method as
+    for many), a gain whose interval excludes zero in bold, one that spans zero not, names escaped; the overview
+    links it only when the table exists."""
     from pipeline.tables.site import DUEL_SUMMARY, duel_page
 
     row = {"n": 12, "same_pick": 0.5, "cpu_hours": 1.5, "episode_diff": 0.4, "episode_ci_low": -1.0}
@@ -130,7 +131,13 @@ def test_the_duel_page_is_a_matrix_of_gains_marked_where_the_interval_excludes_z
     page = duel_page(summary)
     assert "<strong>+0.50 [+0.10, +0.90]</strong>" in page and "<strong>+0.20" not in page
     assert "+0.20 [-0.10, +0.50]" in page and "&lt;b&gt;x" in page and "<b>x" not in page
-    assert "episodes +0.40 [-1.00, +1.80]" in page and page.count("<h2>hubble</h2>") == 1
+    assert "<td>+0.40 [-1.00, +1.80]</td>" in page and page.count("<h2>hubble</h2>") == 1
+    body = page[page.index("<tbody>") :]
+    assert re.findall(r'<tr><td class="label">([^<]*)</td><td class="label">([^<]*)</td>', body) == [
+        ("wd", "nvf"),
+        ("&lt;b&gt;x", "nvf"),
+    ]  # rivals down the rows, the method beside each
+    assert "<td>12</td><td>50%</td>" in body and "<td>1.50</td></tr>" in body
     results = tmp_path / "res"
     build_tables(tmp_path / "out", [], results, assets=tmp_path / "none")
     assert 'href="duel.html"' not in (results / "site" / "index.html").read_text()

@@ -11,6 +11,7 @@ works while it stays beside them.
 """
 
 import html
+import math
 import os
 import re
 from collections.abc import Mapping
@@ -419,45 +420,55 @@ def pilots_page(pilots: Path, page: Path) -> str:
     return _page("Pilots", "".join(parts))
 
 
-def duel_cell(row: pd.Series) -> str:
-    """One pair's cell: the one-step gain with its interval (bold where it excludes zero), its decisions, and the
-    episodes' final-PSNR difference beneath (bold likewise)."""
+def bold_interval(interval: Interval) -> str:
+    """An interval's text, escaped, in bold where it excludes zero."""
+    text = html.escape(interval.text())
+    return f"<strong>{text}</strong>" if interval.excludes_zero else text
+
+
+def duel_row(row: pd.Series) -> str:
+    """One rival's row: the rival, the method, the one-step gain with its interval (bold where it excludes zero), its
+    decisions and share of identical picks, the episodes' final-PSNR difference (bold likewise) and the cpu hours."""
     gain = Interval(row["gain_mean"], row["ci_low"], row["ci_high"], int(row["n"]))
     episode = Interval(row["episode_diff"], row["episode_ci_low"], row["episode_ci_high"], 0)
-    gain_html, episode_html = (
-        f"<strong>{html.escape(i.text())}</strong>" if i.excludes_zero else html.escape(i.text())
-        for i in (gain, episode)
-    )
-    title = f"{int(row['n'])} differing decisions, same pick {row['same_pick']:.0%}, {row['cpu_hours']:.2f} cpu h"
+    same = f"{row['same_pick']:.0%}" if math.isfinite(row["same_pick"]) else "-"
+    hours = f"{row['cpu_hours']:.2f}" if math.isfinite(row["cpu_hours"]) else "-"
     return (
-        f'<td title="{html.escape(title)}">{gain_html} <span class="note">n={int(row["n"])}</span><br>'
-        f'<span class="note">episodes {episode_html}</span></td>'
+        f'<tr><td class="label">{html.escape(str(row["rival"]))}</td><td class="label">'
+        f"{html.escape(str(row['method']))}</td><td>{bold_interval(gain)}</td><td>{int(row['n'])}</td>"
+        f"<td>{same}</td><td>{bold_interval(episode)}</td><td>{hours}</td></tr>"
     )
+
+
+DUEL_HEAD = (
+    "rival",
+    "method",
+    "one-step gain, dB [95% interval]",
+    "differing decisions",
+    "same pick",
+    "episodes' final PSNR difference, dB [95% interval]",
+    "cpu hours",
+)
 
 
 def duel_page(summary: pd.DataFrame) -> str:
-    """Per scene (and over scenes), a method x rival matrix of the duel's one-step gains (``summary.csv`` of
-    ``pipeline.experiments.duel_summary``)."""
+    """Per scene (and over scenes), one row per rival (and method) of the duel's one-step gains (``summary.csv`` of
+    ``pipeline.experiments.duel_summary``): a long table, as narrow however many rivals and methods it holds."""
     parts = [
         "<p>A duel scores the same candidate views with two methods on the same states (half from each method's "
         "recorded episodes); where their picks differ, the plain backbone is trained one step with each pick and "
-        "measured on the evaluation views. A cell: the row method's pick minus the column rival's in held-out "
-        "PSNR (dB, mean [95% Student-t interval] over the n decisions whose picks differ) and, beneath, the row "
-        "method's final PSNR minus the rival's in their episodes (paired by seed). Bold: the interval excludes "
-        "zero. Hover a cell for the share of identical picks and the duel's cpu hours.</p>"
+        "measured on the evaluation views. A row: the method's pick minus the rival's in held-out PSNR (dB, mean "
+        "[95% Student-t interval] over the decisions whose picks differ), how many decisions differ, the share of "
+        "states where both picked the same view, the method's final PSNR minus the rival's in their episodes "
+        "(paired by seed) and the duel's cpu hours. Bold: the interval excludes zero.</p>"
     ]
+    head = "".join(f"<th>{html.escape(name)}</th>" for name in DUEL_HEAD)
     for scene, block in summary.groupby("scene", sort=False):
-        methods, rivals = list(dict.fromkeys(block["method"])), list(dict.fromkeys(block["rival"]))
-        head = "".join(f"<th>{html.escape(str(r))}</th>" for r in rivals)
-        lines = []
-        for method in methods:
-            cells = []
-            for rival in rivals:
-                found = block[(block["method"] == method) & (block["rival"] == rival)]
-                cells.append(duel_cell(found.iloc[0]) if len(found) else "<td>-</td>")
-            lines.append(f'<tr><td class="label">{html.escape(str(method))}</td>{"".join(cells)}</tr>')
+        rivals = list(dict.fromkeys(block["rival"]))
+        ordered = block.assign(_rival=block["rival"].map(rivals.index)).sort_values("_rival", kind="stable")
+        lines = "".join(duel_row(row) for _, row in ordered.iterrows())
         parts.append(
-            f'<h2>{html.escape(str(scene))}</h2><div class="wide"><table><thead><tr><th>method \\ rival</th>'
-            f"{head}</tr></thead><tbody>{''.join(lines)}</tbody></table></div>"
+            f'<h2>{html.escape(str(scene))}</h2><div class="wide"><table><thead><tr>{head}</tr></thead><tbody>'
+            f"{lines}</tbody></table></div>"
         )
     return _page("Duels: paired one-step decisions", "".join(parts))
