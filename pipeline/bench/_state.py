@@ -30,6 +30,7 @@ from pipeline.scenes.scene import Scene
 from pipeline.tables.load import load_run
 
 RECORD_SEED = 100  # the committed NVF cpu episode whose poses a state takes
+STAGE_ONE_KEYS = ("backbone", "schedule", "target_samples", "lr_decay_horizon", "precision")  # train.* stage 1 reads
 
 
 def recorded_episode(cfg: Run, scene: Scene, views: int, records: Path, device: torch.device) -> Episode:
@@ -51,12 +52,13 @@ def recorded_episode(cfg: Run, scene: Scene, views: int, records: Path, device: 
 
 
 def _cache_key(episode: Episode) -> str:
-    """What a trained backbone depends on: the settings stage 1 reads, the scene, the observed poses and images."""
+    """What a trained backbone depends on: the settings stage 1 reads (of ``train``: ``STAGE_ONE_KEYS``), the scene,
+    the observed poses and images."""
     s = episode.settings
     parts = {
         "field": dataclasses.asdict(s.field),
         "sampler": dataclasses.asdict(s.sampler),
-        "train": dataclasses.asdict(s.train),
+        "train": {key: value for key, value in dataclasses.asdict(s.train).items() if key in STAGE_ONE_KEYS},
         "seed": s.seed,
         "scene": episode.scene.name,
         "poses": [pose.tolist() for pose in episode.poses],
