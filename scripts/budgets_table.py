@@ -64,6 +64,14 @@ def rate(value: float, paper: float) -> str:
     return f"**{text}**" if value != paper else text
 
 
+def small(value: float) -> str:
+    """A small positive number as a power of ten where it is one (``10⁻³``), 0 as 0."""
+    exponent = math.log10(value) if value > 0 else None
+    if exponent is not None and exponent.is_integer():
+        return "10" + str(int(exponent)).translate(str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹"))
+    return f"{value:g}"
+
+
 def stage(name: str, unit_of_batch: str) -> tuple[str, Callable[[Values, Values], str]]:
     def cell(v: Values, paper: Values) -> str:
         s = at(v, f"train.{name}")
@@ -104,6 +112,10 @@ ROWS: tuple[tuple[str, Callable[[Values, Values], str]], ...] = (
     stage("variance", "rays"),
     stage("visibility", "points"),
     ("label samples per segment (M17)", lambda v, p: count(v["train"]["label_samples"])),
+    (
+        "M17's early stop, transmittance (`train.label_cutoff`; 0: every sample)",
+        lambda v, p: small(v["train"]["label_cutoff"]),
+    ),
     ("lr decay horizon, iterations", lambda v, p: count(v["train"]["lr_decay_horizon"])),
     ("hash table / max resolution", hash_table),
     (

@@ -141,8 +141,13 @@ BUDGET_DEPARTURES = {
         "planner.los_source": ("model", "mesh"),  # Room's M29 from the scene mesh: an oracle, marked in tables
         "planner.los_unobserved_free": (False, True),  # read only with los_source=model
         "render.backend": ("blender", "pyrender"),  # flat ground truth: the committed records' (BUDGETS.md)
+        "train.label_cutoff": (1e-3, 0.0),  # M17 exact below the paper's sizes
     },
-    "smoke": {"planner.los_unobserved_free": (False, True), "render.backend": ("blender", "pyrender")},
+    "smoke": {
+        "planner.los_unobserved_free": (False, True),
+        "render.backend": ("blender", "pyrender"),
+        "train.label_cutoff": (1e-3, 0.0),
+    },
 }
 
 

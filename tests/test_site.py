@@ -116,9 +116,10 @@ def test_the_site_links_every_picture_and_needs_no_network(tmp_path):
     assert all((site / src).resolve().is_file() for src in links(site / "pilots.html").images)
 
 
-def test_the_duel_page_is_a_matrix_of_gains_marked_where_the_interval_excludes_zero(tmp_path):
-    """Duel.html from pilots/duel/summary.csv: a matrix per scene, a gain whose interval excludes zero in bold, one
-    that spans zero not, names escaped; the overview links it only when the table exists."""
+def test_the_duel_page_lists_a_row_per_rival_marked_where_the_interval_excludes_zero(tmp_path):
+    """Duel.html from pilots/duel/summary.csv: per scene one row per rival (a long table, as narrow for one method as
+    for many), a gain whose interval excludes zero in bold, one that spans zero not, names escaped; the overview
+    links it only when the table exists."""
     from pipeline.tables.site import DUEL_SUMMARY, duel_page
 
     row = {"n": 12, "same_pick": 0.5, "cpu_hours": 1.5, "episode_diff": 0.4, "episode_ci_low": -1.0}
@@ -130,7 +131,13 @@ def test_the_duel_page_is_a_matrix_of_gains_marked_where_the_interval_excludes_z
     page = duel_page(summary)
     assert "<strong>+0.50 [+0.10, +0.90]</strong>" in page and "<strong>+0.20" not in page
     assert "+0.20 [-0.10, +0.50]" in page and "&lt;b&gt;x" in page and "<b>x" not in page
-    assert "episodes +0.40 [-1.00, +1.80]" in page and page.count("<h2>hubble</h2>") == 1
+    assert "<td>+0.40 [-1.00, +1.80]</td>" in page and page.count("<h2>hubble</h2>") == 1
+    body = page[page.index("<tbody>") :]
+    assert re.findall(r'<tr><td class="label">([^<]*)</td><td class="label">([^<]*)</td>', body) == [
+        ("wd", "nvf"),
+        ("&lt;b&gt;x", "nvf"),
+    ]  # rivals down the rows, the method beside each
+    assert "<td>12</td><td>50%</td>" in body and "<td>1.50</td></tr>" in body
     results = tmp_path / "res"
     build_tables(tmp_path / "out", [], results, assets=tmp_path / "none")
     assert 'href="duel.html"' not in (results / "site" / "index.html").read_text()
@@ -150,6 +157,75 @@ def test_the_duel_page_is_a_matrix_of_gains_marked_where_the_interval_excludes_z
     with pytest.raises(RecordError, match="same_pick"):
         build_tables(tmp_path / "out", [], results, assets=tmp_path / "none")
     assert {path: path.read_bytes() for path in (results / "site").rglob("*.html")} == before  # all or nothing
+
+
+def lead_boxes(index: Path) -> dict[str, str]:
+    """The index's scene boxes by scene name: each box's HTML."""
+    text = index.read_text(encoding="utf-8")
+    boxes = text.split('<div class="lead">')[1:]
+    return {re.search(r"<h3><a [^>]*>([^<]*)</a></h3>", box).group(1): box.split("</div>")[0] for box in boxes}
+
+
+def test_the_index_names_the_best_per_scene_with_its_paired_interval_its_picture_and_the_floor(tmp_path):
+    """The index leads, per scene, with the best method by mean final PSNR and its interval paired by seed against
+    the runner-up (separated on Hubble, not on Room), a PSNR picture linking the scene's page, and the floor's flag
+    on Room (every method below PSNR_FLOOR_DB, one NVF seed above it) but not on Hubble."""
+    from pipeline.tables.site import PSNR_FLOOR_DB
+    from pipeline.tables.stats import paired
+
+    psnr = {
+        ("hubble", "nvf"): (22.0, 23.0, 24.0),
+        ("hubble", "random"): (20.0, 20.5, 21.2),
+        ("room", "nvf"): (12.0, 9.0, 16.0),
+        ("room", "random"): (11.0, 11.5, 10.0),
+    }
+    out, results = tmp_path / "out", tmp_path / "res"
+    for (scene, method), values in psnr.items():
+        for seed, value in zip((100, 101, 102), values, strict=True):
+            make_run(out, scene=scene, method=method, seed=seed, final={"psnr": value})
+    build_tables(out, [], results, assets=tmp_path / "no_assets")
+    index = results / "site" / "index.html"
+    boxes = lead_boxes(index)
+    assert list(boxes) == ["hubble", "room"]
+
+    def interval(scene):
+        return paired(*(pd.Series(psnr[(scene, method)]) for method in ("nvf", "random")))
+
+    hubble, room = interval("hubble"), interval("room")
+    assert hubble.low > 0 and room.low < 0 < room.high
+    assert "Best: NVF, 23.00 dB (mean final PSNR over 3 seeds). Runner-up: Random, 20.57 dB." in boxes["hubble"]
+    assert f"Paired difference {hubble.text()} dB (95% interval over the 3 seeds both ran)" in boxes["hubble"]
+    assert "separated from Random (the interval excludes zero)" in boxes["hubble"] and "not sep" not in boxes["hubble"]
+    assert "Best: NVF, 12.33 dB" in boxes["room"] and f"Paired difference {room.text()} dB" in boxes["room"]
+    assert "not separated from Random (the interval includes zero)" in boxes["room"]
+    assert f"{PSNR_FLOOR_DB:g} dB" in index.read_text(encoding="utf-8")  # the page states its floor
+    assert (
+        f'<p class="flag" role="note">Below the {PSNR_FLOOR_DB:g} dB floor' in boxes["room"]
+        and "flag" not in boxes["hubble"]
+    )
+    assert "barely learns this scene at this budget" in boxes["room"]
+    found = Links()
+    found.feed(boxes["hubble"])
+    assert found.hrefs == ["scenes/hubble_smoke.html", "scenes/hubble_smoke.html"]  # name and picture
+    assert found.images == ["scenes/psnr_hubble_smoke.png"]
+    picture = iio.imread(index.parent / found.images[0])
+    assert picture.shape[0] > 200 and picture.shape[1] > picture.shape[0]
+    assert 'alt="hubble, smoke budget: mean PSNR over the steps per method, the best NVF in blue' in boxes["hubble"]
+    assert "Every method, smoke budget" in index.read_text(encoding="utf-8")  # the methods x scenes table follows
+
+
+def test_a_lead_says_when_there_is_no_interval_or_no_runner_up():
+    """A lead line without a runner-up, with one seed in common, and with identical values on every seed."""
+    from pipeline.tables.site import SceneLead, lead_text
+    from pipeline.tables.stats import Interval
+
+    alone = SceneLead((("NVF", 20.0, 3),), Interval.of(np.array([])))
+    assert lead_text(alone) == "Best: NVF, 20.00 dB (mean final PSNR over 3 seeds). The only method run here."
+    one = SceneLead((("NVF-OPT", 9.0, 1), ("NVF", 8.5, 3)), Interval.of(np.array([0.5])))
+    assert lead_text(one).endswith("Paired difference +0.50 dB over 1 seed both ran: too few pairs for an interval.")
+    same = SceneLead((("Loose", 14.2, 3), ("NVF", 14.2, 3)), Interval.of(np.zeros(3)))
+    assert "Identical final PSNR on each of the 3 seeds both ran: not separated from NVF" in lead_text(same)
+    assert same.below_floor and not alone.below_floor
 
 
 def test_tables_read_your_runs_and_with_committed_the_committed_ones(tmp_path, capsys, monkeypatch):

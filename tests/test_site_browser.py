@@ -1,7 +1,9 @@
 """The results site in a real browser (slow): a smoke sweep, its tables and site, then headless Chromium (Debian's
 chromium and chromium-driver, `make browser`) opens the index and a scene page from file:// and checks that
 they load without console errors, that the tables hold the expected rows, that the plot drew and that every
-image loads. Screenshots stay in the test's folder (pytest's tmp_path, printed)."""
+image loads; a site of synthetic records with the committed duel summary shows who wins where on the index (best,
+paired interval, picture, the floor's flag) and a duel page that fits 1400 px without scrolling sideways.
+Screenshots stay in the test's folder (pytest's tmp_path, printed)."""
 
 import os
 import subprocess
@@ -10,6 +12,7 @@ import tempfile
 from pathlib import Path
 
 import pytest
+from test_tables import make_run
 
 pytestmark = pytest.mark.slow
 
@@ -84,6 +87,10 @@ def test_the_smoke_sweeps_site_loads_in_chromium(site, browser, tmp_path):
     assert browser.title == "nvf-bench results" and errors(browser) == []
     overview = table_rows(browser, "table")
     assert [row[0] for row in overview] == ["Random", "NVF"] and all(len(row) == 2 for row in overview)
+    lead = browser.find_element("css selector", ".lead")
+    assert lead.find_element("css selector", "h3").text == "default"
+    assert lead.find_element("css selector", ".best").text.startswith("Best: ")  # one seed each: no interval
+    assert len(lead.find_elements("css selector", "img")) == 1 and broken_images(browser) == []
     browser.save_screenshot(str(tmp_path / "index.png"))
     browser.find_element("link text", "default").click()
     assert browser.title == "default, smoke budget" and errors(browser) == []
@@ -118,3 +125,72 @@ def test_a_pilot_notes_html_does_not_run_in_chromium(browser, tmp_path):
         link.click()
     assert browser.execute_script("return window.ran === undefined") and errors(browser) == []
     assert "<script>window.ran = 2</script>" in browser.find_element("css selector", ".pilot").text
+
+
+def lead_of(driver, scene: str):
+    """The index's box of ``scene``."""
+    return next(
+        box for box in driver.find_elements("css selector", ".lead") if box.find_element("tag name", "h3").text == scene
+    )
+
+
+def no_sideways_scroll(driver) -> bool:
+    """Neither the page nor any of its scrolling boxes is wider than the window shows."""
+    script = (
+        "const boxes = [document.documentElement, ...document.querySelectorAll('.wide')];"
+        "return boxes.every(b => b.scrollWidth <= b.clientWidth)"
+    )
+    return driver.execute_script(script)
+
+
+@pytest.mark.skipif(
+    bool(missing), reason=f"needs {' and '.join(missing)} (Debian's chromium, chromium-driver: make browser)"
+)
+def test_the_index_says_who_wins_where_and_the_duel_fits_in_chromium(browser, tmp_path):
+    """Synthetic records: on Hubble NVF is ahead of Random on every seed (separated), on Room every method is below
+    the floor and NVF's lead spans zero (not separated, flagged); each box's picture loads and opens the scene's
+    page. The committed duel summary's page fits 1400 px with one row per rival."""
+    from pipeline.tables.build import build_tables
+    from pipeline.tables.site import DUEL_SUMMARY, PSNR_FLOOR_DB
+
+    psnr = {
+        ("hubble", "nvf"): (22.0, 23.0, 24.0),
+        ("hubble", "random"): (20.0, 20.5, 21.2),
+        ("room", "nvf"): (12.0, 9.0, 16.0),
+        ("room", "random"): (11.0, 11.5, 10.0),
+    }
+    out, results = tmp_path / "out", tmp_path / "res"
+    for (scene, method), values in psnr.items():
+        for seed, value in zip((100, 101, 102), values, strict=True):
+            make_run(out, scene=scene, method=method, seed=seed, final={"psnr": value})
+    summary = (REPO / "results" / DUEL_SUMMARY).read_text(encoding="utf-8")
+    (results / DUEL_SUMMARY).parent.mkdir(parents=True)
+    (results / DUEL_SUMMARY).write_text(summary, encoding="utf-8")
+    build_tables(out, [], results, assets=tmp_path / "no_assets")
+    browser.set_window_size(1400, 1000)
+    browser.get((results / "site" / "index.html").as_uri())
+    assert errors(browser) == [] and broken_images(browser) == []
+    hubble, room = lead_of(browser, "hubble"), lead_of(browser, "room")
+    best = hubble.find_element("css selector", ".best").text
+    assert best.startswith("Best: NVF, 23.00 dB") and "Runner-up: Random" in best
+    assert "(95% interval over the 3 seeds both ran): separated from Random" in best
+    assert "not separated from Random (the interval includes zero)" in room.find_element("css selector", ".best").text
+    flag = room.find_element("css selector", ".flag")
+    assert flag.is_displayed() and flag.text.startswith(f"Below the {PSNR_FLOOR_DB:g} dB floor")
+    assert hubble.find_elements("css selector", ".flag") == []
+    for box in (hubble, room):
+        picture = box.find_element("css selector", "img")
+        assert picture.is_displayed() and browser.execute_script("return arguments[0].naturalWidth", picture) > 300
+    browser.save_screenshot(str(tmp_path / "index.png"))
+    hubble.find_element("css selector", "img").click()
+    assert browser.title == "hubble, smoke budget" and errors(browser) == []
+    browser.get((results / "site" / "duel.html").as_uri())
+    assert errors(browser) == [] and no_sideways_scroll(browser)
+    scenes = browser.find_elements("css selector", "h2")
+    tables = browser.find_elements("css selector", ".wide table")
+    rows = table_rows(browser, ".wide table")
+    rivals = [line.split(",")[1] for line in summary.splitlines()[1:]]
+    assert len(tables) == len(scenes) and len(rows) == len(rivals)
+    assert sorted(row[0] for row in rows[: len(set(rivals))]) == sorted(set(rivals))  # first scene: a row per rival
+    browser.save_screenshot(str(tmp_path / "duel.png"))
+    print(f"screenshots: {tmp_path / 'index.png'}, {tmp_path / 'duel.png'}")

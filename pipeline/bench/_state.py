@@ -30,6 +30,7 @@ from pipeline.scenes.scene import Scene
 from pipeline.tables.load import load_run
 
 RECORD_SEED = 100  # the committed NVF cpu episode whose poses a state takes
+STAGE_ONE_KEYS = ("backbone", "schedule", "target_samples", "lr_decay_horizon", "precision")  # train.* stage 1 reads
 
 
 def recorded_episode(cfg: Run, scene: Scene, views: int, records: Path, device: torch.device) -> Episode:
@@ -51,12 +52,13 @@ def recorded_episode(cfg: Run, scene: Scene, views: int, records: Path, device: 
 
 
 def _cache_key(episode: Episode) -> str:
-    """What a trained backbone depends on: the settings stage 1 reads, the scene, the observed poses and images."""
+    """What a trained backbone depends on: the settings stage 1 reads (of ``train``: ``STAGE_ONE_KEYS``), the scene,
+    the observed poses and images."""
     s = episode.settings
     parts = {
         "field": dataclasses.asdict(s.field),
         "sampler": dataclasses.asdict(s.sampler),
-        "train": dataclasses.asdict(s.train),
+        "train": {key: value for key, value in dataclasses.asdict(s.train).items() if key in STAGE_ONE_KEYS},
         "seed": s.seed,
         "scene": episode.scene.name,
         "poses": [pose.tolist() for pose in episode.poses],
@@ -139,9 +141,10 @@ def measure_state(cfg_overrides: list[str], episode: Episode) -> tuple[dict, Sce
     ActiveNeRF's models trained at the budget's counts (``train_models``: one stage 1 for all four, NVF's model
     serving w/o Vis. and FisherRF), NVF's planner's candidates drawn, FisherRF's Fisher diagonal prepared and every
     candidate scored by each (one render for the per-pixel scorers of a model, timed apart from FisherRF's
-    whole-view scores). Returns the seconds of each part
-    and in all, the training stages' summaries and NVF's trained model (``cfg_overrides``: ``episode``'s own)."""
-    start = time.perf_counter()
+    whole-view scores). Returns the seconds of each part and in all (wall clock, and ``process_seconds``: the CPU
+    time of this process, all its threads, which a busy machine does not inflate as much), the training stages'
+    summaries and NVF's trained model (``cfg_overrides``: ``episode``'s own)."""
+    start, cpu_start = time.perf_counter(), time.process_time()
     obs, device = episode.observations(), episode.device
     step = len(episode.poses) - int(episode.scene.init_poses.shape[0])
     episodes = {
@@ -176,5 +179,6 @@ def measure_state(cfg_overrides: list[str], episode: Episode) -> tuple[dict, Sce
         "prepare_seconds": prepare,
         "score_seconds": score,
         "seconds": time.perf_counter() - start,
+        "process_seconds": time.process_time() - cpu_start,
     }
     return report, planning

@@ -378,7 +378,7 @@ def main(argv: list[str]) -> None:
         "stages": rows,
         "problems": problems,
         "state": state,
-        "state_hours_cpu": None if state is None or kind != "cpu" else state["seconds"] * state["threads"] / 3600.0,
+        "state_hours_cpu": None if state is None or kind != "cpu" else state["process_seconds"] / 3600.0,
         f"extrapolated_episode_hours_{kind}": hours,
         f"extrapolated_opt_extra_hours_{kind}": opt_hours,
         "fits_in_memory": all(

@@ -19,7 +19,8 @@ What it writes, under ``paths.results`` (default ``${paths.outputs}/results``, y
   difference to NVF;
 - ``figures/``: metric-over-steps curves per scene and budget, and one image grid per method and scene;
 - ``site/``: the results site (open ``site/index.html`` in a browser; it needs no network or server):
-  methods x scenes, and per scene its table, interactive PSNR curves with 95% bands and each run's pictures;
+  per scene the best method with its paired interval against the runner-up, a PSNR picture and a flag below
+  the floor, then methods x scenes; per scene its table, interactive PSNR curves with 95% bands and each run's pictures;
   the pilots under ``${paths.results}/pilots``. A run's pictures are linked where they lie, beside its
   record; those an older record lacks are taken from the site beside its records' folder where that drew
   them (the committed ``results/site/runs/``), else drawn into ``site/runs/``: ``trajectory.png`` (where it put its

@@ -1,5 +1,8 @@
 """The results site, ``${paths.results}/site/``: static pages that open from ``file://`` with no server and no
-network. ``index.html`` is a methods x scenes overview of the final PSNR; one page per scene and budget holds
+network. ``index.html`` leads with who wins where: per scene and budget the best method by final PSNR, its paired
+interval against the runner-up, a small picture of PSNR over the steps (``scenes/psnr_<scene>_<budget>.png``) and
+a flag where no method reaches ``PSNR_FLOOR_DB``; then a methods x scenes table of the final PSNR. One page per
+scene and budget holds
 its table (paired intervals as in ``tables/all_runs``), its PSNR-over-steps curves per method (mean and 95%
 Student-t band over seeds, the paper's final value marked where it has one) and every run's pictures;
 ``pilots.html`` shows the pilots under ``${paths.results}/pilots``: their Markdown notes as text (raw HTML in a
@@ -11,6 +14,8 @@ works while it stays beside them.
 """
 
 import html
+import io
+import math
 import os
 import re
 from collections.abc import Mapping
@@ -26,22 +31,32 @@ import plotly.graph_objects as go
 from jinja2 import Environment
 from markdown.extensions import Extension
 from markdown.treeprocessors import Treeprocessor
+from matplotlib.figure import Figure
+from PIL import Image
 from plotly.offline import get_plotlyjs
 
-from pipeline.atomic_write import atomic_write_text
+from pipeline.atomic_write import atomic_write_bytes, atomic_write_text
 from pipeline.records.checked_files import read_csv
 from pipeline.records.experiment_columns import DUEL_SUMMARY_COLUMNS
 from pipeline.records.files import RecordError, escaping_link, is_plain_file, read_plain_file
-from pipeline.tables.aggregate import SPECS, Table, build_table
-from pipeline.tables.figures import safe_name
+from pipeline.tables.aggregate import SPECS, Table, build_table, mean_std_valid, seed_samples
+from pipeline.tables.escape import plot_text
+from pipeline.tables.figures import file_name, integer_steps, safe_name
 from pipeline.tables.load import Runs
 from pipeline.tables.paper import paper_numbers
-from pipeline.tables.stats import LEVEL, Interval
+from pipeline.tables.stats import LEVEL, Interval, paired
 from pipeline.tables.table_formats import html_table
 
 PLOTLY_JS = "plotly.min.js"
 DUEL_SUMMARY = Path("pilots", "duel", "summary.csv")  # pipeline.experiments.duel_summary's table
 DUEL_COLUMNS = DUEL_SUMMARY_COLUMNS  # the duel summary's columns as its writer declares them, read back checked
+
+PSNR_FLOOR_DB = 15.0  # an RMS error of 18% of the intensity range: a blur of about the right colours, not a scene
+PICTURE_SIZE = (3.8, 2.3)  # inches at PICTURE_DPI: the index's PSNR picture of a scene, shown 380 px wide
+PICTURE_DPI = 150
+PICTURE_COLORS = 64  # its palette (few colours: lines on white)
+OTHER_ROWS = "#b0b0b0"  # the picture's rows other than the best and the runner-up
+FLOOR_LABEL = f"floor, {PSNR_FLOOR_DB:g} dB"
 
 STYLE = """
 body { font-family: system-ui, sans-serif; margin: 1.5em auto; max-width: 1300px; padding: 0 1em; color: #222; }
@@ -57,6 +72,14 @@ thead th { background: #f0f0f0; }
 .pilot img { max-width: 800px; display: block; }
 nav a { margin-right: 1em; }
 .wide { overflow-x: auto; }
+"""
+LEAD_STYLE = """
+.leads { display: flex; flex-wrap: wrap; gap: 1em; margin: 0.6em 0; }
+.lead { border: 1px solid #ddd; padding: 0.5em 0.7em; width: 380px; }
+.lead h3 { margin: 0 0 0.3em 0; }
+.lead img { display: block; width: 100%; height: auto; }
+.lead p { margin: 0.4em 0; font-size: 0.9em; }
+.flag { border-left: 4px solid #b35900; background: #fff4e5; padding: 0.3em 0.5em; }
 """
 
 PAGE = Environment(autoescape=True).from_string("""<!DOCTYPE html>
@@ -88,6 +111,11 @@ def scene_page_name(scene: str, budget: str) -> str:
     return f"scenes/{safe_name(scene)}_{safe_name(budget)}.html"
 
 
+def scene_picture_name(scene: str, budget: str) -> str:
+    """The index's PSNR picture of a scene at a budget, beside the scene's page."""
+    return f"scenes/{file_name(['psnr', scene, budget], '_', '.png')}"
+
+
 def write_site(runs: Runs, pictures: Mapping[str, RunPictures], results: Path) -> list[Path]:
     """Write the site under ``results / "site"`` from the runs and each run's pictures (by run directory); every
     page is made before any is written, so a page that cannot be made (a summary that does not read back) leaves
@@ -95,40 +123,210 @@ def write_site(runs: Runs, pictures: Mapping[str, RunPictures], results: Path) -
     site = Path(results) / "site"
     done = runs.final[runs.final["status"] == "done"]
     pages_text: dict[Path, str] = {site / PLOTLY_JS: get_plotlyjs()}  # plotly.js, its MIT licence in its first lines
-    pages = {}
+    pngs: dict[Path, bytes] = {}
+    pages, curves = {}, {}
     for (budget, scene), frame in done.groupby(["budget", "scene"]):
         path = site / scene_page_name(scene, budget)
         pages[(budget, scene)] = path
         pages_text[path] = scene_page(runs, frame, pictures, scene, budget, path)
+        lead = scene_lead(runs, frame)
+        if lead is not None:
+            curves[(budget, scene)] = site / scene_picture_name(scene, budget)
+            pngs[curves[(budget, scene)]] = psnr_picture(runs, scene, budget, lead)
     duels = read_csv(Path(results) / DUEL_SUMMARY, DUEL_COLUMNS)
     if duels is not None:
         pages_text[site / "duel.html"] = duel_page(duels)
     index = site / "index.html"
-    pages_text[index] = index_page(runs, done, pages, index, duels is not None)
+    pages_text[index] = index_page(runs, done, pages, index, duels is not None, curves)
     pilots = site / "pilots.html"
     pages_text[pilots] = pilots_page(Path(results) / "pilots", pilots)
+    for png_path, png in pngs.items():
+        atomic_write_bytes(png_path, png)
     for path, text in pages_text.items():
         atomic_write_text(path, text)
-    return list(pages_text)
+    return [*pngs, *pages_text]
 
 
-def _page(title: str, body: str, home: str = "", plotly: bool = False) -> str:
+def _page(title: str, body: str, home: str = "", plotly: bool = False, style: str = STYLE) -> str:
     """A whole page; ``home``: the site's folder relative to the page's ("" or "../")."""
-    return PAGE.render(title=title, body=body, style=STYLE, home=home, plotly=f"{home}{PLOTLY_JS}" if plotly else None)
+    return PAGE.render(title=title, body=body, style=style, home=home, plotly=f"{home}{PLOTLY_JS}" if plotly else None)
+
+
+@dataclass(frozen=True)
+class SceneLead:
+    """Who wins a scene at one budget: its rows (methods, their -OPT variants, NVF's ablations) by mean final PSNR
+    over seeds, best first, as (label, mean, seeds); ``versus``: the best's PSNR minus the runner-up's, paired by
+    seed (``stats.paired``, as the tables' ΔPSNR vs NVF), with no mean when there is no runner-up."""
+
+    ranked: tuple[tuple[str, float, int], ...]
+    versus: Interval
+
+    @property
+    def below_floor(self) -> bool:
+        """No row's mean final PSNR reaches ``PSNR_FLOOR_DB``."""
+        return self.ranked[0][1] < PSNR_FLOOR_DB
+
+
+def scene_lead(runs: Runs, frame: pd.DataFrame) -> SceneLead | None:
+    """The ``SceneLead`` of one scene's finished runs at one budget (``frame``); None when no run has a final PSNR.
+    Rows with the same mean keep the tables' order."""
+    samples = seed_samples(frame)
+    stats = {key: mean_std_valid(values["psnr"].to_numpy(float)) for key, values in samples.items()}
+    keys = sorted(
+        (key for key, (mean, _, _) in stats.items() if math.isfinite(mean)),
+        key=lambda key: (-stats[key][0], runs.row(*key[2:]).order),
+    )
+    if not keys:
+        return None
+    ranked = tuple((runs.row(*key[2:]).label, stats[key][0], stats[key][2]) for key in keys)
+    versus = paired(samples[keys[0]]["psnr"], samples[keys[1]]["psnr"]) if len(keys) > 1 else Interval.of(np.array([]))
+    return SceneLead(ranked, versus)
+
+
+def lead_text(lead: SceneLead) -> str:
+    """The lead line of a scene (plain text): the best row and its paired difference to the runner-up, saying
+    plainly whether the 95% interval separates them."""
+    best, mean, seeds = lead.ranked[0]
+    text = f"Best: {best}, {mean:.2f} dB (mean final PSNR over {seeds} seed{'' if seeds == 1 else 's'})."
+    if len(lead.ranked) == 1:
+        return f"{text} The only method run here."
+    runner, runner_mean, _ = lead.ranked[1]
+    versus, n = lead.versus, lead.versus.n
+    text += f" Runner-up: {runner}, {runner_mean:.2f} dB."
+    pairs = f"{n} seed{'' if n == 1 else 's'} both ran"
+    if n < 2:
+        return f"{text} Paired difference {versus.text()} dB over {pairs}: too few pairs for an interval."
+    if versus.mean == versus.low == versus.high == 0.0:
+        return (
+            f"{text} Identical final PSNR on each of the {pairs}: not separated from {runner} (a difference of zero)."
+        )
+    verdict = (
+        f"separated from {runner} (the interval excludes zero)"
+        if versus.excludes_zero
+        else f"not separated from {runner} (the interval includes zero)"
+    )
+    return f"{text} Paired difference {versus.text()} dB ({LEVEL:.0%} interval over the {pairs}): {verdict}."
+
+
+def floor_text(lead: SceneLead) -> str:
+    """The flag of a scene below ``PSNR_FLOOR_DB`` (plain text)."""
+    return (
+        f"Below the {PSNR_FLOOR_DB:g} dB floor: no method's mean final PSNR reaches it (the best: "
+        f"{lead.ranked[0][1]:.2f} dB). The model barely learns this scene at this budget; read its ranking with care."
+    )
+
+
+def psnr_picture(runs: Runs, scene: str, budget: str, lead: SceneLead) -> bytes:
+    """A small PNG of a scene's PSNR over the steps, the mean over seeds per row (``psnr_bands``): the best and the
+    runner-up in colour and named, the others grey; the floor dashed where it is in range or not reached."""
+    best = lead.ranked[0][0]
+    runner = lead.ranked[1][0] if len(lead.ranked) > 1 else None
+    fig = Figure(figsize=PICTURE_SIZE, dpi=PICTURE_DPI, layout="constrained")
+    ax = fig.subplots()
+    drawn = []
+    for label, frame in reversed(psnr_bands(runs, scene, budget)):  # the paper's first rows drawn last, on top
+        if frame.empty or not frame["mean"].notna().any():
+            continue
+        steps, means = frame["step"].to_numpy(int), frame["mean"].to_numpy(float)
+        drawn.append(means[np.isfinite(means)])
+        if label == best:
+            ax.plot(steps, means, color=COLORS[0], linewidth=2.2, zorder=4, label=plot_text(f"best: {label}"))
+        elif label == runner:
+            ax.plot(steps, means, color=COLORS[1], linewidth=1.6, zorder=3, label=plot_text(f"runner-up: {label}"))
+        else:
+            ax.plot(steps, means, color=OTHER_ROWS, linewidth=0.8, zorder=2)
+    values = np.concatenate(drawn) if drawn else np.array([PSNR_FLOOR_DB])
+    if lead.below_floor or values.min() <= PSNR_FLOOR_DB <= values.max():
+        ax.axhline(PSNR_FLOOR_DB, color="#b35900", linestyle="--", linewidth=0.9, zorder=1, label=FLOOR_LABEL)
+    handles, labels = ax.get_legend_handles_labels()
+    order = sorted(range(len(labels)), key=lambda i: (labels[i] == FLOOR_LABEL, not labels[i].startswith("best")))
+    if handles:
+        ax.legend([handles[i] for i in order], [labels[i] for i in order], fontsize=6.5, frameon=False, loc="best")
+    ax.set_xlabel("step", fontsize=7)
+    ax.set_ylabel("PSNR (dB)", fontsize=7)
+    ax.tick_params(labelsize=6.5)
+    integer_steps(ax)
+    ax.grid(alpha=0.3)
+    png = io.BytesIO()
+    fig.savefig(png, format="png")
+    with Image.open(io.BytesIO(png.getvalue())) as image:
+        png = io.BytesIO()
+        image.convert("RGB").quantize(PICTURE_COLORS).save(png, format="PNG", optimize=True)
+    return png.getvalue()
+
+
+def picture_alt(scene: str, budget: str, lead: SceneLead) -> str:
+    """The picture's text alternative (plain text)."""
+    runner = f", the runner-up {lead.ranked[1][0]} in orange" if len(lead.ranked) > 1 else ""
+    return (
+        f"{scene}, {budget} budget: mean PSNR over the steps per method, the best {lead.ranked[0][0]} in blue"
+        f"{runner}, the others grey"
+    )
+
+
+def leads_html(
+    runs: Runs,
+    frame: pd.DataFrame,
+    budget: str,
+    pages: Mapping[tuple[str, str], Path],
+    curves: Mapping[tuple[str, str], Path],
+    page: Path,
+) -> str:
+    """One budget's scenes, each a box: its name and picture linking its page, its lead line, its flag."""
+    boxes = []
+    for scene in sorted(set(frame["scene"]), key=lambda scene: runs.scene(scene).order):
+        lead = scene_lead(runs, frame[frame["scene"] == scene])
+        target = link(pages[(budget, scene)], page)
+        box = [f'<div class="lead"><h3><a href="{target}">{html.escape(scene)}</a></h3>']
+        if lead is None:
+            boxes.append(f"{''.join(box)}<p>No run has a final PSNR.</p></div>")
+            continue
+        picture = curves.get((budget, scene))
+        if picture is not None:
+            alt = html.escape(picture_alt(scene, budget, lead))
+            width, height = (round(inches * 100) for inches in PICTURE_SIZE)
+            source = link(picture, page)
+            box.append(f'<a href="{target}"><img src="{source}" alt="{alt}" width="{width}" height="{height}"></a>')
+        box.append(f'<p class="best">{html.escape(lead_text(lead))}</p>')
+        if lead.below_floor:
+            box.append(f'<p class="flag" role="note">{html.escape(floor_text(lead))}</p>')
+        boxes.append("".join(box) + "</div>")
+    return f'<div class="leads">{"".join(boxes)}</div>'
 
 
 def index_page(
-    runs: Runs, done: pd.DataFrame, pages: Mapping[tuple[str, str], Path], page: Path, duel: bool = False
+    runs: Runs,
+    done: pd.DataFrame,
+    pages: Mapping[tuple[str, str], Path],
+    page: Path,
+    duel: bool = False,
+    curves: Mapping[tuple[str, str], Path] | None = None,
 ) -> str:
-    """Per budget, methods x scenes: final PSNR mean ± population std over seeds, each scene linking to its page;
-    ``duel``: link the duel's page."""
+    """Per budget, who wins where (``leads_html``: per scene the best row and its paired interval against the
+    runner-up, the PSNR picture of ``curves`` by (budget, scene), the floor's flag), then methods x scenes: final
+    PSNR mean ± population std over seeds, each scene linking to its page; ``duel``: link the duel's page."""
     parts = []
     if done.empty:
         parts.append(
             "<p>No finished runs yet: run <code>python -m pipeline.run</code>, then "
             "<code>python -m pipeline.tables</code>.</p>"
         )
+    else:
+        parts.append(
+            "<p>Who wins where: per scene and budget, the best method by mean final PSNR over seeds (every row of "
+            "the tables: the methods, their -OPT variants and NVF's ablations) and its paired difference to the "
+            "runner-up, the best's final PSNR minus the runner-up's on the seeds both ran: mean "
+            f"[{LEVEL:.0%} Student-t interval], as the tables' ΔPSNR vs NVF. Where that interval includes zero, "
+            "the best is not separated from the runner-up. The picture: mean PSNR over the steps per method, the "
+            "best in blue, the runner-up in orange, the others grey; it opens the scene's page.</p>"
+            f'<p class="note">Floor: a scene is flagged where no method\'s mean final PSNR reaches '
+            f"{PSNR_FLOOR_DB:g} dB. That is a root-mean-square error of {10 ** (-PSNR_FLOOR_DB / 20):.0%} of the "
+            "intensity range, a blur of about the right colours: the model barely learns the scene at this budget, "
+            "and its ranking says more about the seeds than about the chosen views.</p>"
+        )
     for budget, frame in done.groupby("budget"):
+        parts.append(f"<h2>{html.escape(budget)} budget</h2>")
+        parts.append(leads_html(runs, frame, budget, pages, curves or {}, page))
         frame = frame.assign(row=list(zip(frame["method"], frame["planner"], frame["ablation"], strict=True)))
         groups = sorted(set(frame["row"]), key=lambda key: runs.row(*key).order)
         scenes = sorted(set(frame["scene"]), key=lambda scene: runs.scene(scene).order)
@@ -143,20 +341,21 @@ def index_page(
                 cells.append(f'<td title="{len(psnr)} seeds">{text}</td>')
             lines.append(f'<tr><td class="label">{html.escape(runs.row(*key).label)}</td>{"".join(cells)}</tr>')
         parts.append(
-            f'<h2>{html.escape(budget)} budget</h2><div class="wide"><table><thead><tr><th>method</th>{head}</tr>'
-            f"</thead><tbody>{''.join(lines)}</tbody></table></div>"
+            f'<h3>Every method, {html.escape(budget)} budget</h3><div class="wide"><table><thead><tr><th>method</th>'
+            f"{head}</tr></thead><tbody>{''.join(lines)}</tbody></table></div>"
         )
     parts.append(
-        '<p class="note">Final PSNR (dB) on the evaluation views: mean ± population std over seeds (hover a cell for '
-        "the number of seeds). A scene's page has every metric with paired 95% intervals, the curves over the steps "
-        "and each run's pictures. Proxies and the procedural default scene are stand-ins, not the paper's assets.</p>"
+        '<p class="note">Tables: final PSNR (dB) on the evaluation views, mean ± population std over seeds (hover a '
+        "cell for the number of seeds). A scene's page has every metric with paired 95% intervals, the curves over "
+        "the steps and each run's pictures. Proxies and the procedural default scene are stand-ins, not the paper's "
+        "assets.</p>"
     )
     if duel:
         parts.append(
             '<p><a href="duel.html">Duels</a>: which method\'s next view is better from the same state, paired '
             "one-step decisions beside the episodes' final PSNR.</p>"
         )
-    return _page("nvf-bench results", "".join(parts))
+    return _page("nvf-bench results", "".join(parts), style=STYLE + LEAD_STYLE)
 
 
 def psnr_bands(runs: Runs, scene: str, budget: str) -> list[tuple[str, pd.DataFrame]]:
@@ -403,45 +602,55 @@ def pilots_page(pilots: Path, page: Path) -> str:
     return _page("Pilots", "".join(parts))
 
 
-def duel_cell(row: pd.Series) -> str:
-    """One pair's cell: the one-step gain with its interval (bold where it excludes zero), its decisions, and the
-    episodes' final-PSNR difference beneath (bold likewise)."""
+def bold_interval(interval: Interval) -> str:
+    """An interval's text, escaped, in bold where it excludes zero."""
+    text = html.escape(interval.text())
+    return f"<strong>{text}</strong>" if interval.excludes_zero else text
+
+
+def duel_row(row: pd.Series) -> str:
+    """One rival's row: the rival, the method, the one-step gain with its interval (bold where it excludes zero), its
+    decisions and share of identical picks, the episodes' final-PSNR difference (bold likewise) and the cpu hours."""
     gain = Interval(row["gain_mean"], row["ci_low"], row["ci_high"], int(row["n"]))
     episode = Interval(row["episode_diff"], row["episode_ci_low"], row["episode_ci_high"], 0)
-    gain_html, episode_html = (
-        f"<strong>{html.escape(i.text())}</strong>" if i.excludes_zero else html.escape(i.text())
-        for i in (gain, episode)
-    )
-    title = f"{int(row['n'])} differing decisions, same pick {row['same_pick']:.0%}, {row['cpu_hours']:.2f} cpu h"
+    same = f"{row['same_pick']:.0%}" if math.isfinite(row["same_pick"]) else "-"
+    hours = f"{row['cpu_hours']:.2f}" if math.isfinite(row["cpu_hours"]) else "-"
     return (
-        f'<td title="{html.escape(title)}">{gain_html} <span class="note">n={int(row["n"])}</span><br>'
-        f'<span class="note">episodes {episode_html}</span></td>'
+        f'<tr><td class="label">{html.escape(str(row["rival"]))}</td><td class="label">'
+        f"{html.escape(str(row['method']))}</td><td>{bold_interval(gain)}</td><td>{int(row['n'])}</td>"
+        f"<td>{same}</td><td>{bold_interval(episode)}</td><td>{hours}</td></tr>"
     )
+
+
+DUEL_HEAD = (
+    "rival",
+    "method",
+    "one-step gain, dB [95% interval]",
+    "differing decisions",
+    "same pick",
+    "episodes' final PSNR difference, dB [95% interval]",
+    "cpu hours",
+)
 
 
 def duel_page(summary: pd.DataFrame) -> str:
-    """Per scene (and over scenes), a method x rival matrix of the duel's one-step gains (``summary.csv`` of
-    ``pipeline.experiments.duel_summary``)."""
+    """Per scene (and over scenes), one row per rival (and method) of the duel's one-step gains (``summary.csv`` of
+    ``pipeline.experiments.duel_summary``): a long table, as narrow however many rivals and methods it holds."""
     parts = [
         "<p>A duel scores the same candidate views with two methods on the same states (half from each method's "
         "recorded episodes); where their picks differ, the plain backbone is trained one step with each pick and "
-        "measured on the evaluation views. A cell: the row method's pick minus the column rival's in held-out "
-        "PSNR (dB, mean [95% Student-t interval] over the n decisions whose picks differ) and, beneath, the row "
-        "method's final PSNR minus the rival's in their episodes (paired by seed). Bold: the interval excludes "
-        "zero. Hover a cell for the share of identical picks and the duel's cpu hours.</p>"
+        "measured on the evaluation views. A row: the method's pick minus the rival's in held-out PSNR (dB, mean "
+        "[95% Student-t interval] over the decisions whose picks differ), how many decisions differ, the share of "
+        "states where both picked the same view, the method's final PSNR minus the rival's in their episodes "
+        "(paired by seed) and the duel's cpu hours. Bold: the interval excludes zero.</p>"
     ]
+    head = "".join(f"<th>{html.escape(name)}</th>" for name in DUEL_HEAD)
     for scene, block in summary.groupby("scene", sort=False):
-        methods, rivals = list(dict.fromkeys(block["method"])), list(dict.fromkeys(block["rival"]))
-        head = "".join(f"<th>{html.escape(str(r))}</th>" for r in rivals)
-        lines = []
-        for method in methods:
-            cells = []
-            for rival in rivals:
-                found = block[(block["method"] == method) & (block["rival"] == rival)]
-                cells.append(duel_cell(found.iloc[0]) if len(found) else "<td>-</td>")
-            lines.append(f'<tr><td class="label">{html.escape(str(method))}</td>{"".join(cells)}</tr>')
+        rivals = list(dict.fromkeys(block["rival"]))
+        ordered = block.assign(_rival=block["rival"].map(rivals.index)).sort_values("_rival", kind="stable")
+        lines = "".join(duel_row(row) for _, row in ordered.iterrows())
         parts.append(
-            f'<h2>{html.escape(str(scene))}</h2><div class="wide"><table><thead><tr><th>method \\ rival</th>'
-            f"{head}</tr></thead><tbody>{''.join(lines)}</tbody></table></div>"
+            f'<h2>{html.escape(str(scene))}</h2><div class="wide"><table><thead><tr>{head}</tr></thead><tbody>'
+            f"{lines}</tbody></table></div>"
         )
     return _page("Duels: paired one-step decisions", "".join(parts))
