@@ -266,6 +266,56 @@ def test_the_summary_refuses_what_it_cannot_pair(tmp_path):
         duel_summary.write_summaries(root, records)
 
 
+def test_the_summary_never_reads_a_record_through_a_link_leaving_records(tmp_path):
+    """An episode record linked from outside ``--records`` is one RecordError naming the link, never a record the
+    columns are computed from; a link staying inside ``--records`` is read."""
+    root, records, outside = tmp_path / "duel", tmp_path / "runs", tmp_path / "elsewhere"
+    for seed in (100, 101, 102):
+        write_episode(records, "nvf", seed, 21.0, 60.0)
+        write_episode(records if seed != 102 else outside, "wd", seed, 20.0, 30.0)
+    folder = root / "nvf_vs_wd"
+    folder.mkdir(parents=True)
+    contenders = {n: {"method": n, "ablation": "none"} for n in ("nvf", "wd")}
+    setting = {"method": "nvf", "rival": "wd", "overrides": [], "budget": "smoke", "contenders": contenders}
+    (folder / "setting.json").write_text(json.dumps(setting))
+    (folder / "decisions.jsonl").write_text(json.dumps(decision(0, 0.2)) + "\n")
+    link = run_dir(records, "hotdog", "wd", "argmax", "none", "smoke", 102)
+    link.symlink_to(run_dir(outside, "hotdog", "wd", "argmax", "none", "smoke", 102))
+    with pytest.raises(RecordError, match=f"{link} is a symbolic link to .*, outside {records}"):
+        duel_summary.write_summaries(root, records)
+    link.unlink()
+    shutil.move(run_dir(outside, "hotdog", "wd", "argmax", "none", "smoke", 102), records / "kept")
+    link.symlink_to(records / "kept")  # inside --records: read as usual
+    assert duel_summary.tables(root, records)[0].iloc[0]["episode_diff"] == pytest.approx(1.0)
+
+
+def test_the_duel_never_reads_through_a_link_leaving_its_folders(tmp_path, capsys):
+    """A state's record linked from outside ``--records``, and a pair folder linked from elsewhere under
+    ``pilots/duel`` (whose ``outcomes.jsonl`` a duel of the same setting would reuse), are each one ``error:`` line
+    and exit 2 before anything is written."""
+    records = tmp_path / "runs"
+    source = Path("results/runs/default/nvf-argmax-none/cpu/seed_100").resolve()
+    run_dir(records, "default", "nvf", "argmax", "none", "cpu", 100).parent.mkdir(parents=True)
+    run_dir(records, "default", "nvf", "argmax", "none", "cpu", 100).symlink_to(source)
+    argv = ["method=nvf", "rival=wd", "budget=cpu", "--scenes", "default", "--seeds", "100", "--steps", "0"]
+    results = tmp_path / "results"
+    with pytest.raises(SystemExit) as exit_:
+        run_command(duel.main, [*argv, "--records", str(records), f"paths.results={results}"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.count("\n") == 1 and f"{source}, outside {records}" in err
+    assert not results.exists()
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    (elsewhere / "setting.json").write_text(json.dumps({"method": "nvf", "overrides": ["budget=cpu"]}))
+    (results / "pilots" / "duel").mkdir(parents=True)
+    (results / "pilots" / "duel" / "nvf_vs_fisherrf").symlink_to(elsewhere)
+    with pytest.raises(SystemExit) as exit_:
+        run_command(duel.main, [*argv, "--records", "results/runs", f"paths.results={results}"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.count("\n") == 1 and "nvf_vs_fisherrf: a link" in err
+    assert sorted(p.name for p in (results / "pilots" / "duel").iterdir()) == ["nvf_vs_fisherrf"]
+
+
 def test_one_step_outcome_of_a_pick():
     """``with_view`` adds the ground truth at a pose to the observations; ``heldout_psnr`` trains the plain
     backbone as the next step would (same seed: the same PSNR twice) and measures it on the evaluation views."""

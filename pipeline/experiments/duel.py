@@ -30,7 +30,8 @@ duel under ``pilots/duel/`` (``pipeline.experiments.duel_summary``). Torch runs 
 (1 to the machine's cores; default 1). To use more cores run several processes on disjoint ``--scenes`` or
 ``--seeds``, one thread each: they append to the same folders side by side; a pair, scene and seed has one writer
 (the records' lock: a second process on it is refused in one line). Every record a state needs is read before
-anything is written; a contender against itself is refused.
+anything is written, none through a symbolic link leaving ``--records`` (nor a pair folder through a link);
+a contender against itself is refused.
 """
 
 import argparse
@@ -69,12 +70,12 @@ from pipeline.experiments.decisions import (
     prepared_scorer,
     with_view,
 )
-from pipeline.experiments.duel_summary import DUEL, SETTING, write_summaries
+from pipeline.experiments.duel_summary import DUEL, SETTING, pair_folders, write_summaries
 from pipeline.experiments.options import SEEDS, add_command, name_list, seed_list, setting_overrides, step_list
 from pipeline.metrics.image import LpipsMetric
 from pipeline.metrics.ranking import spearman
 from pipeline.records.checked import read_json
-from pipeline.records.files import make_directory
+from pipeline.records.files import check_directory, make_directory, refuse_escaping_link
 from pipeline.records.lock import RunLock
 from pipeline.records.store import atomic_write_text, check_seed, run_dir
 from pipeline.scenes.blender import blender_python
@@ -142,9 +143,10 @@ class Call:
 
 
 def recorded_rows(call: Call, scene: str, who: Contender, seed: int) -> list[dict]:
-    """The step rows of ``who``'s recorded episode (verified, ``pipeline.records.verify``), holding every step of
-    ``call.steps``."""
+    """The step rows of ``who``'s recorded episode (verified, ``pipeline.records.verify``; never reached through a
+    symbolic link leaving ``call.records``), holding every step of ``call.steps``."""
     directory = run_dir(call.records, scene, who.method, "argmax", who.ablation, call.budget, seed)
+    refuse_escaping_link(call.records, directory)
     try:
         _, rows = load_run(directory)
     except (ValueError, OSError) as err:
@@ -397,9 +399,10 @@ def main(argv: list[str] | None = None) -> None:
     for scene, seed, rival in itertools.product(scenes, seeds, rivals):  # every record a state needs, before writing
         for i, _ in enumerate(steps):
             recorded_rows(planned, scene, Pair.owner_of(method, rival, i, seed), seed)
-    pairs = open_pairs(root, method, rivals, setting, ["python", "-m", "pipeline.experiments.duel", *argv])
-    settings = {path.parent: read_json(path, SETTING) for path in sorted(root.glob("*/setting.json"))}
+    check_directory(Path(cfg.paths.results), root)  # never read through a link leaving paths.results
+    settings = {folder: read_json(folder / "setting.json", SETTING) for folder in pair_folders(root)}
     same_setting = [folder for folder, made in settings.items() if made is not None and made["overrides"] == kept]
+    pairs = open_pairs(root, method, rivals, setting, ["python", "-m", "pipeline.experiments.duel", *argv])
     call = dataclasses.replace(planned, pairs=pairs, outcomes=Outcomes(same_setting))
     for scene in scenes:
         duel_scene(call, scene)

@@ -33,7 +33,7 @@ from pipeline.cli import ArgumentParser, description, run_command
 from pipeline.config.validation import compose_run
 from pipeline.experiments.decisions import DECISION
 from pipeline.records.checked import Each, Entries, Optional, Text, read_json, read_json_lines
-from pipeline.records.files import RecordError, make_directory
+from pipeline.records.files import RecordError, make_directory, refuse_escaping_link
 from pipeline.records.store import atomic_write_text, record_status
 from pipeline.tables.escape import csv_cell
 from pipeline.tables.load import load_run
@@ -88,10 +88,11 @@ def state_interval(rows: list[dict]) -> Interval:
 def episodes(records: Path, scene: str, who: dict, budget: str) -> pd.DataFrame:
     """The finished argmax episodes of contender ``who`` (``method``, ``ablation``) on ``scene``: per seed the
     final PSNR and the cpu hours (the steps' seconds times the torch threads); records that fail verification
-    are left out."""
+    are left out, a record reached through a symbolic link leaving ``records`` is a ``RecordError``."""
     group = Path(records) / scene / f"{who['method']}-argmax-{who['ablation']}" / budget
     out = []
     for directory in sorted(group.glob("seed_*")):
+        refuse_escaping_link(records, directory)
         try:
             info, steps = load_run(directory)
         except (RecordError, ValueError, OSError):
