@@ -238,29 +238,35 @@ def test_summary_pairs_decisions_and_episodes(tmp_path):
 
 
 def test_the_summary_refuses_what_it_cannot_pair(tmp_path):
-    """A pair folder without its setting, a setting naming no contender, a wrong --records and a linked pair folder
-    are each one RecordError (never a blank column or a vanished pair); a text cell that a spreadsheet would read
-    as a formula is written as text."""
+    """A pair folder without its setting, a setting naming no contender, a wrong --records (none there, or none of
+    the contenders whose records gave the states) and a linked pair folder are each one RecordError (never a blank
+    column or a vanished pair); a text cell that a spreadsheet would read as a formula is written as text."""
     root, records = tmp_path / "duel", tmp_path / "runs"
     for seed in (100, 101, 102):
         write_episode(records, "nvf", seed, 21.0, 60.0)
         write_episode(records, "wd", seed, 20.0, 30.0)
     folder = root / "nvf_vs_wd"
     folder.mkdir(parents=True)
-    (folder / "decisions.jsonl").write_text(json.dumps(decision(0, 0.2) | {"scene": "=HYPERLINK(1)"}) + "\n")
+    (folder / "decisions.jsonl").write_text(json.dumps(decision(0, 0.2) | {"source": "=HYPERLINK(1)"}) + "\n")
     with pytest.raises(RecordError, match="setting.json: missing or incomplete"):
         duel_summary.write_summaries(root, records)
     contenders = {"nvf": {"method": "nvf", "ablation": "none"}}
-    setting = {"method": "nvf", "rival": "wd", "overrides": [], "budget": "smoke"}
+    setting = {"method": "nvf", "rival": "=HYPERLINK(1)", "overrides": [], "budget": "smoke"}
     (folder / "setting.json").write_text(json.dumps(setting | {"contenders": contenders}))
-    with pytest.raises(RecordError, match="names no contender 'wd'"):
+    with pytest.raises(RecordError, match="names no contender '=HYPERLINK"):
         duel_summary.write_summaries(root, records)
-    contenders["wd"] = {"method": "wd", "ablation": "none"}
+    contenders["=HYPERLINK(1)"] = {"method": "wd", "ablation": "none"}
     (folder / "setting.json").write_text(json.dumps(setting | {"contenders": contenders}))
     with pytest.raises(RecordError, match="--records .*: no run records there"):
         duel_summary.write_summaries(root, tmp_path / "nowhere")
     paths = duel_summary.write_summaries(root, records)
-    assert "'=HYPERLINK(1)" in paths[0].read_text() and "\n=HYPERLINK" not in paths[0].read_text()
+    assert "'=HYPERLINK(1)" in paths[0].read_text() and ",=HYPERLINK" not in paths[0].read_text()
+    other = tmp_path / "other"  # records, but not those of the pair's states: refused, not blank columns
+    write_episode(other, "nvf", 100, 21.0, 60.0)
+    with pytest.raises(RecordError, match=r"--records .*other: no episode of =HYPERLINK\(1\) on hotdog at budget"):
+        duel_summary.write_summaries(root, other)
+    (folder / "decisions.jsonl").write_text(json.dumps(decision(0, 0.2) | {"source": "nvf"}) + "\n")
+    assert math.isnan(duel_summary.tables(root, other)[0].iloc[0]["episode_diff"])  # the states' records are there
     (root / "linked").symlink_to(folder)
     with pytest.raises(RecordError, match="a link"):
         duel_summary.write_summaries(root, records)
@@ -314,6 +320,17 @@ def test_the_duel_never_reads_through_a_link_leaving_its_folders(tmp_path, capsy
     err = capsys.readouterr().err
     assert exit_.value.code == 2 and err.count("\n") == 1 and "nvf_vs_fisherrf: a link" in err
     assert sorted(p.name for p in (results / "pilots" / "duel").iterdir()) == ["nvf_vs_fisherrf"]
+
+
+def test_the_summary_reads_the_committed_records_from_any_folder(tmp_path, monkeypatch):
+    """``--records`` defaults to the repository's ``results/runs`` wherever the command runs: a committed pair's
+    rows come out as committed, episode columns included, from a folder holding no records."""
+    committed = Path("results/pilots/duel").resolve()
+    shutil.copytree(committed / "nvf_vs_wo_vis", tmp_path / "pilots" / "duel" / "nvf_vs_wo_vis")
+    monkeypatch.chdir(tmp_path)
+    duel_summary.main([f"paths.results={tmp_path}"])
+    rows = [line for line in (committed / "summary.csv").read_text().splitlines() if line.startswith("nvf,wo_vis,")]
+    assert (tmp_path / "pilots" / "duel" / "summary.csv").read_text().splitlines()[1:] == rows and len(rows) == 4
 
 
 def test_one_step_outcome_of_a_pick():
@@ -400,9 +417,11 @@ def test_duel_on_smoke_records_resumes_after_a_kill(smoke_records, tmp_path, cap
         duel.main(argv)
 
 
-def test_states_can_come_from_records_of_another_budget(tmp_path):
+def test_states_can_come_from_records_of_another_budget(tmp_path, monkeypatch):
     """``--state-budget cpu``: the committed cpu episodes' states (here step 2 of seed 100 on the default scene,
-    NVF's record), trained and scored at the run's budget (smoke here, the paper's in use); the setting says so."""
+    NVF's record, found by the default ``--records`` from any folder), trained and scored at the run's budget
+    (smoke here, the paper's in use); the setting says so."""
+    monkeypatch.chdir(tmp_path)
     argv = ["method=nvf", "rival=wd", "budget=smoke", "--state-budget", "cpu", "--scenes", "default"]
     duel.main([*argv, "--seeds", "100", "--steps", "2", "--sets", "1", f"paths.results={tmp_path}"])
     folder = tmp_path / "pilots" / "duel" / "nvf_vs_wd"

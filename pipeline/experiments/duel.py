@@ -11,7 +11,8 @@ the default).
 States: for scene ``s``, seed ``n`` and the ``i``-th listed step ``k``, the observations before step ``k`` (the
 initial views and the poses selected at steps ``0..k-1``) of A's record if ``(i + n)`` is even, else of B's, so
 each step comes from both trajectories over the seeds. Records: ``<records>/<scene>/<method>-argmax-<ablation>/
-<budget>/seed_<n>``, verified, of the run's budget or of ``--state-budget`` (``budget=paper --state-budget cpu``:
+<budget>/seed_<n>`` (``--records``, default the repository's ``results/runs`` wherever the command runs from),
+verified, of the run's budget or of ``--state-budget`` (``budget=paper --state-budget cpu``:
 the committed cpu episodes' states, trained and scored at the paper's counts; the setting says so).
 
 At a state each contender's model is trained as its own episode's step ``k`` trains it (contenders whose
@@ -78,6 +79,7 @@ from pipeline.records.checked import read_json
 from pipeline.records.files import check_directory, make_directory, refuse_escaping_link
 from pipeline.records.lock import RunLock
 from pipeline.records.store import atomic_write_text, check_seed, run_dir
+from pipeline.repo import RUNS
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.loading import find_asset, load_scene, scene_config
 from pipeline.scenes.scene import Scene, SceneError
@@ -359,7 +361,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seeds", type=seed_list, default=SEEDS, help="comma-separated (default 100,101,102)")
     parser.add_argument("--steps", type=step_list, default=STEPS, help="the recorded steps whose states are used")
     parser.add_argument("--sets", type=int, default=2, help="candidate sets per state (set 0: the planner's own)")
-    parser.add_argument("--records", type=Path, default=Path("results/runs"), help="where the records are")
+    parser.add_argument("--records", type=Path, default=RUNS, help=f"where the records are (default {RUNS})")
     parser.add_argument(
         "--state-budget", default=None, help="the budget of the records the states come from (default: the run's)"
     )

@@ -18,7 +18,8 @@ the replayed training reproduces the episode), and ``episode_cpu_hours``, the ho
 
 ``summary.md``: both, with how many rows the duel and the episodes separate (interval excluding zero) and
 whether their signs agree where both do. ``python -m pipeline.experiments.duel_summary [paths.results=DIR]
-[--records DIR]`` rewrites the three.
+[--records DIR]`` rewrites the three; ``--records`` (default: the repository's ``results/runs``, wherever the
+command runs from) must hold the records of each pair's states, or the pair is refused in one line.
 """
 
 import math
@@ -34,7 +35,8 @@ from pipeline.config.validation import compose_run
 from pipeline.experiments.decisions import DECISION
 from pipeline.records.checked import Each, Entries, Optional, Text, read_json, read_json_lines
 from pipeline.records.files import RecordError, make_directory, refuse_escaping_link
-from pipeline.records.store import atomic_write_text, record_status
+from pipeline.records.store import atomic_write_text, check_key, record_status
+from pipeline.repo import RUNS
 from pipeline.tables.escape import csv_cell
 from pipeline.tables.load import load_run
 from pipeline.tables.render import markdown_table
@@ -85,11 +87,22 @@ def state_interval(rows: list[dict]) -> Interval:
     return Interval.of(frame.groupby(["scene", "seed", "step"])["gain"].mean().to_numpy(float))
 
 
+def episode_group(records: Path, scene: str, who: dict, budget: str) -> Path:
+    """The folder of contender ``who``'s (``method``, ``ablation``) argmax episodes on ``scene`` at ``budget``;
+    ``RecordError`` when a name is not a plain path component."""
+    names = {"scene": scene, "budget": budget, "method": who["method"], "ablation": who["ablation"]}
+    try:
+        key = {name: check_key(name, value) for name, value in names.items()}
+    except ValueError as err:
+        raise RecordError(f"{err}; a duel writes plain names only") from None
+    return Path(records) / key["scene"] / f"{key['method']}-argmax-{key['ablation']}" / key["budget"]
+
+
 def episodes(records: Path, scene: str, who: dict, budget: str) -> pd.DataFrame:
     """The finished argmax episodes of contender ``who`` (``method``, ``ablation``) on ``scene``: per seed the
     final PSNR and the cpu hours (the steps' seconds times the torch threads); records that fail verification
     are left out, a record reached through a symbolic link leaving ``records`` is a ``RecordError``."""
-    group = Path(records) / scene / f"{who['method']}-argmax-{who['ablation']}" / budget
+    group = episode_group(records, scene, who, budget)
     out = []
     for directory in sorted(group.glob("seed_*")):
         refuse_escaping_link(records, directory)
@@ -118,6 +131,22 @@ def compare_episodes(records: Path, setting: dict, scenes: list[str]) -> tuple[I
     return Interval.of(np.concatenate(diffs)), hours
 
 
+def check_state_records(folder: Path, setting: dict, rows: list[dict], records: Path) -> None:
+    """``RecordError`` unless ``records`` holds, on each scene of ``rows``, episodes of every contender whose
+    record gave the pair a state there (the rows' ``source``; both where a row does not name it), at the states'
+    budget: a pair decided on records held elsewhere has no episodes to be compared with here."""
+    budget = setting.get("state_budget") or setting["budget"]
+    for scene in dict.fromkeys(r["scene"] for r in rows):
+        sources = {r.get("source") for r in rows if r["scene"] == scene}
+        for name in (setting[role] for role in ("method", "rival")):
+            group = episode_group(records, scene, setting["contenders"][name], budget)
+            if (name in sources or None in sources) and next(group.glob("seed_*"), None) is None:
+                raise RecordError(
+                    f"--records {records}: no episode of {name} on {scene} at budget {budget} ({group}), though "
+                    f"{folder.name}'s states came from one; name the folder the duel read its states from"
+                )
+
+
 def pair_rows(folder: Path, records: Path) -> tuple[list[dict], list[dict]]:
     """One pair's ``summary.csv`` and ``details.csv`` rows: per scene, then over its scenes."""
     setting = read_json(folder / "setting.json", SETTING)
@@ -127,6 +156,7 @@ def pair_rows(folder: Path, records: Path) -> tuple[list[dict], list[dict]]:
     if absent:
         raise RecordError(f"{folder / 'setting.json'}: names no contender {absent[0]!r}; a duel writes both there")
     rows = read_rows(folder / "decisions.jsonl")
+    check_state_records(folder, setting, rows, records)
     scenes = list(dict.fromkeys(r["scene"] for r in rows))
     summary, details = [], []
     for scene, chosen in [*((s, [s]) for s in scenes), *([(ALL, scenes)] if scenes else [])]:
@@ -274,7 +304,7 @@ def write_summaries(root: Path, records: Path) -> list[Path]:
 def main(argv: list[str]) -> None:
     parser = ArgumentParser(prog="python -m pipeline.experiments.duel_summary", description=description(__doc__))
     parser.add_argument("overrides", nargs="*", help="config overrides, e.g. paths.results=results")
-    parser.add_argument("--records", type=Path, default=Path("results/runs"), help="where the episodes' records are")
+    parser.add_argument("--records", type=Path, default=RUNS, help=f"where the episodes' records are (default {RUNS})")
     args = parser.parse_intermixed_args(argv)
     results = Path(compose_run(args.overrides).paths.results)
     root = make_directory(results, results / "pilots" / DUEL)

@@ -69,6 +69,7 @@ from pipeline.records.checked import read_json
 from pipeline.records.files import make_directory
 from pipeline.records.lock import RunLock
 from pipeline.records.store import atomic_write_text, check_seed, run_dir
+from pipeline.repo import RUNS
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.loading import find_asset, load_scene, scene_config
 from pipeline.scenes.scene import Scene, SceneError
@@ -343,7 +344,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--state-budget", default="cpu", help="the budget of the records the states come from (default cpu)"
     )
-    parser.add_argument("--records", type=Path, default=Path("results/runs"), help="where the records are")
+    parser.add_argument("--records", type=Path, default=RUNS, help=f"where the records are (default {RUNS})")
     parser.add_argument(
         "--outcomes",
         type=name_list,

@@ -64,6 +64,7 @@ from pipeline.metrics.ranking import render_for_terms, spearman, term_attributio
 from pipeline.records.checked import read_json
 from pipeline.records.files import make_directory
 from pipeline.records.store import atomic_write_text, check_key, check_seed, run_dir
+from pipeline.repo import RUNS
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.loading import load_scene
 from pipeline.scenes.scene import SceneError
@@ -223,7 +224,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seeds", type=seed_list, default=SEEDS)
     parser.add_argument("--steps", type=step_list, default=STEPS, help="the recorded steps whose states are studied")
     parser.add_argument("--sets", type=int, default=3, help="candidate sets per state (0: the planner's own)")
-    parser.add_argument("--records", type=Path, default=Path("results/runs"), help="where the NVF records are")
+    parser.add_argument("--records", type=Path, default=RUNS, help=f"where the NVF records are (default {RUNS})")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (1 to the machine's cores)")
     parser.add_argument(
         "--state-budget", default=None, help="the budget of the records the states come from (default: the run's)"

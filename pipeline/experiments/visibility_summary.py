@@ -39,6 +39,7 @@ from pipeline.records.checked import Each, Entries, Number, Optional, Text, read
 from pipeline.records.files import escaping_link, make_directory
 from pipeline.records.store import MAX_SEED, atomic_write_text
 from pipeline.records.verify import MAX_HORIZON
+from pipeline.repo import RUNS
 from pipeline.tables.load import collect_runs
 from pipeline.tables.stats import Interval, paired
 
@@ -204,7 +205,7 @@ def write_surface(study: Path, records: Path) -> Path:
 def main(argv: list[str]) -> None:
     parser = ArgumentParser(prog="python -m pipeline.experiments.visibility_summary", description=description(__doc__))
     parser.add_argument("overrides", nargs="*", help="config overrides, e.g. paths.results=results")
-    parser.add_argument("--records", type=Path, default=Path("results/runs"), help="where the finished records are")
+    parser.add_argument("--records", type=Path, default=RUNS, help=f"where the finished records are (default {RUNS})")
     args = parser.parse_intermixed_args(argv)
     results = Path(compose_run(args.overrides).paths.results)
     study = make_directory(results, results / "pilots" / STUDY)
