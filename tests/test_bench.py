@@ -433,6 +433,34 @@ def test_field_bench_counts_are_bounded(tmp_path, capsys, argv, needle):
     assert not (tmp_path / "field.json").exists()
 
 
+@pytest.mark.parametrize(
+    ("argv", "needle"),
+    [
+        (["plan", "--repeats", "0"], "--repeats 0: must be 1..100"),
+        (["plan", "--repeats", "101"], "--repeats 101: must be 1..100"),
+        (["plan", "--blocks", "0"], "--blocks 0: must be 1..512"),
+        (["plan", "--blocks", "513"], "--blocks 513: must be 1..512"),
+        (["train", "--repeats", "-1"], "--repeats -1: must be 1..100"),
+        (["train", "--repeats", "1000000"], "--repeats 1000000: must be 1..100"),
+        (["train", "--windows", "0"], "--windows 0: must be 1..100"),
+        (["train", "--windows", "101"], "--windows 101: must be 1..100"),
+        (["visibility", "--sets", "0"], "--sets 0: must be 1..64"),
+        (["visibility", "--sets", "99999999999999999999"], "--sets 99999999999999999999: must be 1..64"),
+        (["render", "--res", "64", "4"], "--res 4: must be 8..4096"),
+        (["render", "--res", "100000"], "--res 100000: must be 8..4096"),
+        (["render", "--samples", "0"], "--samples 0: must be 1..4096"),
+        (["render", "--samples", "5000"], "--samples 5000: must be 1..4096"),
+    ],
+)
+def test_bench_counts_are_bounded_before_any_work(tmp_path, capsys, argv, needle):
+    out = tmp_path / "report.json"
+    with pytest.raises(SystemExit) as exit_:
+        bench.main([*argv, "--out", str(out)])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.startswith(f"error: {needle}") and err.count("\n") == 1
+    assert not out.exists()
+
+
 def test_a_report_is_written_through_a_file_of_its_own(tmp_path):
     """The report replaces the old one whole; a file named like a temporary one beside it is left alone."""
     from pipeline.bench._report import write_report

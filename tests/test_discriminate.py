@@ -95,7 +95,12 @@ def test_a_missing_seed_is_left_out_of_the_pairing():
 
 @pytest.mark.parametrize(
     "argv, says",
-    [(["method=wd"], "experiment's own"), (["--seeds", "x"], "--seeds"), (["--jobs", "0"], "--jobs")],
+    [
+        (["method=wd"], "experiment's own"),
+        (["--seeds", "x"], "--seeds"),
+        (["--jobs", "0"], "--jobs 0: must be 1.."),
+        (["--jobs", "4097"], "--jobs 4097: must be 1.."),
+    ],
 )
 def test_bad_input_is_one_line_and_status_2(argv, says, capsys):
     with pytest.raises(SystemExit) as info:

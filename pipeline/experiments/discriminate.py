@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pipeline.cli import ArgumentParser, description, fail, run_command
+from pipeline.cli import ArgumentParser, bounded, cores, description, fail, run_command
 from pipeline.config.catalog import members, method_configs
 from pipeline.config.named import config_label
 from pipeline.config.validation import compose_run
@@ -385,8 +385,7 @@ def main(argv: list[str]) -> int:
     scenes, seeds = args.scenes, args.seeds
     if any(o.split("=")[0].lstrip("+~") in ("method", "ablation", "scene", "seed") for o in args.overrides):
         fail("method, ablation, scene and seed are the experiment's own: use --scenes and --seeds")
-    if args.jobs < 1:
-        fail(f"--jobs {args.jobs} must be >= 1")
+    bounded("--jobs", args.jobs, 1, cores(), "the cores this process may run on")
     cfg = compose_run(args.overrides)
     budget = config_label(cfg.composed)
     try:
