@@ -748,3 +748,9 @@ def test_a_record_joins_the_tables_its_method_and_scene_declare_today():
     assert "table2_ablation" in scene.experiments and "table2_ablation" in row.experiments
     gone = describe({**info, "scene": "no_such_scene", "config": cfg}, NamedConfigs(CONF))[1]
     assert gone.experiments == ("main",)  # a group conf/ no longer has: the record's own list
+
+
+def test_as_csv_quotes_a_named_text_column_cell_a_spreadsheet_would_read_as_a_formula():
+    frame = pd.DataFrame({"scene": ["=HYPERLINK(1)", "-0.5", None], "diffs": ["-0.7 -0.5", "1", "2"], "n": [1, 2, 3]})
+    lines = escape.as_csv(frame, ("scene", "method")).splitlines()
+    assert lines == ["scene,diffs,n", "'=HYPERLINK(1),-0.7 -0.5,1", "-0.5,1,2", ",2,3"]

@@ -73,6 +73,13 @@ def test_summary_pairs_the_disagreements_per_scene_and_over_scenes(tmp_path):
     assert hotdog["nvf_tied_fraction"] == 0.0 and hotdog["wo_vis_tied_fraction"] == pytest.approx(2 / 3)
 
 
+def test_a_name_a_spreadsheet_would_read_as_a_formula_is_written_as_text(tmp_path):
+    rows = [decision_row("=HYPERLINK(1)", 0, 0.5), decision_row("=HYPERLINK(1)", 1, 0.2)]
+    write_setting(tmp_path / "c1", "+cmd", rows)
+    text = write_summary(tmp_path).read_text()
+    assert "\n'+cmd,'=HYPERLINK(1)," in text and "\n+" not in text and ",=" not in text
+
+
 def test_minutes_per_episode_come_from_the_settings_discrimination_experiment(tmp_path):
     """NVF's and w/o Vis.'s mean minutes per episode in ``pilots/discriminate/<the setting's label>/per_seed.csv``;
     the baselines' runs (reused from other budgets' records) are left out; a setting without one stays empty."""

@@ -37,7 +37,7 @@ from pipeline.records.checked import Each, Entries, Optional, Text, read_json, r
 from pipeline.records.files import RecordError, make_directory, refuse_escaping_link
 from pipeline.records.store import atomic_write_text, check_key, record_status
 from pipeline.repo import RUNS
-from pipeline.tables.escape import csv_cell
+from pipeline.tables.escape import as_csv
 from pipeline.tables.load import load_run
 from pipeline.tables.render import markdown_table
 from pipeline.tables.stats import Interval
@@ -58,6 +58,7 @@ COLUMNS = (
     "method", "rival", "scene", "n", "gain_mean", "ci_low", "ci_high", "same_pick",
     "episode_diff", "episode_ci_low", "episode_ci_high", "cpu_hours",
 )  # fmt: skip
+TEXT = ("method", "rival", "scene")  # the csv columns of names (escaped: pipeline.tables.escape.as_csv)
 DETAIL_COLUMNS = (
     "method", "rival", "scene", "decisions", "states", "state_n", "state_gain_mean", "state_ci_low",
     "state_ci_high", "source_pick_recorded", "episode_n", "episode_cpu_hours",
@@ -222,14 +223,6 @@ def tables(root: Path, records: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
     return pd.DataFrame(summary, columns=list(COLUMNS)), pd.DataFrame(details, columns=list(DETAIL_COLUMNS))
 
 
-def as_csv(frame: pd.DataFrame) -> str:
-    """``frame`` as CSV, its text columns' cells escaped so that no spreadsheet reads one as a formula."""
-    escaped = frame.copy()
-    for name in ("method", "rival", "scene"):
-        escaped[name] = escaped[name].map(csv_cell)
-    return escaped.to_csv(index=False, float_format="%.4g")
-
-
 def separates(low: float, high: float) -> bool:
     """An interval excluding zero."""
     return Interval(math.nan, low, high, 0).excludes_zero
@@ -295,8 +288,8 @@ def write_summaries(root: Path, records: Path) -> list[Path]:
     """Write ``summary.csv``, ``details.csv`` and ``summary.md`` under ``root`` (atomically); their paths."""
     summary, details = tables(root, records)
     paths = [root / "summary.csv", root / "details.csv", root / "summary.md"]
-    atomic_write_text(paths[0], as_csv(summary))
-    atomic_write_text(paths[1], as_csv(details))
+    atomic_write_text(paths[0], as_csv(summary, TEXT, "%.4g"))
+    atomic_write_text(paths[1], as_csv(details, TEXT, "%.4g"))
     atomic_write_text(paths[2], summary_markdown(summary, details))
     return paths
 

@@ -40,10 +40,12 @@ from pipeline.records.files import escaping_link, make_directory
 from pipeline.records.store import MAX_SEED, atomic_write_text
 from pipeline.records.verify import MAX_HORIZON
 from pipeline.repo import RUNS
+from pipeline.tables.escape import as_csv
 from pipeline.tables.load import collect_runs
 from pipeline.tables.stats import Interval, paired
 
 STUDY = "visibility_study"
+TEXT = ("setting", "scene", "visibility_source", "nvf_decisive_term")  # csv columns of names (escaped)
 COLUMNS = (
     "setting",
     "scene",
@@ -169,7 +171,7 @@ def summary_frame(study: Path) -> pd.DataFrame:
 def write_summary(study: Path) -> Path:
     """Write ``<study>/summary.csv`` (atomically) and return its path."""
     path = study / "summary.csv"
-    atomic_write_text(path, summary_frame(study).to_csv(index=False, float_format="%.4g"))
+    atomic_write_text(path, as_csv(summary_frame(study), TEXT, "%.4g"))
     return path
 
 
@@ -198,7 +200,7 @@ def surface_frame(records: Path, budget: str = "cpu") -> pd.DataFrame:
 def write_surface(study: Path, records: Path) -> Path:
     """Write ``<study>/surface.csv`` (atomically) from the records under ``records`` and return its path."""
     path = study / "surface.csv"
-    atomic_write_text(path, surface_frame(records).to_csv(index=False, float_format="%.4g"))
+    atomic_write_text(path, as_csv(surface_frame(records), TEXT, "%.4g"))
     return path
 
 
