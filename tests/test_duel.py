@@ -177,6 +177,44 @@ def test_a_second_setting_under_the_same_folder_is_refused(tmp_path, capsys):
     assert sorted(p.name for p in folder.iterdir()) == ["setting.json"]
 
 
+def test_a_committed_pair_resumes_with_its_thread_count_and_refuses_another(tmp_path, capsys, monkeypatch):
+    """A committed pair folder (its setting predates the thread count; its rows say 1) resumes with ``--threads 1``:
+    a state it holds is not decided again and nothing is written to it. Another count is one line naming both,
+    before anything is written, as is another count than a setting records."""
+    monkeypatch.setattr(duel.os, "sched_getaffinity", lambda pid: {0, 1, 2, 3})
+    folder = tmp_path / "pilots" / "duel" / "nvf_vs_wd"
+    shutil.copytree(Path("results/pilots/duel/nvf_vs_wd"), folder)
+    files = {path.name: path.read_bytes() for path in folder.iterdir()}
+    argv = ["method=nvf", "rival=wd", "budget=cpu", "--scenes", "default", "--seeds", "100", "--steps", "0"]
+    argv += [f"paths.results={tmp_path}"]
+    duel.main([*argv, "--threads", "1"])
+    assert "step 0" not in capsys.readouterr().out
+    assert {path.name: path.read_bytes() for path in folder.iterdir() if path.name != ".locks"} == files
+    for threads, made in (("2", None), ("1", 2)):
+        if made is not None:
+            setting = json.loads(files["setting.json"]) | {"threads": made}
+            (folder / "setting.json").write_text(json.dumps(setting))
+        before = {path.name: path.read_bytes() for path in folder.iterdir() if path.is_file()}
+        with pytest.raises(SystemExit) as exit_:
+            duel.main([*argv, "--threads", threads])
+        err = capsys.readouterr().err
+        assert exit_.value.code == 2 and err.count("\n") == 1
+        assert f"was made with --threads {made or 1}, not --threads {threads}" in err
+        assert {path.name: path.read_bytes() for path in folder.iterdir() if path.is_file()} == before
+
+
+def test_a_duel_refused_by_another_writer_writes_no_setting_or_command(tmp_path, capsys):
+    """The setting and the command are written under the pair's lock once its scene and seed are held: a duel
+    refused because another process holds them leaves neither behind."""
+    folder = tmp_path / "pilots" / "duel" / "nvf_vs_wd"
+    argv = ["method=nvf", "rival=wd", "budget=cpu", "--scenes", "default", "--seeds", "100", "--steps", "0"]
+    with RunLock(folder / "default" / "seed_100", folder), pytest.raises(SystemExit) as exit_:
+        run_command(duel.main, [*argv, f"paths.results={tmp_path}"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and "is being written by" in err and err.count("\n") == 1
+    assert sorted(p.name for p in folder.iterdir()) == [".locks"]
+
+
 def write_episode(root: Path, method: str, seed: int, final_psnr: float, seconds: float) -> None:
     """A finished two-step smoke record on 'hotdog' ending at ``final_psnr``, each step taking ``seconds``."""
     record = RunRecord(run_dir(root, "hotdog", method, "argmax", "none", "smoke", seed))
@@ -417,16 +455,27 @@ def test_duel_on_smoke_records_resumes_after_a_kill(smoke_records, tmp_path, cap
         duel.main(argv)
 
 
-def test_states_can_come_from_records_of_another_budget(tmp_path, monkeypatch):
+def test_states_can_come_from_records_of_another_budget(tmp_path, monkeypatch, capsys):
     """``--state-budget cpu``: the committed cpu episodes' states (here step 2 of seed 100 on the default scene,
     NVF's record, found by the default ``--records`` from any folder), trained and scored at the run's budget
-    (smoke here, the paper's in use); the setting says so."""
+    (smoke here, the paper's in use); the setting says so, and the threads. ``--sets 3`` on the folder made with
+    ``--sets 2`` decides the new set alone, and both commands are in ``command.txt``."""
     monkeypatch.chdir(tmp_path)
     argv = ["method=nvf", "rival=wd", "budget=smoke", "--state-budget", "cpu", "--scenes", "default"]
-    duel.main([*argv, "--seeds", "100", "--steps", "2", "--sets", "1", f"paths.results={tmp_path}"])
+    argv += ["--seeds", "100", "--steps", "2", f"paths.results={tmp_path}"]
+    duel.main([*argv, "--sets", "2"])
     folder = tmp_path / "pilots" / "duel" / "nvf_vs_wd"
     rows = read(folder)
-    assert [(r["step"], r["set"], r["source"], r["candidates"]) for r in rows] == [(2, 0, "nvf", 8)]
-    assert json.loads((folder / "setting.json").read_text())["state_budget"] == "cpu"
+    assert [(r["step"], r["set"], r["source"], r["candidates"]) for r in rows] == [(2, 0, "nvf", 8), (2, 1, "nvf", 8)]
+    assert json.loads((folder / "setting.json").read_text()) | {"contenders": None} == {
+        "method": "nvf", "overrides": ["budget=smoke"], "budget": "smoke", "threads": 1, "state_budget": "cpu",
+        "rival": "wd", "contenders": None,
+    }  # fmt: skip
+    capsys.readouterr()
+    duel.main([*argv, "--sets", "3"])
+    assert "step 2 (nvf's state): wd: " in capsys.readouterr().out
+    assert read(folder)[:2] == rows and [(r["step"], r["set"]) for r in read(folder)[2:]] == [(2, 2)]
+    commands = (folder / "command.txt").read_text().splitlines()
+    assert [line.split()[-1] for line in commands] == ["2", "3"] and len(commands) == 2
     with pytest.raises(SystemExit):
-        duel.main([*argv[:-4], "--state-budget", "bogus", f"paths.results={tmp_path / 'other'}"])
+        duel.main(["method=nvf", "rival=wd", "budget=smoke", "--state-budget", "bogus", f"paths.results={tmp_path}/o"])

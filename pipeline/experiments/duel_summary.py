@@ -33,7 +33,7 @@ import pandas as pd
 from pipeline.cli import ArgumentParser, description, run_command
 from pipeline.config.validation import compose_run
 from pipeline.experiments.decisions import DECISION
-from pipeline.records.checked import Each, Entries, Optional, Text, read_json, read_json_lines
+from pipeline.records.checked import Each, Entries, Number, Optional, Text, read_json, read_json_lines
 from pipeline.records.files import RecordError, make_directory, refuse_escaping_link
 from pipeline.records.store import atomic_write_text, check_key, record_status
 from pipeline.repo import RUNS
@@ -51,7 +51,8 @@ SETTING = {
     "budget": Optional(Text()),
     "contenders": Optional(Entries(CONTENDER)),
     "state_budget": Optional(Text()),
-}  # a pair's setting.json (the rival and contenders once written for the pair)
+    "threads": Optional(Number(1, 4096, integer=True)),
+}  # a pair's setting.json (the rival and contenders once written for the pair; threads since they are recorded)
 ALL = "all"
 MIN_SEEDS = 3  # episodes compared only with this many paired seeds per scene
 COLUMNS = (
