@@ -181,7 +181,7 @@ def test_a_committed_pair_resumes_with_its_thread_count_and_refuses_another(tmp_
     """A committed pair folder (its setting predates the thread count; its rows say 1) resumes with ``--threads 1``:
     a state it holds is not decided again and nothing is written to it. Another count is one line naming both,
     before anything is written, as is another count than a setting records."""
-    monkeypatch.setattr(duel.os, "sched_getaffinity", lambda pid: {0, 1, 2, 3})
+    monkeypatch.setattr("os.sched_getaffinity", lambda pid: {0, 1, 2, 3})
     folder = tmp_path / "pilots" / "duel" / "nvf_vs_wd"
     shutil.copytree(Path("results/pilots/duel/nvf_vs_wd"), folder)
     files = {path.name: path.read_bytes() for path in folder.iterdir()}

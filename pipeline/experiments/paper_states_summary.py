@@ -24,7 +24,7 @@ import pandas as pd
 
 from pipeline.cli import ArgumentParser, description, run_command
 from pipeline.config.validation import compose_run
-from pipeline.records.checked import Each, Entries, Number, Text, read_json_lines
+from pipeline.records.checked import Each, Entries, Number, Optional, Text, read_json_lines
 from pipeline.records.files import RecordError
 from pipeline.records.store import MAX_SEED, atomic_write_text
 from pipeline.records.verify import MAX_HORIZON
@@ -35,7 +35,7 @@ from pipeline.tables.stats import Interval
 FOLDER = "paper_states"
 RIVALS = ("wo_vis", "fisherrf", "activenerf")
 ALL = "all"
-SETTING = {"overrides": Each(Text()), "state_budget": Text()}
+SETTING = {"overrides": Each(Text()), "state_budget": Text(), "threads": Optional(Number(1, 4096, integer=True))}
 SPREAD = {
     "count": Number(0, 1 << 31, integer=True),
     "min": Number(),

@@ -79,6 +79,7 @@ SETTING = {
     "visibility_source": Optional(Text()),
     "budget": Optional(Text()),
     "state_budget": Optional(Text()),
+    "threads": Optional(Number(1, 4096, integer=True)),  # missing: made with one (before it was recorded)
 }
 COUNT = Number(0, 2**31, integer=True)
 DECISION = {
