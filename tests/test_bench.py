@@ -290,6 +290,7 @@ def test_paper_shape_measures_every_stage_with_the_sizes_kept(tmp_path):
         (["--eval-views", "0"], "--eval-views 0: must be 1..20"),
         (["--scenes", ","], "--scenes: name at least one scene"),
         (["--scenes", "nowhere"], "nowhere"),
+        (["--budget", "../budget/smoke"], "--budget '../budget/smoke': not one of conf/budget"),
     ],
 )
 def test_paper_shape_refuses_bad_input_in_one_line(tmp_path, capsys, args, needle):
@@ -299,6 +300,20 @@ def test_paper_shape_refuses_bad_input_in_one_line(tmp_path, capsys, args, needl
     err = capsys.readouterr().err.strip()
     assert exit_.value.code == 2 and err.startswith("error: ") and needle in err and "\n" not in err
     assert not out.exists()
+
+
+def test_paper_shape_refuses_a_folder_as_its_report_before_any_stage(tmp_path, capsys, monkeypatch):
+    """``--out DIR`` ran every stage and then failed on ``DIR.tmp``: now it is one line before the first stage."""
+
+    def no_stage(*args, **kwargs):
+        raise AssertionError("a stage ran")
+
+    monkeypatch.setattr(paper_shape, "measure", no_stage)
+    with pytest.raises(SystemExit) as exit_:
+        paper_shape.main(["--budget", "smoke", "--scenes", "default", "--out", str(tmp_path)])
+    err = capsys.readouterr().err.strip()
+    assert exit_.value.code == 2 and f"--out {tmp_path}: not a plain file" in err and "\n" not in err
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_paper_shape_counts_a_paper_episode_from_its_rates(tmp_path):
