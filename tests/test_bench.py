@@ -17,7 +17,18 @@ import torch
 from nvf.cameras import Intrinsics
 from nvf.training import train_backbone
 from pipeline.bench import __main__ as bench
-from pipeline.bench import device, episode, field, paper_profile, paper_shape, plan, speedups, train, visibility
+from pipeline.bench import (
+    contention,
+    device,
+    episode,
+    field,
+    paper_profile,
+    paper_shape,
+    plan,
+    speedups,
+    train,
+    visibility,
+)
 from pipeline.bench._models import CountingModel, load, observations
 from pipeline.config.catalog import method_configs
 from pipeline.config.validation import compose_run
@@ -465,6 +476,10 @@ def test_field_bench_counts_are_bounded(tmp_path, capsys, argv, needle):
         (["render", "--res", "100000"], "--res 100000: must be 8..4096"),
         (["render", "--samples", "0"], "--samples 0: must be 1..4096"),
         (["render", "--samples", "5000"], "--samples 5000: must be 1..4096"),
+        (["contention", "--repeats", "0"], "--repeats 0: must be 1..20"),
+        (["contention", "--repeats", "21"], "--repeats 21: must be 1..20"),
+        (["contention", "--threads", "0"], "--threads 0: must be 1.."),
+        (["contention", "--threads", "4097"], "--threads 4097: must be 1.."),
     ],
 )
 def test_bench_counts_are_bounded_before_any_work(tmp_path, capsys, argv, needle):
@@ -474,6 +489,49 @@ def test_bench_counts_are_bounded_before_any_work(tmp_path, capsys, argv, needle
     err = capsys.readouterr().err
     assert exit_.value.code == 2 and err.startswith(f"error: {needle}") and err.count("\n") == 1
     assert not out.exists()
+
+
+def test_contention_runs_the_project_policy_and_the_active_one_with_the_threads_asked(monkeypatch):
+    """The child episodes: the budget and horizon defaults unless overridden; ``OMP_WAIT_POLICY`` left to the
+    child's ``pipeline`` (passive) or set to ``ACTIVE``, a user's own value never passed on; ``--threads`` threads."""
+    assert contention.with_defaults([]) == ["budget=cpu", "budget.horizon=2"]
+    assert contention.with_defaults(["budget=smoke", "seed=3"]) == ["budget.horizon=2", "budget=smoke", "seed=3"]
+    monkeypatch.setenv("OMP_WAIT_POLICY", "ACTIVE")
+    project, active = (contention.child_env(policy, 2) for policy in contention.POLICIES.values())
+    assert "OMP_WAIT_POLICY" not in project and active["OMP_WAIT_POLICY"] == "ACTIVE"
+    assert project["OMP_NUM_THREADS"] == active["OMP_NUM_THREADS"] == "2"
+    child = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            "import os, sys, pipeline; print(os.environ['OMP_WAIT_POLICY'], 'torch' in sys.modules)",
+        ],
+        env=project,
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    assert child.stdout.split() == ["PASSIVE", "False"]  # set before torch is imported
+
+
+@pytest.mark.slow
+def test_contention_pairs_each_policy_alone_and_beside_a_busy_process(tmp_path):
+    """At the smoke budget, one repeat: four episodes (each policy alone and beside the busy process), each with
+    its seconds per step from its record, and per policy the paired ratio."""
+    out = tmp_path / "contention.json"
+    contention.main(["budget=smoke", "--repeats", "1", "--threads", "1", "--out", str(out)])
+    report = json.loads(out.read_text())
+    assert [(r["policy"], r["beside_busy"]) for r in report["runs"]] == [
+        ("project", False), ("project", True), ("active", False), ("active", True)
+    ]  # fmt: skip
+    assert all(r["steps"] == 2 and r["seconds_per_step"] > 0 for r in report["runs"])
+    for policy in ("project", "active"):
+        found = report["summary"][policy]
+        alone, beside = (r["seconds_per_step"] for r in report["runs"] if r["policy"] == policy)
+        assert found["ratio"]["n"] == 1 and found["ratio"]["median"] == pytest.approx(beside / alone)
+    assert report["threads"] == 1 and report["within_target"] == (
+        report["summary"]["project"]["ratio"]["median"] <= 2.5
+    )
 
 
 def test_a_report_is_written_through_a_file_of_its_own(tmp_path):
