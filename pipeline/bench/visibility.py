@@ -48,7 +48,7 @@ from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
 from nvf.visibility_source import SOURCES, label_visibility
 from pipeline.bench._models import InitialViewModel
 from pipeline.bench._report import report_path, write_report
-from pipeline.cli import ArgumentParser, description, fail
+from pipeline.cli import ArgumentParser, bounded, description, fail
 from pipeline.config.typed import Run
 from pipeline.config.validation import compose_run
 from pipeline.metrics.ranking import (
@@ -62,6 +62,7 @@ from pipeline.metrics.ranking import (
 )
 from pipeline.tables.load import load_run
 
+MAX_SETS = 64
 SURFACE_OFFSET = 0.01  # scene units: the surface point moves this far towards the candidate camera
 MIN_ACCUMULATION = 0.5  # PROTOCOL 4.2's surface rule
 MIN_OBJECT_FRACTION = 0.05  # novelty is taken on views whose object pixels fill at least this much
@@ -349,8 +350,7 @@ def main(argv: list[str]) -> None:
     )
     args = parser.parse_intermixed_args(argv)
     sources = args.sources.split(",")
-    if args.sets < 1:
-        parser.error("--sets must be >= 1")
+    bounded("--sets", args.sets, 1, MAX_SETS)
     if not sources or any(name not in SOURCES for name in sources):
         parser.error(f"--sources={args.sources!r}: use a comma-separated subset of {','.join(SOURCES)}")
     if args.step < 0 or (args.step > 0 and args.record is None):
