@@ -1,10 +1,12 @@
 """Files written atomically: the new content goes to a temp file of this writer beside the target, is flushed to
 disk and renamed over the target's name, and the directory is synced, so a reader (or a process killed mid-write)
 sees the old file or the new one, never a half-written one, and a write never goes into an existing file (nor
-through a link planted at its name). Every file the harness writes goes through here; no heavy imports."""
+through a link planted at its name). Every file the harness writes goes through here; a folder that replaces
+another is built beside it (``temp_folder``) and swapped in by renames (``replace_folder``); no heavy imports."""
 
 import os
 import secrets
+import shutil
 from pathlib import Path
 
 TEMP_SUFFIX = ".tmp"  # a temp file's name: .<name>.<pid>.<random>.tmp beside its target
@@ -27,6 +29,38 @@ def temp_file(path: Path) -> tuple[int, Path]:
             return os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666), tmp
         except FileExistsError:
             continue
+
+
+def temp_folder(path: Path) -> Path:
+    """A new, empty folder beside ``path``, unique to this writer (``.<name>.<pid>.<random>.new``), made as any new
+    folder of this process is (0o777 less the umask): where a folder that will replace ``path`` is built."""
+    while True:
+        folder = path.parent / f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.new"
+        try:
+            os.mkdir(folder, 0o777)
+            return folder
+        except FileExistsError:
+            continue
+
+
+def replace_folder(new: Path, path: Path) -> None:
+    """Put the folder ``new`` (beside ``path``) in the place of ``path`` by renames: ``path`` (a folder, a link or
+    nothing) renamed aside, ``new`` renamed to ``path`` (the old one put back if that fails), then the old one
+    removed. A reader sees the old folder or the new one whole, never a mix."""
+    old = None
+    if os.path.lexists(path):
+        old = path.parent / f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.old"
+        os.rename(path, old)
+    try:
+        os.rename(new, path)
+    except BaseException:
+        if old is not None:
+            os.rename(old, path)
+        raise
+    if old is not None and (old.is_symlink() or not old.is_dir()):
+        old.unlink()
+    elif old is not None:
+        shutil.rmtree(old)
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:

@@ -5,9 +5,11 @@ from the module's docstring, and bad input as one ``error: ...`` line on stderr 
 Every command's ``main`` runs through ``run_command``: the errors a user can cause (``BadInput``: a bad
 argument, config, record, scene or path; OmegaConf's and Hydra's errors for an override they cannot resolve;
 an ``OSError`` on a path) are one ``error:`` line and exit status 2, a run that failed (``Failed``) is one
-line and status 1, and anything else is a bug: its traceback is kept."""
+line and status 1, and anything else is a bug: its traceback is kept. Every count a user gives is bounded
+(``bounded``: one line naming the range), threads by the cores the process may run on (``cores``)."""
 
 import argparse
+import os
 import re
 import sys
 from collections.abc import Callable
@@ -66,6 +68,19 @@ def fail(message: str) -> NoReturn:
     """Print ``error: <message>`` (one line) on stderr and exit with ``BAD_INPUT``."""
     print(f"error: {' '.join(str(message).split())}", file=sys.stderr)
     raise SystemExit(BAD_INPUT)
+
+
+def bounded(name: str, value: int, low: int, high: int, what: str = "") -> int:
+    """``value`` (given as ``name``, e.g. ``--sets``) when it lies in ``low..high``, else ``fail`` saying the range
+    and, in ``what``, where the bound comes from (e.g. "this machine's cores")."""
+    if not low <= value <= high:
+        fail(f"{name} {value}: must be {low}..{high}" + (f" ({what})" if what else ""))
+    return value
+
+
+def cores() -> int:
+    """The cores this process may run on (its CPU affinity, not the machine's count)."""
+    return len(os.sched_getaffinity(0))
 
 
 def exit_with(err: BaseException) -> NoReturn:

@@ -18,6 +18,7 @@ from nvf.cameras import Intrinsics
 from nvf.training import train_backbone
 from pipeline.bench import __main__ as bench
 from pipeline.bench import (
+    contention,
     device_facts,
     episode,
     field_throughput,
@@ -49,7 +50,7 @@ def _assert_positive(path: Path, keys: list[str]) -> dict:
 def test_benchmarks_are_dispatched():
     """Every benchmark keeps its command name, whatever its module is called (``field``: field_throughput.py)."""
     commands = {"device", "field", "render", "train", "plan", "episode", "visibility", "paper_shape", "paper_profile"}
-    assert commands | {"speedups"} == set(bench.available())
+    assert commands | {"speedups", "contention"} == set(bench.available())
     assert bench.modules()["field"] == "field_throughput" and bench.modules()["train"] == "train"
     page = bench.help_page(bench.available())
     assert all(f"  {name} " in page for name in commands)
@@ -306,6 +307,7 @@ def test_paper_shape_measures_every_stage_with_the_sizes_kept(tmp_path):
         (["--eval-views", "0"], "--eval-views 0: must be 1..20"),
         (["--scenes", ","], "--scenes: name at least one scene"),
         (["--scenes", "nowhere"], "nowhere"),
+        (["--budget", "../budget/smoke"], "--budget '../budget/smoke': not one of conf/budget"),
     ],
 )
 def test_paper_shape_refuses_bad_input_in_one_line(tmp_path, capsys, args, needle):
@@ -315,6 +317,20 @@ def test_paper_shape_refuses_bad_input_in_one_line(tmp_path, capsys, args, needl
     err = capsys.readouterr().err.strip()
     assert exit_.value.code == 2 and err.startswith("error: ") and needle in err and "\n" not in err
     assert not out.exists()
+
+
+def test_paper_shape_refuses_a_folder_as_its_report_before_any_stage(tmp_path, capsys, monkeypatch):
+    """``--out DIR`` ran every stage and then failed on ``DIR.tmp``: now it is one line before the first stage."""
+
+    def no_stage(*args, **kwargs):
+        raise AssertionError("a stage ran")
+
+    monkeypatch.setattr(paper_shape, "measure", no_stage)
+    with pytest.raises(SystemExit) as exit_:
+        paper_shape.main(["--budget", "smoke", "--scenes", "default", "--out", str(tmp_path)])
+    err = capsys.readouterr().err.strip()
+    assert exit_.value.code == 2 and f"--out {tmp_path}: not a plain file" in err and "\n" not in err
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_paper_shape_counts_a_paper_episode_from_its_rates(tmp_path):
@@ -449,6 +465,81 @@ def test_field_bench_counts_are_bounded(tmp_path, capsys, argv, needle):
     err = capsys.readouterr().err.strip()
     assert exit_.value.code == 2 and needle in err and "\n" not in err
     assert not (tmp_path / "field.json").exists()
+
+
+@pytest.mark.parametrize(
+    ("argv", "needle"),
+    [
+        (["plan", "--repeats", "0"], "--repeats 0: must be 1..100"),
+        (["plan", "--repeats", "101"], "--repeats 101: must be 1..100"),
+        (["plan", "--blocks", "0"], "--blocks 0: must be 1..512"),
+        (["plan", "--blocks", "513"], "--blocks 513: must be 1..512"),
+        (["train", "--repeats", "-1"], "--repeats -1: must be 1..100"),
+        (["train", "--repeats", "1000000"], "--repeats 1000000: must be 1..100"),
+        (["train", "--windows", "0"], "--windows 0: must be 1..100"),
+        (["train", "--windows", "101"], "--windows 101: must be 1..100"),
+        (["visibility", "--sets", "0"], "--sets 0: must be 1..64"),
+        (["visibility", "--sets", "99999999999999999999"], "--sets 99999999999999999999: must be 1..64"),
+        (["render", "--res", "64", "4"], "--res 4: must be 8..4096"),
+        (["render", "--res", "100000"], "--res 100000: must be 8..4096"),
+        (["render", "--samples", "0"], "--samples 0: must be 1..4096"),
+        (["render", "--samples", "5000"], "--samples 5000: must be 1..4096"),
+        (["contention", "--repeats", "0"], "--repeats 0: must be 1..20"),
+        (["contention", "--repeats", "21"], "--repeats 21: must be 1..20"),
+        (["contention", "--threads", "0"], "--threads 0: must be 1.."),
+        (["contention", "--threads", "4097"], "--threads 4097: must be 1.."),
+    ],
+)
+def test_bench_counts_are_bounded_before_any_work(tmp_path, capsys, argv, needle):
+    out = tmp_path / "report.json"
+    with pytest.raises(SystemExit) as exit_:
+        bench.main([*argv, "--out", str(out)])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.startswith(f"error: {needle}") and err.count("\n") == 1
+    assert not out.exists()
+
+
+def test_contention_runs_the_project_policy_and_the_active_one_with_the_threads_asked(monkeypatch):
+    """The child episodes: the budget and horizon defaults unless overridden; ``OMP_WAIT_POLICY`` left to the
+    child's ``pipeline`` (passive) or set to ``ACTIVE``, a user's own value never passed on; ``--threads`` threads."""
+    assert contention.with_defaults([]) == ["budget=cpu", "budget.horizon=2"]
+    assert contention.with_defaults(["budget=smoke", "seed=3"]) == ["budget.horizon=2", "budget=smoke", "seed=3"]
+    monkeypatch.setenv("OMP_WAIT_POLICY", "ACTIVE")
+    project, active = (contention.child_env(policy, 2) for policy in contention.POLICIES.values())
+    assert "OMP_WAIT_POLICY" not in project and active["OMP_WAIT_POLICY"] == "ACTIVE"
+    assert project["OMP_NUM_THREADS"] == active["OMP_NUM_THREADS"] == "2"
+    child = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            "import os, sys, pipeline; print(os.environ['OMP_WAIT_POLICY'], 'torch' in sys.modules)",
+        ],
+        env=project,
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    assert child.stdout.split() == ["PASSIVE", "False"]  # set before torch is imported
+
+
+@pytest.mark.slow
+def test_contention_pairs_each_policy_alone_and_beside_a_busy_process(tmp_path):
+    """At the smoke budget, one repeat: four episodes (each policy alone and beside the busy process), each with
+    its seconds per step from its record, and per policy the paired ratio."""
+    out = tmp_path / "contention.json"
+    contention.main(["budget=smoke", "--repeats", "1", "--threads", "1", "--out", str(out)])
+    report = json.loads(out.read_text())
+    assert [(r["policy"], r["beside_busy"]) for r in report["runs"]] == [
+        ("project", False), ("project", True), ("active", False), ("active", True)
+    ]  # fmt: skip
+    assert all(r["steps"] == 2 and r["seconds_per_step"] > 0 for r in report["runs"])
+    for policy in ("project", "active"):
+        found = report["summary"][policy]
+        alone, beside = (r["seconds_per_step"] for r in report["runs"] if r["policy"] == policy)
+        assert found["ratio"]["n"] == 1 and found["ratio"]["median"] == pytest.approx(beside / alone)
+    assert report["threads"] == 1 and report["within_target"] == (
+        report["summary"]["project"]["ratio"]["median"] <= 2.5
+    )
 
 
 def test_a_report_is_written_through_a_file_of_its_own(tmp_path):

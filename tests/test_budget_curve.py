@@ -102,3 +102,10 @@ def test_a_corrupt_summary_is_one_line_and_nothing_is_written(tmp_path, command,
     status, err = command("pipeline.experiments.budget_curve", [f"paths.results={tmp_path}"])
     assert status == 2 and len(err) == 1 and err[0].startswith(f"error: {path}: ") and problem in err[0], err
     assert not (tmp_path / "pilots" / "discriminate" / "curve.csv").exists()
+
+
+def test_a_scene_a_spreadsheet_would_read_as_a_formula_is_written_as_text(tmp_path, capsys):
+    write_summary(tmp_path, "cpu", WIN, 5.0, scenes=("=HYPERLINK(1)", *SCENES))
+    assert main([f"paths.results={tmp_path}"]) == 0
+    text = (tmp_path / "pilots" / "discriminate" / "curve.csv").read_text()
+    assert "\n'=HYPERLINK(1),nvf-wo_vis," in text and "\n=" not in text

@@ -11,6 +11,7 @@ from scipy import stats
 
 from pipeline.experiments import discriminate
 from pipeline.experiments.discriminate import SUMMARY_COLUMNS, compare, mean_spearman
+from pipeline.tables.escape import as_csv
 from pipeline.tables.stats import Interval
 
 
@@ -95,13 +96,26 @@ def test_a_missing_seed_is_left_out_of_the_pairing():
 
 @pytest.mark.parametrize(
     "argv, says",
-    [(["method=wd"], "experiment's own"), (["--seeds", "x"], "--seeds"), (["--jobs", "0"], "--jobs")],
+    [
+        (["method=wd"], "experiment's own"),
+        (["--seeds", "x"], "--seeds"),
+        (["--jobs", "0"], "--jobs 0: must be 1.."),
+        (["--jobs", "4097"], "--jobs 4097: must be 1.."),
+    ],
 )
 def test_bad_input_is_one_line_and_status_2(argv, says, capsys):
     with pytest.raises(SystemExit) as info:
         discriminate.main(argv)
     err = capsys.readouterr().err
     assert info.value.code == 2 and len(err.strip().splitlines()) == 1 and says in err
+
+
+def test_its_csv_files_write_a_name_a_spreadsheet_would_read_as_a_formula_as_text():
+    runs = runs_frame().replace({"scene": {"a": "=HYPERLINK(1)"}, "method": {"wd": "@wd"}})
+    for frame in (runs, compare(runs)):
+        text = as_csv(frame, discriminate.TEXT)
+        assert "'=HYPERLINK(1)," in text and "\n=" not in text
+    assert ",'@wd," in as_csv(runs, discriminate.TEXT)
 
 
 def test_entries_a_setting_cannot_change_are_reused_not_rerun(tmp_path):

@@ -177,6 +177,44 @@ def test_a_second_setting_under_the_same_folder_is_refused(tmp_path, capsys):
     assert sorted(p.name for p in folder.iterdir()) == ["setting.json"]
 
 
+def test_a_committed_pair_resumes_with_its_thread_count_and_refuses_another(tmp_path, capsys, monkeypatch):
+    """A committed pair folder (its setting predates the thread count; its rows say 1) resumes with ``--threads 1``:
+    a state it holds is not decided again and nothing is written to it. Another count is one line naming both,
+    before anything is written, as is another count than a setting records."""
+    monkeypatch.setattr("os.sched_getaffinity", lambda pid: {0, 1, 2, 3})
+    folder = tmp_path / "pilots" / "duel" / "nvf_vs_wd"
+    shutil.copytree(Path("results/pilots/duel/nvf_vs_wd"), folder)
+    files = {path.name: path.read_bytes() for path in folder.iterdir()}
+    argv = ["method=nvf", "rival=wd", "budget=cpu", "--scenes", "default", "--seeds", "100", "--steps", "0"]
+    argv += [f"paths.results={tmp_path}"]
+    duel.main([*argv, "--threads", "1"])
+    assert "step 0" not in capsys.readouterr().out
+    assert {path.name: path.read_bytes() for path in folder.iterdir() if path.name != ".locks"} == files
+    for threads, made in (("2", None), ("1", 2)):
+        if made is not None:
+            setting = json.loads(files["setting.json"]) | {"threads": made}
+            (folder / "setting.json").write_text(json.dumps(setting))
+        before = {path.name: path.read_bytes() for path in folder.iterdir() if path.is_file()}
+        with pytest.raises(SystemExit) as exit_:
+            duel.main([*argv, "--threads", threads])
+        err = capsys.readouterr().err
+        assert exit_.value.code == 2 and err.count("\n") == 1
+        assert f"was made with --threads {made or 1}, not --threads {threads}" in err
+        assert {path.name: path.read_bytes() for path in folder.iterdir() if path.is_file()} == before
+
+
+def test_a_duel_refused_by_another_writer_writes_no_setting_or_command(tmp_path, capsys):
+    """The setting and the command are written under the pair's lock once its scene and seed are held: a duel
+    refused because another process holds them leaves neither behind."""
+    folder = tmp_path / "pilots" / "duel" / "nvf_vs_wd"
+    argv = ["method=nvf", "rival=wd", "budget=cpu", "--scenes", "default", "--seeds", "100", "--steps", "0"]
+    with RunLock(folder / "default" / "seed_100", folder), pytest.raises(SystemExit) as exit_:
+        run_command(duel.main, [*argv, f"paths.results={tmp_path}"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and "is being written by" in err and err.count("\n") == 1
+    assert sorted(p.name for p in folder.iterdir()) == [".locks"]
+
+
 def write_episode(root: Path, method: str, seed: int, final_psnr: float, seconds: float) -> None:
     """A finished two-step smoke record on 'hotdog' ending at ``final_psnr``, each step taking ``seconds``."""
     record = RunRecord(run_dir(root, "hotdog", method, "argmax", "none", "smoke", seed))
@@ -238,32 +276,99 @@ def test_summary_pairs_decisions_and_episodes(tmp_path):
 
 
 def test_the_summary_refuses_what_it_cannot_pair(tmp_path):
-    """A pair folder without its setting, a setting naming no contender, a wrong --records and a linked pair folder
-    are each one RecordError (never a blank column or a vanished pair); a text cell that a spreadsheet would read
-    as a formula is written as text."""
+    """A pair folder without its setting, a setting naming no contender, a wrong --records (none there, or none of
+    the contenders whose records gave the states) and a linked pair folder are each one RecordError (never a blank
+    column or a vanished pair); a text cell that a spreadsheet would read as a formula is written as text."""
     root, records = tmp_path / "duel", tmp_path / "runs"
     for seed in (100, 101, 102):
         write_episode(records, "nvf", seed, 21.0, 60.0)
         write_episode(records, "wd", seed, 20.0, 30.0)
     folder = root / "nvf_vs_wd"
     folder.mkdir(parents=True)
-    (folder / "decisions.jsonl").write_text(json.dumps(decision(0, 0.2) | {"scene": "=HYPERLINK(1)"}) + "\n")
+    (folder / "decisions.jsonl").write_text(json.dumps(decision(0, 0.2) | {"source": "=HYPERLINK(1)"}) + "\n")
     with pytest.raises(RecordError, match="setting.json: missing or incomplete"):
         duel_summary.write_summaries(root, records)
     contenders = {"nvf": {"method": "nvf", "ablation": "none"}}
-    setting = {"method": "nvf", "rival": "wd", "overrides": [], "budget": "smoke"}
+    setting = {"method": "nvf", "rival": "=HYPERLINK(1)", "overrides": [], "budget": "smoke"}
     (folder / "setting.json").write_text(json.dumps(setting | {"contenders": contenders}))
-    with pytest.raises(RecordError, match="names no contender 'wd'"):
+    with pytest.raises(RecordError, match="names no contender '=HYPERLINK"):
         duel_summary.write_summaries(root, records)
-    contenders["wd"] = {"method": "wd", "ablation": "none"}
+    contenders["=HYPERLINK(1)"] = {"method": "wd", "ablation": "none"}
     (folder / "setting.json").write_text(json.dumps(setting | {"contenders": contenders}))
     with pytest.raises(RecordError, match="--records .*: no run records there"):
         duel_summary.write_summaries(root, tmp_path / "nowhere")
     paths = duel_summary.write_summaries(root, records)
-    assert "'=HYPERLINK(1)" in paths[0].read_text() and "\n=HYPERLINK" not in paths[0].read_text()
+    assert "'=HYPERLINK(1)" in paths[0].read_text() and ",=HYPERLINK" not in paths[0].read_text()
+    other = tmp_path / "other"  # records, but not those of the pair's states: refused, not blank columns
+    write_episode(other, "nvf", 100, 21.0, 60.0)
+    with pytest.raises(RecordError, match=r"--records .*other: no episode of =HYPERLINK\(1\) on hotdog at budget"):
+        duel_summary.write_summaries(root, other)
+    (folder / "decisions.jsonl").write_text(json.dumps(decision(0, 0.2) | {"source": "nvf"}) + "\n")
+    assert math.isnan(duel_summary.tables(root, other)[0].iloc[0]["episode_diff"])  # the states' records are there
     (root / "linked").symlink_to(folder)
     with pytest.raises(RecordError, match="a link"):
         duel_summary.write_summaries(root, records)
+
+
+def test_the_summary_never_reads_a_record_through_a_link_leaving_records(tmp_path):
+    """An episode record linked from outside ``--records`` is one RecordError naming the link, never a record the
+    columns are computed from; a link staying inside ``--records`` is read."""
+    root, records, outside = tmp_path / "duel", tmp_path / "runs", tmp_path / "elsewhere"
+    for seed in (100, 101, 102):
+        write_episode(records, "nvf", seed, 21.0, 60.0)
+        write_episode(records if seed != 102 else outside, "wd", seed, 20.0, 30.0)
+    folder = root / "nvf_vs_wd"
+    folder.mkdir(parents=True)
+    contenders = {n: {"method": n, "ablation": "none"} for n in ("nvf", "wd")}
+    setting = {"method": "nvf", "rival": "wd", "overrides": [], "budget": "smoke", "contenders": contenders}
+    (folder / "setting.json").write_text(json.dumps(setting))
+    (folder / "decisions.jsonl").write_text(json.dumps(decision(0, 0.2)) + "\n")
+    link = run_dir(records, "hotdog", "wd", "argmax", "none", "smoke", 102)
+    link.symlink_to(run_dir(outside, "hotdog", "wd", "argmax", "none", "smoke", 102))
+    with pytest.raises(RecordError, match=f"{link} is a symbolic link to .*, outside {records}"):
+        duel_summary.write_summaries(root, records)
+    link.unlink()
+    shutil.move(run_dir(outside, "hotdog", "wd", "argmax", "none", "smoke", 102), records / "kept")
+    link.symlink_to(records / "kept")  # inside --records: read as usual
+    assert duel_summary.tables(root, records)[0].iloc[0]["episode_diff"] == pytest.approx(1.0)
+
+
+def test_the_duel_never_reads_through_a_link_leaving_its_folders(tmp_path, capsys):
+    """A state's record linked from outside ``--records``, and a pair folder linked from elsewhere under
+    ``pilots/duel`` (whose ``outcomes.jsonl`` a duel of the same setting would reuse), are each one ``error:`` line
+    and exit 2 before anything is written."""
+    records = tmp_path / "runs"
+    source = Path("results/runs/default/nvf-argmax-none/cpu/seed_100").resolve()
+    run_dir(records, "default", "nvf", "argmax", "none", "cpu", 100).parent.mkdir(parents=True)
+    run_dir(records, "default", "nvf", "argmax", "none", "cpu", 100).symlink_to(source)
+    argv = ["method=nvf", "rival=wd", "budget=cpu", "--scenes", "default", "--seeds", "100", "--steps", "0"]
+    results = tmp_path / "results"
+    with pytest.raises(SystemExit) as exit_:
+        run_command(duel.main, [*argv, "--records", str(records), f"paths.results={results}"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.count("\n") == 1 and f"{source}, outside {records}" in err
+    assert not results.exists()
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    (elsewhere / "setting.json").write_text(json.dumps({"method": "nvf", "overrides": ["budget=cpu"]}))
+    (results / "pilots" / "duel").mkdir(parents=True)
+    (results / "pilots" / "duel" / "nvf_vs_fisherrf").symlink_to(elsewhere)
+    with pytest.raises(SystemExit) as exit_:
+        run_command(duel.main, [*argv, "--records", "results/runs", f"paths.results={results}"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.count("\n") == 1 and "nvf_vs_fisherrf: a link" in err
+    assert sorted(p.name for p in (results / "pilots" / "duel").iterdir()) == ["nvf_vs_fisherrf"]
+
+
+def test_the_summary_reads_the_committed_records_from_any_folder(tmp_path, monkeypatch):
+    """``--records`` defaults to the repository's ``results/runs`` wherever the command runs: a committed pair's
+    rows come out as committed, episode columns included, from a folder holding no records."""
+    committed = Path("results/pilots/duel").resolve()
+    shutil.copytree(committed / "nvf_vs_wo_vis", tmp_path / "pilots" / "duel" / "nvf_vs_wo_vis")
+    monkeypatch.chdir(tmp_path)
+    duel_summary.main([f"paths.results={tmp_path}"])
+    rows = [line for line in (committed / "summary.csv").read_text().splitlines() if line.startswith("nvf,wo_vis,")]
+    assert (tmp_path / "pilots" / "duel" / "summary.csv").read_text().splitlines()[1:] == rows and len(rows) == 4
 
 
 def test_one_step_outcome_of_a_pick():
@@ -350,14 +455,27 @@ def test_duel_on_smoke_records_resumes_after_a_kill(smoke_records, tmp_path, cap
         duel.main(argv)
 
 
-def test_states_can_come_from_records_of_another_budget(tmp_path):
+def test_states_can_come_from_records_of_another_budget(tmp_path, monkeypatch, capsys):
     """``--state-budget cpu``: the committed cpu episodes' states (here step 2 of seed 100 on the default scene,
-    NVF's record), trained and scored at the run's budget (smoke here, the paper's in use); the setting says so."""
+    NVF's record, found by the default ``--records`` from any folder), trained and scored at the run's budget
+    (smoke here, the paper's in use); the setting says so, and the threads. ``--sets 3`` on the folder made with
+    ``--sets 2`` decides the new set alone, and both commands are in ``command.txt``."""
+    monkeypatch.chdir(tmp_path)
     argv = ["method=nvf", "rival=wd", "budget=smoke", "--state-budget", "cpu", "--scenes", "default"]
-    duel.main([*argv, "--seeds", "100", "--steps", "2", "--sets", "1", f"paths.results={tmp_path}"])
+    argv += ["--seeds", "100", "--steps", "2", f"paths.results={tmp_path}"]
+    duel.main([*argv, "--sets", "2"])
     folder = tmp_path / "pilots" / "duel" / "nvf_vs_wd"
     rows = read(folder)
-    assert [(r["step"], r["set"], r["source"], r["candidates"]) for r in rows] == [(2, 0, "nvf", 8)]
-    assert json.loads((folder / "setting.json").read_text())["state_budget"] == "cpu"
+    assert [(r["step"], r["set"], r["source"], r["candidates"]) for r in rows] == [(2, 0, "nvf", 8), (2, 1, "nvf", 8)]
+    assert json.loads((folder / "setting.json").read_text()) | {"contenders": None} == {
+        "method": "nvf", "overrides": ["budget=smoke"], "budget": "smoke", "threads": 1, "state_budget": "cpu",
+        "rival": "wd", "contenders": None,
+    }  # fmt: skip
+    capsys.readouterr()
+    duel.main([*argv, "--sets", "3"])
+    assert "step 2 (nvf's state): wd: " in capsys.readouterr().out
+    assert read(folder)[:2] == rows and [(r["step"], r["set"]) for r in read(folder)[2:]] == [(2, 2)]
+    commands = (folder / "command.txt").read_text().splitlines()
+    assert [line.split()[-1] for line in commands] == ["2", "3"] and len(commands) == 2
     with pytest.raises(SystemExit):
-        duel.main([*argv[:-4], "--state-budget", "bogus", f"paths.results={tmp_path / 'other'}"])
+        duel.main(["method=nvf", "rival=wd", "budget=smoke", "--state-budget", "bogus", f"paths.results={tmp_path}/o"])

@@ -17,7 +17,7 @@ from hydra import compose, initialize_config_dir
 
 from pipeline.config.schema import register_configs
 from pipeline.config.typed_run import Run
-from pipeline.config.validation import validate
+from pipeline.config.validation import ConfigError, validate
 from pipeline.episode.loop import Episode
 from pipeline.episode.runner import Outcome, RunRefused, StepFailed, run_episode, run_settings, torch_threads
 from pipeline.episode.settings import EpisodeSettings
@@ -336,13 +336,24 @@ def test_impossible_value_names_the_key(tmp_path):
 
 def test_torch_threads_follow_omp_num_threads_else_cores_per_job(monkeypatch):
     """Two sweeps side by side share the cores only if each can be told its threads: an explicit
-    ``OMP_NUM_THREADS`` wins over cores / jobs (which gave a one-job sweep every core)."""
+    ``OMP_NUM_THREADS`` wins over cores / jobs (which gave a one-job sweep every core); the cores are those this
+    process may run on (its affinity), not the machine's."""
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2})
+    monkeypatch.setattr(os, "cpu_count", lambda: 64)
     monkeypatch.setenv("OMP_NUM_THREADS", "1")
     assert torch_threads() == 1
     monkeypatch.setenv("OMP_NUM_THREADS", "3")
     assert torch_threads() == 3
     monkeypatch.delenv("OMP_NUM_THREADS")
-    assert torch_threads() == (os.cpu_count() or 1)
+    assert torch_threads() == 3
+
+
+@pytest.mark.parametrize("value", ["4", "4097", "-1"])
+def test_omp_num_threads_beyond_the_cores_is_refused(monkeypatch, value):
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2})
+    monkeypatch.setenv("OMP_NUM_THREADS", value)
+    with pytest.raises(ConfigError, match=rf"OMP_NUM_THREADS='{value}' must be a whole number 1\.\.3 \(the cores"):
+        torch_threads()
 
 
 @pytest.mark.parametrize("value", ["0", "two"])

@@ -29,10 +29,12 @@ def test_bad_input_is_one_line(argv, says, capsys, tmp_path):
     assert not (tmp_path / "pilots").exists()  # nothing written
 
 
-def test_states_of_cpu_records_at_another_budget_resume_and_summarise(tmp_path, capsys):
+def test_states_of_cpu_records_at_another_budget_resume_and_summarise(tmp_path, capsys, monkeypatch):
     """Two states of the committed cpu episodes on the default scene (NVF's record at step 2, w/o Vis.'s at step 8),
     trained at the smoke budget: a row per state with every contender's pick and spread, the comparisons with NVF,
-    the visibility AUCs and the outcomes asked for; a second call adds nothing; the summary reads them back."""
+    the visibility AUCs and the outcomes asked for; a second call adds nothing; the summary reads them back. A call
+    with another thread count than the folder's (its setting's; its rows' where the setting predates it) is one
+    line naming both, before anything is written."""
     argv = ["--scenes", "default", "--steps", "2,8", "--budgets", "smoke", "--outcomes", "wo_vis,fisherrf"]
     paper_states.main([*argv, f"paths.results={tmp_path}"])
     folder = tmp_path / "pilots" / "paper_states"
@@ -54,7 +56,16 @@ def test_states_of_cpu_records_at_another_budget_resume_and_summarise(tmp_path, 
             if not found["same_pick"] and name in ("wo_vis", "fisherrf"):
                 assert name in row["outcomes"]
     setting = json.loads((folder / "setting.json").read_text())
-    assert setting == {"overrides": [], "state_budget": "cpu"}
+    assert setting == {"overrides": [], "state_budget": "cpu", "threads": 1}
+    monkeypatch.setattr("os.sched_getaffinity", lambda pid: {0, 1, 2, 3})
+    for made in (setting, {"overrides": [], "state_budget": "cpu"}):
+        (folder / "setting.json").write_text(json.dumps(made))
+        before = {path.name: path.read_bytes() for path in folder.iterdir() if path.is_file()}
+        with pytest.raises(SystemExit) as exit_:
+            paper_states.main([*argv, "--threads", "2", f"paths.results={tmp_path}"])
+        err = capsys.readouterr().err
+        assert exit_.value.code == 2 and "was made with --threads 1, not --threads 2" in err and err.count("\n") == 1
+        assert {path.name: path.read_bytes() for path in folder.iterdir() if path.is_file()} == before
     capsys.readouterr()
     paper_states.main([*argv, f"paths.results={tmp_path}"])
     assert "step" not in capsys.readouterr().out.split("wrote")[0]  # nothing left to measure

@@ -18,7 +18,7 @@ from pipeline.config.settings_beyond_groups import NamedConfigs
 from pipeline.config.validation import compose_run
 from pipeline.records.store import DIGEST_KEY, RunRecord, record_digest, run_dir
 from pipeline.repo import CONF, REPO
-from pipeline.tables import escape
+from pipeline.tables import build, escape
 from pipeline.tables.__main__ import main
 from pipeline.tables.build import build_tables
 from pipeline.tables.figures import image_grid, safe_name
@@ -414,6 +414,47 @@ def test_a_crafted_record_cannot_write_outside_the_results_folder(tmp_path):
     assert len(figures) == 2 and all("/" not in name and not name.startswith(".") for name in figures)
 
 
+def test_a_build_is_all_or_nothing_and_leaves_no_stale_output(tmp_path, monkeypatch):
+    """Every output is built into new folders and then swapped in: a build that fails while writing the site
+    (runs.csv, the tables and the figures of a new run made by then) leaves every previous file as it was and no
+    folder of its own behind; the next build keeps no page, curve or row of a run no longer there, and carries what
+    another command put in figures/ and the grid of a run whose images are gone."""
+    out, results = tmp_path / "out", tmp_path / "res"
+    make_run(out, scene="hubble", seed=100)
+    hotdog = make_run(out, scene="hotdog", seed=100)
+    (hotdog.directory / "images").mkdir()
+    iio.imwrite(hotdog.directory / "images" / "step_00_gt.png", np.zeros((8, 8, 3), np.uint8))
+    build_tables(out, [], results)
+    (results / "figures" / "scenes").mkdir()
+    (results / "figures" / "scenes" / "hubble.png").write_bytes(b"an outline pipeline.scenes drew")
+
+    def files() -> dict[Path, bytes]:
+        return {p.relative_to(results): p.read_bytes() for p in results.rglob("*") if p.is_file()}
+
+    before = files()
+    grid = Path("figures", "grids", "grid_hotdog_nvf-argmax-none_smoke_seed100.png")
+    assert grid in before and Path("site", "scenes", "hubble_smoke.html") in before
+    make_run(out, scene="hubble", seed=101)
+
+    def full_disk(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    with monkeypatch.context() as patch:
+        patch.setattr(build, "write_site", full_disk)
+        with pytest.raises(OSError, match="No space left"):
+            build_tables(out, [], results)
+    assert files() == before and sorted(p.name for p in results.iterdir()) == ["figures", "runs.csv", "site", "tables"]
+    shutil.rmtree(out / "hubble")
+    shutil.rmtree(hotdog.directory / "images")
+    written, _ = build_tables(out, [], results)
+    after = files()
+    assert not any("hubble" in str(path) for path in after if path.parts[:2] != ("figures", "scenes"))
+    assert after[Path("figures", "scenes", "hubble.png")] == before[Path("figures", "scenes", "hubble.png")]
+    assert after[grid] == before[grid] and results / grid not in written  # carried, not drawn
+    assert "hubble" not in (results / "runs.csv").read_text() and all(path.is_file() for path in written)
+    assert sorted(p.name for p in results.iterdir()) == ["figures", "runs.csv", "site", "tables"]
+
+
 def test_written_tables_and_figures_follow_the_umask(tmp_path):
     make_run(tmp_path / "out", seed=100)
     previous = os.umask(0o027)
@@ -708,3 +749,9 @@ def test_a_record_joins_the_tables_its_method_and_scene_declare_today():
     assert "table2_ablation" in scene.experiments and "table2_ablation" in row.experiments
     gone = describe({**info, "scene": "no_such_scene", "config": cfg}, NamedConfigs(CONF))[1]
     assert gone.experiments == ("main",)  # a group conf/ no longer has: the record's own list
+
+
+def test_as_csv_quotes_a_named_text_column_cell_a_spreadsheet_would_read_as_a_formula():
+    frame = pd.DataFrame({"scene": ["=HYPERLINK(1)", "-0.5", None], "diffs": ["-0.7 -0.5", "1", "2"], "n": [1, 2, 3]})
+    lines = escape.as_csv(frame, ("scene", "method")).splitlines()
+    assert lines == ["scene,diffs,n", "'=HYPERLINK(1),-0.7 -0.5,1", "-0.5,1,2", ",2,3"]

@@ -3,6 +3,7 @@ gains of NVF's picks over w/o Vis.'s on recorded NVF states, and the study's sum
 
 import json
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -73,6 +74,13 @@ def test_summary_pairs_the_disagreements_per_scene_and_over_scenes(tmp_path):
     assert hotdog["nvf_tied_fraction"] == 0.0 and hotdog["wo_vis_tied_fraction"] == pytest.approx(2 / 3)
 
 
+def test_a_name_a_spreadsheet_would_read_as_a_formula_is_written_as_text(tmp_path):
+    rows = [decision_row("=HYPERLINK(1)", 0, 0.5), decision_row("=HYPERLINK(1)", 1, 0.2)]
+    write_setting(tmp_path / "c1", "+cmd", rows)
+    text = write_summary(tmp_path).read_text()
+    assert "\n'+cmd,'=HYPERLINK(1)," in text and "\n+" not in text and ",=" not in text
+
+
 def test_minutes_per_episode_come_from_the_settings_discrimination_experiment(tmp_path):
     """NVF's and w/o Vis.'s mean minutes per episode in ``pilots/discriminate/<the setting's label>/per_seed.csv``;
     the baselines' runs (reused from other budgets' records) are left out; a setting without one stays empty."""
@@ -131,13 +139,16 @@ def test_surface_table_pairs_nvf_with_wo_vis_over_seeds_at_every_step(tmp_path):
     assert surface_frame(tmp_path, budget="cpu").empty  # another budget's records are not mixed in
 
 
-def test_a_state_is_done_once_its_rows_are_written(tmp_path):
-    """The study keeps its rows in the duel's ``JsonLines`` (whole rows, a cut one dropped): a state is done once
-    any of its rows is there, so a killed study resumes at its first state without rows."""
+def test_a_state_misses_the_sets_its_rows_lack(tmp_path):
+    """The study keeps its rows in the duel's ``JsonLines`` (whole rows, a cut one dropped; a state's rows in one
+    write): a killed study resumes at its first state without rows, and a larger ``--sets`` measures the new sets
+    of the states it has (``--sets 3`` on a folder made with ``--sets 2``: set 2 alone)."""
     decisions = JsonLines(tmp_path / "decisions.jsonl", DECISION)
-    decisions.add([decision_row("hotdog", 0), decision_row("hubble", 6)])
-    assert visibility_study.done(decisions, "hubble", 100, 6) and not visibility_study.done(decisions, "hubble", 100, 0)
-    assert not visibility_study.done(decisions, "hotdog", 101, 0)
+    decisions.add([decision_row("hotdog", 0), decision_row("hubble", 6), decision_row("hubble", 6) | {"set": 1}])
+    assert visibility_study.missing_sets(decisions, "hubble", 100, 6, 2) == []
+    assert visibility_study.missing_sets(decisions, "hubble", 100, 6, 3) == [2]
+    assert visibility_study.missing_sets(decisions, "hubble", 100, 0, 2) == [0, 1]
+    assert visibility_study.missing_sets(decisions, "hotdog", 101, 0, 1) == [0]
 
 
 def test_study_refuses_a_bad_setting_name(capsys):
@@ -191,6 +202,10 @@ def test_study_on_a_smoke_record(tmp_path):
     before = (folder / "decisions.jsonl").read_text()
     visibility_study.main(study)
     assert (folder / "decisions.jsonl").read_text() == before  # finished states are not measured again
+    visibility_study.main([*study, "--sets", "3"])  # the folder made with --sets 2: the new set alone
+    added = [json.loads(line) for line in (folder / "decisions.jsonl").read_text().splitlines()][len(rows) :]
+    assert (folder / "decisions.jsonl").read_text().startswith(before)
+    assert [(r["step"], r["set"]) for r in added] == [(0, 2), (1, 2)]
 
 
 # ----------------------------------------------------------------------------- hostile input
@@ -254,7 +269,23 @@ def _study_folder(tmp_path: Path, overrides: list[str]) -> tuple[list[str], Path
     (folder / "decisions.jsonl").write_text(json.dumps(decision_row("default", 1)) + "\n")
     (folder / "default_diagnostic.json").write_text(json.dumps(DIAGNOSTIC))
     argv = ["budget=smoke", f"paths.results={tmp_path / 'results'}", "--setting", "s1", "--scenes", "default"]
-    return [*argv, "--seeds", "100", "--steps", "1", "--records", str(tmp_path / "runs")], folder
+    return [*argv, "--seeds", "100", "--steps", "1", "--sets", "1", "--records", str(tmp_path / "runs")], folder
+
+
+@pytest.mark.parametrize(("made", "threads"), [(None, "2"), (2, "1")])
+def test_a_study_folder_takes_rows_of_its_own_thread_count(tmp_path, command, monkeypatch, made, threads):
+    """A study's numbers depend on its thread count: a folder made with one count (its setting's; one where the
+    setting predates it, as the committed studies do) refuses another in one line naming both, before anything is
+    written."""
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2, 3})
+    argv, folder = _study_folder(tmp_path, ["budget=smoke"])
+    if made is not None:
+        setting = json.loads((folder / "setting.json").read_text()) | {"threads": made}
+        (folder / "setting.json").write_text(json.dumps(setting))
+    before = {path.name: path.read_bytes() for path in folder.iterdir()}
+    status, err = command("pipeline.experiments.visibility_study", [*argv, "--threads", threads])
+    assert status == 2 and len(err) == 1 and f"was made with --threads {made or 1}, not --threads {threads}" in err[0]
+    assert {path.name: path.read_bytes() for path in folder.iterdir()} == before
 
 
 def test_a_study_refuses_a_bad_seed_and_a_bad_line_before_any_work(tmp_path, command):

@@ -50,6 +50,7 @@ from pipeline.episode.evaluation import render_view
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.image import image_metrics
+from pipeline.repo import RUNS
 
 TOP_OPS = 12
 BACKBONE_ITERS = 32  # two occupancy-grid update periods
@@ -62,7 +63,7 @@ def parse_args(argv: list[str]):
     parser.add_argument("overrides", nargs="*", help="Hydra overrides on top of budget=paper")
     parser.add_argument("--scene", default="default", help="the scene (default: default)")
     parser.add_argument("--views", type=int, default=10, help="training views of the state (default 10)")
-    parser.add_argument("--records", type=Path, default=Path("results/runs"), help="where the NVF cpu record is")
+    parser.add_argument("--records", type=Path, default=RUNS, help=f"where the NVF cpu record is (default {RUNS})")
     parser.add_argument(
         "--cache", type=Path, default=None, help="trained backbones (default ${paths.outputs}/bench_states)"
     )

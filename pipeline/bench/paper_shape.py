@@ -57,6 +57,7 @@ from pipeline.episode.loop import Episode
 from pipeline.episode.runner import torch_threads
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.image import LpipsMetric
+from pipeline.repo import RUNS
 from pipeline.scenes.ground_truth import open_renderer
 from pipeline.scenes.scene import Scene
 
@@ -103,7 +104,7 @@ def parse_args(argv: list[str]):
         metavar="VIEWS",
         help="also measure one whole state of the first scene after VIEWS views at the full counts (0: none)",
     )
-    parser.add_argument("--records", type=Path, default=Path("results/runs"), help="the NVF cpu record a state takes")
+    parser.add_argument("--records", type=Path, default=RUNS, help=f"the NVF cpu record a state takes (default {RUNS})")
     args = parser.parse_intermixed_args(argv)
     if args.budget not in declared("budget"):
         fail(f"--budget {args.budget!r}: not one of conf/budget ({', '.join(declared('budget'))})")

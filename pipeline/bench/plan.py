@@ -49,7 +49,7 @@ from pipeline.bench._paired import IterationClock, ratio_spread
 from pipeline.bench._probes import parse_probes, probes_study
 from pipeline.bench._report import report_path, write_report
 from pipeline.bench.field_throughput import matmul_gflops, mlp_flops
-from pipeline.cli import ArgumentParser, description, fail
+from pipeline.cli import ArgumentParser, bounded, description, fail
 from pipeline.config.catalog import method_configs
 from pipeline.config.method import build_method
 from pipeline.config.validation import compose_run, run_settings_of
@@ -58,6 +58,7 @@ from pipeline.episode.settings import EpisodeSettings
 
 CANDIDATES = 512  # the paper's N; a later planner.num_candidates=... override wins
 WARMUP_CANDIDATES = 8
+MAX_REPEATS = 100
 GOAL_NVF_OVER_PLAIN = 1.3
 
 
@@ -161,8 +162,8 @@ def parse_args(argv: list[str]):
     )
     parser.add_argument("--probes", help="FisherRF probe counts K to compare, e.g. 1,2,4,8,16 (default: none)")
     args = parser.parse_intermixed_args(argv)
-    if args.repeats < 1 or args.blocks < 1:
-        parser.error("--repeats and --blocks must be >= 1")
+    bounded("--repeats", args.repeats, 1, MAX_REPEATS)
+    bounded("--blocks", args.blocks, 1, CANDIDATES, "the default candidates; a block holds at least one")
     args.probes = None if args.probes is None else parse_probes(args.probes)
     return args
 

@@ -58,6 +58,7 @@ from pipeline.diagnostics.initial_view_model import load
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.episode.shared_training import train_models
+from pipeline.repo import RUNS
 
 MAX_REPEATS = 20
 PAIRS = (
@@ -78,7 +79,7 @@ def parse_args(argv: list[str]):
     parser.add_argument("overrides", nargs="*", help="Hydra overrides on top of budget=paper")
     parser.add_argument("--scene", default="default", help="the scene (default: default)")
     parser.add_argument("--views", type=int, default=10, help="training views of the state (default 10)")
-    parser.add_argument("--records", type=Path, default=Path("results/runs"), help="where the NVF cpu record is")
+    parser.add_argument("--records", type=Path, default=RUNS, help=f"where the NVF cpu record is (default {RUNS})")
     parser.add_argument(
         "--cache", type=Path, default=None, help="trained backbones (default ${paths.outputs}/bench_states)"
     )

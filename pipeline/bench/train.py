@@ -42,7 +42,7 @@ from pipeline.bench._models import (
 from pipeline.bench._paired import IterationClock, ratio_spread
 from pipeline.bench._report import report_path, write_report
 from pipeline.bench.field_throughput import matmul_gflops, mlp_flops
-from pipeline.cli import ArgumentParser, description
+from pipeline.cli import ArgumentParser, bounded, description
 from pipeline.config.typed_run import Run
 from pipeline.config.validation import compose_run
 from pipeline.diagnostics.initial_view_model import load, observations
@@ -52,6 +52,8 @@ from pipeline.scenes.ground_truth import Renderer, ground_truth_info, open_rende
 from pipeline.scenes.scene import Scene
 
 GOALS = {"train_samples_per_s": 1e6, "infer_samples_per_s": 3e6}
+MAX_REPEATS = 100
+MAX_WINDOWS = 100  # iteration windows (fewer where there are fewer iterations)
 # A low precision against the reference (fp32), paired in one run: training throughput (median over
 # windows), held-out PSNR (at most this far below), inference (median over rounds) never slower.
 PRECISION_GOALS = {"train_samples_per_s": 1.5, "heldout_psnr_drop_db": 0.2, "infer_samples_per_s": 1.0}
@@ -225,8 +227,8 @@ def parse_args(argv: list[str]):
     )
     parser.add_argument("--windows", type=int, default=5, help="iteration windows of the paired training ratios")
     args = parser.parse_intermixed_args(argv)
-    if args.repeats < 1 or args.windows < 1:
-        parser.error("--repeats and --windows must be >= 1")
+    bounded("--repeats", args.repeats, 1, MAX_REPEATS)
+    bounded("--windows", args.windows, 1, MAX_WINDOWS)
     return args
 
 

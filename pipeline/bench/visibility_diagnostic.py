@@ -21,10 +21,12 @@ from torch import Tensor
 from nvf.cameras import pose_to_matrix
 from nvf.visibility_source import SOURCES
 from pipeline.bench._report import report_path, write_report
-from pipeline.cli import ArgumentParser, description, fail
+from pipeline.cli import ArgumentParser, bounded, description, fail
 from pipeline.config.validation import compose_run
 from pipeline.diagnostics.visibility_report import visibility_report
 from pipeline.tables.load import load_run
+
+MAX_SETS = 64
 
 
 def recorded_poses(record: Path, step: int) -> Float[Tensor, "k 4 4"]:
@@ -110,8 +112,7 @@ def main(argv: list[str]) -> None:
     )
     args = parser.parse_intermixed_args(argv)
     sources = args.sources.split(",")
-    if args.sets < 1:
-        parser.error("--sets must be >= 1")
+    bounded("--sets", args.sets, 1, MAX_SETS)
     if not sources or any(name not in SOURCES for name in sources):
         parser.error(f"--sources={args.sources!r}: use a comma-separated subset of {','.join(SOURCES)}")
     if args.step < 0 or (args.step > 0 and args.record is None):

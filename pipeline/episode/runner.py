@@ -22,7 +22,7 @@ from hydra.core.hydra_config import HydraConfig
 from nvf.device import resolve_device
 from nvf.planning import NoCandidatesError
 from nvf.training import TrainingDiverged
-from pipeline.cli import BadInput, Failed
+from pipeline.cli import BadInput, Failed, cores
 from pipeline.config.typed_run import Run
 from pipeline.config.validation import ConfigError
 from pipeline.episode.loop import Episode
@@ -60,20 +60,24 @@ class Outcome:
 
 
 def torch_threads() -> int:
-    """Threads per job: ``OMP_NUM_THREADS`` where it is set (to share the cores with other processes,
-    e.g. two sweeps side by side), else the machine's cores divided among the launcher's parallel jobs:
-    jobs that together ask for more threads than cores slow each other several-fold (docs/USAGE.md)."""
+    """Threads per job: ``OMP_NUM_THREADS`` where it is set (1 to the cores this process may run on; to share
+    the cores with other processes, e.g. two sweeps side by side), else those cores divided among the launcher's
+    parallel jobs: jobs that together ask for more threads than cores slow each other several-fold
+    (docs/USAGE.md)."""
     asked = os.environ.get("OMP_NUM_THREADS", "").strip()
+    usable = cores()
     if asked:
-        if not asked.isdigit() or int(asked) < 1:
-            raise ConfigError(f"OMP_NUM_THREADS={asked!r} must be a whole number >= 1 (or unset: cores / jobs)")
+        if not asked.isdigit() or not 1 <= int(asked) <= usable:
+            raise ConfigError(
+                f"OMP_NUM_THREADS={asked!r} must be a whole number 1..{usable} (the cores this process may run on), "
+                "or unset (cores / jobs)"
+            )
         return int(asked)
-    cores = os.cpu_count() or 1
     jobs = 1
     if HydraConfig.initialized():
         jobs = HydraConfig.get().launcher.get("n_jobs", 1) or 1
-    jobs = cores if jobs < 1 else min(jobs, cores)  # joblib's n_jobs=-1 means one job per core
-    return max(1, cores // jobs)
+    jobs = usable if jobs < 1 else min(jobs, usable)  # joblib's n_jobs=-1 means one job per core
+    return max(1, usable // jobs)
 
 
 def record_dir(run: Run) -> Path:

@@ -31,6 +31,7 @@ from pipeline.records.checked_files import read_csv
 from pipeline.records.experiment_columns import DISCRIMINATE_SUMMARY_COLUMNS
 from pipeline.records.files import check_directory, escaping_link
 from pipeline.records.images import save_figure
+from pipeline.tables.escape import as_csv
 from pipeline.tables.table_formats import markdown_table
 
 SCENES = ("hotdog", "hubble", "default")
@@ -59,12 +60,13 @@ class Setting:
 
 
 def read_curve(root: Path) -> pd.DataFrame:
-    """Every ``<label>/summary.csv`` under ``root`` (``SUMMARY``'s columns checked), with a ``label`` column."""
+    """Every ``<label>/summary.csv`` under ``root`` (``SUMMARY``'s columns checked; ``n`` a whole number, as
+    written), with a ``label`` column."""
     paths = [path for path in sorted(root.glob("*/summary.csv")) if escaping_link(root, path.parent) is None]
     frames = [frame.assign(label=path.parent.name) for path in paths if (frame := read_csv(path, SUMMARY)) is not None]
     if not frames:
         fail(f"no {root}/<label>/summary.csv; run python -m pipeline.experiments.discriminate first")
-    return pd.concat(frames, ignore_index=True)
+    return pd.concat(frames, ignore_index=True).astype({"n": int})
 
 
 def settings(curve: pd.DataFrame) -> list[Setting]:
@@ -176,7 +178,7 @@ def main(argv: list[str]) -> int:
     curve = read_curve(root)
     candidates = settings(curve)
     text = report(candidates, *choose(candidates))
-    atomic_write_text(root / "curve.csv", curve.to_csv(index=False))
+    atomic_write_text(root / "curve.csv", as_csv(curve, ("scene", "comparison", "label")))
     save_figure(plot(curve), root / "curve.png")
     atomic_write_text(root / "choice.md", text)
     print(text, end="")

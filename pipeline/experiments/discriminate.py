@@ -35,7 +35,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.atomic_write import atomic_write_text
-from pipeline.cli import ArgumentParser, description, fail, run_command
+from pipeline.cli import ArgumentParser, bounded, cores, description, fail, run_command
 from pipeline.config.catalog import members, method_configs
 from pipeline.config.settings_beyond_groups import config_label
 from pipeline.config.validation import compose_run
@@ -47,6 +47,7 @@ from pipeline.records.store import RunRecord, check_key, record_status, run_dir
 from pipeline.repo import REPO
 from pipeline.scenes.loading import find_asset, scene_config
 from pipeline.scenes.scene import SceneError
+from pipeline.tables.escape import as_csv
 from pipeline.tables.load import collect_runs, load_run
 from pipeline.tables.stats import Interval
 from pipeline.tables.table_formats import markdown_table
@@ -64,6 +65,7 @@ ENTRIES = (NVF, WO_VIS, IND_RAYS, *BASELINES)
 EXTRA = {NVF: "diagnostics.rank_against=wo_vis"}  # an entry's measurement beyond the run
 COMPARISONS = (("nvf-wo_vis", WO_VIS), ("nvf-ind_rays", IND_RAYS), ("nvf-best_baseline", None))
 SUMMARY_COLUMNS = tuple(DISCRIMINATE_SUMMARY_COLUMNS)  # summary.csv's, declared with their shapes in pipeline.records
+TEXT = ("scene", "comparison", "measure", "against", "method", "ablation", "entry")  # csv columns of names (escaped)
 # what against_plain reads of the plain budget's per_seed.csv (read back checked; flat_steps empty where undefined)
 PER_SEED = only(
     DISCRIMINATE_PER_SEED_COLUMNS, "scene", "method", "ablation", "seed", "final_psnr", "mean_psnr", "flat_steps"
@@ -329,15 +331,15 @@ def summarize(
         )
     summary = details[details["measure"] == "final_psnr"].loc[:, list(SUMMARY_COLUMNS)]
     files = [out / "summary.csv", out / "details.csv", out / "per_seed.csv", out / "summary.md"]
-    atomic_write_text(files[0], summary.to_csv(index=False))
-    atomic_write_text(files[1], details.to_csv(index=False))
-    atomic_write_text(files[2], runs.to_csv(index=False))
+    atomic_write_text(files[0], as_csv(summary, TEXT))
+    atomic_write_text(files[1], as_csv(details, TEXT))
+    atomic_write_text(files[2], as_csv(runs, TEXT))
     text = markdown(label, details, runs)
     base = read_csv(plain / "per_seed.csv", PER_SEED) if plain is not None else None
     if plain is not None and base is not None:
         changes = against_plain(runs, base, [e for e, entry_label in labels.items() if entry_label == labels[NVF]])
         files.append(out / "against_plain.csv")
-        atomic_write_text(files[-1], changes.to_csv(index=False))
+        atomic_write_text(files[-1], as_csv(changes, TEXT))
         text += "\n".join(against_plain_markdown(plain.name, changes)) + "\n"
     atomic_write_text(files[3], text)
     return files
@@ -366,8 +368,7 @@ def main(argv: list[str]) -> int:
     scenes, seeds = args.scenes, args.seeds
     if any(o.split("=")[0].lstrip("+~") in ("method", "ablation", "scene", "seed") for o in args.overrides):
         fail("method, ablation, scene and seed are the experiment's own: use --scenes and --seeds")
-    if args.jobs < 1:
-        fail(f"--jobs {args.jobs} must be >= 1")
+    bounded("--jobs", args.jobs, 1, cores(), "the cores this process may run on")
     cfg = compose_run(args.overrides)
     budget = config_label(cfg.composed)
     try:

@@ -11,7 +11,8 @@ the default).
 States: for scene ``s``, seed ``n`` and the ``i``-th listed step ``k``, the observations before step ``k`` (the
 initial views and the poses selected at steps ``0..k-1``) of A's record if ``(i + n)`` is even, else of B's, so
 each step comes from both trajectories over the seeds. Records: ``<records>/<scene>/<method>-argmax-<ablation>/
-<budget>/seed_<n>``, verified, of the run's budget or of ``--state-budget`` (``budget=paper --state-budget cpu``:
+<budget>/seed_<n>`` (``--records``, default the repository's ``results/runs`` wherever the command runs from),
+verified, of the run's budget or of ``--state-budget`` (``budget=paper --state-budget cpu``:
 the committed cpu episodes' states, trained and scored at the paper's counts; the setting says so).
 
 At a state each contender's model is trained as its own episode's step ``k`` trains it (contenders whose
@@ -23,14 +24,17 @@ PSNR minus B's, paired on the state (``pipeline.experiments.decisions``).
 
 Writes ``${paths.results}/pilots/duel/<A>_vs_<B>/``: ``decisions.jsonl`` (a row per scene, seed, step and set,
 a repeated one refused on write and on read; each state's rows in one write, and a state lacking a set's row,
-as a kill can leave it, is decided again for that set), ``outcomes.jsonl``
-(every evaluated pick, reused by later calls), ``setting.json`` (the overrides: a call with other overrides under
-the same folder is refused) and ``command.txt``; then ``summary.csv``, ``details.csv`` and ``summary.md`` of every
-duel under ``pilots/duel/`` (``pipeline.experiments.duel_summary``). Torch runs with ``--threads`` threads
-(1 to the machine's cores; default 1). To use more cores run several processes on disjoint ``--scenes`` or
-``--seeds``, one thread each: they append to the same folders side by side; a pair, scene and seed has one writer
-(the records' lock: a second process on it is refused in one line). Every record a state needs is read before
-anything is written; a contender against itself is refused.
+as a kill can leave it, is decided again for that set), ``outcomes.jsonl`` (every evaluated pick, reused by
+later calls of the same setting and threads), ``setting.json`` (the overrides, states' budget and ``--threads``: a
+call with others under the same folder is refused in one line, as is one with another thread count than the
+folder's rows where its setting predates the count) and ``command.txt`` (every command that added rows), both
+written under the pair's lock once everything is checked; then ``summary.csv``, ``details.csv`` and ``summary.md``
+of every duel under ``pilots/duel/`` (``pipeline.experiments.duel_summary``). Torch runs with ``--threads``
+threads (1 to the cores this process may run on; default 1; a record's numbers depend on it). To use more
+cores run several processes on disjoint ``--scenes`` or ``--seeds``, one thread each: they append to the same
+folders side by side; a pair, scene and seed has one writer (the records' lock: a second process on it is refused
+in one line). Every record a state needs is read before anything is written, none through a symbolic link leaving
+``--records`` (nor a pair folder through a link); a contender against itself is refused.
 """
 
 import argparse
@@ -49,7 +53,7 @@ import torch
 from nvf.device import resolve_device
 from nvf.training import Observations
 from pipeline.atomic_write import atomic_write_text
-from pipeline.cli import ArgumentParser, fail, help_page, run_command
+from pipeline.cli import ArgumentParser, bounded, cores, fail, help_page, run_command
 from pipeline.config.catalog import declared
 from pipeline.config.validation import compose_run
 from pipeline.episode.loop import Episode
@@ -70,14 +74,23 @@ from pipeline.experiments.decisions import (
     prepared_scorer,
     with_view,
 )
-from pipeline.experiments.duel_summary import DUEL, SETTING, write_summaries
-from pipeline.experiments.options import SEEDS, add_command, name_list, seed_list, setting_overrides, step_list
+from pipeline.experiments.duel_summary import DUEL, SETTING, pair_folders, write_summaries
+from pipeline.experiments.options import (
+    SEEDS,
+    add_command,
+    name_list,
+    other_threads,
+    seed_list,
+    setting_overrides,
+    step_list,
+)
 from pipeline.metrics.image import LpipsMetric
 from pipeline.metrics.ranking import spearman
-from pipeline.records.checked_files import read_json
-from pipeline.records.files import make_directory
+from pipeline.records.checked_files import read_json, read_json_lines
+from pipeline.records.files import check_directory, refuse_escaping_link
 from pipeline.records.lock import RunLock
 from pipeline.records.store import check_seed, run_dir
+from pipeline.repo import RUNS
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.loading import find_asset, load_scene, scene_config
 from pipeline.scenes.scene import Scene, SceneError
@@ -87,20 +100,21 @@ SCENES = ("hotdog", "hubble", "default")
 MAX_SETS = 64
 STEPS = (0, 3, 6, 9, 12, 15, 18)
 OWN_KEYS = ("method", "rival", "ablation", "scene", "seed")  # the duel's own: not config overrides
+SETTING_LOCK = ".setting"  # a pair's setting.json and command.txt are written under this lock of its folder
 
 
 @dataclass
 class Pair:
-    """One duel, A against B: its folder and the states it has decided."""
+    """One duel, A against B: its folder, its setting (``setting.json``) and the states it has decided (read under
+    the lock of a scene and seed, ``read``)."""
 
     method: Contender
     rival: Contender
     folder: Path
+    setting: dict
     decisions: JsonLines = field(init=False)
     done: dict[tuple[str, int, int], set[int]] = field(init=False)  # (scene, seed, step) -> its decided sets
-
-    def __post_init__(self) -> None:
-        self.read()
+    opened: bool = False  # whether this process has written its setting and command
 
     def read(self) -> None:
         """The pair's decisions as the file holds them now (another writer's of other seeds included)."""
@@ -121,6 +135,18 @@ class Pair:
     def owner_of(method: Contender, rival: Contender, i: int, seed: int) -> Contender:
         return method if (i + seed) % 2 == 0 else rival
 
+    def open(self, command: list[str]) -> None:
+        """Once, before this process's first rows: under the pair's own lock, its ``setting.json`` checked again
+        (another process may have written one since the call was checked) and written, and ``command`` added to
+        its ``command.txt``."""
+        if self.opened:
+            return
+        with RunLock(self.folder / SETTING_LOCK, self.folder):
+            check_setting(self.folder, self.setting)
+            atomic_write_text(self.folder / "setting.json", json.dumps(self.setting, indent=2) + "\n")
+            add_command(self.folder, command)
+        self.opened = True
+
     def record(self, rows: list[dict]) -> None:
         self.decisions.add(rows)
         for r in rows:
@@ -140,12 +166,14 @@ class Call:
     threads: int
     outcomes: Outcomes
     budget: str  # of the records the states come from
+    command: list[str] = field(default_factory=list)  # added to each pair's command.txt before its first rows
 
 
 def recorded_rows(call: Call, scene: str, who: Contender, seed: int) -> list[dict]:
-    """The step rows of ``who``'s recorded episode (verified, ``pipeline.records.verify``), holding every step of
-    ``call.steps``."""
+    """The step rows of ``who``'s recorded episode (verified, ``pipeline.records.verify``; never reached through a
+    symbolic link leaving ``call.records``), holding every step of ``call.steps``."""
     directory = run_dir(call.records, scene, who.method, "argmax", who.ablation, call.budget, seed)
+    refuse_escaping_link(call.records, directory)
     try:
         _, rows = load_run(directory)
     except (ValueError, OSError) as err:
@@ -291,6 +319,9 @@ def duel_seed(call: Call, scene: Scene, seed: int, lpips: LpipsMetric) -> None:
             who = pair.owner(i, seed)
             owners[who.name] = who
             todo.setdefault(who.name, {}).setdefault(k, []).append(pair)
+    for pair in call.pairs:  # a pair with a state to decide: its setting and command, before its first rows
+        if any(p is pair for states in todo.values() for pairs in states.values() for p in pairs):
+            pair.open(call.command)
     for name, states in todo.items():
         rows = recorded_rows(call, scene.name, owners[name], seed)
         contenders = {c.name: c for pairs in states.values() for p in pairs for c in (p.method, p.rival)}
@@ -324,24 +355,42 @@ def split_arguments(positional: list[str]) -> tuple[Contender, list[Contender], 
     return method, rivals, overrides
 
 
-def open_pairs(root: Path, method: Contender, rivals: list[Contender], setting: dict, command: list[str]) -> list[Pair]:
-    """Each pair's folder, its ``setting.json`` checked (another setting is refused before anything is written)
-    or written, and the command added to its ``command.txt``."""
-    folders = [root / f"{method.name}_vs_{rival.name}" for rival in rivals]
-    for folder in folders:
-        made = read_json(folder / "setting.json", SETTING)
-        if made is not None and made["overrides"] != setting["overrides"]:
-            fail(
-                f"{folder} holds a duel with overrides {made['overrides']}, not {setting['overrides']}; pass "
-                "paths.results=DIR for another setting"
-            )
-    for folder, rival in zip(folders, rivals, strict=True):
-        make_directory(root.parent.parent, folder)
+def setting_problem(folder: Path, setting: dict) -> str | None:
+    """Why ``folder`` takes no rows of ``setting``: it holds a duel of other overrides or states' budget, or made
+    with another torch thread count (its setting's, or its rows' where the setting predates it); None when it
+    takes them (or holds no setting). Reads only."""
+    made = read_json(folder / "setting.json", SETTING)
+    if made is None:
+        return None
+    if made["overrides"] != setting["overrides"] or made.get("state_budget") != setting.get("state_budget"):
+        theirs, ours = (
+            f"{s['overrides']}" + (f" and --state-budget {s['state_budget']}" if "state_budget" in s else "")
+            for s in (made, setting)
+        )
+        return f"{folder} holds a duel with overrides {theirs}, not {ours}; pass paths.results=DIR for another setting"
+    rows = read_json_lines(folder / "decisions.jsonl", DECISION)[0]
+    counts = {made["threads"]} if "threads" in made else {r["threads"] for r in rows}
+    return other_threads(folder, setting["threads"], counts)
+
+
+def check_setting(folder: Path, setting: dict) -> None:
+    """One ``error:`` line when ``folder`` takes no rows of ``setting`` (``setting_problem``)."""
+    problem = setting_problem(folder, setting)
+    if problem is not None:
+        fail(problem)
+
+
+def pairs_of(root: Path, method: Contender, rivals: list[Contender], setting: dict) -> list[Pair]:
+    """Each pair of the call with its setting, its folder checked (``check_setting``) before anything is written."""
+    pairs = []
+    for rival in rivals:
         contenders = {c.name: {"method": c.method, "ablation": c.ablation} for c in (method, rival)}
-        own = setting | {"rival": rival.name, "contenders": contenders}
-        atomic_write_text(folder / "setting.json", json.dumps(own, indent=2) + "\n")
-        add_command(folder, command)
-    return [Pair(method, rival, folder) for folder, rival in zip(folders, rivals, strict=True)]
+        pair = Pair(method, rival, root / f"{method.name}_vs_{rival.name}", setting | {"rival": rival.name})
+        pair.setting["contenders"] = contenders
+        check_directory(root.parent.parent, pair.folder)
+        check_setting(pair.folder, pair.setting)
+        pairs.append(pair)
+    return pairs
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -358,7 +407,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seeds", type=seed_list, default=SEEDS, help="comma-separated (default 100,101,102)")
     parser.add_argument("--steps", type=step_list, default=STEPS, help="the recorded steps whose states are used")
     parser.add_argument("--sets", type=int, default=2, help="candidate sets per state (set 0: the planner's own)")
-    parser.add_argument("--records", type=Path, default=Path("results/runs"), help="where the records are")
+    parser.add_argument("--records", type=Path, default=RUNS, help=f"where the records are (default {RUNS})")
     parser.add_argument(
         "--state-budget", default=None, help="the budget of the records the states come from (default: the run's)"
     )
@@ -370,11 +419,8 @@ def main(argv: list[str] | None = None) -> None:
     except ValueError as err:
         fail(f"--seeds: {err}")
     steps, scenes = list(args.steps), list(args.scenes)
-    cores = len(os.sched_getaffinity(0))
-    if not 1 <= args.sets <= MAX_SETS:
-        fail(f"--sets {args.sets}: must be 1..{MAX_SETS}")
-    if not 1 <= args.threads <= cores:
-        fail(f"--threads {args.threads}: must be 1..{cores} (this machine's cores)")
+    bounded("--sets", args.sets, 1, MAX_SETS)
+    bounded("--threads", args.threads, 1, cores(), "the cores this process may run on")
     cfg = compose_run([*method.overrides, *overrides])
     if cfg.planner.name != "argmax" or cfg.train.warm_start:
         fail("the duel replays argmax episodes trained from scratch: drop planner= and train.warm_start=")
@@ -391,17 +437,22 @@ def main(argv: list[str] | None = None) -> None:
     state_budget = cfg.budget.name if args.state_budget is None else args.state_budget
     if state_budget not in declared("budget"):
         fail(f"--state-budget {state_budget!r}: not one of conf/budget ({', '.join(declared('budget'))})")
-    setting = {"method": method.name, "overrides": kept, "budget": cfg.budget.name}
+    setting = {"method": method.name, "overrides": kept, "budget": cfg.budget.name, "threads": args.threads}
     if state_budget != cfg.budget.name:
         setting["state_budget"] = state_budget  # the states' records are of another budget
     planned = Call([], overrides, seeds, steps, args.sets, args.records, args.threads, Outcomes([]), state_budget)
     for scene, seed, rival in itertools.product(scenes, seeds, rivals):  # every record a state needs, before writing
         for i, _ in enumerate(steps):
             recorded_rows(planned, scene, Pair.owner_of(method, rival, i, seed), seed)
-    pairs = open_pairs(root, method, rivals, setting, ["python", "-m", "pipeline.experiments.duel", *argv])
-    settings = {path.parent: read_json(path, SETTING) for path in sorted(root.glob("*/setting.json"))}
-    same_setting = [folder for folder, made in settings.items() if made is not None and made["overrides"] == kept]
-    call = dataclasses.replace(planned, pairs=pairs, outcomes=Outcomes(same_setting))
+    check_directory(Path(cfg.paths.results), root)  # never read through a link leaving paths.results
+    pairs = pairs_of(root, method, rivals, setting)
+    same_setting = [  # their outcomes are this call's: the same overrides, states and threads
+        folder
+        for folder in pair_folders(root)
+        if os.path.lexists(folder / "setting.json") and setting_problem(folder, setting) is None
+    ]
+    command = ["python", "-m", "pipeline.experiments.duel", *argv]
+    call = dataclasses.replace(planned, pairs=pairs, outcomes=Outcomes(same_setting), command=command)
     for scene in scenes:
         duel_scene(call, scene)
     for path in write_summaries(root, args.records):

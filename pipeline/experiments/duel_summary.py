@@ -18,7 +18,8 @@ the replayed training reproduces the episode), and ``episode_cpu_hours``, the ho
 
 ``summary.md``: both, with how many rows the duel and the episodes separate (interval excluding zero) and
 whether their signs agree where both do. ``python -m pipeline.experiments.duel_summary [paths.results=DIR]
-[--records DIR]`` rewrites the three.
+[--records DIR]`` rewrites the three; ``--records`` (default: the repository's ``results/runs``, wherever the
+command runs from) must hold the records of each pair's states, or the pair is refused in one line.
 """
 
 import math
@@ -33,11 +34,12 @@ from pipeline.atomic_write import atomic_write_text
 from pipeline.cli import ArgumentParser, description, run_command
 from pipeline.config.validation import compose_run
 from pipeline.experiments.decisions import DECISION
-from pipeline.records.checked_files import Each, Entries, Optional, Text, read_json, read_json_lines
+from pipeline.records.checked_files import Each, Entries, Number, Optional, Text, read_json, read_json_lines
 from pipeline.records.experiment_columns import DUEL_DETAIL_COLUMNS, DUEL_SUMMARY_COLUMNS
-from pipeline.records.files import RecordError, make_directory
-from pipeline.records.store import record_status
-from pipeline.tables.escape import csv_cell
+from pipeline.records.files import RecordError, make_directory, refuse_escaping_link
+from pipeline.records.store import check_key, record_status
+from pipeline.repo import RUNS
+from pipeline.tables.escape import as_csv
 from pipeline.tables.load import load_run
 from pipeline.tables.stats import Interval
 from pipeline.tables.table_formats import markdown_table
@@ -51,10 +53,12 @@ SETTING = {
     "budget": Optional(Text()),
     "contenders": Optional(Entries(CONTENDER)),
     "state_budget": Optional(Text()),
-}  # a pair's setting.json (the rival and contenders once written for the pair)
+    "threads": Optional(Number(1, 4096, integer=True)),
+}  # a pair's setting.json (the rival and contenders once written for the pair; threads since they are recorded)
 ALL = "all"
 MIN_SEEDS = 3  # episodes compared only with this many paired seeds per scene
 COLUMNS = tuple(DUEL_SUMMARY_COLUMNS)  # summary.csv's, declared with their shapes in pipeline.records
+TEXT = ("method", "rival", "scene")  # the csv columns of names (escaped: pipeline.tables.escape.as_csv)
 DETAIL_COLUMNS = tuple(DUEL_DETAIL_COLUMNS)  # details.csv's
 
 
@@ -81,13 +85,25 @@ def state_interval(rows: list[dict]) -> Interval:
     return Interval.of(frame.groupby(["scene", "seed", "step"])["gain"].mean().to_numpy(float))
 
 
+def episode_group(records: Path, scene: str, who: dict, budget: str) -> Path:
+    """The folder of contender ``who``'s (``method``, ``ablation``) argmax episodes on ``scene`` at ``budget``;
+    ``RecordError`` when a name is not a plain path component."""
+    names = {"scene": scene, "budget": budget, "method": who["method"], "ablation": who["ablation"]}
+    try:
+        key = {name: check_key(name, value) for name, value in names.items()}
+    except ValueError as err:
+        raise RecordError(f"{err}; a duel writes plain names only") from None
+    return Path(records) / key["scene"] / f"{key['method']}-argmax-{key['ablation']}" / key["budget"]
+
+
 def episodes(records: Path, scene: str, who: dict, budget: str) -> pd.DataFrame:
     """The finished argmax episodes of contender ``who`` (``method``, ``ablation``) on ``scene``: per seed the
     final PSNR and the cpu hours (the steps' seconds times the torch threads); records that fail verification
-    are left out."""
-    group = Path(records) / scene / f"{who['method']}-argmax-{who['ablation']}" / budget
+    are left out, a record reached through a symbolic link leaving ``records`` is a ``RecordError``."""
+    group = episode_group(records, scene, who, budget)
     out = []
     for directory in sorted(group.glob("seed_*")):
+        refuse_escaping_link(records, directory)
         try:
             info, steps = load_run(directory)
         except (RecordError, ValueError, OSError):
@@ -113,6 +129,22 @@ def compare_episodes(records: Path, setting: dict, scenes: list[str]) -> tuple[I
     return Interval.of(np.concatenate(diffs)), hours
 
 
+def check_state_records(folder: Path, setting: dict, rows: list[dict], records: Path) -> None:
+    """``RecordError`` unless ``records`` holds, on each scene of ``rows``, episodes of every contender whose
+    record gave the pair a state there (the rows' ``source``; both where a row does not name it), at the states'
+    budget: a pair decided on records held elsewhere has no episodes to be compared with here."""
+    budget = setting.get("state_budget") or setting["budget"]
+    for scene in dict.fromkeys(r["scene"] for r in rows):
+        sources = {r.get("source") for r in rows if r["scene"] == scene}
+        for name in (setting[role] for role in ("method", "rival")):
+            group = episode_group(records, scene, setting["contenders"][name], budget)
+            if (name in sources or None in sources) and next(group.glob("seed_*"), None) is None:
+                raise RecordError(
+                    f"--records {records}: no episode of {name} on {scene} at budget {budget} ({group}), though "
+                    f"{folder.name}'s states came from one; name the folder the duel read its states from"
+                )
+
+
 def pair_rows(folder: Path, records: Path) -> tuple[list[dict], list[dict]]:
     """One pair's ``summary.csv`` and ``details.csv`` rows: per scene, then over its scenes."""
     setting = read_json(folder / "setting.json", SETTING)
@@ -122,6 +154,7 @@ def pair_rows(folder: Path, records: Path) -> tuple[list[dict], list[dict]]:
     if absent:
         raise RecordError(f"{folder / 'setting.json'}: names no contender {absent[0]!r}; a duel writes both there")
     rows = read_rows(folder / "decisions.jsonl")
+    check_state_records(folder, setting, rows, records)
     scenes = list(dict.fromkeys(r["scene"] for r in rows))
     summary, details = [], []
     for scene, chosen in [*((s, [s]) for s in scenes), *([(ALL, scenes)] if scenes else [])]:
@@ -185,14 +218,6 @@ def tables(root: Path, records: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
         summary += found[0]
         details += found[1]
     return pd.DataFrame(summary, columns=list(COLUMNS)), pd.DataFrame(details, columns=list(DETAIL_COLUMNS))
-
-
-def as_csv(frame: pd.DataFrame) -> str:
-    """``frame`` as CSV, its text columns' cells escaped so that no spreadsheet reads one as a formula."""
-    escaped = frame.copy()
-    for name in ("method", "rival", "scene"):
-        escaped[name] = escaped[name].map(csv_cell)
-    return escaped.to_csv(index=False, float_format="%.4g")
 
 
 def separates(low: float, high: float) -> bool:
@@ -260,8 +285,8 @@ def write_summaries(root: Path, records: Path) -> list[Path]:
     """Write ``summary.csv``, ``details.csv`` and ``summary.md`` under ``root`` (atomically); their paths."""
     summary, details = tables(root, records)
     paths = [root / "summary.csv", root / "details.csv", root / "summary.md"]
-    atomic_write_text(paths[0], as_csv(summary))
-    atomic_write_text(paths[1], as_csv(details))
+    atomic_write_text(paths[0], as_csv(summary, TEXT, "%.4g"))
+    atomic_write_text(paths[1], as_csv(details, TEXT, "%.4g"))
     atomic_write_text(paths[2], summary_markdown(summary, details))
     return paths
 
@@ -269,7 +294,7 @@ def write_summaries(root: Path, records: Path) -> list[Path]:
 def main(argv: list[str]) -> None:
     parser = ArgumentParser(prog="python -m pipeline.experiments.duel_summary", description=description(__doc__))
     parser.add_argument("overrides", nargs="*", help="config overrides, e.g. paths.results=results")
-    parser.add_argument("--records", type=Path, default=Path("results/runs"), help="where the episodes' records are")
+    parser.add_argument("--records", type=Path, default=RUNS, help=f"where the episodes' records are (default {RUNS})")
     args = parser.parse_intermixed_args(argv)
     results = Path(compose_run(args.overrides).paths.results)
     root = make_directory(results, results / "pilots" / DUEL)

@@ -1,6 +1,7 @@
 """What the experiment commands share on their command lines: the tables' seeds and comma-separated lists,
 as argparse ``type=`` converters (a bad list is argparse's one ``error:`` line, ``pipeline.cli``); the overrides
-that make a setting; a folder's ``command.txt`` of the commands that wrote into it."""
+that make a setting, and the thread count a folder's rows were made with; a folder's ``command.txt`` of the commands
+that wrote into it."""
 
 import argparse
 import shlex
@@ -64,6 +65,18 @@ def setting_overrides(overrides: list[str]) -> list[str]:
     """The overrides that make a setting, in their order: ``paths.*`` (also ``+paths.*``, ``~paths.*``) says where
     files lie, not what is computed."""
     return [o for o in overrides if not o.lstrip("+~").startswith("paths.")]
+
+
+def other_threads(folder: Path, threads: int, counts: set[int]) -> str | None:
+    """Why ``folder`` takes no rows made with ``threads`` torch threads: its files were made with another count
+    (``counts``: its setting's, or its rows'), and their numbers depend on it; None when it takes them."""
+    other = sorted(counts - {threads})
+    if not other:
+        return None
+    return (
+        f"{folder} was made with --threads {'/'.join(map(str, other))}, not --threads {threads}: its numbers depend "
+        f"on the thread count; pass --threads {other[0]} to add to it, or paths.results=DIR for another count"
+    )
 
 
 def add_command(folder: Path, words: list[str]) -> None:

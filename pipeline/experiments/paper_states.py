@@ -26,7 +26,8 @@ rendered at the budget's image size by its ground truth (``budget=paper``: 512 p
 
 Writes ``${paths.results}/pilots/paper_states/``: ``states.jsonl`` (a row per scene, seed, step and budget,
 written once the state is complete: a killed run resumes at its first missing state), ``setting.json`` (the
-overrides: another set under the same folder is refused), ``command.txt``, then ``summary.csv`` and ``summary.md``
+overrides and ``--threads``: another set under the same folder is refused, as is another thread count, on which
+the numbers depend), ``command.txt``, then ``summary.csv`` and ``summary.md``
 (``pipeline.experiments.paper_states_summary``). Torch runs with ``--threads`` threads (default 1); run several
 processes on disjoint scenes or seeds to use more cores.
 """
@@ -34,7 +35,6 @@ processes on disjoint scenes or seeds to use more cores.
 import argparse
 import dataclasses
 import json
-import os
 import sys
 import time
 from pathlib import Path
@@ -47,7 +47,7 @@ from nvf.planning import ScoreSummary, argmax_first, score_poses_together
 from nvf.training import Observations
 from nvf.visibility import visibility_labels
 from pipeline.atomic_write import atomic_write_text
-from pipeline.cli import ArgumentParser, fail, help_page, run_command
+from pipeline.cli import ArgumentParser, bounded, cores, fail, help_page, run_command
 from pipeline.config.catalog import declared
 from pipeline.config.validation import compose_run
 from pipeline.episode.loop import Episode
@@ -62,14 +62,23 @@ from pipeline.experiments.decisions import (
     prepared_scorer,
     with_view,
 )
-from pipeline.experiments.options import SEEDS, add_command, name_list, seed_list, setting_overrides, step_list
+from pipeline.experiments.options import (
+    SEEDS,
+    add_command,
+    name_list,
+    other_threads,
+    seed_list,
+    setting_overrides,
+    step_list,
+)
 from pipeline.experiments.paper_states_summary import FOLDER, SETTING, STATE, state_key, write_summary
 from pipeline.metrics.image import LpipsMetric
 from pipeline.metrics.ranking import auc, spearman
-from pipeline.records.checked_files import read_json
-from pipeline.records.files import make_directory
+from pipeline.records.checked_files import read_json, read_json_lines
+from pipeline.records.files import check_directory, make_directory
 from pipeline.records.lock import RunLock
 from pipeline.records.store import check_seed, run_dir
+from pipeline.repo import RUNS
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.loading import find_asset, load_scene, scene_config
 from pipeline.scenes.scene import Scene, SceneError
@@ -306,15 +315,24 @@ def measure_owner(
 
 
 def open_folder(root: Path, setting: dict, command: list[str]) -> Path:
-    """The folder, its ``setting.json`` checked (another setting is refused before anything is written) or
-    written, and the command added to ``command.txt``."""
+    """The folder, its ``setting.json`` checked (another setting, or another thread count than its setting's or,
+    where the setting predates it, its rows', is refused before anything is written) or written, and the command
+    added to ``command.txt``."""
     folder = root / FOLDER
+    check_directory(root.parent, folder)
     made = read_json(folder / "setting.json", SETTING)
     if made is not None and made["overrides"] != setting["overrides"]:
         fail(
             f"{folder} holds states made with overrides {made['overrides']}, not {setting['overrides']}; pass "
             "paths.results=DIR for another setting"
         )
+    if made is not None:
+        rows = read_json_lines(folder / "states.jsonl", STATE)[0]
+        other = other_threads(
+            folder, setting["threads"], {made["threads"]} if "threads" in made else {r["threads"] for r in rows}
+        )
+        if other is not None:
+            fail(other)
     make_directory(root.parent, folder)
     atomic_write_text(folder / "setting.json", json.dumps(setting, indent=2) + "\n")
     add_command(folder, command)
@@ -344,7 +362,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--state-budget", default="cpu", help="the budget of the records the states come from (default cpu)"
     )
-    parser.add_argument("--records", type=Path, default=Path("results/runs"), help="where the records are")
+    parser.add_argument("--records", type=Path, default=RUNS, help=f"where the records are (default {RUNS})")
     parser.add_argument(
         "--outcomes",
         type=name_list,
@@ -369,11 +387,8 @@ def main(argv: list[str] | None = None) -> None:
     unknown = [name for name in args.outcomes if name not in CONTENDERS[1:]]
     if unknown:
         fail(f"--outcomes {unknown[0]}: name contenders compared with NVF ({', '.join(CONTENDERS[1:])})")
-    cores = len(os.sched_getaffinity(0))
-    if not 1 <= args.threads <= cores:
-        fail(f"--threads {args.threads}: must be 1..{cores} (this machine's cores)")
-    if not 1 <= args.vis_points <= 1 << 20:
-        fail(f"--vis-points {args.vis_points}: must be 1..{1 << 20}")
+    bounded("--threads", args.threads, 1, cores(), "the cores this process may run on")
+    bounded("--vis-points", args.vis_points, 1, 1 << 20)
     budgets = list(args.budgets)
     for budget in [*budgets, args.state_budget]:
         if budget not in declared("budget"):
@@ -393,7 +408,11 @@ def main(argv: list[str] | None = None) -> None:
     torch.set_num_threads(args.threads)
     cfg = compose_run(args.overrides)
     root = Path(cfg.paths.results) / "pilots"
-    setting = {"overrides": setting_overrides(list(args.overrides)), "state_budget": args.state_budget}
+    setting = {
+        "overrides": setting_overrides(list(args.overrides)),
+        "state_budget": args.state_budget,
+        "threads": args.threads,
+    }
     folder = open_folder(root, setting, ["python", "-m", "pipeline.experiments.paper_states", *argv])
     call = Call(
         folder,

@@ -25,17 +25,18 @@ import pandas as pd
 from pipeline.atomic_write import atomic_write_text
 from pipeline.cli import ArgumentParser, description, run_command
 from pipeline.config.validation import compose_run
-from pipeline.records.checked_files import Each, Entries, Number, Text, read_json_lines
+from pipeline.records.checked_files import Each, Entries, Number, Optional, Text, read_json_lines
 from pipeline.records.files import RecordError
 from pipeline.records.store import MAX_SEED
 from pipeline.records.verify import MAX_HORIZON
+from pipeline.tables.escape import as_csv
 from pipeline.tables.stats import Interval
 from pipeline.tables.table_formats import markdown_table
 
 FOLDER = "paper_states"
 RIVALS = ("wo_vis", "fisherrf", "activenerf")
 ALL = "all"
-SETTING = {"overrides": Each(Text()), "state_budget": Text()}
+SETTING = {"overrides": Each(Text()), "state_budget": Text(), "threads": Optional(Number(1, 4096, integer=True))}
 SPREAD = {
     "count": Number(0, 1 << 31, integer=True),
     "min": Number(),
@@ -190,7 +191,7 @@ def write_summary(folder: Path) -> list[Path]:
     rows = summary_rows(states)
     table = pd.DataFrame(rows, columns=list(COLUMNS))
     csv_path, md_path = folder / "summary.csv", folder / "summary.md"
-    atomic_write_text(csv_path, table.to_csv(index=False, float_format="%.4f"))
+    atomic_write_text(csv_path, as_csv(table, ("budget", "scene", "rival"), "%.4f"))
     pairs = twins(states)
     text = [
         "# Paper-trained states: NVF's decisions against its rivals",

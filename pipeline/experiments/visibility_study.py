@@ -25,18 +25,19 @@ visibility`` reports) on each scene's initial views (3 sets of 64 candidates, th
 plus ``nvf.entropy.visibility_source`` when that is ``mesh``).
 
 Writes ``${paths.results}/pilots/visibility_study/<setting>/``: ``decisions.jsonl`` (a row per scene, seed,
-step and set; a killed study resumes after its last complete row), ``<scene>_diagnostic.json``,
-``command.txt`` (every command that wrote into the folder, one per line), ``setting.json`` (the setting's
-overrides: a folder takes no other set, so give other overrides another ``--setting``); then ``summary.csv`` and
-``surface.csv`` of the whole study (``pipeline.experiments.visibility_summary``). Torch runs with ``--threads``
-threads (default 1: two studies side by side on 2 cores). Before any work, every seed must be one a run can
+step and set; a killed study resumes after its last complete row, and a larger ``--sets`` measures the new sets
+alone), ``<scene>_diagnostic.json``, ``command.txt`` (every command that wrote into the folder, one per line),
+``setting.json`` (the setting's overrides and ``--threads``: a folder takes no other overrides, so give them
+another ``--setting``, nor another thread count, on which the numbers depend; a setting without it was made with
+one thread); then ``summary.csv`` and ``surface.csv`` of the whole study
+(``pipeline.experiments.visibility_summary``). Torch runs with ``--threads`` threads (default 1: two studies side
+by side on 2 cores). Before any work, every seed must be one a run can
 have, every step one the records hold, and the folder's files must read back
 (``pipeline.experiments.visibility_summary.DECISION``; never through a symbolic link).
 """
 
 import dataclasses
 import json
-import os
 import sys
 import time
 from pathlib import Path
@@ -51,7 +52,7 @@ from nvf.planning import argmax_first, score_poses
 from nvf.training import Observations
 from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
 from pipeline.atomic_write import atomic_write_text
-from pipeline.cli import ArgumentParser, description, fail, run_command
+from pipeline.cli import ArgumentParser, bounded, cores, description, fail, run_command
 from pipeline.config.catalog import declared
 from pipeline.config.typed_run import Run
 from pipeline.config.validation import compose_run
@@ -59,13 +60,22 @@ from pipeline.diagnostics.visibility_report import visibility_report
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.experiments.decisions import JsonLines, candidate_set, heldout_psnr, with_view
-from pipeline.experiments.options import SEEDS, add_command, name_list, seed_list, setting_overrides, step_list
+from pipeline.experiments.options import (
+    SEEDS,
+    add_command,
+    name_list,
+    other_threads,
+    seed_list,
+    setting_overrides,
+    step_list,
+)
 from pipeline.experiments.visibility_summary import DECISION, DIAGNOSTIC, SETTING, STUDY, write_summary, write_surface
 from pipeline.metrics.image import LpipsMetric
 from pipeline.metrics.ranking import render_for_terms, spearman, term_attribution, ties_at_max, view_terms
 from pipeline.records.checked_files import read_json
-from pipeline.records.files import make_directory
+from pipeline.records.files import check_directory, make_directory
 from pipeline.records.store import check_key, check_seed, run_dir
+from pipeline.repo import RUNS
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.loading import load_scene
 from pipeline.scenes.scene import SceneError
@@ -148,9 +158,11 @@ def decision(episode: Episode, planning, candidates: torch.Tensor, scorers, obs:
     return row
 
 
-def done(decisions: JsonLines, scene: str, seed: int, step: int) -> bool:
-    """Whether ``decisions`` holds the state's rows (a state's rows are appended in one write)."""
-    return any((r["scene"], r["seed"], r["step"]) == (scene, seed, step) for r in decisions.rows)
+def missing_sets(decisions: JsonLines, scene: str, seed: int, step: int, sets: int) -> list[int]:
+    """The candidate sets of a state ``decisions`` lacks (all of a state not measured yet, the new ones of a larger
+    ``--sets``)."""
+    have = {r["set"] for r in decisions.rows if (r["scene"], r["seed"], r["step"]) == (scene, seed, step)}
+    return [index for index in range(sets) if index not in have]
 
 
 def study_scene(
@@ -169,7 +181,7 @@ def study_scene(
     scene = load_scene(run.scene, Path(run.paths.assets), blender_python(run.paths.blender_python))
     lpips = LpipsMetric()
     for seed in seeds:
-        todo = [k for k in steps if not done(decisions, scene_name, seed, k)]
+        todo = [k for k in steps if missing_sets(decisions, scene_name, seed, k, sets)]
         if not todo:
             continue
         rows = recorded_rows(records, scene_name, seed, state_budget, steps)
@@ -185,7 +197,7 @@ def study_scene(
                 planning = episode.planning_model(model, obs)
                 scorers = scorer_pair(episode)
                 found = []
-                for index in range(sets):
+                for index in missing_sets(decisions, scene_name, seed, k, sets):
                     candidates = candidate_set(episode, planning, k, index, purpose="study_candidates")
                     row = decision(episode, planning, candidates, scorers, obs, k)
                     found.append(
@@ -225,7 +237,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seeds", type=seed_list, default=SEEDS)
     parser.add_argument("--steps", type=step_list, default=STEPS, help="the recorded steps whose states are studied")
     parser.add_argument("--sets", type=int, default=3, help="candidate sets per state (0: the planner's own)")
-    parser.add_argument("--records", type=Path, default=Path("results/runs"), help="where the NVF records are")
+    parser.add_argument("--records", type=Path, default=RUNS, help=f"where the NVF records are (default {RUNS})")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (1 to the machine's cores)")
     parser.add_argument(
         "--state-budget", default=None, help="the budget of the records the states come from (default: the run's)"
@@ -237,11 +249,8 @@ def main(argv: list[str] | None = None) -> None:
     except ValueError as err:
         parser.error(str(err))
     steps = list(args.steps)
-    cores = len(os.sched_getaffinity(0))
-    if not 1 <= args.sets <= MAX_SETS:
-        fail(f"--sets {args.sets}: must be 1..{MAX_SETS}")
-    if not 1 <= args.threads <= cores:
-        fail(f"--threads {args.threads}: must be 1..{cores} (this machine's cores)")
+    bounded("--sets", args.sets, 1, MAX_SETS)
+    bounded("--threads", args.threads, 1, cores(), "the cores this process may run on")
     torch.set_num_threads(args.threads)
     cfg = compose_run(args.overrides)
     state_budget = cfg.budget.name if args.state_budget is None else args.state_budget
@@ -252,13 +261,18 @@ def main(argv: list[str] | None = None) -> None:
         for seed in seeds:
             recorded_rows(args.records, scene, seed, state_budget, steps)
     results = Path(cfg.paths.results)
-    out = make_directory(results, results / "pilots" / STUDY / args.setting)
+    out = results / "pilots" / STUDY / args.setting
+    check_directory(results, out)
     made = read_json(out / "setting.json", SETTING)
     if made is not None and settings_of(made.get("overrides", [])) != settings_of(args.overrides):
         fail(
             f"--setting {args.setting}: {out} holds a study made with the overrides {made.get('overrides', [])}, not "
             f"{args.overrides}; give these overrides their own --setting"
         )
+    other = other_threads(out, args.threads, {made.get("threads", 1)} if made is not None else set())
+    if other is not None:
+        fail(other)
+    make_directory(results, out)
     decisions = JsonLines(out / "decisions.jsonl", DECISION)
     measured = {scene: read_json(out / f"{scene}_diagnostic.json", DIAGNOSTIC) is not None for scene in scenes}
     add_command(
@@ -272,6 +286,7 @@ def main(argv: list[str] | None = None) -> None:
         "logdet_coeff": entropy.logdet_coeff,
         "label_margin": train.label_margin,
         "budget": cfg.budget.name,
+        "threads": args.threads,
     } | ({"state_budget": state_budget} if state_budget != cfg.budget.name else {})
     if made is None:
         atomic_write_text(out / "setting.json", json.dumps(setting, indent=2) + "\n")

@@ -46,10 +46,13 @@ from pipeline.records.experiment_columns import (
 from pipeline.records.files import escaping_link, make_directory
 from pipeline.records.store import MAX_SEED
 from pipeline.records.verify import MAX_HORIZON
+from pipeline.repo import RUNS
+from pipeline.tables.escape import as_csv
 from pipeline.tables.load import collect_runs
 from pipeline.tables.stats import Interval, paired
 
 STUDY = "visibility_study"
+TEXT = ("setting", "scene", "visibility_source", "nvf_decisive_term")  # csv columns of names (escaped)
 COLUMNS = tuple(STUDY_SUMMARY_COLUMNS)  # summary.csv's, declared with their shapes in pipeline.records
 ALL_SCENES = "all"
 SURFACE_ENTRIES = {"nvf": ("nvf", "none"), "wo_vis": ("nvf", "wo_vis"), "random": ("random", "none")}
@@ -63,6 +66,7 @@ SETTING = {
     "visibility_source": Optional(Text()),
     "budget": Optional(Text()),
     "state_budget": Optional(Text()),
+    "threads": Optional(Number(1, 4096, integer=True)),  # missing: made with one (before it was recorded)
 }
 COUNT = Number(0, 2**31, integer=True)
 DECISION = {
@@ -155,7 +159,7 @@ def summary_frame(study: Path) -> pd.DataFrame:
 def write_summary(study: Path) -> Path:
     """Write ``<study>/summary.csv`` (atomically) and return its path."""
     path = study / "summary.csv"
-    atomic_write_text(path, summary_frame(study).to_csv(index=False, float_format="%.4g"))
+    atomic_write_text(path, as_csv(summary_frame(study), TEXT, "%.4g"))
     return path
 
 
@@ -184,14 +188,14 @@ def surface_frame(records: Path, budget: str = "cpu") -> pd.DataFrame:
 def write_surface(study: Path, records: Path) -> Path:
     """Write ``<study>/surface.csv`` (atomically) from the records under ``records`` and return its path."""
     path = study / "surface.csv"
-    atomic_write_text(path, surface_frame(records).to_csv(index=False, float_format="%.4g"))
+    atomic_write_text(path, as_csv(surface_frame(records), TEXT, "%.4g"))
     return path
 
 
 def main(argv: list[str]) -> None:
     parser = ArgumentParser(prog="python -m pipeline.experiments.visibility_summary", description=description(__doc__))
     parser.add_argument("overrides", nargs="*", help="config overrides, e.g. paths.results=results")
-    parser.add_argument("--records", type=Path, default=Path("results/runs"), help="where the finished records are")
+    parser.add_argument("--records", type=Path, default=RUNS, help=f"where the finished records are (default {RUNS})")
     args = parser.parse_intermixed_args(argv)
     results = Path(compose_run(args.overrides).paths.results)
     study = make_directory(results, results / "pilots" / STUDY)

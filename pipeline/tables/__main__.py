@@ -34,7 +34,8 @@ behind a symbolic link leaving its root is skipped and listed with the reason; r
 every table (``pipeline.tables.escape``) and reduced to a safe, bounded file name where it names a figure.
 Rows planned with the scene mesh's line of sight (``planner.los_source=mesh`` on Room) are marked ‡.
 Exit status 2: a bad argument or an unusable ``paths.results``, e.g. a ``tables/`` that is a symbolic link out
-of it (nothing written); 1: writing failed. Errors are one ``error: ...`` line.
+of it (nothing written); 1: writing failed (the previous outputs left as they were: each is built into a new
+folder and swapped in once all are made, ``pipeline.tables.build``). Errors are one ``error: ...`` line.
 """
 
 import sys

@@ -7,11 +7,15 @@ records (untrusted input): in a table they are plain text, never markup, and nev
   block marker (``#``, ``>``, ``-``, ``+``, ``1.``) at its start.
 - ``tex_escape``: LaTeX for plain text (TeX's specials escaped); comment lines take ``plain``.
 - ``csv_cell``: a CSV cell a spreadsheet shows as text: one starting with ``=``, ``+``, ``-``, ``@``, a tab or a
-  carriage return (a formula) gets a leading ``'``, unless it is a number (``-0.5`` stays a number).
+  carriage return (a formula) gets a leading ``'``, unless it is a number (``-0.5`` stays a number);
+  ``as_csv``: a data frame as CSV with the text cells of its named columns ``csv_cell`` (the experiments' csv files).
 - ``plot_text``: ``plain`` with ``$`` escaped (no matplotlib mathtext).
 """
 
 import re
+from collections.abc import Sequence
+
+import pandas as pd
 
 CONTROL = re.compile(r"[\x00-\x1f\x7f]")
 MARKDOWN_SPECIALS = {
@@ -73,6 +77,15 @@ def csv_cell(text: object) -> str:
     """``text`` as a CSV cell a spreadsheet shows as text, not a formula (a leading ``'``; numbers unchanged)."""
     text = str(text)
     return f"'{text}" if text.startswith(FORMULA_START) and not NUMBER.fullmatch(text) else text
+
+
+def as_csv(frame: pd.DataFrame, text: Sequence[str], float_format: str | None = None) -> str:
+    """``frame`` as CSV (no index), each text cell of its columns named in ``text`` (those holding names from
+    records and settings) a ``csv_cell``; other cells, and empty ones, as they are."""
+    escaped = frame.copy()
+    for name in (name for name in text if name in frame.columns):
+        escaped[name] = frame[name].map(lambda value: csv_cell(value) if isinstance(value, str) else value)
+    return escaped.to_csv(index=False, float_format=float_format)
 
 
 def plot_text(text: object) -> str:

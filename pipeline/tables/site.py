@@ -9,8 +9,8 @@ Student-t band over seeds, the paper's final value marked where it has one) and 
 note is shown escaped, never passed through; links only to http(s), mailto and the files beside the note; a note
 that is a symbolic link, or lies behind one leaving the pilots, is not read). The interactive plots are plotly's, its
 JavaScript written once beside the pages (``plotly.min.js``); pictures are linked where they lie (beside the
-run records, in ``pilots/``, or drawn into ``site/runs/`` for records that lack them), not copied, so the site
-works while it stays beside them.
+run records, in ``pilots/``, or drawn into ``site/runs/`` for records that lack them, and carried from one build
+of the site to the next), not copied, so the site works while it stays beside them.
 """
 
 import html
@@ -116,11 +116,10 @@ def scene_picture_name(scene: str, budget: str) -> str:
     return f"scenes/{file_name(['psnr', scene, budget], '_', '.png')}"
 
 
-def write_site(runs: Runs, pictures: Mapping[str, RunPictures], results: Path) -> list[Path]:
-    """Write the site under ``results / "site"`` from the runs and each run's pictures (by run directory); every
-    page is made before any is written, so a page that cannot be made (a summary that does not read back) leaves
-    the site as it was. Returns the files written."""
-    site = Path(results) / "site"
+def write_site(runs: Runs, pictures: Mapping[str, RunPictures], results: Path, site: Path) -> list[Path]:
+    """Write the site of ``results`` into the folder ``site`` (beside ``results / "site"``, which it replaces:
+    ``pipeline.tables.build``) from the runs and each run's pictures (by run directory); the pilots and the duel's
+    summary are read from ``results``. Returns the files written."""
     done = runs.final[runs.final["status"] == "done"]
     pages_text: dict[Path, str] = {site / PLOTLY_JS: get_plotlyjs()}  # plotly.js, its MIT licence in its first lines
     pngs: dict[Path, bytes] = {}
