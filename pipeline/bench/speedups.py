@@ -16,9 +16,6 @@
   against one render serving both (``score_poses_together``).
 - ``fisherrf``: FisherRF's probe diagonal (M31) of one candidate at 300 px, each chunk's gradients copied into a
   flat vector before they were added against added in place.
-- ``allocator_backbone``, ``allocator_fisherrf``: ``--backbone-iters`` stage-1 iterations, and FisherRF's probe
-  diagonal of one candidate, with glibc's thresholds as it sets them for blocks of this size (a freed 42 MB table
-  gradient handed back to the system) against the harness's (``pipeline.allocator``: kept in the heap).
 - ``stage_one``: NVF's and ActiveNeRF's stage 1 (``--stage-iters`` iterations) trained apart against once, NVF's
   continued from ActiveNeRF's backbone (``pipeline.episode.shared_training``).
 
@@ -29,7 +26,6 @@ with ``equal``: whether both gave bitwise the same result (the equivalence the t
 """
 
 import copy
-import ctypes
 import dataclasses
 import os
 import platform
@@ -48,7 +44,6 @@ from nvf.seeding import seeded_generator
 from nvf.uncertainty import ViewScorer
 from nvf.uncertainty.fisher import _flat, colour_parameters, probe_fisher_diagonal, rademacher
 from nvf.visibility import visibility_labels
-from pipeline import allocator
 from pipeline.bench._paired import ratio_spread
 from pipeline.bench._report import report_path, write_report
 from pipeline.bench._state import continued_backbone, recorded_episode, state_candidates, trained_backbone
@@ -67,8 +62,6 @@ PAIRS = (
     "backbone",
     "scoring",
     "fisherrf",
-    "allocator_backbone",
-    "allocator_fisherrf",
     "stage_one",
 )
 LABEL_CUTOFF = 1e-3  # budget=paper's train.label_cutoff
@@ -285,46 +278,6 @@ def fisher_pairs(model: SceneModel, episode: Episode, repeats: int) -> dict:
     return report | {"rays": int(origins.shape[0]), "parameters": sum(p.numel() for p in params)}
 
 
-def with_glibc_thresholds(work: Callable[[], Any]) -> Callable[[], Any]:
-    """``work`` with glibc's own thresholds for large blocks (mmap above 32 MB, trim above 64 MB: where its dynamic
-    thresholds stop), the harness's restored after it."""
-
-    def run() -> Any:
-        mallopt = ctypes.CDLL("libc.so.6").mallopt
-        mallopt(allocator.M_MMAP_THRESHOLD, 32 << 20)
-        mallopt(allocator.M_TRIM_THRESHOLD, 64 << 20)
-        try:
-            return work()
-        finally:
-            allocator.keep_freed_memory()
-
-    return run
-
-
-def allocator_backbone_pairs(model: SceneModel, episode: Episode, iters: int, repeats: int) -> dict:
-    s, obs, device = episode.settings, episode.observations(), episode.device
-
-    def backbone() -> dict[str, torch.Tensor]:
-        copied = copy.deepcopy(model)
-        continued_backbone(copied, obs, s, iters, seeded_generator(s.seed, 0, "bench_backbone", device))
-        return copied.state_dict()
-
-    return paired({"returned": with_glibc_thresholds(backbone), "kept": backbone}, repeats) | {"iterations": iters}
-
-
-def allocator_fisher_pairs(model: SceneModel, episode: Episode, repeats: int) -> dict:
-    s = episode.settings
-    pose = state_candidates(episode, model, 1)[0]
-    origins, dirs = pixel_rays(pose_to_matrix(pose), episode.plan_intrinsics)
-    params = colour_parameters(model)
-    signs = rademacher(2, origins.shape[0], seeded_generator(s.seed, 0, "bench_probes", episode.device))
-
-    def fisher() -> torch.Tensor:
-        return probe_fisher_diagonal(model, params, origins, dirs, signs, s.planner.score_chunk_rays)
-
-    return paired({"returned": with_glibc_thresholds(fisher), "kept": fisher}, repeats)
-
-
 def stage_one_pairs(cfg_overrides: list[str], episode: Episode, iters: int, repeats: int) -> dict:
     cut = [*cfg_overrides, f"train.backbone.iters={iters}", "train.variance.iters=1", "train.visibility.iters=1"]
     episodes = {
@@ -364,8 +317,6 @@ def main(argv: list[str]) -> None:
             "backbone": lambda: backbone_pairs(model, episode, args.backbone_iters, args.repeats),
             "scoring": lambda: scoring_pairs(overrides, model, episode, args.candidates, args.repeats),
             "fisherrf": lambda: fisher_pairs(model, episode, args.repeats),
-            "allocator_backbone": lambda: allocator_backbone_pairs(model, episode, args.backbone_iters, args.repeats),
-            "allocator_fisherrf": lambda: allocator_fisher_pairs(model, episode, args.repeats),
             "stage_one": lambda: stage_one_pairs(overrides, episode, args.stage_iters, args.repeats),
         }
         found = {}
