@@ -90,6 +90,10 @@ def _covering_runs() -> list[tuple[str, str, str, str, str]]:
     return runs
 
 
+WHOLE_VIEW_METHODS = ("fisherrf", "fvs", "bayesrays")
+"""The methods whose scorer reads whole views (a ``StepScorer``): -OPT is refused for them."""
+
+
 @pytest.mark.slow
 def test_every_pair_of_group_options_composes(composer):
     runs = _covering_runs()
@@ -100,8 +104,8 @@ def test_every_pair_of_group_options_composes(composer):
         cfg = composer(
             f"scene={scene}", f"method={method}", f"ablation={ablation}", f"planner={planner}", f"budget={budget}"
         )
-        if method == "fisherrf" and planner == "opt":  # whole-view scores: nothing for -OPT to refine
-            with pytest.raises(ConfigError, match="planner=opt: fisherrf"):
+        if method in WHOLE_VIEW_METHODS and planner == "opt":  # whole-view scores: nothing for -OPT to refine
+            with pytest.raises(ConfigError, match=f"planner=opt: {method} scores whole views"):
                 validate(cfg)
         else:
             validate(cfg)
