@@ -1,6 +1,6 @@
 """Typed settings of the method library, one dataclass per concern (METHOD.md section 16).
 
-These are plain dataclasses: Hydra's structured configs in ``pipeline.config.schema`` embed them, so every
+These are plain dataclasses: Hydra's structured configs in ``pipeline.config.structured_configs`` embed them, so every
 value has exactly one home and one default. Defaults are the ``paper`` budget; smaller budgets
 override resolutions and iteration counts only. A setting with a fixed set of values is a ``StrEnum``
 field: OmegaConf refuses any other value when a config is composed, and a member compares equal to its

@@ -26,7 +26,7 @@ from omegaconf import DictConfig
 
 from pipeline.cli import EXPECTED, exit_with, run_command
 from pipeline.config import key_help
-from pipeline.config.schema import register_configs
+from pipeline.config.structured_configs import register_configs
 from pipeline.config.validation import validate
 from pipeline.episode.runner import run_episode
 from pipeline.tables.summary import finish_run, missing_pictures, recorded_outline

@@ -1,5 +1,5 @@
 """docs/BUDGETS.md's table of values, generated from the config: each budget's values are the schema's defaults
-(``pipeline.config.schema``, ``nvf.config``: the paper budget) with ``conf/budget/<name>.yaml`` on top.
+(``pipeline.config.structured_configs``, ``nvf.config``: the paper budget) with ``conf/budget/<name>.yaml`` on top.
 
 ``python scripts/budgets_table.py`` rewrites the table between its two marker comments in docs/BUDGETS.md (the
 reasons around it stay as written); ``--check`` only compares, and exits 1 naming the first row that differs.
@@ -17,7 +17,7 @@ sys.path.insert(0, str(REPO))  # this checkout's packages, whichever checkout is
 
 from omegaconf import OmegaConf  # noqa: E402
 
-from pipeline.config.schema import RunConfig, register_configs  # noqa: E402
+from pipeline.config.structured_configs import RunConfig, register_configs  # noqa: E402
 from pipeline.config.validation import MIN_EVAL_SIZE  # noqa: E402
 from pipeline.repo import CONF  # noqa: E402
 

@@ -16,7 +16,7 @@ from pipeline.config import validation
 from pipeline.config.catalog import declared
 from pipeline.config.memory import SIZE_KEYS_BOUNDED, allocations, too_large
 from pipeline.config.plain_containers import as_dict, as_list
-from pipeline.config.schema import register_configs
+from pipeline.config.structured_configs import register_configs
 from pipeline.config.validation import ConfigError, error_line, typed_run, validate
 from pipeline.repo import CONF
 

@@ -17,7 +17,7 @@ from torch import Tensor
 
 from nvf.methods import Method
 from nvf.model import RenderResult
-from pipeline.config.schema import register_configs
+from pipeline.config.structured_configs import register_configs
 from pipeline.config.validation import compose_run
 from pipeline.episode.runner import run_episode
 from pipeline.repo import CONF

@@ -15,7 +15,7 @@ import pytest
 import torch
 from hydra import compose, initialize_config_dir
 
-from pipeline.config.schema import register_configs
+from pipeline.config.structured_configs import register_configs
 from pipeline.config.typed_run import Run
 from pipeline.config.validation import ConfigError, validate
 from pipeline.episode.loop import Episode

@@ -10,7 +10,7 @@ from nvf.methods import run_settings
 from pipeline.config import key_help
 from pipeline.config.catalog import declared, method_configs
 from pipeline.config.method import Presentation, method_class
-from pipeline.config.schema import RunConfig
+from pipeline.config.structured_configs import RunConfig
 from pipeline.repo import REPO
 
 

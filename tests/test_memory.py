@@ -11,7 +11,7 @@ from hydra import compose, initialize_config_dir
 
 from nvf import device as devices
 from pipeline.config import memory
-from pipeline.config.schema import register_configs
+from pipeline.config.structured_configs import register_configs
 from pipeline.config.validation import typed_run
 from pipeline.episode import evaluation
 from pipeline.repo import CONF, RESULTS

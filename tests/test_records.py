@@ -22,8 +22,8 @@ from omegaconf import OmegaConf
 
 from nvf.cameras import Intrinsics
 from pipeline.atomic_write import atomic_write_text, temp_file
-from pipeline.config.schema import register_configs
 from pipeline.config.settings_beyond_groups import NamedConfigs
+from pipeline.config.structured_configs import register_configs
 from pipeline.records.compat import LEGACY_DEFAULTS, with_legacy_defaults
 from pipeline.records.lock import RunLock, RunLocked
 from pipeline.records.store import (

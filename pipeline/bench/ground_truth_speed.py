@@ -21,7 +21,7 @@ from pathlib import Path
 from nvf.cameras import Intrinsics
 from pipeline.bench._report import report_path, write_report
 from pipeline.cli import ArgumentParser, bounded, description, fail
-from pipeline.config.schema import RenderConfig
+from pipeline.config.structured_configs import RenderConfig
 from pipeline.config.validation import compose_run
 from pipeline.scenes.blender import BlenderRenderer, blender_python
 from pipeline.scenes.loading import load_scene

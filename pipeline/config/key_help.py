@@ -1,8 +1,8 @@
 """``python -m pipeline.run --help-keys [overrides]``: every config key of a run, dotted, with its default and its
 one-line description, read from the config dataclasses themselves: each field's docstring (the string literal on
-the line after it, ``pipeline.config.schema`` and ``nvf.config``; a method's keys from its ``nvf.methods`` class
-and ``pipeline.config.method.Presentation``). Where the composed config (``conf/config.yaml`` with the overrides
-given) sets another value than the default, the listing adds it: ``[run: 64]``.
+the line after it, ``pipeline.config.structured_configs`` and ``nvf.config``; a method's keys from its
+``nvf.methods`` class and ``pipeline.config.method.Presentation``). Where the composed config (``conf/config.yaml``
+with the overrides given) sets another value than the default, the listing adds it: ``[run: 64]``.
 
 A section (a field that is itself a dataclass, ``train.backbone``) is listed with its description before its
 keys. A method's keys are those of the method the overrides choose (``method=air``), its run settings (filled
@@ -24,7 +24,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import MISSING, OmegaConf
 
 from pipeline.cli import plain
-from pipeline.config.schema import RunConfig, register_configs
+from pipeline.config.structured_configs import RunConfig, register_configs
 from pipeline.repo import CONF
 
 NOT_SET = "???"  # a default a yaml must set (OmegaConf's MISSING)

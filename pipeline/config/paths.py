@@ -11,7 +11,7 @@ from omegaconf.errors import OmegaConfBaseException
 
 from pipeline.cli import error_line
 from pipeline.config.plain_containers import as_dict
-from pipeline.config.schema import PathsConfig
+from pipeline.config.structured_configs import PathsConfig
 from pipeline.repo import CONF
 
 

@@ -12,7 +12,7 @@ from hydra.core.global_hydra import GlobalHydra
 from hydra.errors import HydraException
 from omegaconf import OmegaConf
 
-from pipeline.config.schema import register_configs
+from pipeline.config.structured_configs import register_configs
 from pipeline.records import compat
 from pipeline.records.compat import drop_not_settings, drop_retired, with_legacy_defaults
 from pipeline.records.store import to_jsonable

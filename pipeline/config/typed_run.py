@@ -13,7 +13,7 @@ import torch
 
 from nvf.config import EntropyConfig
 from nvf.methods import Method
-from pipeline.config.schema import RunConfig, SceneConfig
+from pipeline.config.structured_configs import RunConfig, SceneConfig
 
 
 @dataclass(kw_only=True)

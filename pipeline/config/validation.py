@@ -1,5 +1,5 @@
-"""Validation of a run's configuration (the schema is ``pipeline.config.schema``): ``validate`` runs before any
-work, raises ``ConfigError`` with one line naming the key, and turns the composed config into the typed
+"""Validation of a run's configuration (the schema is ``pipeline.config.structured_configs``): ``validate`` runs
+before any work, raises ``ConfigError`` with one line naming the key, and turns the composed config into the typed
 ``pipeline.config.typed_run.Run`` that everything below the entry points reads; ``compose_run`` composes and
 validates a config outside ``@hydra.main`` (benchmarks, experiments).
 """
@@ -27,8 +27,8 @@ from pipeline.config.memory import host_memory, too_large
 from pipeline.config.method import MethodError, build_method
 from pipeline.config.paths import unwritable
 from pipeline.config.plain_containers import as_dict
-from pipeline.config.schema import RunConfig, register_configs
 from pipeline.config.settings_beyond_groups import changed_settings
+from pipeline.config.structured_configs import RunConfig, register_configs
 from pipeline.config.typed_run import Run, resolved_entropy, run_of
 from pipeline.records.store import run_dir
 from pipeline.records.verify import MAX_HORIZON, record_value_problem

@@ -16,7 +16,7 @@ from nvf.seeding import seeded_generator
 from nvf.training import Observations
 from nvf.uncertainty import ViewScorer
 from nvf.visibility_source import SourcedVisibility
-from pipeline.config.schema import BudgetConfig, MetricsConfig
+from pipeline.config.structured_configs import BudgetConfig, MetricsConfig
 from pipeline.metrics.arrays import as_numpy
 from pipeline.metrics.correlation import uncertainty_correlation
 from pipeline.metrics.geometry import GeometryMetrics, geometry_metrics, points_from_rays

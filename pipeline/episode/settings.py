@@ -9,7 +9,7 @@ from nvf.config import EntropyConfig, FieldConfig, PlannerConfig, SamplerConfig,
 from nvf.methods import Method
 from nvf.training import stages_to_train
 from nvf.uncertainty import StepScorer, ViewScorer
-from pipeline.config.schema import BudgetConfig, MetricsConfig, RenderConfig, StepMetrics
+from pipeline.config.structured_configs import BudgetConfig, MetricsConfig, RenderConfig, StepMetrics
 from pipeline.config.typed_run import Run
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.scene import Scene

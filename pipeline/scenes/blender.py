@@ -27,7 +27,7 @@ from jaxtyping import Float
 from torch import Tensor
 
 from nvf.cameras import Intrinsics
-from pipeline.config.schema import RenderConfig
+from pipeline.config.structured_configs import RenderConfig
 from pipeline.repo import REPO
 from pipeline.scenes.blender_worker import one_line, read_message, write_message
 from pipeline.scenes.mesh_renderer import GTView, MeshRays, as_pose, base_color_texture_mesh, corner_colors

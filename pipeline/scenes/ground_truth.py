@@ -5,7 +5,7 @@ from pathlib import Path
 
 import torch
 
-from pipeline.config.schema import RenderConfig
+from pipeline.config.structured_configs import RenderConfig
 from pipeline.scenes.blender import BlenderRenderer, missing_python
 from pipeline.scenes.mesh_renderer import GroundTruthRenderer
 from pipeline.scenes.scene import Scene, SceneError

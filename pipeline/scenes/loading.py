@@ -33,7 +33,7 @@ from torch import Tensor
 
 from pipeline.config.catalog import declared
 from pipeline.config.plain_containers import as_dict
-from pipeline.config.schema import SceneConfig, register_configs
+from pipeline.config.structured_configs import SceneConfig, register_configs
 from pipeline.repo import CONF, REPO
 from pipeline.scenes import procedural
 from pipeline.scenes.blender import BlenderError, export_blend
