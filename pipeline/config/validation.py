@@ -30,8 +30,9 @@ from pipeline.config.plain_containers import as_dict
 from pipeline.config.settings_beyond_groups import changed_settings
 from pipeline.config.structured_configs import RunConfig, register_configs
 from pipeline.config.typed_run import Run, resolved_entropy, run_of
+from pipeline.records.schema import MAX_HORIZON
 from pipeline.records.store import run_dir
-from pipeline.records.verify import MAX_HORIZON, record_value_problem
+from pipeline.records.verify import record_value_problem
 from pipeline.repo import CONF
 
 

@@ -2,6 +2,7 @@
 from training-view rays, visual coverage of the observed poses, and uncertainty-error correlation.
 """
 
+import dataclasses
 import functools
 import math
 
@@ -22,25 +23,12 @@ from pipeline.metrics.correlation import uncertainty_correlation
 from pipeline.metrics.geometry import GeometryMetrics, geometry_metrics, points_from_rays
 from pipeline.metrics.image import ImageMetrics, LpipsFeatures, LpipsMetric, image_metrics, psnr
 from pipeline.metrics.visual_coverage import seen_faces, visual_coverage
+from pipeline.records.schema import Metrics
 from pipeline.scenes.ground_truth import Renderer
 from pipeline.scenes.scene import Scene
 
 RENDER_CHUNK = 4096  # rays per model call at inference
-STEP_METRICS = (
-    "psnr",
-    "ssim",
-    "lpips",
-    "rgb",
-    "acc",
-    "comp",
-    "cr",
-    "vis",
-    "vis_area",
-    "num_points",
-    "patch_pearson",
-    "view_pearson",
-    "ause",
-)  # what ``Evaluator.evaluate`` records, in order
+STEP_METRICS = tuple(field.name for field in dataclasses.fields(Metrics))  # what ``Evaluator.evaluate`` records
 PATCHES_PER_SIDE = 16  # PROTOCOL 4.4: 32x32 patches of a 512x512 view
 
 

@@ -25,6 +25,15 @@ from nvf.visibility_source import SourcedVisibility, label_visibility
 from pipeline.episode.evaluation import Evaluator
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.image import LpipsMetric
+from pipeline.records.schema import (
+    CandidateScores,
+    Metrics,
+    OptScores,
+    RankAgreement,
+    StageSummary,
+    StepRow,
+    StepSeconds,
+)
 from pipeline.scenes.ground_truth import open_renderer
 from pipeline.scenes.scene import Scene
 
@@ -109,8 +118,9 @@ class Episode:
         stats = train_model(model, obs, s.train, s.stages, s.entropy, generator, aux_loss, progress)
         return model, stats
 
-    def step(self, step: int, progress: TrainProgress | None = None) -> tuple[dict, dict]:
-        """Run step ``step``; returns the step row and the images to save (name -> HxWx{1,3} array)."""
+    def step(self, step: int, progress: TrainProgress | None = None) -> tuple[StepRow, dict]:
+        """Run step ``step``; returns its row (``as_json`` is the line steps.jsonl records) and the images to save
+        (name -> HxWx{1,3} array)."""
         s = self.settings
         obs = self.observations()
         t0 = time.perf_counter()
@@ -125,35 +135,28 @@ class Episode:
         selection, generators = self.plan(planning, obs, step)
         t3 = time.perf_counter()
         self.previous_model = model if s.train.warm_start else None
-        row = {
-            "step": step,
-            "n_views": len(self.poses),
-            "status": "ok",
-            "metrics": metrics,
-            "selected_pose": selection.pose.detach().cpu().tolist(),
-            "selected_index": selection.index,
-            "selected_score": selection.score,
-            "refined": selection.refined,
-            "candidate_scores": dataclasses.asdict(selection.candidate_scores)
-            if selection.candidate_scores
-            else {
-                "count": selection.num_candidates,
-                "min": None,
-                "mean": None,
-                "max": None,
-                "std": None,
-                "ties_at_max": None,
-            },
-            "train": stats.stages,
-            "seconds": {"train": t1 - t0, "eval": t2 - t1, "plan": t3 - t2},
-        }
-        if selection.opt is not None:
-            row["opt"] = {
-                "original_scores": selection.opt.original_scores.tolist(),
-                "refined_scores": selection.opt.refined_scores.tolist(),
-            }
-        if self.rival is not None and selection.scores is not None:
-            row["rank_agreement"] = self.rank_agreement(planning, selection, obs, generators)
+        scores = selection.candidate_scores
+        row = StepRow(
+            step=step,
+            n_views=len(self.poses),
+            status="ok",
+            metrics=Metrics(**metrics),
+            selected_pose=selection.pose.detach().cpu().tolist(),
+            selected_index=selection.index,
+            selected_score=selection.score,
+            refined=selection.refined,
+            candidate_scores=CandidateScores(**dataclasses.asdict(scores))
+            if scores
+            else CandidateScores(selection.num_candidates, None, None, None, None, None),
+            train={stage: StageSummary(**summary) for stage, summary in stats.stages.items()},
+            seconds=StepSeconds(train=t1 - t0, eval=t2 - t1, plan=t3 - t2),
+            opt=None
+            if selection.opt is None
+            else OptScores(selection.opt.original_scores.tolist(), selection.opt.refined_scores.tolist()),
+            rank_agreement=self.rank_agreement(planning, selection, obs, generators)
+            if self.rival is not None and selection.scores is not None
+            else None,
+        )
         return row, images
 
     def plan(
@@ -204,7 +207,7 @@ class Episode:
         selection: Selection,
         obs: Observations,
         generators: GeneratorFactory,
-    ) -> dict:
+    ) -> RankAgreement:
         """How the ``diagnostics.rank_against`` ablation's score ranks the step's candidates against the run's
         own: Spearman correlation and whether both pick the same candidate (no randomness: the run's
         choices are unchanged)."""
@@ -218,7 +221,7 @@ class Episode:
         own = scores.detach().cpu().numpy()
         spearman = float(stats.spearmanr(own, rival.detach().cpu().numpy()).statistic) if len(own) > 1 else math.nan
         same = argmax_first(rival) == argmax_first(scores)
-        return {"against": name, "spearman": spearman, "same_choice": same}
+        return RankAgreement(against=name, spearman=spearman, same_choice=same)
 
     def observe_pose(self, pose: list[float]) -> None:
         """Observe a pose vector ``[qx, qy, qz, qw, x, y, z]`` (a selected view)."""

@@ -10,6 +10,7 @@ is recorded (run.json), and the episode gets the settings built from it (``pipel
 The summary and pictures of a finished run are the entry point's (``pipeline.run``), from the ``Outcome``.
 """
 
+import math
 import os
 import time
 from dataclasses import dataclass
@@ -31,6 +32,7 @@ from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.image import LpipsMetric
 from pipeline.records.images import save_step_images
 from pipeline.records.lock import RunLock
+from pipeline.records.schema import RunStart, as_json
 from pipeline.records.store import RunRecord, run_dir
 from pipeline.records.verify import verified
 from pipeline.scenes.blender import BlenderTimeout, blender_python
@@ -98,22 +100,23 @@ def run_settings(run: Run) -> dict:
     }
 
 
-def run_info(settings: dict, episode: Episode, lpips_reason: str | None, ground_truth: dict) -> dict:
-    """run.json's content: the run's ``settings`` (``run_settings``), the scene's source, ``ground_truth``
-    (backend and asset file: ``pipeline.scenes.ground_truth.ground_truth_info``), the resolved collision-free
-    choice, device, threads and why LPIPS is missing (if it is)."""
+def run_info(settings: dict, episode: Episode, lpips_reason: str | None, ground_truth: dict) -> RunStart:
+    """What run.json records of the run (``pipeline.records.schema.RunStart``): the run's ``settings``
+    (``run_settings``), the scene's source, ``ground_truth`` (backend and asset file:
+    ``pipeline.scenes.ground_truth.ground_truth_info``), the resolved collision-free choice, device, threads, why
+    LPIPS is missing (if it is) and the record version."""
     s = episode.settings
-    return {
+    return RunStart(
         **settings,
-        "scene_source": episode.scene.source,
-        "ground_truth": ground_truth,
-        "collision_free": s.collision_free,  # M29's candidate sampler, as resolved for the scene
-        "candidate_filters": episode.scorer is not None or s.planner.random_filters,  # M28, M29
-        "field": str(s.field.kind),
-        "device": str(episode.device),
-        "torch_threads": torch.get_num_threads(),
-        "lpips_missing_reason": lpips_reason,
-    }
+        scene_source=episode.scene.source,
+        ground_truth=ground_truth,
+        collision_free=s.collision_free,  # M29's candidate sampler, as resolved for the scene
+        candidate_filters=episode.scorer is not None or s.planner.random_filters,  # M28, M29
+        field=str(s.field.kind),
+        device=str(episode.device),
+        torch_threads=torch.get_num_threads(),
+        lpips_missing_reason=lpips_reason,
+    )
 
 
 def run_episode(run: Run) -> Outcome:
@@ -183,7 +186,7 @@ def _run_steps(
     """Record and run the steps of ``episode`` not yet in ``record`` (``settings``: ``run_settings``)."""
     done_rows = record.completed_steps()
     ground_truth = ground_truth_info(episode.scene, episode.renderer, assets)
-    record.start(run_info(settings, episode, lpips.missing, ground_truth))
+    record.start(as_json(run_info(settings, episode, lpips.missing, ground_truth)))
     try:
         episode.replay(done_rows)
         if done_rows:
@@ -211,6 +214,7 @@ def _record_steps(directory: Path, episode: Episode, record: RunRecord, first: i
             row, images = episode.step(step, progress.train)
             if s.save_images:
                 save_step_images(directory / "images", step, images, episode.method.score_unit)
-            record.append_step(row)
-            episode.observe_pose(row["selected_pose"])
-            progress.step_done(step, row["n_views"], row["metrics"]["psnr"], time.perf_counter() - start)
+            record.append_step(as_json(row))
+            episode.observe_pose(row.selected_pose)
+            psnr = math.nan if row.metrics.psnr is None else row.metrics.psnr
+            progress.step_done(step, row.n_views, psnr, time.perf_counter() - start)

@@ -41,8 +41,8 @@ from pipeline.episode.loop import Episode
 from pipeline.metrics.image import psnr
 from pipeline.records.checked_files import Each, Flag, Number, Optional, Text, read_json_lines
 from pipeline.records.files import RecordError, append_plain_file
+from pipeline.records.schema import MAX_HORIZON
 from pipeline.records.store import MAX_SEED, dumps, to_jsonable
-from pipeline.records.verify import MAX_HORIZON
 
 PLAIN_NAME = re.compile(r"[A-Za-z0-9_.-]+")
 Planning = SceneModel | SourcedVisibility

@@ -131,7 +131,7 @@ def flat_steps(steps: list[dict]) -> float:
     """The fraction of a run's steps whose score was constant over the candidates (every candidate tied at the
     maximum: a pick by draw order, as Random's); NaN for a run without scores or recorded ties."""
     scores = [s.get("candidate_scores") or {} for s in steps]
-    if not scores or any("ties_at_max" not in c for c in scores):
+    if not scores or any(c.get("ties_at_max") is None for c in scores):
         return math.nan
     return float(np.mean([c["ties_at_max"] >= c["count"] for c in scores]))
 

@@ -27,8 +27,8 @@ from pipeline.cli import ArgumentParser, description, run_command
 from pipeline.config.validation import compose_run
 from pipeline.records.checked_files import Each, Entries, Number, Optional, Text, read_json_lines
 from pipeline.records.files import RecordError
+from pipeline.records.schema import MAX_HORIZON
 from pipeline.records.store import MAX_SEED
-from pipeline.records.verify import MAX_HORIZON
 from pipeline.tables.escape import as_csv
 from pipeline.tables.stats import Interval
 from pipeline.tables.table_formats import markdown_table

@@ -44,8 +44,8 @@ from pipeline.records.experiment_columns import (
     only,
 )
 from pipeline.records.files import escaping_link, make_directory
+from pipeline.records.schema import MAX_HORIZON
 from pipeline.records.store import MAX_SEED
-from pipeline.records.verify import MAX_HORIZON
 from pipeline.repo import RUNS
 from pipeline.tables.escape import as_csv
 from pipeline.tables.load import collect_runs

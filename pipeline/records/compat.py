@@ -1,5 +1,6 @@
-"""Reading records made by older code: keys added to the config after them, keys the config no longer has,
-and the groups that are not settings at all.
+"""Reading the config of records made by older code: keys added to the config after them, keys the config no
+longer has, and the groups that are not settings at all (the rest of an older record, its run.json's own keys and
+its rows, is read as the current version by ``pipeline.records.upgrade``).
 
 A record written before a key was added to the config was made with the behaviour the key's default
 then reproduced. ``LEGACY_DEFAULTS`` holds that value for every such key (one place: the resume check,
@@ -75,33 +76,25 @@ def _get(config: Any, dotted: str) -> Any:
     return node
 
 
-def collision_free(info: Mapping) -> bool:
-    """Whether a run's candidates went through M29's line-of-sight filter (the collision-free sampler):
-    run.json's ``collision_free`` where recorded, else ``planner.collision_free``, else (null: the scene's
-    choice) whether the scene was one of ``LEGACY_COLLISION_FREE_SCENES``."""
-    if isinstance(info.get("collision_free"), bool):
-        return info["collision_free"]
-    config = info.get("config")
+def chose_collision_free(config: Mapping, scene: str) -> bool:
+    """Whether a run of ``config`` on ``scene`` drew its candidates with the collision-free sampler (M29):
+    ``planner.collision_free`` where it is set, else (null: the scene's choice) whether the scene (a proxy as its
+    paper scene) is one of ``LEGACY_COLLISION_FREE_SCENES``, the scenes that chose it when the key was added."""
     chosen = _get(config, "planner.collision_free")
     if isinstance(chosen, bool):
         return chosen
-    return str(info.get("scene", _get(config, "scene.name"))).removesuffix("_proxy") in LEGACY_COLLISION_FREE_SCENES
+    return scene.removesuffix("_proxy") in LEGACY_COLLISION_FREE_SCENES
 
 
-def line_of_sight_filtered(info: Mapping) -> bool:
-    """Whether M29's line-of-sight filter acted on a run's candidates: the collision-free sampler, and
-    candidates filtered at all: run.json's ``candidate_filters`` where recorded, else by name (Random, the
-    only method without a score before it was recorded, skips the filters unless ``planner.random_filters``,
-    METHOD 12)."""
-    filters = info.get("candidate_filters")
-    if not isinstance(filters, bool):
-        config = info.get("config")
-        filters = _get(config, "method.name") != "random" or _get(config, "planner.random_filters") is True
-    return filters and collision_free(info)
+def filters_candidates(config: Mapping) -> bool:
+    """Whether a run of ``config`` put its candidates through the filters (M28, M29): every method but Random,
+    which skips them unless ``planner.random_filters`` (METHOD 12)."""
+    return _get(config, "method.name") != "random" or _get(config, "planner.random_filters") is True
 
 
 def _line_of_sight_filtered(config: Mapping) -> bool:
-    return line_of_sight_filtered({"config": config})
+    """Whether M29's line-of-sight filter acted on the candidates of a run of ``config``."""
+    return filters_candidates(config) and chose_collision_free(config, str(_get(config, "scene.name")))
 
 
 ACTS_WHEN: dict[str, Callable[[Mapping], bool]] = {

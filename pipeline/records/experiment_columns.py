@@ -19,8 +19,8 @@ from collections.abc import Mapping
 from typing import Any
 
 from pipeline.records.checked_files import Number, Optional, Text
+from pipeline.records.schema import MAX_HORIZON
 from pipeline.records.store import MAX_SEED
-from pipeline.records.verify import MAX_HORIZON
 
 COUNT = Number(0, 2**31, integer=True)
 SHARE = Number(0.0, 1.0, null=True)  # a fraction of decisions, states, sets or runs; empty where there is none

@@ -7,33 +7,34 @@ them is one the code can use. Records are untrusted input (copied between machin
   (``record_value_problem``); the record files are regular files (never read through a symbolic link)
   of at most ``MAX_RECORD_BYTES``.
 - run.json is a JSON object with the identity keys (plain names of at most 64 characters, a seed from 0
-  to 2^63-1) and a ``config`` object; the keys the tables and the runner read have their types
-  (``TYPED``: labels are text, ranks integers, the horizon at most ``MAX_HORIZON`` steps). Rows are
-  never adopted without a run.json (steps.jsonl, DONE or FAILED alone: the settings they were made
-  with are unknown).
-- steps.jsonl holds steps 0, 1, ... in order, each row ``ok`` with its ``metrics`` object (names to
-  numbers or null, each metric within its ``pipeline.metrics.info`` bounds, counts whole and >= 0),
-  ``n_views`` and a ``selected_pose`` (what a resumed run replays and the tables draw): a unit quaternion
-  (within ``QUATERNION_TOLERANCE``) and a position inside the record's camera box (``config.scene.
-  camera_box``) widened by ``BOX_MARGIN`` of its size on each side, or, for records that do not hold the
-  box, within ``MAX_COORDINATE`` of the origin.
+  to 2^63-1) and a ``config`` object. Rows are never adopted without a run.json (steps.jsonl, DONE or FAILED
+  alone: the settings they were made with are unknown).
+- steps.jsonl holds steps 0, 1, ... in order.
+- The record, read as the current version (``pipeline.records.upgrade``), has the types and ranges the schema
+  declares (``pipeline.records.schema``: ``RunInfo``, ``StepRow``; ``schema_problem``): each row ``ok`` with its
+  metrics each within its range (``pipeline.metrics.info``'s bounds), ``n_views`` and a ``selected_pose`` (what a
+  resumed run replays and the tables draw), whose quaternion is a unit one (within ``QUATERNION_TOLERANCE``) and
+  whose position lies inside the record's camera box (``config.scene.camera_box``) widened by ``BOX_MARGIN`` of its
+  size on each side, or, for records that do not hold the box, within ``MAX_COORDINATE`` of the origin.
 - A finished run (``done``) has one row per step of its horizon (``config.budget.horizon``), and a
-  finished or failed record still has the digest run.json took when it ended: ``record_digest`` of
-  run.json's content and steps.jsonl. Records that ended before it hold ``steps_digest``, the digest of
-  steps.jsonl alone, and are checked against that; records older still have the checks above only. Which
-  kind a record is comes from its own content: every version that takes a digest writes ``DIGEST_ERA_KEY``
-  into run.json and no earlier one did, so a record holding it and no digest had its digest removed.
+  finished or failed record still has the digest its version took when it ended: ``record_digest`` of run.json's
+  content and steps.jsonl (version 3), ``steps_digest`` of steps.jsonl alone (version 2), none (version 1). A digest
+  a record holds is checked whatever its version.
 
 A record that fails a check raises ``RecordError``: one line naming the file and the problem.
 """
 
+import dataclasses
 import math
+import types
+import typing
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
 
-from pipeline.metrics.info import METRICS
 from pipeline.records.files import is_plain_file, read_plain_file
+from pipeline.records.schema import INT64, MAX_HORIZON, Length, Range, RunInfo, StepRow
 from pipeline.records.store import (
     CONTROL,
     DIGEST_KEY,
@@ -51,59 +52,15 @@ from pipeline.records.store import (
     read_steps,
     record_digest,
 )
+from pipeline.records.upgrade import record_version, upgraded
 
-POSE_SIZE = 7  # [qx, qy, qz, qw, x, y, z]
 QUATERNION_TOLERANCE = 1e-3  # | |q| - 1 |: poses are recorded from float32 unit quaternions (off by 1e-7)
 BOX_MARGIN = 0.1  # a recorded position may lie this share of the camera box's size outside it
 MAX_COORDINATE = 1000.0  # scene units: a position of a record without its camera box (scenes span less than 20)
-BOUND_TOLERANCE = 1e-6  # a metric may pass its bounds by rounding (a correlation of 1 + 1e-16)
-COUNTS = ("num_points",)  # metrics that count: whole numbers >= 0
-DIGEST_ERA_KEY = "candidate_filters"  # run.json: written by every version that takes a digest, by none before
+BOUND_TOLERANCE = 1e-6  # a number may pass its range by rounding (a correlation of 1 + 1e-16)
 MAX_DEPTH = 32  # JSON nesting of run.json or a row (the committed records nest 8 deep)
 MAX_TEXT = 4096  # characters of one text value or key (the committed records' longest text has 109)
-MAX_HORIZON = 1000  # steps of a run: every step rewrites steps.jsonl whole; the paper's horizon is 20
-MAX_VIEWS = 1_000_000  # n_views of a row
-INT64 = 2**63 - 1
-
-NUMBER = (int, float)
-TEXT = (str,)
-OPTIONAL_TEXT = (str, type(None))
-# run.json keys (dotted) that the tables and the runner read, and the types each may have where present
-TYPED: dict[str, tuple[type, ...]] = {
-    "scene_source": TEXT,
-    "failure_reason": OPTIONAL_TEXT,
-    "lpips_missing_reason": OPTIONAL_TEXT,
-    "collision_free": (bool, type(None)),
-    "candidate_filters": (bool, type(None)),
-    "ground_truth": (dict, type(None)),
-    "ground_truth.asset": OPTIONAL_TEXT,
-    "ground_truth.backend": TEXT,
-    "ground_truth.samples": (int, type(None)),
-    "config.budget": (dict,),
-    "config.budget.horizon": (int,),
-    "config.method": (dict,),
-    "config.method.name": TEXT,
-    "config.method.label": TEXT,
-    "config.method.rank": (int,),
-    "config.ablation": (dict,),
-    "config.ablation.name": TEXT,
-    "config.ablation.label": TEXT,
-    "config.ablation.rank": (int,),
-    "config.ablation.of": TEXT,
-    "config.planner": (dict,),
-    "config.planner.name": TEXT,
-    "config.planner.los_source": TEXT,
-    "config.planner.collision_free": (bool, type(None)),
-    "config.planner.random_filters": (bool,),
-    "config.scene": (dict,),
-    "config.scene.name": TEXT,
-    "config.scene.rank": (int,),
-    "config.scene.paper_scene": OPTIONAL_TEXT,
-    "config.scene.nerf_asset": (bool,),
-    "config.render": (dict,),
-    "config.render.backend": TEXT,
-    "config.render.samples": (int, type(None)),
-}
+DIGESTS = {2: LEGACY_DIGEST_KEY, 3: DIGEST_KEY}  # the digest each record version takes when a run ends
 
 
 def record_value_problem(value: Any) -> str | None:
@@ -140,49 +97,173 @@ def record_value_problem(value: Any) -> str | None:
     return None
 
 
-def _lookup(info: Mapping, dotted: str) -> tuple[bool, Any]:
-    node: Any = info
-    for part in dotted.split("."):
-        if not isinstance(node, Mapping) or part not in node:
-            return False, None
-        node = node[part]
-    return True, node
+ABSENT = object()  # the value of a required key a record lacks
 
 
-def typed_problem(info: Mapping) -> str | None:
-    """The first ``TYPED`` key of run.json whose value has another type (booleans are not integers)."""
-    for key, types in TYPED.items():
-        present, value = _lookup(info, key)
-        if present and (not isinstance(value, types) or (isinstance(value, bool) and bool not in types)):
-            names = " or ".join(
-                "null" if t is type(None) else {"str": "text", "dict": "an object"}.get(t.__name__, t.__name__)
-                for t in types
-            )
-            shown = repr(value) if len(repr(value)) <= 40 else f"a {type(value).__name__}"
-            return f"{key} is {shown}, not {names}"
+@dataclass(frozen=True)
+class Problem:
+    """Where a record departs from its schema: the dotted ``key``, the ``value`` there (``ABSENT`` for a required key
+    it lacks), what the value should be (``expected``) and, for a number of the right type outside its range, the
+    ``range``."""
+
+    key: str
+    value: Any
+    expected: str
+    range: Range | None = None
+
+
+def _parts(annotation: Any) -> tuple[Any, tuple[Any, ...]]:
+    """An annotation without ``Annotated``, and the metadata ``Annotated`` gave it."""
+    if typing.get_origin(annotation) is Annotated:
+        base, *meta = typing.get_args(annotation)
+        return base, tuple(meta)
+    return annotation, ()
+
+
+def _is_union(base: Any) -> bool:
+    return typing.get_origin(base) in (typing.Union, types.UnionType)
+
+
+def _members(union: Any, meta: tuple[Any, ...]) -> list[tuple[Any, tuple[Any, ...]]]:
+    """Each member of a union type with its metadata, the union's own (a range of ``float | None``) given to every
+    member but null."""
+    members = [_parts(member) for member in typing.get_args(union)]
+    return [(base, own if base is type(None) else (*own, *meta)) for base, own in members]
+
+
+def _of(meta: tuple[Any, ...], kind: type) -> Any:
+    return next((m for m in meta if isinstance(m, kind)), None)
+
+
+def _number(value: int | float) -> str:
+    """A range's end as the messages and docs write it."""
+    if value == INT64:
+        return "2^63-1"
+    return str(int(value)) if math.isfinite(value) and value == int(value) else f"{value:g}"
+
+
+def expected(base: Any, meta: tuple[Any, ...] = ()) -> str:
+    """What a value of a schema type is, in words: ``an integer from 1 to 1000000``, ``text or null``."""
+    if _is_union(base):
+        return " or ".join(expected(*member) for member in _members(base, meta))
+    span: Range | None = _of(meta, Range)
+    if base in (int, float):
+        noun = "an integer" if base is int else "a number"
+        if span is None:
+            return "int" if base is int else noun
+        if span.high in (math.inf, INT64):
+            return f"{noun} >= {_number(span.low)}"
+        return f"{noun} from {_number(span.low)} to {_number(span.high)}"
+    origin = typing.get_origin(base)
+    if origin is Literal:
+        return " or ".join(repr(option) for option in typing.get_args(base))
+    if origin is list:
+        size: Length | None = _of(meta, Length)
+        item, _ = _parts(typing.get_args(base)[0])
+        if size is not None:
+            return f"{size.items} finite numbers" if item in (int, float) else f"a list of {size.items}"
+        return "a list"
+    names = {type(None): "null", bool: "bool", str: "text", Any: "any value"}
+    return names.get(base, "an object")
+
+
+def _fields_problem(value: Mapping, cls: type, key: str) -> Problem | None:
+    """The first field of the record class ``cls`` that ``value`` (an object) lacks though required, or holds with
+    another type or outside its range; keys ``cls`` does not declare are not looked at."""
+    for field in dataclasses.fields(cls):
+        dotted = f"{key}.{field.name}" if key else field.name
+        if field.name not in value:
+            if field.name in getattr(cls, "REQUIRED", ()):
+                return Problem(dotted, ABSENT, "present")
+            continue
+        problem = _problem(value[field.name], *_parts(field.type), dotted)
+        if problem is not None:
+            return problem
     return None
 
 
-def metric_problem(name: str, value: object) -> str | None:
-    """What makes a recorded metric value unusable (not a number or null, outside its bounds), or None."""
-    if value is None:
+def _problem(value: Any, base: Any, meta: tuple[Any, ...], key: str) -> Problem | None:
+    """The first place where ``value`` is not of the schema type ``base`` (with its ``Annotated`` ``meta``)."""
+    wrong = Problem(key, value, expected(base, meta))
+    if _is_union(base):
+        found = [_problem(value, *member, key) for member in _members(base, meta)]
+        if any(problem is None for problem in found):
+            return None
+        # the member whose type the value has tells more (a range, a key inside an object) than "not A or B"
+        return next((p for p in found if p is not None and (p.range is not None or p.key != key)), wrong)
+    if base is Any:
         return None
-    if isinstance(value, bool) or not isinstance(value, NUMBER):
-        return f"has metric {name[:40]!r} = {str(value)[:40]!r}, not a number or null"
-    info = METRICS.get(name)
-    if info is not None:
-        low, high = info.bounds
-        if not low - BOUND_TOLERANCE <= value <= high + BOUND_TOLERANCE:
-            return f"has metric {name} = {value:.6g}, outside its range [{low:g}, {high:g}]"
-    if name in COUNTS and not (isinstance(value, int) and 0 <= value <= INT64):
-        return f"has metric {name} = {value:.6g}, not a count (a whole number >= 0)"
-    return None
+    if base is type(None) or base is bool or base is str:
+        return None if (value is None if base is type(None) else isinstance(value, base)) else wrong
+    if base in (int, float):
+        if isinstance(value, bool) or not isinstance(value, int if base is int else (int, float)):
+            return wrong
+        span: Range | None = _of(meta, Range)
+        slack = BOUND_TOLERANCE if base is float else 0
+        if span is not None and not span.low - slack <= value <= span.high + slack:
+            return dataclasses.replace(wrong, range=span)
+        return None
+    origin = typing.get_origin(base)
+    if origin is Literal:
+        return None if isinstance(value, str) and value in typing.get_args(base) else wrong
+    if origin is list:
+        size: Length | None = _of(meta, Length)
+        if not isinstance(value, list) or (size is not None and len(value) != size.items):
+            return wrong
+        item = _parts(typing.get_args(base)[0])
+        for index, element in enumerate(value):
+            problem = _problem(element, *item, f"{key}.{index}")
+            if problem is not None:  # a list of plain values is named whole, a list of objects by the item
+                return problem if dataclasses.is_dataclass(item[0]) else wrong
+        return None
+    if not isinstance(value, Mapping):
+        return wrong
+    if origin is dict:
+        entry = _parts(typing.get_args(base)[1])
+        for name, element in value.items():
+            problem = _problem(element, *entry, f"{key}.{name}")
+            if problem is not None:
+                return problem
+        keys = next((m for m in meta if dataclasses.is_dataclass(m)), None)  # Annotated[dict, Class]: its keys
+        return _fields_problem(value, keys, key) if isinstance(keys, type) else None
+    return _fields_problem(value, base, key)
+
+
+def schema_problem(value: Mapping, cls: type) -> Problem | None:
+    """The first place where ``value`` (run.json's content or a row, read as the current version) departs from the
+    schema's record class ``cls`` (``RunInfo``, ``StepRow``); None when it has every type and range."""
+    return _fields_problem(value, cls, "")
+
+
+def _shown(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 80 else f"a {type(value).__name__}"
+
+
+def info_problem(problem: Problem) -> str:
+    """A problem of run.json as its message says it."""
+    if problem.value is ABSENT:
+        return f"lacks {problem.key}"
+    return f"{problem.key} is {_shown(problem.value)}, not {problem.expected}"
+
+
+def row_problem_text(problem: Problem) -> str:
+    """A problem of a row as its message says it (a metric's range as ``[low, high]``)."""
+    if problem.value is ABSENT:
+        return f"lacks {problem.key}"
+    group, _, name = problem.key.partition(".")
+    if group == "metrics" and name:
+        if problem.range is not None:
+            low, high = _number(problem.range.low), _number(problem.range.high)
+            return f"has metric {name} = {problem.value:.6g}, outside its range [{low}, {high}]"
+        return f"has metric {name[:40]!r} = {str(problem.value)[:40]!r}, not {problem.expected}"
+    return f"has {problem.key}={_shown(problem.value)}, not {problem.expected}"
 
 
 def camera_box(info: Mapping) -> list[list[float]] | None:
     """The record's ``config.scene.camera_box`` (rows min, max), or None when it does not hold one."""
-    present, box = _lookup(info, "config.scene.camera_box")
-    return box if present else None
+    scene = info.get("config", {}).get("scene") if isinstance(info.get("config"), Mapping) else None
+    return scene.get("camera_box") if isinstance(scene, Mapping) else None
 
 
 def box_problem(box: object) -> str | None:
@@ -190,7 +271,9 @@ def box_problem(box: object) -> str | None:
     corners = box if isinstance(box, list) and len(box) == 2 else []
     if (
         not all(
-            isinstance(c, list) and len(c) == 3 and all(isinstance(v, NUMBER) and not isinstance(v, bool) for v in c)
+            isinstance(c, list)
+            and len(c) == 3
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in c)
             for c in corners
         )
         or not corners
@@ -220,32 +303,15 @@ def pose_problem(pose: list, box: list[list[float]] | None) -> str | None:
 
 
 def row_problem(row: dict, box: list[list[float]] | None = None) -> str | None:
-    """What makes a step row unusable, or None (``box``: the record's camera box, ``camera_box``)."""
-    if row.get("status") != "ok":
-        return f"has status {str(row.get('status'))[:40]!r}, not 'ok'"
+    """What makes a step row (read as the current version) unusable, or None (``box``: the record's camera box,
+    ``camera_box``)."""
     problem = record_value_problem(row)
     if problem is not None:
         return f"holds {problem}"
-    metrics = row.get("metrics")
-    if not isinstance(metrics, dict):
-        return "has no metrics object"
-    problem = next(filter(None, (metric_problem(name, value) for name, value in metrics.items())), None)
-    if problem is not None:
-        return problem
-    views = row.get("n_views")
-    if not isinstance(views, int) or isinstance(views, bool) or not 1 <= views <= MAX_VIEWS:
-        return f"has n_views={str(views)[:40]}, not an integer from 1 to {MAX_VIEWS}"
-    pose = row.get("selected_pose")
-    if not (isinstance(pose, list) and len(pose) == POSE_SIZE) or not all(
-        isinstance(v, NUMBER) and not isinstance(v, bool) for v in pose
-    ):
-        return f"has selected_pose={str(pose)[:80]}, not {POSE_SIZE} finite numbers"
-    problem = pose_problem(pose, box)
-    if problem is not None:
-        return problem
-    if not isinstance(row.get("lpips_missing_reason"), OPTIONAL_TEXT):
-        return "has an lpips_missing_reason that is not text"
-    return None
+    found = schema_problem(row, StepRow)
+    if found is not None:
+        return row_problem_text(found)
+    return pose_problem(row["selected_pose"], box)
 
 
 def check_rows(path: Path, rows: list[dict], box: list[list[float]] | None = None) -> None:
@@ -264,27 +330,25 @@ def check_rows(path: Path, rows: list[dict], box: list[list[float]] | None = Non
 
 def check_info(record: RunRecord, info: dict) -> None:
     """run.json's values (``record_value_problem``), identity keys (plain names, a seed in range), its config
-    object and the types of the keys that are read (``TYPED``)."""
+    object, its record version, and, read as the current version, the schema's types and ranges (``RunInfo``)."""
     problem = record_value_problem(info)
     if problem is not None:
         raise RecordError(f"{record.run_json}: holds {problem}")
-    missing = [key for key in (*IDENTITY_KEYS, "config") if key not in info]
+    missing = [key for key in RunInfo.REQUIRED if key not in info]
     if missing:
         raise RecordError(f"{record.run_json}: lacks {', '.join(missing)}")
     try:
         for key in IDENTITY_KEYS[:-1]:
             check_key(key, info[key])
         check_seed(info["seed"])
+        record_version(info)
     except ValueError as err:
         raise RecordError(f"{record.run_json}: {err}") from None
     if not isinstance(info["config"], dict):
         raise RecordError(f"{record.run_json}: config is not an object")
-    problem = typed_problem(info)
-    if problem is not None:
-        raise RecordError(f"{record.run_json}: {problem}")
-    present, horizon = _lookup(info, "config.budget.horizon")
-    if present and not 1 <= horizon <= MAX_HORIZON:
-        raise RecordError(f"{record.run_json}: config.budget.horizon is {horizon}, not from 1 to {MAX_HORIZON}")
+    found = schema_problem(upgraded(info, [])[0], RunInfo)
+    if found is not None:
+        raise RecordError(f"{record.run_json}: {info_problem(found)}")
     box = camera_box(info)
     problem = box_problem(box) if box is not None else None
     if problem is not None:
@@ -292,8 +356,10 @@ def check_info(record: RunRecord, info: dict) -> None:
 
 
 def _check_digest(record: RunRecord, info: dict) -> None:
-    """run.json and steps.jsonl as they were when the run ended (``DIGEST_KEY``, or ``LEGACY_DIGEST_KEY``)."""
+    """run.json and steps.jsonl as they were when the run ended: the digest the record holds (``DIGEST_KEY``, or
+    ``LEGACY_DIGEST_KEY``), and one at all where its version takes one (``DIGESTS``)."""
     steps = read_plain_file(record.steps_path, MAX_RECORD_BYTES)
+    version = record_version(info)
     if DIGEST_KEY in info:
         if record_digest(info, steps or b"") != info[DIGEST_KEY]:
             raise RecordError(
@@ -306,15 +372,15 @@ def _check_digest(record: RunRecord, info: dict) -> None:
                 f"{record.directory / STEPS}: differs from the digest run.json took when the run finished "
                 f"({LEGACY_DIGEST_KEY}); the rows were changed afterwards"
             )
-    elif DIGEST_ERA_KEY in info:
+    if version in DIGESTS and DIGESTS[version] not in info:
         raise RecordError(
-            f"{record.run_json}: no {DIGEST_KEY}, though the version that wrote it ({DIGEST_ERA_KEY} says so) takes "
-            "one when a run ends; the digest was removed after the run ended: delete the run"
+            f"{record.run_json}: no {DIGESTS[version]}, though the version that wrote it (record version {version}) "
+            "takes one when a run ends; the digest was removed after the run ended: delete the run"
         )
 
 
 def verified(record: RunRecord) -> tuple[dict, list[dict]]:
-    """run.json and the step rows of a record that passes every check (``{}`` and ``[]`` when the run
+    """run.json and the step rows of a record that passes every check, as recorded (``{}`` and ``[]`` when the run
     has not started); read-only: a truncated last line of an unfinished run is left out, not repaired."""
     info = record.info()
     if not info:
@@ -328,18 +394,20 @@ def verified(record: RunRecord) -> tuple[dict, list[dict]]:
         return {}, []
     check_info(record, info)
     rows, dropped = read_steps(record.steps_path)
-    present, horizon = _lookup(info, "config.budget.horizon")
-    if len(rows) > (horizon if present else MAX_HORIZON):
+    budget = info["config"].get("budget")
+    horizon = budget.get("horizon") if isinstance(budget, dict) else None
+    if len(rows) > (horizon if horizon is not None else MAX_HORIZON):
         raise RecordError(
             f"{record.steps_path}: {len(rows)} rows, more than the run's horizon of "
-            f"{horizon if present else MAX_HORIZON} steps"
+            f"{horizon if horizon is not None else MAX_HORIZON} steps"
         )
-    check_rows(record.steps_path, rows, camera_box(info))
+    current, current_rows = upgraded(info, rows)
+    check_rows(record.steps_path, current_rows, camera_box(current))
     status = record.status()
     if status == "done":
         if dropped is not None:
             raise RecordError(f"{dropped} of a finished run")
-        if not present:
+        if horizon is None:
             raise RecordError(f"{record.run_json}: config.budget.horizon is missing, so the run's length is unknown")
         if len(rows) != horizon:
             raise RecordError(
@@ -348,3 +416,10 @@ def verified(record: RunRecord) -> tuple[dict, list[dict]]:
     if status != "unfinished":
         _check_digest(record, info)
     return info, rows
+
+
+def verified_current(record: RunRecord) -> tuple[dict, list[dict]]:
+    """``verified``, read as the current record version (``pipeline.records.upgrade.upgraded``): what the tables
+    and experiments read."""
+    info, rows = verified(record)
+    return upgraded(info, rows) if info else (info, rows)

@@ -15,10 +15,9 @@ from typing import Any
 import pandas as pd
 
 from pipeline.config.settings_beyond_groups import GROUPS, NamedConfigs
-from pipeline.records.compat import line_of_sight_filtered
 from pipeline.records.files import escaping_link
 from pipeline.records.store import IDENTITY_KEYS, RECORD_FILES, RecordError, RunRecord, first_difference, run_difference
-from pipeline.records.verify import verified
+from pipeline.records.verify import verified_current
 from pipeline.repo import CONF
 from pipeline.tables.labels import LAST, MEAN_SCENE, METRIC_KEYS, OBJECT_MEAN, RowName, SceneName, row_name, scene_name
 
@@ -135,9 +134,10 @@ def metric_value(value: object) -> float | None:
 
 
 def load_run(directory: Path) -> tuple[dict, list[dict]]:
-    """run.json and the step rows of a record that passes ``pipeline.records.verify`` (read-only);
-    RecordError (one line naming the file and the problem) otherwise."""
-    info, rows = verified(RunRecord(directory))
+    """run.json and the step rows of a record that passes ``pipeline.records.verify``, read as the current record
+    version (``pipeline.records.upgrade``; read-only); RecordError (one line naming the file and the problem)
+    otherwise."""
+    info, rows = verified_current(RunRecord(directory))
     if not info:
         raise RecordError(f"{directory}: no run.json")
     return info, rows
@@ -147,7 +147,8 @@ def used_mesh_line_of_sight(info: dict) -> bool:
     """Whether the run's candidates were filtered by the scene mesh's exact line of sight (M29 with
     ``planner.los_source=mesh`` and the collision-free sampler): an oracle, marked in the tables."""
     planner = json_object(json_object(info.get("config")).get("planner"))
-    return planner.get("los_source") == "mesh" and line_of_sight_filtered(info)
+    filtered = info.get("candidate_filters") is True and info.get("collision_free") is True
+    return planner.get("los_source") == "mesh" and filtered
 
 
 def used_mesh_visibility(info: dict) -> bool:
