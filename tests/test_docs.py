@@ -21,7 +21,7 @@ DOCS = REPO / "docs"
 CODE_DIRS = ("nvf", "pipeline", "conf", "scripts", "tests")
 CODE_SUFFIXES = {".py", ".yaml", ".yml", ".sh", ".cpp"}
 THIS_FILE = Path(__file__).resolve().relative_to(REPO).as_posix()
-DOC_NAMES = ("METHOD.md", "PROTOCOL.md", "BUDGETS.md", "DEVIATIONS.md", "ARCHITECTURE.md", "USAGE.md")
+DOC_NAMES = ("METHOD.md", "PROTOCOL.md", "BUDGETS.md", "DEVIATIONS.md", "ARCHITECTURE.md", "USAGE.md", "RECORDS.md")
 BINARY_SUFFIXES = {".png", ".jpg", ".pdf", ".blend", ".glb", ".ply", ".npz", ".pth"}
 DATA_SUFFIXES = {".json", ".jsonl", ".csv", ".tex"}  # records and tables: timestamps are data there
 

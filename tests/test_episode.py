@@ -1,5 +1,6 @@
 """The episode harness end to end (PROTOCOL 3): records, resume after SIGKILL, bad input."""
 
+import dataclasses
 import json
 import math
 import os
@@ -23,6 +24,7 @@ from pipeline.episode.runner import Outcome, RunRefused, StepFailed, run_episode
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.image import LpipsMetric
 from pipeline.records.lock import RunLock
+from pipeline.records.schema import RECORD_VERSION, RunStart, StepRow
 from pipeline.records.store import RecordError, RunRecord
 from pipeline.records.verify import verified
 from pipeline.repo import CONF, REPO
@@ -94,6 +96,9 @@ def test_smoke_episode_writes_complete_records(tmp_path):
     assert info["budget"] == "smoke" and info["field"] in ("hashgrid", "densegrid")
     assert info["git"]["commit"] is None or len(info["git"]["commit"]) == 40
     assert info["collision_free"] is False and info["record_digest"].startswith("sha256:")
+    assert info["record_version"] == RECORD_VERSION  # the schema's keys in its order, the store's after them
+    start, columns = ([field.name for field in dataclasses.fields(c)] for c in (RunStart, StepRow))
+    assert list(info)[: len(start)] == start and all(list(row) == columns[: len(row)] for row in rows)
     assert verified(record)[1] == rows
     assert (directory / "images" / "step_01_pred.png").is_file()
     # the run's own labelled pictures and table, beside its records (drawn by the entry point, pipeline.run)

@@ -16,7 +16,7 @@ import inspect
 import json
 import textwrap
 import typing
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -41,9 +41,9 @@ class KeyHelp:
     section: bool = False
 
 
-def field_docs(cls: type) -> dict[str, str]:
+def field_docs(cls: type, markup: Callable[[str], str] = plain) -> dict[str, str]:
     """Each field's docstring in ``cls`` and its bases (the string literal right after the field's line), as one
-    line; a field without one is absent."""
+    line with its ````code```` marks as ``markup`` writes them (dropped); a field without one is absent."""
     docs: dict[str, str] = {}
     for klass in reversed(cls.__mro__):
         if klass is object or not dataclasses.is_dataclass(klass):
@@ -58,7 +58,7 @@ def field_docs(cls: type) -> dict[str, str]:
                 and isinstance(after.value, ast.Constant)
                 and isinstance(after.value.value, str)
             ):
-                docs[statement.target.id] = " ".join(plain(after.value.value).split())
+                docs[statement.target.id] = " ".join(markup(after.value.value).split())
     return docs
 
 

@@ -45,7 +45,7 @@ def record_version(info: dict) -> int:
     version = info[VERSION_KEY]
     if not isinstance(version, int) or isinstance(version, bool) or not 1 <= version <= RECORD_VERSION:
         raise ValueError(
-            f"{VERSION_KEY} is {str(version)[:40]!r}, not a record version from 1 to {RECORD_VERSION} "
+            f"{VERSION_KEY} is {repr(version)[:40]}, not a record version from 1 to {RECORD_VERSION} "
             "(a newer version's record, or an edited one)"
         )
     return version

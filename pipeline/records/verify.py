@@ -112,7 +112,7 @@ class Problem:
     range: Range | None = None
 
 
-def _parts(annotation: Any) -> tuple[Any, tuple[Any, ...]]:
+def annotation_parts(annotation: Any) -> tuple[Any, tuple[Any, ...]]:
     """An annotation without ``Annotated``, and the metadata ``Annotated`` gave it."""
     if typing.get_origin(annotation) is Annotated:
         base, *meta = typing.get_args(annotation)
@@ -127,7 +127,7 @@ def _is_union(base: Any) -> bool:
 def _members(union: Any, meta: tuple[Any, ...]) -> list[tuple[Any, tuple[Any, ...]]]:
     """Each member of a union type with its metadata, the union's own (a range of ``float | None``) given to every
     member but null."""
-    members = [_parts(member) for member in typing.get_args(union)]
+    members = [annotation_parts(member) for member in typing.get_args(union)]
     return [(base, own if base is type(None) else (*own, *meta)) for base, own in members]
 
 
@@ -151,7 +151,7 @@ def expected(base: Any, meta: tuple[Any, ...] = ()) -> str:
         noun = "an integer" if base is int else "a number"
         if span is None:
             return "int" if base is int else noun
-        if span.high in (math.inf, INT64):
+        if span.high == math.inf:
             return f"{noun} >= {_number(span.low)}"
         return f"{noun} from {_number(span.low)} to {_number(span.high)}"
     origin = typing.get_origin(base)
@@ -159,10 +159,11 @@ def expected(base: Any, meta: tuple[Any, ...] = ()) -> str:
         return " or ".join(repr(option) for option in typing.get_args(base))
     if origin is list:
         size: Length | None = _of(meta, Length)
-        item, _ = _parts(typing.get_args(base)[0])
-        if size is not None:
-            return f"{size.items} finite numbers" if item in (int, float) else f"a list of {size.items}"
-        return "a list"
+        item, item_meta = annotation_parts(typing.get_args(base)[0])
+        if size is not None and item in (int, float):
+            return f"{size.items} finite numbers"
+        count = f" of {size.items}" if size is not None else ""
+        return f"a list{count} ({expected(item, item_meta)} each)"
     names = {type(None): "null", bool: "bool", str: "text", Any: "any value"}
     return names.get(base, "an object")
 
@@ -176,7 +177,7 @@ def _fields_problem(value: Mapping, cls: type, key: str) -> Problem | None:
             if field.name in getattr(cls, "REQUIRED", ()):
                 return Problem(dotted, ABSENT, "present")
             continue
-        problem = _problem(value[field.name], *_parts(field.type), dotted)
+        problem = _problem(value[field.name], *annotation_parts(field.type), dotted)
         if problem is not None:
             return problem
     return None
@@ -189,8 +190,10 @@ def _problem(value: Any, base: Any, meta: tuple[Any, ...], key: str) -> Problem 
         found = [_problem(value, *member, key) for member in _members(base, meta)]
         if any(problem is None for problem in found):
             return None
-        # the member whose type the value has tells more (a range, a key inside an object) than "not A or B"
-        return next((p for p in found if p is not None and (p.range is not None or p.key != key)), wrong)
+        # the member whose type the value has tells more (a key inside an object, a range) than "not A or B"
+        inner = next((p for p in found if p is not None and p.key != key), None)
+        outside = next((p for p in found if p is not None and p.range is not None), None)
+        return inner or (dataclasses.replace(wrong, range=outside.range) if outside is not None else wrong)
     if base is Any:
         return None
     if base is type(None) or base is bool or base is str:
@@ -210,7 +213,7 @@ def _problem(value: Any, base: Any, meta: tuple[Any, ...], key: str) -> Problem 
         size: Length | None = _of(meta, Length)
         if not isinstance(value, list) or (size is not None and len(value) != size.items):
             return wrong
-        item = _parts(typing.get_args(base)[0])
+        item = annotation_parts(typing.get_args(base)[0])
         for index, element in enumerate(value):
             problem = _problem(element, *item, f"{key}.{index}")
             if problem is not None:  # a list of plain values is named whole, a list of objects by the item
@@ -219,7 +222,7 @@ def _problem(value: Any, base: Any, meta: tuple[Any, ...], key: str) -> Problem 
     if not isinstance(value, Mapping):
         return wrong
     if origin is dict:
-        entry = _parts(typing.get_args(base)[1])
+        entry = annotation_parts(typing.get_args(base)[1])
         for name, element in value.items():
             problem = _problem(element, *entry, f"{key}.{name}")
             if problem is not None:
