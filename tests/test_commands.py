@@ -49,3 +49,18 @@ def test_a_command_is_its_module_run_as_python_m():
         [sys.executable, "-m", "pipeline.commands", "bench", "nosuch"], capture_output=True, text=True, cwd=REPO
     )
     assert bad.returncode == 2 and bad.stderr.startswith("error: unknown benchmark 'nosuch'")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(commands.COMMANDS))
+def test_every_command_and_its_python_m_form_print_the_same_help(name):
+    """Each command's ``--help`` through the console script ``nvf-bench`` (the installed entry point) and as
+    ``python -m <module>``: both exit 0 and print the same page (its first line names the program)."""
+    module = commands.COMMANDS[name][0]
+    script = Path(sys.executable).with_name("nvf-bench")
+    as_script = subprocess.run([script, name, "--help"], capture_output=True, text=True, cwd=REPO)
+    as_module = subprocess.run([sys.executable, "-m", module, "--help"], capture_output=True, text=True, cwd=REPO)
+    assert as_script.returncode == 0, as_script.stderr
+    assert as_module.returncode == 0, as_module.stderr
+    assert as_script.stdout.splitlines()[1:] == as_module.stdout.splitlines()[1:]
+    assert len(as_module.stdout.splitlines()) > 1
