@@ -2,11 +2,13 @@
 episodes, trained at another budget (the smoke budget here, the paper's in use)."""
 
 import json
+from pathlib import Path
 
 import pytest
 
 from pipeline.experiments import paper_states, paper_states_summary
 from pipeline.records.checked_files import read_json_lines
+from pipeline.records.store import run_dir
 
 
 @pytest.mark.parametrize(
@@ -108,3 +110,19 @@ def test_one_writer_per_scene_and_seed_and_no_state_twice(tmp_path, capsys):
     (folder / "states.jsonl").write_text(text + text)
     with pytest.raises(RecordError, match="twice"):
         paper_states_summary.write_summary(folder)
+
+
+def test_a_state_is_never_read_from_a_record_linked_from_outside_its_records(tmp_path, capsys):
+    """A state's record that is a symbolic link leaving ``--records`` is one ``error:`` line naming its target and
+    exit 2, before anything is written (the duel's rule, ``decisions.recorded_steps``)."""
+    records = tmp_path / "runs"
+    source = Path("results/runs/default/nvf-argmax-none/cpu/seed_100").resolve()
+    link = run_dir(records, "default", "nvf", "argmax", "none", "cpu", 100)
+    link.parent.mkdir(parents=True)
+    link.symlink_to(source)
+    argv = ["--scenes", "default", "--seeds", "100", "--steps", "2", "--budgets", "smoke", "--records", str(records)]
+    with pytest.raises(SystemExit) as exit_:
+        paper_states.main([*argv, f"paths.results={tmp_path / 'results'}"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.count("\n") == 1 and f"{source}, outside {records}" in err
+    assert not (tmp_path / "results").exists()

@@ -313,7 +313,12 @@ def test_a_study_folder_takes_one_set_of_overrides_and_steps_the_record_holds(tm
     assert {path.name: path.read_bytes() for path in folder.iterdir()} == before
     (folder / "decisions.jsonl").write_text(json.dumps(decision_row("default", 50)) + "\n")
     status, err = command("pipeline.experiments.visibility_study", [*argv, "--steps", "50"])
-    assert status == 2 and len(err) == 1 and "--steps 50: the record" in err[0] and "holds steps 0 to 2" in err[0]
+    assert (
+        status == 2
+        and len(err) == 1
+        and "--steps asks for step 50: the record" in err[0]
+        and "holds steps 0 to 2" in err[0]
+    )
 
 
 def test_a_decisions_file_linked_elsewhere_is_neither_read_nor_appended_to(tmp_path, command):
@@ -327,3 +332,17 @@ def test_a_decisions_file_linked_elsewhere_is_neither_read_nor_appended_to(tmp_p
     status, err = command("pipeline.experiments.visibility_study", argv)
     assert status == 2 and len(err) == 1 and err[0].startswith(f"error: {folder / 'decisions.jsonl'}: a symbolic link")
     assert outside.read_text() == json.dumps(decision_row("default", 1)) + "\n"
+
+
+def test_a_study_never_reads_a_record_linked_from_outside_its_records(tmp_path, command):
+    """A state's NVF record that is a symbolic link to a record outside ``--records`` was read as if it were one of
+    them. Now it is one line naming the link's target, exit 2, and the study folder is unchanged."""
+    argv, folder = _study_folder(tmp_path, ["budget=smoke"])
+    record = tmp_path / "runs" / "default" / "nvf-argmax-none" / "smoke" / "seed_100"
+    outside = tmp_path / "outside_seed_100"
+    record.rename(outside)
+    record.symlink_to(outside)
+    before = {path.name: path.read_bytes() for path in folder.iterdir()}
+    status, err = command("pipeline.experiments.visibility_study", argv)
+    assert status == 2 and len(err) == 1 and f"{outside}, outside {tmp_path / 'runs'}" in err[0], err
+    assert {path.name: path.read_bytes() for path in folder.iterdir()} == before

@@ -35,14 +35,16 @@ from nvf.training import Observations, train_model
 from nvf.uncertainty import ViewScorer, WholeViewScorer
 from nvf.visibility_source import SourcedVisibility
 from pipeline.atomic_write import atomic_write_text
+from pipeline.cli import fail
 from pipeline.config.catalog import ablation_configs, declared
 from pipeline.episode.evaluation import render_view
 from pipeline.episode.loop import Episode
 from pipeline.metrics.image import psnr
 from pipeline.records.checked_files import Each, Flag, Number, Optional, Text, read_json_lines
-from pipeline.records.files import RecordError, append_plain_file
+from pipeline.records.files import RecordError, append_plain_file, refuse_escaping_link
 from pipeline.records.schema import MAX_HORIZON
-from pipeline.records.store import MAX_SEED, dumps, to_jsonable
+from pipeline.records.store import MAX_SEED, dumps, run_dir, to_jsonable
+from pipeline.tables.load import load_run
 
 PLAIN_NAME = re.compile(r"[A-Za-z0-9_.-]+")
 Planning = SceneModel | SourcedVisibility
@@ -74,6 +76,21 @@ def contender(name: str) -> Contender:
         f"unknown contender {name!r}: name a method of conf/method ({', '.join(declared('method'))}) or an "
         f"ablation of conf/ablation ({', '.join(ablations)})"
     )
+
+
+def recorded_steps(records: Path, scene: str, who: Contender, seed: int, budget: str, last: int) -> list[dict]:
+    """The step rows of ``who``'s recorded argmax episode of ``budget`` (verified, ``pipeline.records.verify``;
+    never reached through a symbolic link leaving ``records``), which must hold step ``last``; otherwise one
+    ``error:`` line and exit 2."""
+    directory = run_dir(records, scene, who.method, "argmax", who.ablation, budget, seed)
+    try:
+        refuse_escaping_link(records, directory)
+        _, rows = load_run(directory)
+    except (ValueError, OSError) as err:
+        fail(f"no usable record of {who.name} at {directory}: {err}; pass --records DIR holding it")
+    if len(rows) <= last:
+        fail(f"--steps asks for step {last}: the record at {directory} holds steps 0 to {len(rows) - 1}; measure those")
+    return rows
 
 
 def prepared_scorer(

@@ -72,6 +72,7 @@ from pipeline.experiments.decisions import (
     outcome_key,
     pick,
     prepared_scorer,
+    recorded_steps,
     with_view,
 )
 from pipeline.experiments.duel_summary import DUEL, SETTING, pair_folders, write_summaries
@@ -87,14 +88,13 @@ from pipeline.experiments.options import (
 from pipeline.metrics.image import LpipsMetric
 from pipeline.metrics.ranking import spearman
 from pipeline.records.checked_files import read_json, read_json_lines
-from pipeline.records.files import check_directory, refuse_escaping_link
+from pipeline.records.files import check_directory
 from pipeline.records.lock import RunLock
-from pipeline.records.store import check_seed, run_dir
+from pipeline.records.store import check_seed
 from pipeline.repo import RUNS
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.loading import find_asset, load_scene, scene_config
 from pipeline.scenes.scene import Scene, SceneError
-from pipeline.tables.load import load_run
 
 SCENES = ("hotdog", "hubble", "default")
 MAX_SETS = 64
@@ -167,21 +167,6 @@ class Call:
     outcomes: Outcomes
     budget: str  # of the records the states come from
     command: list[str] = field(default_factory=list)  # added to each pair's command.txt before its first rows
-
-
-def recorded_rows(call: Call, scene: str, who: Contender, seed: int) -> list[dict]:
-    """The step rows of ``who``'s recorded episode (verified, ``pipeline.records.verify``; never reached through a
-    symbolic link leaving ``call.records``), holding every step of ``call.steps``."""
-    directory = run_dir(call.records, scene, who.method, "argmax", who.ablation, call.budget, seed)
-    refuse_escaping_link(call.records, directory)
-    try:
-        _, rows = load_run(directory)
-    except (ValueError, OSError) as err:
-        fail(f"no usable record of {who.name} at {directory}: {err}; pass --records DIR holding it")
-    last = max(call.steps)
-    if len(rows) <= last:
-        fail(f"the record at {directory} has {len(rows)} steps, --steps asks for step {last}")
-    return rows
 
 
 def open_episode(call: Call, scene: Scene, who: Contender, seed: int, lpips: LpipsMetric) -> Episode:
@@ -323,7 +308,7 @@ def duel_seed(call: Call, scene: Scene, seed: int, lpips: LpipsMetric) -> None:
         if any(p is pair for states in todo.values() for pairs in states.values() for p in pairs):
             pair.open(call.command)
     for name, states in todo.items():
-        rows = recorded_rows(call, scene.name, owners[name], seed)
+        rows = recorded_steps(call.records, scene.name, owners[name], seed, call.budget, max(call.steps))
         contenders = {c.name: c for pairs in states.values() for p in pairs for c in (p.method, p.rival)}
         episodes: dict[str, Episode] = {}
         try:
@@ -443,7 +428,9 @@ def main(argv: list[str] | None = None) -> None:
     planned = Call([], overrides, seeds, steps, args.sets, args.records, args.threads, Outcomes([]), state_budget)
     for scene, seed, rival in itertools.product(scenes, seeds, rivals):  # every record a state needs, before writing
         for i, _ in enumerate(steps):
-            recorded_rows(planned, scene, Pair.owner_of(method, rival, i, seed), seed)
+            recorded_steps(
+                planned.records, scene, Pair.owner_of(method, rival, i, seed), seed, planned.budget, max(planned.steps)
+            )
     check_directory(Path(cfg.paths.results), root)  # never read through a link leaving paths.results
     pairs = pairs_of(root, method, rivals, setting)
     same_setting = [  # their outcomes are this call's: the same overrides, states and threads

@@ -60,6 +60,7 @@ from pipeline.experiments.decisions import (
     contender,
     heldout_psnr,
     prepared_scorer,
+    recorded_steps,
     with_view,
 )
 from pipeline.experiments.options import (
@@ -77,12 +78,11 @@ from pipeline.metrics.ranking import auc, spearman
 from pipeline.records.checked_files import read_json, read_json_lines
 from pipeline.records.files import check_directory, make_directory
 from pipeline.records.lock import RunLock
-from pipeline.records.store import check_seed, run_dir
+from pipeline.records.store import check_seed
 from pipeline.repo import RUNS
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.loading import find_asset, load_scene, scene_config
 from pipeline.scenes.scene import Scene, SceneError
-from pipeline.tables.load import load_run
 
 SCENES = ("hubble", "default", "hotdog")
 STEPS = (2, 8, 14)
@@ -97,18 +97,6 @@ OWN_KEYS = ("method", "rival", "ablation", "scene", "seed", "budget")  # the com
 def state_owner(i: int, seed: int) -> Contender:
     """Whose record the ``i``-th listed step's state comes from for ``seed``: NVF's and w/o Vis.'s alternately."""
     return contender(OWNERS[(i + seed) % 2])
-
-
-def recorded_rows(records: Path, scene: str, who: Contender, seed: int, budget: str, last: int) -> list[dict]:
-    """The step rows of ``who``'s recorded episode (verified) holding step ``last``."""
-    directory = run_dir(records, scene, who.method, "argmax", who.ablation, budget, seed)
-    try:
-        _, rows = load_run(directory)
-    except (ValueError, OSError) as err:
-        fail(f"no usable record of {who.name} at {directory}: {err}; pass --records DIR holding it")
-    if len(rows) <= last:
-        fail(f"the record at {directory} has {len(rows)} steps, --steps asks for step {last}")
-    return rows
 
 
 def settings_of(scene: Scene, who: Contender, seed: int, budget: str, overrides: list[str]) -> EpisodeSettings:
@@ -294,7 +282,7 @@ def measure_owner(
 ) -> None:
     """The states of ``owner``'s record at ``steps`` of one scene and seed at one budget, in one episode; each
     state's row written once it is complete."""
-    rows = recorded_rows(call.records, scene.name, owner, seed, call.state_budget, max(steps))
+    rows = recorded_steps(call.records, scene.name, owner, seed, call.state_budget, max(steps))
     episode = Episode(settings_of(scene, owner, seed, budget, call.overrides), scene, device, lpips)
     call.known.clear()
     try:
@@ -404,7 +392,7 @@ def main(argv: list[str] | None = None) -> None:
     for scene in args.scenes:  # every record a state needs, before anything is written
         for seed in seeds:
             for i, k in enumerate(args.steps):
-                recorded_rows(args.records, scene, state_owner(i, seed), seed, args.state_budget, k)
+                recorded_steps(args.records, scene, state_owner(i, seed), seed, args.state_budget, k)
     torch.set_num_threads(args.threads)
     cfg = compose_run(args.overrides)
     root = Path(cfg.paths.results) / "pilots"

@@ -59,7 +59,14 @@ from pipeline.config.validation import compose_run
 from pipeline.diagnostics.visibility_report import visibility_report
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
-from pipeline.experiments.decisions import JsonLines, candidate_set, heldout_psnr, with_view
+from pipeline.experiments.decisions import (
+    JsonLines,
+    candidate_set,
+    contender,
+    heldout_psnr,
+    recorded_steps,
+    with_view,
+)
 from pipeline.experiments.options import (
     SEEDS,
     add_command,
@@ -74,29 +81,15 @@ from pipeline.metrics.image import LpipsMetric
 from pipeline.metrics.ranking import render_for_terms, spearman, term_attribution, ties_at_max, view_terms
 from pipeline.records.checked_files import read_json
 from pipeline.records.files import check_directory, make_directory
-from pipeline.records.store import check_key, check_seed, run_dir
+from pipeline.records.store import check_key, check_seed
 from pipeline.repo import RUNS
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.loading import load_scene
 from pipeline.scenes.scene import SceneError
-from pipeline.tables.load import load_run
 
 SCENES = ("hotdog", "hubble", "default")
 STEPS = (0, 3, 6, 9, 12, 15, 18)
 MAX_SETS = 64
-
-
-def recorded_rows(records: Path, scene: str, seed: int, budget: str, steps: list[int]) -> list[dict]:
-    """The step rows of the recorded NVF episode (verified, ``pipeline.records.verify``), which must hold every
-    step of ``steps``."""
-    directory = run_dir(records, scene, "nvf", "argmax", "none", budget, seed)
-    try:
-        _, rows = load_run(directory)
-    except (ValueError, OSError) as err:
-        fail(f"no usable NVF record for scene {scene}, seed {seed}: {err}; pass --records DIR holding it")
-    if max(steps) >= len(rows):
-        fail(f"--steps {max(steps)}: the record {directory} holds steps 0 to {len(rows) - 1}; measure those")
-    return rows
 
 
 def scorer_pair(episode: Episode) -> tuple[NVFEntropyScorer, NVFEntropyScorer]:
@@ -184,7 +177,7 @@ def study_scene(
         todo = [k for k in steps if missing_sets(decisions, scene_name, seed, k, sets)]
         if not todo:
             continue
-        rows = recorded_rows(records, scene_name, seed, state_budget, steps)
+        rows = recorded_steps(records, scene_name, contender("nvf"), seed, state_budget, max(steps))
         seeded = compose_run([f"scene={scene_name}", f"seed={seed}", *overrides])
         episode = Episode(EpisodeSettings.of(seeded, scene), scene, resolve_device(seeded.device), lpips)
         try:
@@ -259,7 +252,7 @@ def main(argv: list[str] | None = None) -> None:
     scenes = list(args.scenes)
     for scene in scenes:  # a bad scene, seed or step is one line now, not after the diagnostics' minutes
         for seed in seeds:
-            recorded_rows(args.records, scene, seed, state_budget, steps)
+            recorded_steps(args.records, scene, contender("nvf"), seed, state_budget, max(steps))
     results = Path(cfg.paths.results)
     out = results / "pilots" / STUDY / args.setting
     check_directory(results, out)

@@ -20,7 +20,7 @@ import pipeline.episode.shared_training
 from pipeline.config.validation import compose_run
 from pipeline.episode.loop import Episode
 from pipeline.experiments import paper_states
-from pipeline.experiments.decisions import contender
+from pipeline.experiments.decisions import contender, recorded_steps
 from pipeline.metrics.image import LpipsMetric
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.loading import load_scene
@@ -76,7 +76,7 @@ def main() -> None:
     cfg = compose_run([f"scene={scene_name}", "budget=paper", *overrides])
     scene = load_scene(cfg.scene, Path(cfg.paths.assets), blender_python(cfg.paths.blender_python))
     owner = contender("nvf")
-    rows = paper_states.recorded_rows(Path("results/runs"), scene_name, owner, 100, "cpu", step)
+    rows = recorded_steps(Path("results/runs"), scene_name, owner, 100, "cpu", step)
     settings = paper_states.settings_of(scene, owner, 100, "paper", overrides)
     episode = Episode(settings, scene, torch.device("cpu"), LpipsMetric())
     call = paper_states.Call(
