@@ -126,3 +126,24 @@ def test_a_state_is_never_read_from_a_record_linked_from_outside_its_records(tmp
     err = capsys.readouterr().err
     assert exit_.value.code == 2 and err.count("\n") == 1 and f"{source}, outside {records}" in err
     assert not (tmp_path / "results").exists()
+
+
+def test_a_setting_another_process_wrote_meanwhile_is_refused_not_overwritten(tmp_path, monkeypatch, capsys):
+    """``setting.json`` was checked, then written without a lock: a second command with other overrides starting at
+    the same time replaced the first one's setting, and the folder mixed states of both. Now it is checked again
+    under the folder's lock before it is written: the setting another process wrote in between stays, one line."""
+    root = tmp_path / "pilots"
+    theirs = {"overrides": ["render.backend=pyrender"], "state_budget": "cpu", "threads": 1}
+    made = paper_states.make_directory
+
+    def racing(under, folder):
+        made(under, folder)
+        (folder / "setting.json").write_text(json.dumps(theirs))
+
+    monkeypatch.setattr(paper_states, "make_directory", racing)
+    with pytest.raises(SystemExit) as exit_:
+        paper_states.open_folder(root, {"overrides": [], "state_budget": "cpu", "threads": 1}, ["python", "-m", "x"])
+    err = capsys.readouterr().err
+    folder = root / "paper_states"
+    assert exit_.value.code == 2 and err.count("\n") == 1 and "made with overrides ['render.backend=pyrender']" in err
+    assert json.loads((folder / "setting.json").read_text()) == theirs and not (folder / "command.txt").exists()

@@ -85,6 +85,7 @@ from pipeline.scenes.loading import find_asset, load_scene, scene_config
 from pipeline.scenes.scene import Scene, SceneError
 
 SCENES = ("hubble", "default", "hotdog")
+SETTING_LOCK = ".setting"  # setting.json and command.txt are written under this lock of the folder
 STEPS = (2, 8, 14)
 BUDGETS = ("paper", "cpu")
 CONTENDERS = ("nvf", "wo_vis", "fisherrf", "activenerf")  # NVF first: the others are compared with it
@@ -302,28 +303,37 @@ def measure_owner(
         episode.close()
 
 
-def open_folder(root: Path, setting: dict, command: list[str]) -> Path:
-    """The folder, its ``setting.json`` checked (another setting, or another thread count than its setting's or,
-    where the setting predates it, its rows', is refused before anything is written) or written, and the command
-    added to ``command.txt``."""
-    folder = root / FOLDER
-    check_directory(root.parent, folder)
+def check_setting(folder: Path, setting: dict) -> None:
+    """One ``error:`` line when ``folder`` holds another setting, or another thread count than its setting's or,
+    where the setting predates it, its rows'."""
     made = read_json(folder / "setting.json", SETTING)
-    if made is not None and made["overrides"] != setting["overrides"]:
+    if made is None:
+        return
+    if made["overrides"] != setting["overrides"]:
         fail(
             f"{folder} holds states made with overrides {made['overrides']}, not {setting['overrides']}; pass "
             "paths.results=DIR for another setting"
         )
-    if made is not None:
-        rows = read_json_lines(folder / "states.jsonl", STATE)[0]
-        other = other_threads(
-            folder, setting["threads"], {made["threads"]} if "threads" in made else {r["threads"] for r in rows}
-        )
-        if other is not None:
-            fail(other)
+    rows = read_json_lines(folder / "states.jsonl", STATE)[0]
+    other = other_threads(
+        folder, setting["threads"], {made["threads"]} if "threads" in made else {r["threads"] for r in rows}
+    )
+    if other is not None:
+        fail(other)
+
+
+def open_folder(root: Path, setting: dict, command: list[str]) -> Path:
+    """The folder, its ``setting.json`` checked (``check_setting``: before anything is written) and, under the
+    folder's own lock, checked again (another process may have written one since) and written, and the command
+    added to ``command.txt``."""
+    folder = root / FOLDER
+    check_directory(root.parent, folder)
+    check_setting(folder, setting)
     make_directory(root.parent, folder)
-    atomic_write_text(folder / "setting.json", json.dumps(setting, indent=2) + "\n")
-    add_command(folder, command)
+    with RunLock(folder / SETTING_LOCK, folder):
+        check_setting(folder, setting)
+        atomic_write_text(folder / "setting.json", json.dumps(setting, indent=2) + "\n")
+        add_command(folder, command)
     return folder
 
 
