@@ -5,6 +5,7 @@ through a link planted at its name). Every file the harness writes goes through 
 another is built beside it (``temp_folder``) and swapped in by renames (``replace_folder``); no heavy imports."""
 
 import os
+import re
 import secrets
 import shutil
 from pathlib import Path
@@ -31,9 +32,39 @@ def temp_file(path: Path) -> tuple[int, Path]:
             continue
 
 
+def writer_alive(pid: int) -> bool:
+    """Whether a process ``pid`` runs on this machine (one of another user counts as running)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def remove_abandoned_folders(path: Path) -> list[Path]:
+    """Remove the folders ``temp_folder`` and ``replace_folder`` left beside ``path`` (``.<name>.<pid>.<random>.new``
+    or ``.old``) whose writer no longer runs: a writer killed before its renames (``kill -9``) leaves them behind.
+    A folder of a running process is kept. Returns the removed paths."""
+    pattern = re.compile(rf"\.{re.escape(path.name)}\.(\d+)\.[0-9a-f]{{8}}\.(new|old)")
+    removed: list[Path] = []
+    if not path.parent.is_dir():
+        return removed
+    for entry in sorted(path.parent.iterdir()):
+        found = pattern.fullmatch(entry.name)
+        if found is None or entry.is_symlink() or not entry.is_dir() or writer_alive(int(found[1])):
+            continue
+        shutil.rmtree(entry, ignore_errors=True)
+        removed.append(entry)
+    return removed
+
+
 def temp_folder(path: Path) -> Path:
     """A new, empty folder beside ``path``, unique to this writer (``.<name>.<pid>.<random>.new``), made as any new
-    folder of this process is (0o777 less the umask): where a folder that will replace ``path`` is built."""
+    folder of this process is (0o777 less the umask): where a folder that will replace ``path`` is built. Folders
+    that killed writers left beside ``path`` are removed first (``remove_abandoned_folders``)."""
+    remove_abandoned_folders(path)
     while True:
         folder = path.parent / f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.new"
         try:

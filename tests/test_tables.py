@@ -755,3 +755,23 @@ def test_as_csv_quotes_a_named_text_column_cell_a_spreadsheet_would_read_as_a_fo
     frame = pd.DataFrame({"scene": ["=HYPERLINK(1)", "-0.5", None], "diffs": ["-0.7 -0.5", "1", "2"], "n": [1, 2, 3]})
     lines = escape.as_csv(frame, ("scene", "method")).splitlines()
     assert lines == ["scene,diffs,n", "'=HYPERLINK(1),-0.7 -0.5,1", "-0.5,1,2", ",2,3"]
+
+
+def test_a_build_removes_the_folders_a_killed_build_left_and_keeps_a_running_ones(tmp_path):
+    """A build killed (``kill -9``) between making its new folders and renaming them left hidden
+    ``.tables.<pid>.<random>.new`` folders under ``paths.results`` for good, one per kill. The next build removes
+    those whose writer no longer runs and keeps one of a running writer."""
+    import subprocess
+
+    outputs, results = tmp_path / "outputs", tmp_path / "results"
+    make_run(outputs, steps=2)
+    gone = subprocess.Popen(["true"])  # a finished process: its pid runs no writer
+    gone.wait()
+    abandoned = results / f".tables.{gone.pid}.0123abcd.new"
+    running = results / f".tables.{os.getpid()}.89abcdef.new"
+    for folder in (abandoned, running):
+        (folder / "main.md").parent.mkdir(parents=True)
+        (folder / "main.md").write_text("half")
+    build_tables(outputs, [], results, figures=False)
+    assert not abandoned.exists() and (running / "main.md").read_text() == "half"
+    assert (results / "tables" / "main.md").is_file()
