@@ -2,17 +2,18 @@
 does a budget tell the methods apart? The paired discrimination experiment of one budget.
 
 For each scene and seed it runs (through ``python -m pipeline.run -m``, scene by scene, one Hydra sweep per entry,
-``hydra/launcher=joblib`` with ``J`` parallel jobs of cores / J torch threads each, or ``OMP_NUM_THREADS``;
-finished runs are skipped, so a killed experiment resumes; ``step_metrics=psnr``: the steps before the last record
-the PSNR alone) full NVF (recording, at every step, how w/o Vis.'s score ranks the same candidates:
+``hydra/launcher=joblib`` with ``J`` parallel jobs of cores / J torch threads each, or ``OMP_NUM_THREADS``; finished
+runs are skipped, so a killed experiment resumes; ``step_metrics=psnr``: the steps before the last record the PSNR
+alone) full NVF (recording, at every step, how w/o Vis.'s score ranks the same candidates:
 ``diagnostics.rank_against=wo_vis``), its ablations w/o Vis. and Ind. Rays, and the baselines: every other method
-whose yaml lists ``discriminate`` under ``experiments`` (WD, ActiveNeRF, NeurAR), on every scene whose yaml lists
-it (default, hotdog, hubble). An entry the overrides cannot change (``pipeline.records.compat.inert_keys``:
-``nvf.entropy.logdet_coeff=1.0`` on WD) is not run again where ``--reuse DIR`` (default ``results/runs``) holds
-its finished records of the plain budget. Then, per scene, the paired (same seed) differences of final PSNR and of
-PSNR averaged over the steps: NVF - w/o Vis., NVF - Ind. Rays and NVF - the best baseline (the baseline with the
-highest mean final PSNR on that scene), each with a 95% Student-t interval over the seeds, the Spearman
-correlation of NVF's and w/o Vis.'s candidate scores, and minutes per episode.
+whose yaml lists ``discriminate`` under ``experiments`` (WD, ActiveNeRF, NeurAR), on every scene whose yaml lists it
+(default, hotdog, hubble). An entry the overrides cannot change (``pipeline.records.compat.inert_keys``:
+``nvf.entropy.logdet_coeff=1.0`` on WD) is not run again where ``--reuse DIR`` (default the checkout's
+``results/runs``, wherever the command runs from) holds its finished records of the plain budget. Then, per scene,
+the paired (same seed) differences of final PSNR and of PSNR averaged over the steps: NVF - w/o Vis., NVF - Ind.
+Rays and NVF - the best baseline (the baseline with the highest mean final PSNR on that scene), each with a 95%
+Student-t interval over the seeds, the Spearman correlation of NVF's and w/o Vis.'s candidate scores, and minutes
+per episode.
 
 Writes ``${paths.results}/pilots/discriminate/<label>/`` (``<label>``: the budget and every setting beyond it, as
 the tables label runs, unless ``--label``, a plain name: letters, digits, ``_``, ``.``, ``-``): ``runs/`` (the
@@ -44,7 +45,7 @@ from pipeline.records.checked_files import read_csv
 from pipeline.records.experiment_columns import DISCRIMINATE_PER_SEED_COLUMNS, DISCRIMINATE_SUMMARY_COLUMNS, only
 from pipeline.records.files import make_directory
 from pipeline.records.store import RunRecord, check_key, record_status, run_dir
-from pipeline.repo import REPO
+from pipeline.repo import REPO, RUNS
 from pipeline.scenes.loading import find_asset, scene_config
 from pipeline.scenes.scene import SceneError
 from pipeline.tables.escape import as_csv
@@ -360,9 +361,9 @@ def main(argv: list[str]) -> int:
     parser.add_argument(
         "--reuse",
         type=Path,
-        default=Path("results/runs"),
+        default=RUNS,
         help="finished plain-budget records of the entries the overrides cannot change (default "
-        "results/runs; 'none' runs every entry)",
+        f"{RUNS}, wherever the command runs from; 'none' runs every entry)",
     )
     args = parser.parse_intermixed_args(argv)
     scenes, seeds = args.scenes, args.seeds
