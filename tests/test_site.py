@@ -159,6 +159,26 @@ def test_the_duel_page_lists_a_row_per_rival_marked_where_the_interval_excludes_
     assert {path: path.read_bytes() for path in (results / "site").rglob("*.html")} == before  # all or nothing
 
 
+def test_the_duel_page_ends_with_the_note_on_paper_trained_states(tmp_path):
+    """Where ``pilots/paper_states/README.md`` exists, duel.html ends with it (Markdown as HTML, under "At the
+    paper's scale"); without it the page has no such section."""
+    from pipeline.tables.site import DUEL_SUMMARY, PAPER_STATES_NOTE
+
+    row = {"method": "nvf", "rival": "wd", "scene": "hubble", "gain_mean": 0.5, "ci_low": 0.1, "ci_high": 0.9}
+    row |= {"n": 12, "same_pick": 0.5, "cpu_hours": 1.5, "episode_diff": 0.4, "episode_ci_low": -1.0}
+    results = tmp_path / "res"
+    (results / DUEL_SUMMARY).parent.mkdir(parents=True)
+    pd.DataFrame([row | {"episode_ci_high": 1.8}]).to_csv(results / DUEL_SUMMARY, index=False)
+    build_tables(tmp_path / "out", [], results, assets=tmp_path / "none")
+    assert "At the paper's scale" not in (results / "site" / "duel.html").read_text()
+    (results / PAPER_STATES_NOTE).parent.mkdir(parents=True)
+    (results / PAPER_STATES_NOTE).write_text("| pair | Spearman |\n|---|---|\n| wo_vis | 0.99 |\n")
+    build_tables(tmp_path / "out", [], results, assets=tmp_path / "none")
+    page = (results / "site" / "duel.html").read_text()
+    assert "<h2>At the paper's scale</h2>" in page
+    assert page.index("<h2>hubble</h2>") < page.index("scale</h2>") < page.index("<td>wo_vis</td>")
+
+
 def lead_boxes(index: Path) -> dict[str, str]:
     """The index's scene boxes by scene name: each box's HTML."""
     text = index.read_text(encoding="utf-8")

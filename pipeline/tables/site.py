@@ -49,6 +49,7 @@ from pipeline.tables.table_formats import html_table
 
 PLOTLY_JS = "plotly.min.js"
 DUEL_SUMMARY = Path("pilots", "duel", "summary.csv")  # pipeline.experiments.duel_summary's table
+PAPER_STATES_NOTE = Path("pilots", "paper_states", "README.md")  # the duel page's closing note
 DUEL_COLUMNS = DUEL_SUMMARY_COLUMNS  # the duel summary's columns as its writer declares them, read back checked
 
 PSNR_FLOOR_DB = 15.0  # an RMS error of 18% of the intensity range: a blur of about the right colours, not a scene
@@ -134,7 +135,9 @@ def write_site(runs: Runs, pictures: Mapping[str, RunPictures], results: Path, s
             pngs[curves[(budget, scene)]] = psnr_picture(runs, scene, budget, lead)
     duels = read_csv(Path(results) / DUEL_SUMMARY, DUEL_COLUMNS)
     if duels is not None:
-        pages_text[site / "duel.html"] = duel_page(duels)
+        paper_note = Path(results) / PAPER_STATES_NOTE
+        at_paper_scale = _note(paper_note, site / "duel.html") if os.path.lexists(paper_note) else None
+        pages_text[site / "duel.html"] = duel_page(duels, at_paper_scale)
     index = site / "index.html"
     pages_text[index] = index_page(runs, done, pages, index, duels is not None, curves)
     pilots = site / "pilots.html"
@@ -632,9 +635,10 @@ DUEL_HEAD = (
 )
 
 
-def duel_page(summary: pd.DataFrame) -> str:
+def duel_page(summary: pd.DataFrame, at_paper_scale: str | None = None) -> str:
     """Per scene (and over scenes), one row per rival (and method) of the duel's one-step gains (``summary.csv`` of
-    ``pipeline.experiments.duel_summary``): a long table, as narrow however many rivals and methods it holds."""
+    ``pipeline.experiments.duel_summary``): a long table, as narrow however many rivals and methods it holds; then,
+    where given, the note on the same decisions at paper-trained states (``PAPER_STATES_NOTE``, as HTML)."""
     parts = [
         "<p>A duel scores the same candidate views with two methods on the same states (half from each method's "
         "recorded episodes); where their picks differ, the plain backbone is trained one step with each pick and "
@@ -652,4 +656,6 @@ def duel_page(summary: pd.DataFrame) -> str:
             f'<h2>{html.escape(str(scene))}</h2><div class="wide"><table><thead><tr>{head}</tr></thead><tbody>'
             f"{lines}</tbody></table></div>"
         )
+    if at_paper_scale is not None:
+        parts.append(f'<h2>At the paper\'s scale</h2><div class="pilot">{at_paper_scale}</div>')
     return _page("Duels: paired one-step decisions", "".join(parts))
