@@ -147,3 +147,69 @@ def test_a_setting_another_process_wrote_meanwhile_is_refused_not_overwritten(tm
     folder = root / "paper_states"
     assert exit_.value.code == 2 and err.count("\n") == 1 and "made with overrides ['render.backend=pyrender']" in err
     assert json.loads((folder / "setting.json").read_text()) == theirs and not (folder / "command.txt").exists()
+
+
+def test_a_state_killed_after_its_training_resumes_after_it_with_the_same_row(tmp_path, monkeypatch, capsys):
+    """A state killed after its models were trained (and its one-step outcomes taken) lost them: the next run trained
+    again, two of a paper state's hours. Now they are kept under ``paths.outputs`` (``StateProgress``): the next run
+    loads the models and outcomes instead of training, writes the row an uninterrupted run writes (the seconds
+    apart), and removes what it kept."""
+    argv = ["--scenes", "default", "--steps", "2", "--budgets", "smoke", "--outcomes", "wo_vis,fisherrf"]
+    whole = tmp_path / "whole"
+    calls = {"whole": 0}
+    measure = paper_states.heldout_psnr
+
+    def counted(*args):
+        calls["whole"] += 1
+        return measure(*args)
+
+    class Killed(Exception):
+        pass
+
+    def killed_after_one(*args):
+        if calls.setdefault("killed", 0) == 1:
+            raise Killed
+        calls["killed"] += 1
+        return measure(*args)
+
+    monkeypatch.setattr(paper_states, "heldout_psnr", counted)
+    paper_states.main([*argv, f"paths.results={whole}", f"paths.outputs={whole / 'out'}"])
+    expected = read_json_lines(whole / "pilots" / "paper_states" / "states.jsonl", paper_states_summary.STATE)[0]
+    assert calls["whole"] >= 2  # an outcome at least: both picks trained
+    outputs = tmp_path / "out"
+    monkeypatch.setattr(paper_states, "heldout_psnr", killed_after_one)
+    with pytest.raises(Killed):
+        paper_states.main([*argv, f"paths.results={tmp_path}", f"paths.outputs={outputs}"])
+    kept = list((outputs / "paper_states").glob("*/default/seed_100/step_2_smoke/trained.pt"))
+    assert len(kept) == 1
+
+    def refused(*args, **kwargs):
+        raise AssertionError("a resumed state trains nothing it kept")
+
+    calls["resumed"] = 0
+
+    def resumed(*args):
+        calls["resumed"] += 1
+        return measure(*args)
+
+    monkeypatch.setattr(paper_states, "train_models", refused)
+    monkeypatch.setattr(paper_states, "heldout_psnr", resumed)
+    paper_states.main([*argv, f"paths.results={tmp_path}", f"paths.outputs={outputs}"])
+    rows = read_json_lines(tmp_path / "pilots" / "paper_states" / "states.jsonl", paper_states_summary.STATE)[0]
+    assert _without_seconds(rows) == _without_seconds(expected)
+    assert calls["resumed"] == calls["whole"] - 1  # the kept outcome is not taken again
+    assert not kept[0].parent.exists()
+
+
+def _without_seconds(rows: list[dict]) -> list[dict]:
+    """``rows`` without the wall-clock seconds they hold (the row's, each contender's and each outcome's)."""
+    out = []
+    for row in rows:
+        row = json.loads(json.dumps(row))
+        row.pop("seconds")
+        for found in row["contenders"].values():
+            found.pop("seconds")
+        for found in row["outcomes"].values():
+            found.pop("seconds")
+        out.append(row)
+    return out

@@ -6,12 +6,15 @@ its stages begin with (``serves``: the stages run in order on one generator, so 
 earlier one trained); a backbone trained with an auxiliary loss (ActiveNeRF's M25, which trains only the variance
 head beside stage 1) is continued by a plan whose stage 1 is the same without it (``continues``). ``train_models``
 trains a group of methods this way; ``tests/test_duel.py`` checks that every shared or continued model is bitwise
-the model the method's own training gives.
+the model the method's own training gives. ``save_trained`` and ``load_trained`` keep a group's models on disk, so
+that a state killed after its training resumes after it.
 """
 
 import copy
+import io
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import torch
 from torch import Tensor
@@ -19,6 +22,7 @@ from torch import Tensor
 from nvf.model import SceneModel
 from nvf.seeding import seeded_generator
 from nvf.training import Observations, train_model, variance_mixture_config
+from pipeline.atomic_write import atomic_write_bytes
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
 
@@ -137,3 +141,38 @@ def train_models(episodes: dict[str, Episode], obs: Observations, step: int) -> 
             done.append(found)
         out[name] = found
     return out
+
+
+def save_trained(trained: dict[str, Trained], path: Path) -> None:
+    """``train_models``' result written atomically to ``path`` as tensors, numbers and names only (``load_trained``
+    reads it with ``torch.load(weights_only=True)``, which runs no code from the file): each distinct model's state
+    dict, seconds and stage summaries, and which contender has which model."""
+    models = list({id(t): t for t in trained.values()}.values())
+    payload = {
+        "models": [{"state": t.model.state_dict(), "seconds": t.seconds, "stages": t.stages} for t in models],
+        "of": {name: next(i for i, m in enumerate(models) if m is t) for name, t in trained.items()},
+    }
+    buffer = io.BytesIO()
+    torch.save(payload, buffer)
+    atomic_write_bytes(path, buffer.getvalue())
+
+
+def load_trained(path: Path, episodes: dict[str, Episode], step: int) -> dict[str, Trained] | None:
+    """The models ``save_trained`` wrote for ``episodes`` at step ``step`` (each loaded into the model its episode
+    makes, shared where they were shared), or None when ``path`` holds none or another set of contenders'. A
+    loaded model scores as the saved one did (``tests/test_paper_states.py``); it keeps no ``Continuation``, which
+    only ``train_models`` uses."""
+    if not path.is_file():
+        return None
+    device = next(iter(episodes.values())).device
+    payload = torch.load(path, map_location=device, weights_only=True)
+    if set(payload["of"]) != set(episodes):
+        return None
+    built: dict[int, Trained] = {}
+    for name, index in payload["of"].items():
+        if index not in built:
+            saved = payload["models"][index]
+            model = episodes[name].new_model(step)
+            model.load_state_dict(saved["state"])
+            built[index] = Trained(model, training_plan(episodes[name].settings), saved["seconds"], saved["stages"])
+    return {name: built[index] for name, index in payload["of"].items()}

@@ -25,7 +25,9 @@ rendered at the budget's image size by its ground truth (``budget=paper``: 512 p
    evaluation views (``decisions.heldout_psnr``).
 
 Writes ``${paths.results}/pilots/paper_states/``: ``states.jsonl`` (a row per scene, seed, step and budget,
-written once the state is complete: a killed run resumes at its first missing state), ``setting.json`` (the
+written once the state is complete: a killed run resumes at its first missing state, after the models and the
+one-step outcomes that state had finished, kept under ``${paths.outputs}/paper_states/`` until its row is
+written, ``StateProgress``), ``setting.json`` (the
 overrides and ``--threads``: another set under the same folder is refused, as is another thread count, on which
 the numbers depend), ``command.txt``, then ``summary.csv`` and ``summary.md``
 (``pipeline.experiments.paper_states_summary``). Torch runs with ``--threads`` threads (default 1); run several
@@ -34,7 +36,9 @@ processes on disjoint scenes or seeds to use more cores.
 
 import argparse
 import dataclasses
+import hashlib
 import json
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -52,7 +56,7 @@ from pipeline.config.catalog import declared
 from pipeline.config.validation import compose_run
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
-from pipeline.episode.shared_training import Trained, train_models
+from pipeline.episode.shared_training import Trained, load_trained, save_trained, train_models
 from pipeline.experiments.decisions import (
     Contender,
     JsonLines,
@@ -177,12 +181,19 @@ def measure_state(
     """One state at one budget: the row of the module docstring (``episode``: the owner's at this budget)."""
     start = time.perf_counter()
     episode.replay(rows[len(episode.poses) - len(episode.scene.init_poses) : k])
+    replayed = time.perf_counter() - start
     obs = episode.observations()
     episodes = {
         name: episode.as_method(settings_of(scene, contender(name), seed, budget, call.overrides))
         for name in CONTENDERS
     }
-    trained = train_models(episodes, obs, k)
+    progress = StateProgress.open(call.saved / scene.name / f"seed_{seed}" / f"step_{k}_{budget}", call.saved)
+    trained = load_trained(progress.models, episodes, k)
+    if trained is None:
+        trained = train_models(episodes, obs, k)
+        progress.trained(trained, time.perf_counter() - start)
+    else:
+        progress.resumed(replayed)
     candidates = candidate_set(episodes["nvf"], trained["nvf"].model, k, 0)
     scores, prepare, seconds = picks_of(episodes, trained, obs, k, candidates)
     picks = {name: argmax_first(torch.from_numpy(values)) for name, values in scores.items()}
@@ -220,9 +231,9 @@ def measure_state(
         for who in ("nvf", name):
             pose = candidates[picks[who]]
             key = (k, *(round(float(v), 7) for v in pose.tolist()))  # a pick's outcome at this state
-            if key not in call.known:
-                call.known[key] = heldout_psnr(episode, with_view(obs, episode, pose), k + 1)
-            found[who] = call.known[key]
+            if key not in progress.outcomes:
+                progress.add_outcome(key, heldout_psnr(episode, with_view(obs, episode, pose), k + 1))
+            found[who] = progress.outcomes[key]
         outcomes[name] = {
             "nvf_psnr": found["nvf"][0],
             "rival_psnr": found[name][0],
@@ -230,8 +241,65 @@ def measure_state(
             "seconds": found["nvf"][1] + found[name][1],
         }
     row["outcomes"] = outcomes
-    row["seconds"] = time.perf_counter() - start
+    row["seconds"] = progress.seconds(start)
     return row
+
+
+@dataclasses.dataclass
+class StateProgress:
+    """What a state has finished before its row, kept under ``paths.outputs`` so that a killed state resumes
+    after it: its trained models (``models``: ``save_trained``) and, in ``progress.json``, the seconds spent up to
+    them and each one-step outcome taken (pose key, held-out PSNR and seconds). A resumed state's ``seconds`` are
+    those of one run: the earlier run's up to its models, plus this run's after its replay. Removed once the row
+    is written."""
+
+    folder: Path
+    spent: float = 0.0  # seconds from the state's start to its saved models
+    outcomes: dict[tuple, tuple[float, float]] = dataclasses.field(default_factory=dict)
+    earlier: float = 0.0  # what this run's seconds add to: the earlier run's up to its models, less this replay
+
+    @property
+    def models(self) -> Path:
+        return self.folder / "trained.pt"
+
+    @staticmethod
+    def open(folder: Path, root: Path) -> "StateProgress":
+        """The progress kept in ``folder`` (below ``root``; created), or a fresh one."""
+        make_directory(root, folder)
+        path = folder / "progress.json"
+        if not path.is_file():
+            return StateProgress(folder)
+        try:
+            found = json.loads(path.read_text(encoding="utf-8"))
+            outcomes = {tuple(item["key"]): (float(item["psnr"]), float(item["seconds"])) for item in found["outcomes"]}
+            return StateProgress(folder, float(found["seconds"]), outcomes)
+        except (ValueError, KeyError, TypeError) as err:
+            fail(f"{path}: not a state's progress ({err}); remove {folder} to measure the state from the start")
+
+    def _write(self) -> None:
+        outcomes = [{"key": list(key), "psnr": v[0], "seconds": v[1]} for key, v in self.outcomes.items()]
+        text = json.dumps({"seconds": self.spent, "outcomes": outcomes}) + "\n"
+        atomic_write_text(self.folder / "progress.json", text)
+
+    def trained(self, trained: dict[str, Trained], seconds: float) -> None:
+        """The state's models, trained ``seconds`` after its start, kept."""
+        save_trained(trained, self.models)
+        self.spent = seconds
+        self._write()
+
+    def resumed(self, replayed: float) -> None:
+        """This run took its models from an earlier one, after a replay of ``replayed`` seconds (the earlier run
+        replayed too): its seconds add to the earlier run's from after that replay."""
+        self.earlier = self.spent - replayed
+
+    def add_outcome(self, key: tuple, found: tuple[float, float]) -> None:
+        """The held-out PSNR and seconds of the pick ``key``, kept."""
+        self.outcomes[key] = found
+        self._write()
+
+    def seconds(self, start: float) -> float:
+        """The state's seconds: this run's since ``start``, after an earlier run's (``resumed``)."""
+        return self.earlier + time.perf_counter() - start
 
 
 @dataclasses.dataclass
@@ -246,7 +314,7 @@ class Call:
     vis_points: int
     threads: int
     states: JsonLines
-    known: dict = dataclasses.field(default_factory=dict)  # outcomes of this process by step and pose
+    saved: Path  # where states in progress keep what they finished (``StateProgress``)
 
 
 def run_scene(call: Call, scene_name: str, seeds: list[int], steps: list[int], budgets: list[str]) -> None:
@@ -285,11 +353,11 @@ def measure_owner(
     state's row written once it is complete."""
     rows = recorded_steps(call.records, scene.name, owner, seed, call.state_budget, max(steps))
     episode = Episode(settings_of(scene, owner, seed, budget, call.overrides), scene, device, lpips)
-    call.known.clear()
     try:
         for k in sorted(steps):
             row = measure_state(call, scene, seed, k, owner, rows, budget, episode)
             call.states.add([row])
+            shutil.rmtree(call.saved / scene.name / f"seed_{seed}" / f"step_{k}_{budget}")
             verdicts = ", ".join(
                 f"{n} {'same' if a['same_pick'] else 'differs'} (rho {a['spearman']})"
                 for n, a in row["against_nvf"].items()
@@ -320,6 +388,12 @@ def check_setting(folder: Path, setting: dict) -> None:
     )
     if other is not None:
         fail(other)
+
+
+def setting_digest(setting: dict) -> str:
+    """A short name of ``setting`` (overrides, states' budget, threads): states in progress of one setting never
+    resume another's."""
+    return hashlib.sha256(json.dumps(setting, sort_keys=True).encode()).hexdigest()[:16]
 
 
 def open_folder(root: Path, setting: dict, command: list[str]) -> Path:
@@ -421,6 +495,7 @@ def main(argv: list[str] | None = None) -> None:
         args.vis_points,
         args.threads,
         JsonLines(folder / "states.jsonl", STATE, state_key),
+        Path(cfg.paths.outputs) / "paper_states" / setting_digest(setting),
     )
     for scene in args.scenes:
         run_scene(call, scene, seeds, list(args.steps), budgets)

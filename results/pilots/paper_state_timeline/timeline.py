@@ -88,6 +88,7 @@ def main() -> None:
         vis_points=4096,
         threads=1,
         states=None,
+        saved=Path("outputs/paper_state_timeline/saved"),
     )
     row = paper_states.measure_state(call, scene, 100, step, owner, rows, "paper", episode)
     log("done")
