@@ -1,0 +1,28 @@
+"""A 2-step cpu episode (two torch threads) alone and beside one busy process, with the project's passive wait
+policy and ``GOMP_SPINCOUNT`` set to each count given (libgomp spins that many times before it sleeps; the count
+overrides the policy's own, 0 for passive). Appends a line per run to runs.jsonl beside this script.
+
+    python results/pilots/omp_spin_count/spin.py 300000 20000
+"""
+
+import json
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parents[2]))
+
+from pipeline.bench.contention import timed_run, with_defaults  # noqa: E402
+
+overrides = with_defaults([])
+base = {k: v for k, v in os.environ.items() if k not in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")}
+base["OMP_NUM_THREADS"] = "2"
+with tempfile.TemporaryDirectory() as tmp:
+    for spin in sys.argv[1:]:
+        for beside in (False, True):
+            found = timed_run(overrides, Path(tmp) / f"{spin}{beside}", base | {"GOMP_SPINCOUNT": spin}, beside)
+            print(spin, "beside" if beside else "alone", round(found["seconds_per_step"], 2), flush=True)
+            with open(HERE / "runs.jsonl", "a") as out:
+                out.write(json.dumps({"spin": spin, "beside": beside, **found}) + "\n")
