@@ -20,6 +20,7 @@ from omegaconf import OmegaConf  # noqa: E402
 from pipeline.config.structured_configs import RunConfig, register_configs  # noqa: E402
 from pipeline.config.validation import MIN_EVAL_SIZE  # noqa: E402
 from pipeline.repo import CONF  # noqa: E402
+from scripts import generated_section  # noqa: E402
 
 BUDGETS = ("paper", "cpu", "smoke")  # the table's columns
 DOC = REPO / "docs" / "BUDGETS.md"
@@ -160,29 +161,13 @@ def table() -> str:
 
 def with_table(doc: str) -> str:
     """``doc`` with the generated table between its markers; a ValueError when the markers are missing."""
-    if doc.count(BEGIN) != 1 or doc.count(END) != 1 or doc.index(BEGIN) > doc.index(END):
-        raise ValueError(f"{DOC}: needs one {BEGIN!r} line and one {END!r} line after it")
-    head, rest = doc.split(BEGIN + "\n", 1)
-    _, tail = rest.split(END, 1)
-    return f"{head}{BEGIN}\n\n{table()}\n{END}{tail}"  # blank lines: the comments are blocks of their own
+    return generated_section.with_section(doc, BEGIN, END, table(), DOC)
 
 
 def main(argv: list[str]) -> int:
-    doc = DOC.read_text(encoding="utf-8")
-    expected = with_table(doc)
-    if argv == ["--check"]:
-        if expected == doc:
-            return 0
-        new, old = expected.splitlines(), doc.splitlines()
-        first = next((i for i, (a, b) in enumerate(zip(new, old, strict=False)) if a != b), min(len(new), len(old)))
-        print(f"{DOC}: the table differs from the config at line {first + 1}; run scripts/budgets_table.py")
-        return 1
-    if argv:
-        print("usage: python scripts/budgets_table.py [--check]", file=sys.stderr)
-        return 2
-    DOC.write_text(expected, encoding="utf-8")
-    print(f"wrote the table of {DOC}")
-    return 0
+    return generated_section.main(
+        argv, DOC, with_table, "scripts/budgets_table.py", "the table differs from the config"
+    )
 
 
 if __name__ == "__main__":
