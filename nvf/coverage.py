@@ -8,8 +8,13 @@ centre ``o`` (the angle between ``c_v - o`` and ``c_s - o``: NeRF Director's dis
 cameras look at the object) plus the angle between their viewing directions (candidates here have any
 orientation, so a pose at an observed place but looking elsewhere is a different view). A candidate scores
 ``min_s d(v, s)`` over the observed views ``s``; the planner takes the argmax.
+
+With ``facing`` (M33's facing variant, ``method=fvs_facing``) the candidates whose optical axis misses the object's
+box rank below every candidate whose axis meets it (their score less ``BEHIND``), so FVS picks among the views
+that look at the object, as NeRF Director's candidates all do, whenever the draw holds one.
 """
 
+import math
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -19,11 +24,21 @@ from torch import Tensor, nn
 
 from nvf.seeding import GeneratorFactory
 from nvf.training import Observations
+from nvf.visibility import segment_fractions
+
+BEHIND = 4.0 * math.pi  # what a candidate that does not face the object loses: more than any distance (2 pi)
 
 
 def _angle(a: Float[Tensor, "*B 3"], b: Float[Tensor, "*B 3"]) -> Float[Tensor, "*B"]:
     """The angle between vectors, in radians (``atan2`` of the cross and dot products: exact near 0 and pi)."""
     return torch.atan2(torch.linalg.cross(a, b).norm(dim=-1), (a * b).sum(-1))
+
+
+def faces(centre: Float[Tensor, "3"], forward: Float[Tensor, "3"], box: Float[Tensor, "2 3"]) -> bool:
+    """Whether the optical axis ``centre + t forward``, ``t >= 0``, meets ``box`` (slab test)."""
+    reach = (box[1] - box[0]).norm() + (centre - 0.5 * (box[0] + box[1])).norm()  # past the box's far side
+    f_in, f_out = segment_fractions(centre, (forward * reach)[None], box)
+    return bool(f_in[0] <= f_out[0])
 
 
 def view_distance(
@@ -41,8 +56,10 @@ def view_distance(
 @dataclass(frozen=True)
 class FarthestViewScorer:
     """FVS's scorer: ``prepare`` reads the observed views' centres and directions (``Observations.c2w``) and the
-    object's centre (the model's AABB) and returns the step's ``FarthestViews``; it reads no field."""
+    object's centre (the model's AABB) and returns the step's ``FarthestViews``; it reads no field. ``facing``:
+    the candidates that do not look at the object's box rank last (M33's facing variant)."""
 
+    facing: bool = False
     name: ClassVar[str] = "fvs"
 
     def prepare(
@@ -52,18 +69,20 @@ class FarthestViewScorer:
         box = model.aabb
         assert isinstance(box, Tensor), "a SceneModel's aabb buffer"
         aabb = box.to(torch.float64)
-        return FarthestViews(c2w[:, :3, 3], -c2w[:, :3, 2], 0.5 * (aabb[0] + aabb[1]))
+        return FarthestViews(c2w[:, :3, 3], -c2w[:, :3, 2], 0.5 * (aabb[0] + aabb[1]), aabb if self.facing else None)
 
 
 @dataclass(frozen=True)
 class FarthestViews:
     """One step's FVS scorer (a ``WholeViewScorer``): a view's score is its distance to the nearest observed
     view (M33). The view is read off its rays: the centre is their origin, the direction their mean (the
-    optical axis of a pinhole image centred on it)."""
+    optical axis of a pinhole image centred on it). With ``box`` a view whose axis misses it scores ``BEHIND``
+    less."""
 
     centres: Float[Tensor, "M 3"]
     forwards: Float[Tensor, "M 3"]
     pivot: Float[Tensor, "3"]
+    box: Float[Tensor, "2 3"] | None = None
     name: ClassVar[str] = "fvs"
 
     def view_score(
@@ -71,4 +90,5 @@ class FarthestViews:
     ) -> Float[Tensor, ""]:
         centre = origins[0].to(torch.float64)
         forward = torch.nn.functional.normalize(dirs.to(torch.float64).mean(0), dim=0)
-        return view_distance(centre, forward, self.centres, self.forwards, self.pivot).min()
+        distance = view_distance(centre, forward, self.centres, self.forwards, self.pivot).min()
+        return distance if self.box is None or faces(centre, forward, self.box) else distance - BEHIND

@@ -212,10 +212,14 @@ class FVS(Method):
     farthest from every observed view (METHOD 18, M33), no uncertainty; stage 1 only, for the planner's filters
     (M28, M29) and the evaluation. It scores whole views, so argmax planning only (-OPT is n/a)."""
 
+    facing: bool
+    """Only views that look at the object's box are farthest-ranked; the others rank below them (M33's facing
+    variant: NeRF Director's candidates all look at the object)."""
+
     score_unit: ClassVar[str] = "radians"  # a view distance
 
     def scorer(self) -> StepScorer:
-        return FarthestViewScorer()
+        return FarthestViewScorer(facing=self.facing)
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -35,7 +35,19 @@ def composer():
 def test_every_group_has_its_options():
     assert len(_options("scene")) == 18 and "default" in _options("scene")
     assert _options("method") == sorted(
-        ["random", "wd", "activermap", "air", "activenerf", "neurar", "nvf", "fisherrf", "fvs", "bayesrays"]
+        [
+            "random",
+            "wd",
+            "activermap",
+            "air",
+            "activenerf",
+            "neurar",
+            "nvf",
+            "fisherrf",
+            "fvs",
+            "bayesrays",
+            "fvs_facing",
+        ]
     )
     assert _options("ablation") == sorted(["none", "wo_vis", "wo_var", "ind_rays", "loose"])
     assert _options("planner") == ["argmax", "opt"]
@@ -90,7 +102,7 @@ def _covering_runs() -> list[tuple[str, str, str, str, str]]:
     return runs
 
 
-WHOLE_VIEW_METHODS = ("fisherrf", "fvs", "bayesrays")
+WHOLE_VIEW_METHODS = ("fisherrf", "fvs", "bayesrays", "fvs_facing")
 """The methods whose scorer reads whole views (a ``StepScorer``): -OPT is refused for them."""
 
 

@@ -6,7 +6,7 @@ import torch
 
 from nvf.cameras import Intrinsics, look_at, matrix_to_pose, pixel_rays
 from nvf.config import FieldConfig, SamplerConfig
-from nvf.coverage import FarthestViewScorer, view_distance
+from nvf.coverage import BEHIND, FarthestViewScorer, faces, view_distance
 from nvf.model import SceneModel
 from nvf.planning import argmax_first, score_poses
 from nvf.training import Observations
@@ -52,3 +52,38 @@ def test_fvs_picks_the_candidate_farthest_from_every_observed_view():
         scorer.pivot,
     ).min()
     assert math.isclose(float(scorer.view_score(model, origins, dirs, 64)), float(expected), abs_tol=1e-6)
+
+
+def test_facing_fvs_ranks_the_views_that_look_at_the_object_first():
+    """(M33, facing variant) A candidate far from the observed views but looking away from the object ranks below
+    a nearer one that looks at it; without ``facing`` the far one wins. Among views that all miss the object the
+    farthest still ranks first (each loses the same ``BEHIND``)."""
+    model = SceneModel(
+        AABB, FieldConfig(log2_hashmap_size=10, num_levels=4, max_resolution=32), SamplerConfig(grid_resolution=16)
+    )
+    observed = torch.stack([view([0.0, -3.0, 0.5])])
+    obs = Observations(torch.zeros(1, 8, 8, 4), observed, INTR)
+    candidates = torch.stack(
+        [
+            matrix_to_pose(view([3.0, 0.0, 0.0])),  # a right angle round, looking at the object
+            matrix_to_pose(view([0.0, 3.0, 0.0], target=(3.0, 3.0, 0.0))),  # opposite, looking sideways
+            matrix_to_pose(view([0.0, -3.0, 0.0], target=(3.0, -3.0, 0.0))),  # beside the observed, sideways
+        ]
+    )
+    generators = lambda purpose: torch.Generator()  # noqa: E731
+    plain = score_poses(model, FarthestViewScorer().prepare(model, obs, generators, 64), candidates, INTR, 64)
+    facing = score_poses(model, FarthestViewScorer(True).prepare(model, obs, generators, 64), candidates, INTR, 64)
+    assert argmax_first(plain) == 1 and argmax_first(facing) == 0
+    assert torch.allclose(facing, plain - torch.tensor([0.0, BEHIND, BEHIND], dtype=plain.dtype), atol=1e-5)
+    assert facing[1] > facing[2]
+
+
+def test_faces_is_the_optical_axis_meeting_the_box():
+    """A camera outside the box faces it when its axis points into the box, not when it points away or past it;
+    inside the box every direction meets it."""
+    box = AABB.to(torch.float64)
+    outside = torch.tensor([0.0, -3.0, 0.0], dtype=torch.float64)
+    assert faces(outside, torch.tensor([0.0, 1.0, 0.0], dtype=torch.float64), box)
+    assert not faces(outside, torch.tensor([0.0, -1.0, 0.0], dtype=torch.float64), box)
+    assert not faces(outside, torch.tensor([1.0, 0.2, 0.0], dtype=torch.float64), box)
+    assert faces(torch.zeros(3, dtype=torch.float64), torch.tensor([0.0, 0.0, -1.0], dtype=torch.float64), box)
