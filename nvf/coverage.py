@@ -22,9 +22,9 @@ import torch
 from jaxtyping import Float
 from torch import Tensor, nn
 
+from nvf.occupancy import ray_aabb
 from nvf.seeding import GeneratorFactory
 from nvf.training import Observations
-from nvf.visibility import segment_fractions
 
 BEHIND = 4.0 * math.pi  # what a candidate that does not face the object loses: more than any distance (2 pi)
 
@@ -35,10 +35,10 @@ def _angle(a: Float[Tensor, "*B 3"], b: Float[Tensor, "*B 3"]) -> Float[Tensor, 
 
 
 def faces(centre: Float[Tensor, "3"], forward: Float[Tensor, "3"], box: Float[Tensor, "2 3"]) -> bool:
-    """Whether the optical axis ``centre + t forward``, ``t >= 0``, meets ``box`` (slab test)."""
-    reach = (box[1] - box[0]).norm() + (centre - 0.5 * (box[0] + box[1])).norm()  # past the box's far side
-    f_in, f_out = segment_fractions(centre, (forward * reach)[None], box)
-    return bool(f_in[0] <= f_out[0])
+    """Whether the optical axis ``centre + t forward``, ``t >= 0``, meets ``box``: it leaves the box ahead of the
+    camera and no earlier than it enters."""
+    t_in, t_out = ray_aabb(centre[None], forward[None], box[0], box[1])
+    return bool(t_out[0] >= t_in[0].clamp(min=0.0))
 
 
 def view_distance(

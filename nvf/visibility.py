@@ -13,7 +13,7 @@ from torch import Tensor
 from nvf import kernels
 from nvf.cameras import Intrinsics, project
 from nvf.config import TrainConfig
-from nvf.occupancy import OccupancyGrid
+from nvf.occupancy import OccupancyGrid, ray_aabb
 
 SATURATION = 0.01  # M18: a point whose running product is <= this skips the remaining cameras
 STOP_BLOCK = 32  # M17's early stop (``cutoff``): bins evaluated per segment between two transmittance checks
@@ -36,10 +36,8 @@ def segment_fractions(
 ) -> tuple[Float[Tensor, " P"], Float[Tensor, " P"]]:
     """Where ``origin + f seg`` lies inside ``box`` for ``f`` in ``[0, 1]``: ``[f_in, f_out]`` (slab test);
     ``f_out < f_in`` when the segment misses the box."""
-    tiny = torch.where(seg >= 0, 1e-12, -1e-12)
-    inv = 1.0 / torch.where(seg.abs() > 1e-12, seg, tiny)
-    f1, f2 = (box[0] - origin) * inv, (box[1] - origin) * inv
-    return torch.minimum(f1, f2).amax(-1).clamp(min=0.0), torch.maximum(f1, f2).amin(-1).clamp(max=1.0)
+    f_in, f_out = ray_aabb(origin.expand_as(seg), seg, box[0], box[1])
+    return f_in.clamp(min=0.0), f_out.clamp(max=1.0)
 
 
 def _bin_range(
