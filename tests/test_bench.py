@@ -319,6 +319,18 @@ def test_paper_shape_refuses_bad_input_in_one_line(tmp_path, capsys, args, needl
     assert not out.exists()
 
 
+@pytest.mark.parametrize("bench_module", ["speedups", "paper_profile"])
+@pytest.mark.parametrize("views", ["0", "65"])
+def test_state_benchmarks_bound_the_state_views_in_one_line(tmp_path, capsys, bench_module, views):
+    """``speedups`` and ``paper_profile`` share the state's options (``pipeline.bench._state``) and their bound."""
+    main = {"speedups": speedups.main, "paper_profile": paper_profile.main}[bench_module]
+    with pytest.raises(SystemExit) as exit_:
+        main(["--budget", "smoke", "--views", views, "--out", str(tmp_path / "r.json")])
+    err = capsys.readouterr().err.strip()
+    assert exit_.value.code == 2 and err == f"error: --views {views}: must be 1..64"
+    assert not (tmp_path / "r.json").exists()
+
+
 def test_paper_shape_refuses_a_folder_as_its_report_before_any_stage(tmp_path, capsys, monkeypatch):
     """``--out DIR`` ran every stage and then failed on ``DIR.tmp``: now it is one line before the first stage."""
 

@@ -4,6 +4,7 @@ before them (``recorded_episode``), its backbone trained at the budget's counts 
 disk between benchmark runs (half an hour of one thread at the paper's 5000 iterations), and a whole state as
 a decision takes it, timed (``measure_state``)."""
 
+import argparse
 import dataclasses
 import hashlib
 import json
@@ -26,11 +27,33 @@ from pipeline.episode.settings import EpisodeSettings
 from pipeline.episode.shared_training import train_models
 from pipeline.metrics.image import LpipsMetric
 from pipeline.records.store import run_dir
+from pipeline.repo import RUNS
 from pipeline.scenes.scene import Scene
 from pipeline.tables.load import load_run
 
 RECORD_SEED = 100  # the committed NVF cpu episode whose poses a state takes
 STAGE_ONE_KEYS = ("backbone", "schedule", "target_samples", "lr_decay_horizon", "precision")  # train.* stage 1 reads
+MAX_STATE_VIEWS = 64
+
+
+def add_state_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of a benchmark that trains a state (``--scene``, ``--views``, ``--records``, ``--cache``,
+    ``--budget``); ``check_state_arguments`` bounds them after parsing."""
+    parser.add_argument("--scene", default="default", help="the scene (default: default)")
+    parser.add_argument(
+        "--views", type=int, default=10, help=f"training views of the state (1..{MAX_STATE_VIEWS}, default 10)"
+    )
+    parser.add_argument("--records", type=Path, default=RUNS, help=f"where the NVF cpu record is (default {RUNS})")
+    parser.add_argument(
+        "--cache", type=Path, default=None, help="trained backbones (default ${paths.outputs}/bench_states)"
+    )
+    parser.add_argument("--budget", default="paper", help="the budget (default paper; smoke: a dry run)")
+
+
+def check_state_arguments(args: argparse.Namespace) -> None:
+    """One ``error:`` line for a state's view count out of bounds."""
+    if not 1 <= args.views <= MAX_STATE_VIEWS:
+        fail(f"--views {args.views}: must be 1..{MAX_STATE_VIEWS}")
 
 
 def recorded_episode(cfg: Run, scene: Scene, views: int, records: Path, device: torch.device) -> Episode:

@@ -42,38 +42,37 @@ from nvf.planning import prepare_scorer, score_poses_together
 from nvf.seeding import generator_factory, seeded_generator
 from nvf.training import train_variance_head, train_visibility_head
 from pipeline.bench._report import report_path, write_report
-from pipeline.bench._state import SCORED, continued_backbone, recorded_episode, state_candidates, trained_backbone
-from pipeline.cli import ArgumentParser, description, fail
+from pipeline.bench._state import (
+    SCORED,
+    add_state_arguments,
+    check_state_arguments,
+    continued_backbone,
+    recorded_episode,
+    state_candidates,
+    trained_backbone,
+)
+from pipeline.cli import ArgumentParser, description
 from pipeline.config.validation import compose_run
 from pipeline.diagnostics.initial_view_model import load
 from pipeline.episode.evaluation import render_view
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.image import image_metrics
-from pipeline.repo import RUNS
 
 TOP_OPS = 12
 BACKBONE_ITERS = 32  # two occupancy-grid update periods
 VARIANCE_ITERS = 5
-MAX_VIEWS = 64
 
 
 def parse_args(argv: list[str]):
     parser = ArgumentParser(prog="python -m pipeline.bench paper_profile", description=description(__doc__))
     parser.add_argument("overrides", nargs="*", help="Hydra overrides on top of budget=paper")
-    parser.add_argument("--scene", default="default", help="the scene (default: default)")
-    parser.add_argument("--views", type=int, default=10, help="training views of the state (default 10)")
-    parser.add_argument("--records", type=Path, default=RUNS, help=f"where the NVF cpu record is (default {RUNS})")
-    parser.add_argument(
-        "--cache", type=Path, default=None, help="trained backbones (default ${paths.outputs}/bench_states)"
-    )
-    parser.add_argument("--budget", default="paper", help="the budget (default paper; smoke: a dry run)")
+    add_state_arguments(parser)
     parser.add_argument(
         "--out", type=Path, default=None, help="JSON report (default ${paths.results}/bench/paper_profile.json)"
     )
     args = parser.parse_intermixed_args(argv)
-    if not 1 <= args.views <= MAX_VIEWS:
-        fail(f"--views {args.views}: must be 1..{MAX_VIEWS}")
+    check_state_arguments(args)
     return args
 
 

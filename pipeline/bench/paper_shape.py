@@ -46,7 +46,7 @@ from nvf.uncertainty import ViewScorer
 from nvf.visibility_source import SourcedVisibility
 from pipeline.bench._report import report_path, write_report
 from pipeline.bench._stages import GIB, PEAK_RSS, Stage, StageMeter
-from pipeline.bench._state import measure_state, recorded_episode
+from pipeline.bench._state import MAX_STATE_VIEWS, measure_state, recorded_episode
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.catalog import declared
 from pipeline.config.memory import EVAL_VIEWS, host_memory, stage_peaks
@@ -70,7 +70,6 @@ CUTS = {
     "planner.opt.iters": 2,
     "render.samples": 16,
 }
-MAX_STATE_VIEWS = 64
 SIZE_KEYS = {  # the report's sizes: name -> key
     "image_px": "budget.image_size",
     "eval_px": "budget.eval_size",

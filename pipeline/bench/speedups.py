@@ -46,14 +46,20 @@ from nvf.uncertainty.fisher import _flat, colour_parameters, probe_fisher_diagon
 from nvf.visibility import visibility_labels
 from pipeline.bench._paired import ratio_spread
 from pipeline.bench._report import report_path, write_report
-from pipeline.bench._state import continued_backbone, recorded_episode, state_candidates, trained_backbone
+from pipeline.bench._state import (
+    add_state_arguments,
+    check_state_arguments,
+    continued_backbone,
+    recorded_episode,
+    state_candidates,
+    trained_backbone,
+)
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.validation import compose_run
 from pipeline.diagnostics.initial_view_model import load
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.episode.shared_training import train_models
-from pipeline.repo import RUNS
 
 MAX_REPEATS = 20
 PAIRS = (
@@ -70,13 +76,7 @@ LABEL_CUTOFF = 1e-3  # budget=paper's train.label_cutoff
 def parse_args(argv: list[str]):
     parser = ArgumentParser(prog="python -m pipeline.bench speedups", description=description(__doc__))
     parser.add_argument("overrides", nargs="*", help="Hydra overrides on top of budget=paper")
-    parser.add_argument("--scene", default="default", help="the scene (default: default)")
-    parser.add_argument("--views", type=int, default=10, help="training views of the state (default 10)")
-    parser.add_argument("--records", type=Path, default=RUNS, help=f"where the NVF cpu record is (default {RUNS})")
-    parser.add_argument(
-        "--cache", type=Path, default=None, help="trained backbones (default ${paths.outputs}/bench_states)"
-    )
-    parser.add_argument("--budget", default="paper", help="the budget (default paper; smoke: a dry run)")
+    add_state_arguments(parser)
     parser.add_argument("--repeats", type=int, default=3, help=f"paired repeats of each comparison (1..{MAX_REPEATS})")
     parser.add_argument("--backbone-iters", type=int, default=16, help="stage-1 iterations per backbone repeat")
     parser.add_argument("--stage-iters", type=int, default=64, help="stage-1 iterations of the stage_one pair")
@@ -91,13 +91,13 @@ def parse_args(argv: list[str]):
         fail(f"--only {' '.join(unknown)}: name pairs of {', '.join(PAIRS)}")
     for name, value, top in (
         ("--repeats", args.repeats, MAX_REPEATS),
-        ("--views", args.views, 64),
         ("--backbone-iters", args.backbone_iters, 5000),
         ("--stage-iters", args.stage_iters, 5000),
         ("--candidates", args.candidates, 512),
     ):
         if not 1 <= value <= top:
             fail(f"{name} {value}: must be 1..{top}")
+    check_state_arguments(args)
     return args
 
 
