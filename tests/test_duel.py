@@ -479,3 +479,22 @@ def test_states_can_come_from_records_of_another_budget(tmp_path, monkeypatch, c
     assert [line.split()[-1] for line in commands] == ["2", "3"] and len(commands) == 2
     with pytest.raises(SystemExit):
         duel.main(["method=nvf", "rival=wd", "budget=smoke", "--state-budget", "bogus", f"paths.results={tmp_path}/o"])
+
+
+def test_nvf_duels_coverage_and_laplace_on_the_same_states(tmp_path, monkeypatch):
+    """``rival=fvs,bayesrays`` (METHOD 18 and 19, not in the paper): both decide from NVF's state (step 2 of seed
+    100's committed cpu record, smoke's training) and its candidate sets, each pair in its own folder; FVS trains
+    nothing, so it shares NVF's model and picks by the distance to the observed views."""
+    monkeypatch.chdir(tmp_path)
+    argv = ["method=nvf", "rival=fvs,bayesrays", "budget=smoke", "--state-budget", "cpu", "--scenes", "default"]
+    duel.main([*argv, "--seeds", "100", "--steps", "2", "--sets", "1", f"paths.results={tmp_path}"])
+    folders = {rival: tmp_path / "pilots" / "duel" / f"nvf_vs_{rival}" for rival in ("fvs", "bayesrays")}
+    rows = {rival: read(folder) for rival, folder in folders.items()}
+    assert {rival: [(r["step"], r["source"], r["candidates"]) for r in found] for rival, found in rows.items()} == {
+        "fvs": [(2, "nvf", 8)],
+        "bayesrays": [(2, "nvf", 8)],
+    }
+    assert rows["fvs"][0]["method_pick"] == rows["bayesrays"][0]["method_pick"]  # one NVF, one candidate set
+    for row in (*rows["fvs"], *rows["bayesrays"]):
+        assert 0 <= row["rival_pick"] < row["candidates"]
+        assert ("gain" in row) == (row["method_pick"] != row["rival_pick"])
