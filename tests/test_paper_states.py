@@ -2,6 +2,7 @@
 episodes, trained at another budget (the smoke budget here, the paper's in use)."""
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -213,3 +214,38 @@ def _without_seconds(rows: list[dict]) -> list[dict]:
             found.pop("seconds")
         out.append(row)
     return out
+
+
+def test_pooled_tables_join_another_settings_states_and_refuse_a_state_twice(tmp_path, capsys):
+    """``--pool``: the committed Cycles states (default) with pyrender's (hubble) in ``pooled.csv``, the folder's
+    own ``summary.csv`` as without it; a state in both folders is refused, a folder without states is one line."""
+    import csv
+
+    from pipeline.cli import run_command
+    from pipeline.records.files import RecordError
+
+    folder, other = tmp_path / "pilots" / "paper_states", tmp_path / "pyrender"
+    folder.mkdir(parents=True)
+    other.mkdir()
+    shutil.copy("results/pilots/paper_states/states.jsonl", folder)
+    shutil.copy("results/pilots/paper_states_pyrender/states.jsonl", other)
+    paper_states_summary.main([f"paths.results={tmp_path}"])
+    alone = (folder / "summary.csv").read_text()
+    assert not (folder / "pooled.csv").exists()
+    paper_states_summary.main([f"paths.results={tmp_path}", "--pool", str(other)])
+    assert (folder / "summary.csv").read_text() == alone
+    pooled = list(csv.DictReader((folder / "pooled.csv").open()))
+    counts = {(r["budget"], r["scene"]): int(r["states"]) for r in pooled if r["rival"] == "wo_vis"}
+    mine = [json.loads(line) for line in (folder / "states.jsonl").read_text().splitlines()]
+    theirs = [json.loads(line) for line in (other / "states.jsonl").read_text().splitlines()]
+    for budget in ("paper", "cpu"):
+        expected = sum(r["budget"] == budget for r in mine + theirs)
+        assert counts[(budget, "all")] == expected and counts[(budget, "hubble")] >= 1
+    assert "pyrender" in (folder / "pooled.md").read_text()
+    (other / "states.jsonl").write_text((folder / "states.jsonl").read_text())
+    with pytest.raises(RecordError, match="twice"):
+        paper_states_summary.write_pooled(folder, [other])
+    with pytest.raises(SystemExit) as exit_:
+        run_command(paper_states_summary.main, [f"paths.results={tmp_path}", "--pool", str(tmp_path / "none")])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and "--pool" in err and "no states.jsonl" in err and err.count("\n") == 1

@@ -14,6 +14,11 @@ outcome was taken: NVF's pick's held-out PSNR minus the rival's, dB, interval ov
 
 ``summary.md``: the same table, and beneath it each paper-budget row beside its cpu-budget twin.
 ``python -m pipeline.experiments.paper_states_summary [paths.results=DIR]`` rewrites both.
+
+``--pool FOLDER ...`` (folders of the same command made with another setting, e.g. pyrender's ground truth):
+also ``pooled.csv`` and ``pooled.md``, the same tables over this folder's states and theirs together (a state
+held twice is refused), headed by where each state came from; the command's own runs rewrite ``summary.*``
+only.
 """
 
 import sys
@@ -23,7 +28,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.atomic_write import atomic_write_text
-from pipeline.cli import ArgumentParser, description, run_command
+from pipeline.cli import ArgumentParser, description, fail, run_command
 from pipeline.config.validation import compose_run
 from pipeline.records.checked_files import Each, Entries, Number, Optional, Text, read_json_lines
 from pipeline.records.files import RecordError
@@ -181,23 +186,49 @@ def twins(states: list[dict]) -> list[dict]:
     return out
 
 
-def write_summary(folder: Path) -> list[Path]:
-    """``summary.csv`` and ``summary.md`` of ``folder``'s states."""
+def read_states(folder: Path) -> list[dict]:
+    """``folder``'s ``states.jsonl``; a state held twice is refused (``RecordError`` naming it)."""
     states, _ = read_json_lines(folder / "states.jsonl", STATE)
+    _refuse_repeats(states, str(folder / "states.jsonl"))
+    return states
+
+
+def _refuse_repeats(states: list[dict], where: str) -> None:
     identities = [state_key(row) for row in states]
     repeated = next((key for key in identities if identities.count(key) > 1), None)
     if repeated is not None:
-        raise RecordError(f"{folder / 'states.jsonl'} holds the state {repeated} twice; delete one of its rows")
+        raise RecordError(f"{where} holds the state {repeated} twice; delete one of its rows")
+
+
+def write_summary(folder: Path) -> list[Path]:
+    """``summary.csv`` and ``summary.md`` of ``folder``'s states."""
+    return _write_tables(folder, "summary", read_states(folder), "`states.jsonl`")
+
+
+def write_pooled(folder: Path, pooled: list[Path]) -> list[Path]:
+    """``pooled.csv`` and ``pooled.md`` in ``folder``: the summary's tables over its states and ``pooled``'s."""
+    states, sources = read_states(folder), ["`states.jsonl`"]
+    for other in pooled:
+        found = read_states(other)
+        truths = ", ".join(sorted({r["ground_truth"] for r in found})) or "none"
+        sources.append(f"`{other / 'states.jsonl'}` ({len(found)} states, ground truth {truths})")
+        states += found
+    _refuse_repeats(states, f"{folder} pooled with {', '.join(map(str, pooled))}")
+    return _write_tables(folder, "pooled", states, " and ".join(sources))
+
+
+def _write_tables(folder: Path, name: str, states: list[dict], sources: str) -> list[Path]:
     rows = summary_rows(states)
     table = pd.DataFrame(rows, columns=list(COLUMNS))
-    csv_path, md_path = folder / "summary.csv", folder / "summary.md"
+    csv_path, md_path = folder / f"{name}.csv", folder / f"{name}.md"
     atomic_write_text(csv_path, as_csv(table, ("budget", "scene", "rival"), "%.4f"))
     pairs = twins(states)
+    pool = "" if name == "summary" else " --pool ..."
     text = [
         "# Paper-trained states: NVF's decisions against its rivals",
         "",
         f"{len(states)} states ({', '.join(sorted({r['budget'] for r in states}))}); written by "
-        "`python -m pipeline.experiments.paper_states_summary` from `states.jsonl`.",
+        f"`python -m pipeline.experiments.paper_states_summary{pool}` from {sources}.",
         "",
         *markdown_table(list(COLUMNS), [[_cell(row[c]) for c in COLUMNS] for row in rows], left=3),
         "",
@@ -218,9 +249,24 @@ def main(argv: list[str]) -> None:
         prog="python -m pipeline.experiments.paper_states_summary", description=description(__doc__)
     )
     parser.add_argument("overrides", nargs="*", help="paths.results=DIR")
-    args = parser.parse_args(argv)
+    parser.add_argument(
+        "--pool",
+        nargs="+",
+        type=Path,
+        default=[],
+        metavar="FOLDER",
+        help="also pooled.csv and pooled.md over this folder's states and these folders' (another setting's)",
+    )
+    args = parser.parse_intermixed_args(argv)
     cfg = compose_run(args.overrides)
-    for path in write_summary(Path(cfg.paths.results) / "pilots" / FOLDER):
+    folder = Path(cfg.paths.results) / "pilots" / FOLDER
+    if not (folder / "states.jsonl").is_file():
+        fail(f"paths.results={cfg.paths.results}: no {folder / 'states.jsonl'}; run the paper_states command first")
+    for other in args.pool:
+        if not (other / "states.jsonl").is_file():
+            fail(f"--pool {other}: no states.jsonl there; name a folder the paper_states command wrote")
+    written = write_summary(folder) + (write_pooled(folder, args.pool) if args.pool else [])
+    for path in written:
         print(f"wrote {path}")
 
 
