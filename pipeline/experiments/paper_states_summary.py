@@ -15,7 +15,7 @@ outcome was taken: NVF's pick's held-out PSNR minus the rival's, dB, interval ov
 ``summary.md``: the same table, and beneath it each paper-budget row beside its cpu-budget twin.
 ``python -m pipeline.experiments.paper_states_summary [paths.results=DIR]`` rewrites both.
 
-``--pool FOLDER ...`` (folders of the same command made with another setting, e.g. pyrender's ground truth):
+``--pool FOLDER`` (repeatable: folders of the same command made with another setting, e.g. pyrender's ground truth):
 also ``pooled.csv`` and ``pooled.md``, the same tables over this folder's states and theirs together (a state
 held twice is refused), headed by where each state came from; the command's own runs rewrite ``summary.*``
 only.
@@ -251,11 +251,11 @@ def main(argv: list[str]) -> None:
     parser.add_argument("overrides", nargs="*", help="paths.results=DIR")
     parser.add_argument(
         "--pool",
-        nargs="+",
+        action="append",
         type=Path,
         default=[],
         metavar="FOLDER",
-        help="also pooled.csv and pooled.md over this folder's states and these folders' (another setting's)",
+        help="also pooled.csv and pooled.md over this folder's states and FOLDER's (another setting's; repeatable)",
     )
     args = parser.parse_intermixed_args(argv)
     cfg = compose_run(args.overrides)
