@@ -202,7 +202,7 @@ def _refuse_repeats(states: list[dict], where: str) -> None:
 
 def write_summary(folder: Path) -> list[Path]:
     """``summary.csv`` and ``summary.md`` of ``folder``'s states."""
-    return _write_tables(folder, "summary", read_states(folder), "`states.jsonl`")
+    return _write_tables(folder, "summary", read_states(folder), "", "`states.jsonl`")
 
 
 def write_pooled(folder: Path, pooled: list[Path]) -> list[Path]:
@@ -214,21 +214,21 @@ def write_pooled(folder: Path, pooled: list[Path]) -> list[Path]:
         sources.append(f"`{other / 'states.jsonl'}` ({len(found)} states, ground truth {truths})")
         states += found
     _refuse_repeats(states, f"{folder} pooled with {', '.join(map(str, pooled))}")
-    return _write_tables(folder, "pooled", states, " and ".join(sources))
+    return _write_tables(folder, "pooled", states, " --pool ...", " and ".join(sources))
 
 
-def _write_tables(folder: Path, name: str, states: list[dict], sources: str) -> list[Path]:
+def _write_tables(folder: Path, name: str, states: list[dict], options: str, sources: str) -> list[Path]:
+    """``name``.csv and ``name``.md of ``states``, headed by the command (with ``options``) and ``sources``."""
     rows = summary_rows(states)
     table = pd.DataFrame(rows, columns=list(COLUMNS))
     csv_path, md_path = folder / f"{name}.csv", folder / f"{name}.md"
     atomic_write_text(csv_path, as_csv(table, ("budget", "scene", "rival"), "%.4f"))
     pairs = twins(states)
-    pool = "" if name == "summary" else " --pool ..."
     text = [
         "# Paper-trained states: NVF's decisions against its rivals",
         "",
         f"{len(states)} states ({', '.join(sorted({r['budget'] for r in states}))}); written by "
-        f"`python -m pipeline.experiments.paper_states_summary{pool}` from {sources}.",
+        f"`python -m pipeline.experiments.paper_states_summary{options}` from {sources}.",
         "",
         *markdown_table(list(COLUMNS), [[_cell(row[c]) for c in COLUMNS] for row in rows], left=3),
         "",
