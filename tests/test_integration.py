@@ -1,5 +1,6 @@
 """Whole-stack checks at the cpu budget on the embedded scene (slow): backbone quality, visibility
-labels against the renderer's depth test, and the NVF entropy's seen/unseen gap (METHOD 9, 8, 11)."""
+labels against the renderer's depth test, the NVF entropy's seen/unseen gap and the unknown component's side
+(METHOD 9, 8, 11)."""
 
 import dataclasses
 import math
@@ -8,10 +9,11 @@ import numpy as np
 import pytest
 import torch
 
-from nvf.cameras import Intrinsics, look_at, matrix_to_pose
+from nvf.cameras import Intrinsics, camera_directions, look_at, matrix_to_pose, rays_from_camera_dirs
 from nvf.model import SceneModel
 from nvf.planning import score_poses
 from nvf.training import train_model
+from nvf.uncertainty.mixture import ray_mixture
 from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
 from nvf.visibility import visibility_labels
 from pipeline.bench._models import held_out_poses, view_psnr
@@ -146,24 +148,55 @@ def test_visibility_labels_agree_with_line_of_sight(setup, one_sided):
     assert accuracy >= 0.80
 
 
-def seen_unseen_gap(setup, one_sided, entropy) -> float:
-    """Mean NVF view entropy of two views of the unseen side minus two views of the seen side."""
+def seen_and_unseen_views(setup, one_sided) -> tuple[torch.Tensor, torch.Tensor]:
+    """Two views of the seen side (20 degrees either side of the initial views' mean direction) and two of the
+    unseen side (opposite), each ``[2, 4, 4]`` camera-to-world."""
     cfg, scene, settings, renderer, intr = setup
     obs, model = one_sided
     seen_dir = obs.c2w[:, :3, 3].mean(0) - scene.tight_box.mean(0)
     azimuth = math.degrees(math.atan2(seen_dir[1], seen_dir[0]))
     radius = float(torch.linalg.norm(seen_dir))
-    seen = ring(scene, 3, 30.0, azimuth - 20.0, radius)[:1]
-    seen = torch.cat([seen, ring(scene, 3, 30.0, azimuth + 20.0, radius)[:1]])
-    unseen = torch.cat(
-        [ring(scene, 3, 30.0, azimuth + 160.0, radius)[:1], ring(scene, 3, 30.0, azimuth + 200.0, radius)[:1]]
-    )
-    plan = Intrinsics.from_fov(int(cfg.planner.resolution), int(cfg.planner.resolution))
 
+    def views(offsets: tuple[float, float]) -> torch.Tensor:
+        return torch.cat([ring(scene, 3, 30.0, azimuth + offset, radius)[:1] for offset in offsets])
+
+    return views((-20.0, 20.0)), views((160.0, 200.0))
+
+
+def seen_unseen_gap(setup, one_sided, entropy) -> float:
+    """Mean NVF view entropy of two views of the unseen side minus two views of the seen side."""
+    cfg = setup[0]
+    seen, unseen = seen_and_unseen_views(setup, one_sided)
+    plan = Intrinsics.from_fov(int(cfg.planner.resolution), int(cfg.planner.resolution))
     scorer = NVFEntropyScorer(entropy, float(entropy.d0))  # NVF's scorer (nvf.methods.NVF.scorer)
-    s = score_poses(model, scorer, matrix_to_pose(seen), plan, 4096)
-    u = score_poses(model, scorer, matrix_to_pose(unseen), plan, 4096)
+    s = score_poses(one_sided[1], scorer, matrix_to_pose(seen), plan, 4096)
+    u = score_poses(one_sided[1], scorer, matrix_to_pose(unseen), plan, 4096)
     return float(u.mean() - s.mean())
+
+
+def unknown_weight(setup, one_sided, c2w: torch.Tensor) -> float:
+    """Mean over the rays of views ``c2w [V, 4, 4]`` of the unknown component's weight
+    ``pi_un = sum_i w_bar_i (1 - v_i)`` (M9) at the planner's resolution."""
+    cfg, settings, model = setup[0], setup[2], one_sided[1]
+    plan = Intrinsics.from_fov(int(cfg.planner.resolution), int(cfg.planner.resolution))
+    dirs = camera_directions(plan, c2w.device)
+    means = []
+    with torch.no_grad():
+        for pose in c2w:
+            origins, directions = rays_from_camera_dirs(pose, dirs)
+            result = model.render(origins, directions, heads=frozenset({"rgb", "variance", "visibility"}), train=False)
+            n_samples, n_rays = result.alpha.shape[0], origins.shape[0]
+            mixture, _ = ray_mixture(
+                result.alpha,
+                result.rgb_s,
+                result.variance,
+                result.visibility,
+                result.samples.ray_idx,
+                n_rays,
+                settings.entropy,
+            )
+            means.append(mixture.weights[n_samples : n_samples + n_rays].mean())  # the unknown components
+    return float(torch.stack(means).mean())
 
 
 def test_unseen_side_has_higher_entropy(setup, one_sided):
@@ -173,12 +206,16 @@ def test_unseen_side_has_higher_entropy(setup, one_sided):
     assert full > 0.0
 
 
-def test_wo_vis_loses_the_gap(setup, one_sided):
-    """(METHOD 11) With use_visibility=False the seen/unseen gap shrinks (3 initial views, heads as
-    in ``one_sided``: NVF 1.05, w/o Vis. 0.91; with the cpu budget's heads 0.86 vs 0.26, and 0.69 vs
-    0.79 when 30 iterations at lr 1e-3 left the heads untrained)."""
-    entropy = setup[2].entropy
-    full = seen_unseen_gap(setup, one_sided, entropy)
-    without = seen_unseen_gap(setup, one_sided, dataclasses.replace(entropy, use_visibility=False))
-    print(f"unseen - seen view entropy: NVF {full:.3f}, w/o Vis. {without:.3f}")
-    assert without < full
+def test_visibility_puts_the_unknown_component_on_the_unseen_side(setup, one_sided):
+    """(METHOD 11, M9) What the visibility field adds to the score, and w/o Vis. (``v = 1``, so ``pi_un = 0``)
+    removes: the unknown component weighs more in views of the unseen side than of the seen side (measured at
+    one thread, seeds 0 / 2 / 4 of ``trained``: seen 0.080 / 0.094 / 0.082, unseen 0.146 / 0.148 / 0.149).
+
+    Whether that widens NVF's seen/unseen entropy gap beyond w/o Vis.'s is not stable at this budget: the gap's
+    difference NVF minus w/o Vis. over seeds 0-5 was +0.13, +0.25, -0.28, +0.25, -0.10, +0.24 nats at one
+    thread, and -0.04 at seed 0 on another machine (the w/o Vis. gap alone ranges 0.72-1.17 with the seed). That
+    is the cpu budget's finding on decisions (NVF and w/o Vis. rank candidates alike), so no test asserts it."""
+    seen, unseen = seen_and_unseen_views(setup, one_sided)
+    seen_weight, unseen_weight = unknown_weight(setup, one_sided, seen), unknown_weight(setup, one_sided, unseen)
+    print(f"unknown component weight: seen side {seen_weight:.3f}, unseen side {unseen_weight:.3f}")
+    assert unseen_weight > 1.3 * seen_weight
