@@ -240,6 +240,8 @@ class TrainConfig:
     """M17 deviation: the camera-to-point segment stops this far (scene units) short of the point."""
     label_cutoff: float = 0.0
     """M17 early stop: a segment stops once its transmittance is below this (0: never)."""
+    label_lattice: int = 0
+    """M17's density read from a lattice this many times finer than the occupancy grid, trilinearly (0: the field)."""
     warm_start: bool = False
     """Deviation: start each step from the previous step's weights instead of fresh ones."""
     precision: Precision = Precision.fp32

@@ -10,6 +10,7 @@ from torch import Tensor, nn
 
 from nvf.cameras import Intrinsics, pixel_rays
 from nvf.config import FieldConfig, SamplerConfig
+from nvf.density_lattice import DensityLattice
 from nvf.field import FieldOutput, RadianceField
 from nvf.occupancy import OccupancyGrid
 from nvf.rendering import Samples, alpha_from_density, expected_depth, ray_sum, weights_from_alpha
@@ -65,6 +66,16 @@ class SceneModel(nn.Module):
         if not self.sampler_cfg.mask_density_with_grid:
             return self.field.density(x)[0]
         return self._density_where(x, self.grid.is_occupied(x))
+
+    def label_density(self, lattice: int = 0) -> Callable[[Float[Tensor, "N 3"]], Float[Tensor, " N"]]:
+        """The density M17's labels read: :meth:`density` itself (``lattice`` 0), or that density sampled once on
+        the lattice ``lattice`` times finer than the grid and read by trilinear interpolation (``DensityLattice``,
+        ``train.label_lattice``); for a density that no longer changes."""
+        if lattice == 0:
+            return self.density
+        masked = self.sampler_cfg.mask_density_with_grid
+        cells = self.grid.occupied if masked else torch.ones_like(self.grid.occupied)
+        return DensityLattice(lambda x: self.field.density(x)[0], self.grid, lattice, cells)
 
     def density_support(self) -> "DensitySupport":
         """Where :meth:`density` can be non-zero. With ``sampler.mask_density_with_grid``: the occupied cells

@@ -75,7 +75,7 @@ class OccupancyGrid(nn.Module):
         """World positions of all cell centres, in cell-index order."""
         return self._cell_points(torch.arange(self.resolution**3, device=self.occ.device), 0.5)
 
-    def _cell_index(self, x: Float[Tensor, "N 3"]) -> tuple[Int[Tensor, " N"], Bool[Tensor, " N"]]:
+    def cell_index(self, x: Float[Tensor, "N 3"]) -> tuple[Int[Tensor, " N"], Bool[Tensor, " N"]]:
         """Flat index of the cell holding each point (clamped to the grid) and whether it is inside."""
         res = self.resolution
         cell = torch.floor((x - self.aabb[0]) / self.cell_size).long()
@@ -85,19 +85,19 @@ class OccupancyGrid(nn.Module):
 
     def is_occupied(self, x: Float[Tensor, "N 3"]) -> Bool[Tensor, " N"]:
         """Whether each point lies in an occupied cell (False outside the AABB)."""
-        flat, inside = self._cell_index(x)
+        flat, inside = self.cell_index(x)
         return inside & self.occupied[flat]
 
     def is_observed(self, x: Float[Tensor, "N 3"]) -> Bool[Tensor, " N"]:
         """Whether each point lies in a cell marked by :meth:`mark_observed` (False outside the AABB)."""
-        flat, inside = self._cell_index(x)
+        flat, inside = self.cell_index(x)
         return inside & self.observed[flat]
 
     @torch.no_grad()
     def mark_observed(self, x: Float[Tensor, "N 3"]) -> None:
         """Mark the cells holding ``x`` (a training batch's kept samples) as observed: some training
         ray reached them before its transmittance fell below ``early_stop_eps``."""
-        flat, inside = self._cell_index(x.detach())
+        flat, inside = self.cell_index(x.detach())
         self.observed[flat[inside]] = True
 
     def _cell_points(self, idx: Int[Tensor, " N"], offset: Float[Tensor, "N 3"] | float) -> Float[Tensor, "N 3"]:

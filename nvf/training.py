@@ -507,13 +507,15 @@ def train_visibility_head(
 
     Each iteration draws ``cfg.visibility.batch`` points uniformly in the object AABB and labels
     them (M17-M18) with the **current** density and all observed cameras (stratified label
-    samples from ``generator``). Adam with default eps, constant lr; ``schedule=reference`` takes
-    5 steps on the same batch (D7). Iteration losses are means over their steps.
+    samples from ``generator``); with ``cfg.label_lattice`` above 0 that density is sampled once on its
+    lattice (``SceneModel.label_density``) and read from it. Adam with default eps, constant lr;
+    ``schedule=reference`` takes 5 steps on the same batch (D7). Iteration losses are means over their steps.
     """
     _require_images(obs)
     steps = _steps_per_iteration(cfg, "visibility")
     aabb = model.aabb
-    support = model.density_support()  # the grid is fixed in this stage
+    support = model.density_support()  # the grid and the density are fixed in this stage
+    density = model.label_density(cfg.label_lattice)
     c2w = obs.c2w.to(aabb.device)
     optimizer = torch.optim.Adam(model.field.parameter_groups()["visibility"], lr=cfg.visibility.lr, fused=True)
     rec = _Recorder("visibility", cfg.visibility.iters, progress, cfg.precision, aabb.device.type)
@@ -522,7 +524,7 @@ def train_visibility_head(
         u = torch.rand(cfg.visibility.batch, 3, generator=generator, device=generator.device).to(aabb)
         points = aabb[0] + u * (aabb[1] - aabb[0])
         labels = visibility_labels(
-            model.density, points, c2w, obs.intrinsics, cfg, generator=generator, aabb=support.box, grid=support.grid
+            density, points, c2w, obs.intrinsics, cfg, generator=generator, aabb=support.box, grid=support.grid
         )
         no_dirs = torch.zeros_like(points)
         values = []

@@ -13,6 +13,7 @@ from torch import Tensor
 from nvf import kernels
 from nvf.cameras import Intrinsics, project
 from nvf.config import TrainConfig
+from nvf.density_lattice import DensityLattice
 from nvf.occupancy import OccupancyGrid, ray_aabb
 
 SATURATION = 0.01  # M18: a point whose running product is <= this skips the remaining cameras
@@ -120,6 +121,10 @@ def segment_transmittance(
     is below ``cutoff`` evaluates no more; its result is that transmittance, which is at least the exact one
     and below ``cutoff``, so each ``T`` is off by less than ``cutoff`` (and by rounding: the sums are taken
     in another order).
+
+    ``density_fn`` a ``DensityLattice`` (``train.label_lattice``; with ``aabb`` and ``clip``): on the CPU its kernel
+    sums each segment's samples in one pass (``DensityLattice.segment_sums``, the early stop checked per sample),
+    elsewhere the samples read the lattice through the paths above.
     """
     if num_samples < 1:
         raise ValueError(f"label_samples must be >= 1, got {num_samples}")
@@ -141,6 +146,13 @@ def segment_transmittance(
             offsets = offsets.to(device=points.device, dtype=points.dtype)
         part = seg[start:stop]
         delta = torch.linalg.norm(part, dim=-1) / num_samples
+        if aabb is not None and clip and isinstance(density_fn, DensityLattice):
+            first, count = _bin_range(origin, part, num_samples, aabb)
+            limit = -math.log(cutoff) if cutoff > 0 else math.inf
+            sums = density_fn.segment_sums(origin, part, offsets, first, count, num_samples, aabb, delta, limit)
+            if sums is not None:
+                optical[start:stop] = sums * delta
+                continue
         if aabb is not None and clip and cutoff > 0:
             optical[start:stop] = _stopped_optical_depth(
                 density_fn, origin, part, offsets, num_samples, aabb, grid, delta, cutoff

@@ -32,11 +32,13 @@ def label_visibility(
     model: SceneModel, c2w: Float[Tensor, "M 4 4"], intrinsics: Intrinsics, cfg: TrainConfig
 ) -> VisibilityFn:
     """``v(x) = V*(x)`` (M17-M18) from the cameras ``c2w`` through ``model.density``, as stage 3 labels
-    its points (``cfg.label_samples``, ``label_max_depth``, ``label_margin``), with bin-centre samples."""
+    its points (``cfg.label_samples``, ``label_max_depth``, ``label_margin``, ``label_cutoff``, ``label_lattice``:
+    a lattice is built once, for a model that no longer changes), with bin-centre samples."""
+    density = model.label_density(cfg.label_lattice)
 
     def visibility(points: Float[Tensor, "S 3"]) -> Float[Tensor, " S"]:
         support = model.density_support()
-        return visibility_labels(model.density, points, c2w, intrinsics, cfg, aabb=support.box, grid=support.grid)
+        return visibility_labels(density, points, c2w, intrinsics, cfg, aabb=support.box, grid=support.grid)
 
     return visibility
 

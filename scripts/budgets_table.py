@@ -117,6 +117,10 @@ ROWS: tuple[tuple[str, Callable[[Values, Values], str]], ...] = (
         "M17's early stop, transmittance (`train.label_cutoff`; 0: every sample)",
         lambda v, p: small(v["train"]["label_cutoff"]),
     ),
+    (
+        "M17's density lattice, subdivisions of a grid cell (`train.label_lattice`; 0: the field at each sample)",
+        lambda v, p: str(v["train"]["label_lattice"]),
+    ),
     ("lr decay horizon, iterations", lambda v, p: count(v["train"]["lr_decay_horizon"])),
     ("hash table / max resolution", hash_table),
     (

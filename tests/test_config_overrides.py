@@ -54,6 +54,12 @@ HOSTILE_VALUES = [
     ),
     ("a_name_too_long_for_a_run_directory", "budget.name=" + "b" * 65, "has 65 characters, more than 64"),
     ("a_blender_timeout_of_zero", "render.timeout=0", "error: render.timeout=0.0 must be positive"),
+    ("a_density_lattice_of_a_million", "train.label_lattice=1000000", "error: train.label_lattice=1000000 must be"),
+    (
+        "a_density_lattice_above_a_gibibyte",
+        "budget=paper train.label_lattice=6",
+        "a lattice of more than 268435456 vertices; lower train.label_lattice",
+    ),
 ]
 
 
@@ -62,7 +68,7 @@ def test_bad_values_are_one_error_line_before_anything_runs(override, needle, ca
     """A negative or out-of-int64 seed was a traceback, a billion label samples or steps were
     accepted, ``+no_such_key=1`` was stored silently. Each is now one ``error:`` line, status 2."""
     with pytest.raises(SystemExit) as exit_info:
-        compose_run([override])
+        compose_run(override.split())
     assert exit_info.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and needle in err[0], err

@@ -14,6 +14,7 @@ import torch
 
 from nvf.cameras import Intrinsics, look_at, matrix_to_pose, pixel_rays
 from nvf.config import EntropyConfig, FieldConfig, HashBackend, SamplerConfig, TrainConfig
+from nvf.density_lattice import DensityLattice
 from nvf.device import resolve_device
 from nvf.encoding import HashEncoding, cpp_extension
 from nvf.model import SceneModel
@@ -189,6 +190,27 @@ def test_visibility_labels_inside_the_density_support_match_the_cpu():
         found.append(labels.cpu())
     assert 0 < int((found[0] > 0.5).sum()) < points.shape[0]
     torch.testing.assert_close(found[1], found[0], rtol=1e-4, atol=1e-5)
+
+
+def test_density_lattice_labels_match_the_cpu_kernel():
+    """M17's density lattice (``train.label_lattice``): CUDA builds the same lattice from the same model and reads
+    it through ``grid_sample``; its labels are the CPU kernel's one-pass sums', within rounding."""
+    generator = torch.Generator().manual_seed(9)
+    points = torch.rand(3000, 3, generator=generator) * 2.0 - 1.0
+    cams = torch.stack([look_at(torch.tensor(p), torch.zeros(3)) for p in ([0.2, -2.5, 0.4], [2.5, 0.3, 0.0])])
+    intr, cfg = Intrinsics.from_fov(32, 32), TrainConfig(label_samples=64)
+    found = []
+    for device in (CPU, cuda()):
+        model = trained_like_model(device)
+        support, (x, c2w) = model.density_support(), on(device, points, cams)
+        dense = model.label_density(2)  # the model's own lattice, then ten times denser to occlude
+        assert isinstance(dense, DensityLattice)
+        lattice = DensityLattice(lambda y, m=model: 50.0 * m.field.density(y)[0], model.grid, 2, model.grid.occupied)
+        torch.testing.assert_close(lattice.values, 50.0 * dense.values, rtol=1e-5, atol=1e-5)
+        labels = visibility_labels(lattice, x, c2w, intr, cfg, aabb=support.box, grid=support.grid)
+        found.append(labels.cpu())
+    assert 0 < int((found[0] > 0.5).sum()) < points.shape[0]
+    torch.testing.assert_close(found[1], found[0], rtol=1e-4, atol=1e-4)
 
 
 def test_scorers_scored_together_match_their_own_renders():

@@ -8,6 +8,12 @@
 // It computes what the torch path of nvf/visibility.py computes, operation for operation in float32, so the
 // kept samples and their positions are bitwise the same: the file is compiled with -ffp-contract=off (no
 // fused multiply-adds, which would round differently).
+//
+// lattice_depth: the same kept samples, each one's density read by trilinear interpolation from a lattice of
+// n^3 values (x-major, vertex v at lattice_lo + v step; nvf/density_lattice.py) and summed along its segment:
+// returns each segment's sum of densities, its samples taken in bin order and no more once sum x delta_r reaches
+// limit (M17's early stop, per sample; infinity: every sample). The torch path reads the same lattice with
+// grid_sample, so the two agree to rounding, not bitwise.
 #include <torch/extension.h>
 #include <ATen/Parallel.h>
 
@@ -88,8 +94,86 @@ std::vector<torch::Tensor> occupied_bins(torch::Tensor origin, torch::Tensor seg
   return {out_flat, out_pos};
 }
 
+torch::Tensor lattice_depth(torch::Tensor origin, torch::Tensor seg, torch::Tensor offsets, torch::Tensor first,
+                            torch::Tensor count, int64_t num_samples, torch::Tensor box, torch::Tensor occupied,
+                            torch::Tensor grid_lo, torch::Tensor cell_size, int64_t res, torch::Tensor values,
+                            int64_t n, torch::Tensor lattice_lo, torch::Tensor step, torch::Tensor delta,
+                            double limit) {
+  TORCH_CHECK(seg.device().is_cpu() && seg.scalar_type() == at::kFloat, "label kernel: float32 CPU tensors");
+  TORCH_CHECK(values.scalar_type() == at::kFloat && values.numel() == n * n * n, "values: float32, n^3");
+  origin = origin.contiguous();
+  seg = seg.contiguous();
+  offsets = offsets.contiguous();
+  first = first.contiguous();
+  count = count.contiguous();
+  box = box.contiguous();
+  occupied = occupied.contiguous();
+  grid_lo = grid_lo.contiguous();
+  cell_size = cell_size.contiguous();
+  values = values.contiguous();
+  lattice_lo = lattice_lo.contiguous();
+  step = step.contiguous();
+  delta = delta.contiguous();
+  const int64_t rows = seg.size(0), bins = offsets.size(1);
+  const float* o = origin.data_ptr<float>();
+  const float* s = seg.data_ptr<float>();
+  const float* off = offsets.data_ptr<float>();
+  const int64_t* f0 = first.data_ptr<int64_t>();
+  const int64_t* cnt = count.data_ptr<int64_t>();
+  const float* b = box.data_ptr<float>();
+  const bool* occ = occupied.data_ptr<bool>();
+  const float* glo = grid_lo.data_ptr<float>();
+  const float* cs = cell_size.data_ptr<float>();
+  const float* v = values.data_ptr<float>();
+  const float* llo = lattice_lo.data_ptr<float>();
+  const float* st = step.data_ptr<float>();
+  const float* dl = delta.data_ptr<float>();
+  const float k_samples = static_cast<float>(num_samples);
+  const float top = static_cast<float>(res);
+  const float last = static_cast<float>(n - 2);
+  auto out = torch::zeros({rows}, seg.options());
+  float* sum = out.data_ptr<float>();
+  at::parallel_for(0, rows, 256, [&](int64_t begin, int64_t end) {
+    for (int64_t r = begin; r < end; ++r) {
+      const float sx = s[3 * r], sy = s[3 * r + 1], sz = s[3 * r + 2];
+      double total = 0.0;
+      for (int64_t k = f0[r]; k < f0[r] + cnt[r]; ++k) {
+        const float frac = (static_cast<float>(k) + off[r * bins + k]) / k_samples;
+        const float y[3] = {o[0] + frac * sx, o[1] + frac * sy, o[2] + frac * sz};
+        bool keep = true;
+        int64_t cell = 0;
+        for (int a = 0; a < 3; ++a) {
+          keep &= y[a] >= b[a] && y[a] <= b[3 + a];
+          const float c = std::floor((y[a] - glo[a]) / cs[a]);
+          keep &= c >= 0.0f && c < top;
+          cell = cell * res + static_cast<int64_t>(std::min(std::max(c, 0.0f), top - 1.0f));
+        }
+        if (!(keep && occ[cell])) continue;
+        int64_t i[3];
+        float f[3];
+        for (int a = 0; a < 3; ++a) {
+          const float u = (y[a] - llo[a]) / st[a];
+          const float base = std::min(std::max(std::floor(u), 0.0f), last);
+          i[a] = static_cast<int64_t>(base);
+          f[a] = std::min(std::max(u - base, 0.0f), 1.0f);
+        }
+        const float* c0 = v + (i[0] * n + i[1]) * n + i[2];
+        const float* c1 = c0 + n * n;
+        const float x00 = c0[0] + (c0[1] - c0[0]) * f[2], x01 = c0[n] + (c0[n + 1] - c0[n]) * f[2];
+        const float x10 = c1[0] + (c1[1] - c1[0]) * f[2], x11 = c1[n] + (c1[n + 1] - c1[n]) * f[2];
+        const float y0 = x00 + (x01 - x00) * f[1], y1 = x10 + (x11 - x10) * f[1];
+        total += y0 + (y1 - y0) * f[0];
+        if (total * dl[r] >= limit) break;
+      }
+      sum[r] = static_cast<float>(total);
+    }
+  });
+  return out;
+}
+
 }  // namespace
 
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("occupied_bins", &occupied_bins, "label samples inside a box and in occupied grid cells");
+  m.def("lattice_depth", &lattice_depth, "label segments' density sums read from a lattice");
 }

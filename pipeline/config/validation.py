@@ -17,6 +17,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.errors import HydraException
 from omegaconf import DictConfig, OmegaConf
 
+from nvf.density_lattice import MAX_SUBDIVISIONS, MAX_VERTICES, lattice_vertices
 from nvf.device import resolve_device
 from nvf.methods import Method
 from nvf.precision import unsupported_reason
@@ -240,6 +241,17 @@ def validate(cfg: DictConfig) -> Run:
     if not 0.0 <= cfg.train.label_cutoff < 1.0:
         raise ConfigError(
             f"train.label_cutoff={cfg.train.label_cutoff} must be in [0, 1) (a transmittance; 0 = every sample of M17)"
+        )
+    lattice = cfg.train.label_lattice
+    if not 0 <= lattice <= MAX_SUBDIVISIONS:
+        raise ConfigError(
+            f"train.label_lattice={lattice} must be in 0..{MAX_SUBDIVISIONS} (the density lattice's subdivisions of "
+            "an occupancy cell; 0 = the field itself)"
+        )
+    if lattice and lattice_vertices(cfg.sampler.grid_resolution, lattice) > MAX_VERTICES:
+        raise ConfigError(
+            f"train.label_lattice={lattice} with sampler.grid_resolution={cfg.sampler.grid_resolution}: a lattice "
+            f"of more than {MAX_VERTICES} vertices; lower train.label_lattice"
         )
     if not 0.0 < cfg.planner.opt.ray_fraction <= 1.0:
         raise ConfigError(f"planner.opt.ray_fraction={cfg.planner.opt.ray_fraction} must be in (0, 1]")

@@ -159,10 +159,10 @@ def visibility_agreement(episode: Episode, trained: Trained, obs: Observations, 
     truth = episode.renderer.line_of_sight(x, obs.c2w, obs.intrinsics).numpy()
     model, s = trained.model, episode.settings
     device_x = x.to(episode.device)
-    support = model.density_support()
+    support, density = model.density_support(), model.label_density(s.train.label_lattice)
     with torch.no_grad():
         labels = visibility_labels(
-            model.density, device_x, obs.c2w, obs.intrinsics, s.train, aabb=support.box, grid=support.grid
+            density, device_x, obs.c2w, obs.intrinsics, s.train, aabb=support.box, grid=support.grid
         )
         head = model.field(device_x, torch.zeros_like(device_x), frozenset({"visibility"})).visibility
     assert head is not None

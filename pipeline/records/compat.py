@@ -38,6 +38,7 @@ LEGACY_DEFAULTS: dict[str, Any] = {
     "render.samples": None,  # Cycles' samples per pixel: no Cycles then
     "train.label_margin": 0.0,  # M17's segment ran all the way to the point
     "train.label_cutoff": 0.0,  # M17's segment evaluated every sample, however dark it was
+    "train.label_lattice": 0,  # M17's density read from the field at every sample
     "nvf.entropy.visibility_source": "head",  # v from the visibility head
 }
 DEFINED_BY_NAME = ("method", "ablation", "scene")  # groups whose keys other than name describe the named option
@@ -138,6 +139,7 @@ VISIBILITY_HEAD_KEYS = (
     "train.label_max_depth",
     "train.label_margin",
     "train.label_cutoff",
+    "train.label_lattice",
 )
 VARIANCE_HEAD_KEYS = ("train.variance", "train.var_loss_background")
 
