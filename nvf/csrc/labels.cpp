@@ -24,34 +24,61 @@
 
 namespace {
 
+// The inputs both kernels place their samples from, checked, contiguous and held while their pointers are read.
+struct LabelSamples {
+  torch::Tensor origin, seg, offsets, first, count, box, occupied, grid_lo, cell_size;
+  const float *o, *s, *off, *b, *glo, *cs;
+  const int64_t *f0, *n;
+  const bool* occ;
+  int64_t rows, bins, res;
+  float k_samples, top;
+
+  LabelSamples(torch::Tensor origin_, torch::Tensor seg_, torch::Tensor offsets_, torch::Tensor first_,
+               torch::Tensor count_, int64_t num_samples, torch::Tensor box_, torch::Tensor occupied_,
+               torch::Tensor grid_lo_, torch::Tensor cell_size_, int64_t res_)
+      : origin(origin_.contiguous()), seg(seg_.contiguous()), offsets(offsets_.contiguous()),
+        first(first_.contiguous()), count(count_.contiguous()), box(box_.contiguous()),
+        occupied(occupied_.contiguous()), grid_lo(grid_lo_.contiguous()), cell_size(cell_size_.contiguous()),
+        res(res_), k_samples(static_cast<float>(num_samples)), top(static_cast<float>(res_)) {
+    TORCH_CHECK(seg.device().is_cpu() && seg.scalar_type() == at::kFloat, "label kernel: float32 CPU tensors");
+    TORCH_CHECK(first.scalar_type() == at::kLong && count.scalar_type() == at::kLong, "first, count int64");
+    TORCH_CHECK(occupied.scalar_type() == at::kBool, "occupied: bool");
+    rows = seg.size(0);
+    bins = offsets.size(1);
+    o = origin.data_ptr<float>();
+    s = seg.data_ptr<float>();
+    off = offsets.data_ptr<float>();
+    f0 = first.data_ptr<int64_t>();
+    n = count.data_ptr<int64_t>();
+    b = box.data_ptr<float>();
+    occ = occupied.data_ptr<bool>();
+    glo = grid_lo.data_ptr<float>();
+    cs = cell_size.data_ptr<float>();
+  }
+
+  // Sample k of segment r, y = o + ((k + offset_rk) / K) s_r, written to y; whether it is kept (in the box and in
+  // an occupied cell).
+  bool kept(int64_t r, int64_t k, float y[3]) const {
+    const float frac = (static_cast<float>(k) + off[r * bins + k]) / k_samples;
+    for (int a = 0; a < 3; ++a) y[a] = o[a] + frac * s[3 * r + a];
+    bool keep = true;
+    int64_t cell = 0;
+    for (int a = 0; a < 3; ++a) {
+      keep &= y[a] >= b[a] && y[a] <= b[3 + a];
+      const float c = std::floor((y[a] - glo[a]) / cs[a]);
+      keep &= c >= 0.0f && c < top;
+      cell = cell * res + static_cast<int64_t>(std::min(std::max(c, 0.0f), top - 1.0f));
+    }
+    return keep && occ[cell];
+  }
+};
+
 std::vector<torch::Tensor> occupied_bins(torch::Tensor origin, torch::Tensor seg, torch::Tensor offsets,
                                          torch::Tensor first, torch::Tensor count, int64_t num_samples,
                                          torch::Tensor box, torch::Tensor occupied, torch::Tensor grid_lo,
                                          torch::Tensor cell_size, int64_t res) {
-  TORCH_CHECK(seg.device().is_cpu() && seg.scalar_type() == at::kFloat, "label kernel: float32 CPU tensors");
-  TORCH_CHECK(first.scalar_type() == at::kLong && count.scalar_type() == at::kLong, "first, count int64");
-  TORCH_CHECK(occupied.scalar_type() == at::kBool, "occupied: bool");
-  origin = origin.contiguous();
-  seg = seg.contiguous();
-  offsets = offsets.contiguous();
-  first = first.contiguous();
-  count = count.contiguous();
-  box = box.contiguous();
-  occupied = occupied.contiguous();
-  grid_lo = grid_lo.contiguous();
-  cell_size = cell_size.contiguous();
-  const int64_t rows = seg.size(0), bins = offsets.size(1);
-  const float* o = origin.data_ptr<float>();
-  const float* s = seg.data_ptr<float>();
-  const float* off = offsets.data_ptr<float>();
-  const int64_t* f0 = first.data_ptr<int64_t>();
-  const int64_t* n = count.data_ptr<int64_t>();
-  const float* b = box.data_ptr<float>();
-  const bool* occ = occupied.data_ptr<bool>();
-  const float* glo = grid_lo.data_ptr<float>();
-  const float* cs = cell_size.data_ptr<float>();
-  const float k_samples = static_cast<float>(num_samples);
-  const float top = static_cast<float>(res);
+  const LabelSamples in(origin, seg, offsets, first, count, num_samples, box, occupied, grid_lo, cell_size, res);
+  const int64_t rows = in.rows;
 
   // Rows in blocks, each block's kept samples gathered on its own, then concatenated in block order.
   constexpr int64_t kRows = 512;
@@ -61,20 +88,10 @@ std::vector<torch::Tensor> occupied_bins(torch::Tensor origin, torch::Tensor seg
   at::parallel_for(0, blocks, 1, [&](int64_t begin, int64_t end) {
     for (int64_t blk = begin; blk < end; ++blk) {
       for (int64_t r = blk * kRows; r < std::min(rows, (blk + 1) * kRows); ++r) {
-        const float sx = s[3 * r], sy = s[3 * r + 1], sz = s[3 * r + 2];
-        for (int64_t k = f0[r]; k < f0[r] + n[r]; ++k) {
-          const float frac = (static_cast<float>(k) + off[r * bins + k]) / k_samples;
-          const float y[3] = {o[0] + frac * sx, o[1] + frac * sy, o[2] + frac * sz};
-          bool keep = true;
-          int64_t cell = 0;
-          for (int a = 0; a < 3; ++a) {
-            keep &= y[a] >= b[a] && y[a] <= b[3 + a];
-            const float c = std::floor((y[a] - glo[a]) / cs[a]);
-            keep &= c >= 0.0f && c < top;
-            cell = cell * res + static_cast<int64_t>(std::min(std::max(c, 0.0f), top - 1.0f));
-          }
-          if (keep && occ[cell]) {
-            flat[blk].push_back(r * bins + k);
+        for (int64_t k = in.f0[r]; k < in.f0[r] + in.n[r]; ++k) {
+          float y[3];
+          if (in.kept(r, k, y)) {
+            flat[blk].push_back(r * in.bins + k);
             pos[blk].insert(pos[blk].end(), y, y + 3);
           }
         }
@@ -83,8 +100,8 @@ std::vector<torch::Tensor> occupied_bins(torch::Tensor origin, torch::Tensor seg
   });
   int64_t total = 0;
   for (const auto& part : flat) total += static_cast<int64_t>(part.size());
-  auto out_flat = torch::empty({total}, first.options());
-  auto out_pos = torch::empty({total, 3}, seg.options());
+  auto out_flat = torch::empty({total}, in.first.options());
+  auto out_pos = torch::empty({total, 3}, in.seg.options());
   int64_t at = 0;
   for (int64_t blk = 0; blk < blocks; ++blk) {
     std::copy(flat[blk].begin(), flat[blk].end(), out_flat.data_ptr<int64_t>() + at);
@@ -99,56 +116,25 @@ torch::Tensor lattice_depth(torch::Tensor origin, torch::Tensor seg, torch::Tens
                             torch::Tensor grid_lo, torch::Tensor cell_size, int64_t res, torch::Tensor values,
                             int64_t n, torch::Tensor lattice_lo, torch::Tensor step, torch::Tensor delta,
                             double limit) {
-  TORCH_CHECK(seg.device().is_cpu() && seg.scalar_type() == at::kFloat, "label kernel: float32 CPU tensors");
+  const LabelSamples in(origin, seg, offsets, first, count, num_samples, box, occupied, grid_lo, cell_size, res);
   TORCH_CHECK(values.scalar_type() == at::kFloat && values.numel() == n * n * n, "values: float32, n^3");
-  origin = origin.contiguous();
-  seg = seg.contiguous();
-  offsets = offsets.contiguous();
-  first = first.contiguous();
-  count = count.contiguous();
-  box = box.contiguous();
-  occupied = occupied.contiguous();
-  grid_lo = grid_lo.contiguous();
-  cell_size = cell_size.contiguous();
   values = values.contiguous();
   lattice_lo = lattice_lo.contiguous();
   step = step.contiguous();
   delta = delta.contiguous();
-  const int64_t rows = seg.size(0), bins = offsets.size(1);
-  const float* o = origin.data_ptr<float>();
-  const float* s = seg.data_ptr<float>();
-  const float* off = offsets.data_ptr<float>();
-  const int64_t* f0 = first.data_ptr<int64_t>();
-  const int64_t* cnt = count.data_ptr<int64_t>();
-  const float* b = box.data_ptr<float>();
-  const bool* occ = occupied.data_ptr<bool>();
-  const float* glo = grid_lo.data_ptr<float>();
-  const float* cs = cell_size.data_ptr<float>();
   const float* v = values.data_ptr<float>();
   const float* llo = lattice_lo.data_ptr<float>();
   const float* st = step.data_ptr<float>();
   const float* dl = delta.data_ptr<float>();
-  const float k_samples = static_cast<float>(num_samples);
-  const float top = static_cast<float>(res);
   const float last = static_cast<float>(n - 2);
-  auto out = torch::zeros({rows}, seg.options());
+  auto out = torch::zeros({in.rows}, in.seg.options());
   float* sum = out.data_ptr<float>();
-  at::parallel_for(0, rows, 256, [&](int64_t begin, int64_t end) {
+  at::parallel_for(0, in.rows, 256, [&](int64_t begin, int64_t end) {
     for (int64_t r = begin; r < end; ++r) {
-      const float sx = s[3 * r], sy = s[3 * r + 1], sz = s[3 * r + 2];
       double total = 0.0;
-      for (int64_t k = f0[r]; k < f0[r] + cnt[r]; ++k) {
-        const float frac = (static_cast<float>(k) + off[r * bins + k]) / k_samples;
-        const float y[3] = {o[0] + frac * sx, o[1] + frac * sy, o[2] + frac * sz};
-        bool keep = true;
-        int64_t cell = 0;
-        for (int a = 0; a < 3; ++a) {
-          keep &= y[a] >= b[a] && y[a] <= b[3 + a];
-          const float c = std::floor((y[a] - glo[a]) / cs[a]);
-          keep &= c >= 0.0f && c < top;
-          cell = cell * res + static_cast<int64_t>(std::min(std::max(c, 0.0f), top - 1.0f));
-        }
-        if (!(keep && occ[cell])) continue;
+      for (int64_t k = in.f0[r]; k < in.f0[r] + in.n[r]; ++k) {
+        float y[3];
+        if (!in.kept(r, k, y)) continue;
         int64_t i[3];
         float f[3];
         for (int a = 0; a < 3; ++a) {
