@@ -367,8 +367,9 @@ def test_speedups_pair_each_change_with_the_code_it_replaced(tmp_path):
     """``speedups`` at the smoke budget: every pair ran with positive seconds and a ratio spread, and every
     speed-up's result is bitwise the replaced code's (labels M17-M18, the encoding, stage 1, scoring, the shared
     stage 1), but the labels' early stop, which stays within the
-    paper-size tolerance (mean absolute difference <= 0.005, none above 0.05). ``--only`` runs the named pairs
-    alone; an unknown name is one line."""
+    paper-size tolerance (mean absolute difference <= 0.005, none above 0.05), and the density lattice, whose
+    difference is reported with its verdict (it need not pass: it is off in every budget). ``--only`` runs the
+    named pairs alone; an unknown name is one line."""
     out = tmp_path / "speedups.json"
     speedups.main(
         ["--budget", "smoke", "--views", "5", "--repeats", "2", "--out", str(out), f"paths.outputs={tmp_path}"]
@@ -382,13 +383,18 @@ def test_speedups_pair_each_change_with_the_code_it_replaced(tmp_path):
             if not (isinstance(found, dict) and "ratio" in found):
                 continue
             assert found["ratio"]["n"] == 2 and found["ratio"]["median"] > 0
-            if name == "cutoff":
+            if name in ("cutoff", "lattice"):
                 tolerance = found["tolerance"]
-                assert tolerance["mean_abs"] <= 0.005 and tolerance["max_abs"] <= 0.05
+                within = tolerance["mean_abs"] <= 0.005 and tolerance["max_abs"] <= 0.05
+                assert tolerance["within"] is within and 0 <= tolerance["share_above_0.05"] <= 1
+                assert within or name == "lattice"
             else:
                 assert found["equal"] is True
             checked += 1
-    assert checked == 4 + 1 + 1 + 1 + 1 + 1
+    assert checked == 5 + 1 + 1 + 1 + 1 + 1
+    lattice = pairs["labels"]["lattice"]
+    assert lattice["subdivisions"] == speedups.LABEL_LATTICE
+    assert lattice["vertices"] > 0 and lattice["build_seconds"] > 0
     only = tmp_path / "labels.json"
     argv = ["--budget", "smoke", "--views", "5", "--repeats", "1", f"paths.outputs={tmp_path}"]
     speedups.main([*argv, "--out", str(only), "--only", "labels"])
