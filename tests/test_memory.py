@@ -45,6 +45,7 @@ def test_each_stage_grows_with_its_own_sizes(composer):
         ("budget.recon_batch=32768", "mesh_metrics"),
         ("budget.gt_points=5000000", "mesh_metrics"),
         ("field.log2_hashmap_size=21", "backbone"),
+        ("train.label_lattice=4", "visibility"),
     ):
         grown = memory.stage_peaks(composer("budget=paper", override), views=3)
         assert grown[stage] > base[stage], override
@@ -52,6 +53,22 @@ def test_each_stage_grows_with_its_own_sizes(composer):
     assert all(more_views[stage] > base[stage] for stage in memory.STAGES)
     on_device = memory.stage_peaks(composer("budget=paper"), views=3, on_device=True)
     assert all(on_device[stage] < base[stage] - memory.PROCESS_BYTES for stage in memory.STAGES)
+
+
+def test_the_density_lattice_is_counted_and_refused_where_it_does_not_fit(composer):
+    """``train.label_lattice=4`` on the paper's 128³ grid: 513³ vertices, a float32 value and a boolean mark
+    each (675 MB), in the visibility stage's peak and as an allocation that a 0.5 GiB device refuses, naming
+    the lattice; without a lattice, nothing."""
+    cfg = composer("budget=paper", "train.label_lattice=4")
+    assert memory.lattice_bytes(cfg) == 5 * 513**3
+    assert memory.lattice_bytes(composer("budget=paper")) == 0.0
+    assert "train.label_lattice" not in {a.key for a in memory.allocations(composer("budget=paper"))}
+    without = memory.stage_peaks(composer("budget=paper"), views=3)["visibility"]
+    assert memory.stage_peaks(cfg, views=3)["visibility"] - without == 5 * 513**3
+    line = memory.too_large(cfg, host_bytes=1e12, device_bytes=0.5 * memory.GIB, device_name="a small GPU")
+    assert line is not None and line.startswith("train.label_lattice=4: the density lattice")
+    assert "lower train.label_lattice or sampler.grid_resolution" in line
+    assert memory.too_large(composer("budget=paper"), 1e12, 0.5 * memory.GIB, "a small GPU") is None
 
 
 def test_the_models_constants_are_the_codes():

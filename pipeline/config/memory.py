@@ -16,6 +16,7 @@ import os
 from dataclasses import dataclass
 
 from nvf.config import FieldConfig
+from nvf.density_lattice import lattice_vertices
 from pipeline.config.typed_run import Run
 
 GIB = float(1 << 30)
@@ -26,6 +27,7 @@ XYZ = 3 * FLOAT32
 # (at least one segment's samples - 1): offsets, fractions, xyz positions and densities (float32), and while the
 # box test runs its two [.., 3] boolean comparisons and their conjunction, all alive together
 SEGMENT_BYTES = FLOAT32 + FLOAT32 + XYZ + FLOAT32 + 3 * 3.0
+LATTICE_VERTEX_BYTES = FLOAT32 + 1.0  # nvf.density_lattice: its float32 values and the boolean marks of the vertices
 
 SIZE_KEYS_BOUNDED = {
     "budget.gt_samples": "part of budget.image_size's render (budget.image_size x budget.gt_samples per side)",
@@ -163,7 +165,8 @@ def allocations(run: Run) -> list[Allocation]:
         found.append(
             Allocation("field.hidden_dim", FLOAT32 * hidden**2, "one hidden layer's weights (float32)", on_device=True)
         )
-    if "visibility" in stages or run.nvf.entropy.visibility_source == "labels":  # M17: stage 3's labels, or the scores'
+    labels = "visibility" in stages or run.nvf.entropy.visibility_source == "labels"  # M17: stage 3's, or the scores'
+    if labels:
         found.append(
             Allocation(
                 "train.label_samples",
@@ -171,6 +174,17 @@ def allocations(run: Run) -> list[Allocation]:
                 "one chunk of M17's label samples (float32 offsets, fractions, xyz and densities and "
                 "boolean box tests, at least train.label_samples - 1 per point)",
                 on_device=True,
+            )
+        )
+    if labels and int(t.label_lattice) > 0:
+        found.append(
+            Allocation(
+                "train.label_lattice",
+                lattice_bytes(run),
+                "the density lattice of M17's labels (a float32 value and a boolean mark per vertex, "
+                "(sampler.grid_resolution x train.label_lattice + 1)³ vertices)",
+                on_device=True,
+                also=("sampler.grid_resolution",),
             )
         )
     for stage in ("backbone", "variance", "visibility"):
@@ -212,6 +226,15 @@ def allocations(run: Run) -> list[Allocation]:
             )
         )
     return found
+
+
+def lattice_bytes(run: Run) -> float:
+    """Bytes of ``train.label_lattice``'s density lattice while it is built (``nvf.density_lattice``): a float32
+    value and a boolean mark per vertex; 0 without one."""
+    subdivisions = int(run.train.label_lattice)
+    if subdivisions == 0:
+        return 0.0
+    return LATTICE_VERTEX_BYTES * lattice_vertices(int(run.sampler.grid_resolution), subdivisions)
 
 
 def host_memory() -> float:
@@ -330,7 +353,7 @@ def stage_peaks(cfg: Run, views: int, eval_views: int = EVAL_VIEWS, on_device: b
         "ground_truth": 0.0,
         "backbone": 2 * table + int(t.backbone.batch) * samples * TRAIN_SAMPLE_BYTES,  # + Adam's two moments
         "variance": int(t.variance.batch) * samples * HEAD_SAMPLE_BYTES,
-        "visibility": LABEL_CHUNK * LABEL_SAMPLE_BYTES + int(t.visibility.batch) * VIS_POINT_BYTES,
+        "visibility": LABEL_CHUNK * LABEL_SAMPLE_BYTES + int(t.visibility.batch) * VIS_POINT_BYTES + lattice_bytes(cfg),
         "candidates": 0.0,
         "planning": min(int(p.score_chunk_rays), int(p.resolution) ** 2) * samples * SCORE_SAMPLE_BYTES,
         "opt": float(p.opt.ray_fraction) * int(p.resolution) ** 2 * samples * POSE_SAMPLE_BYTES,
