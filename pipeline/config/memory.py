@@ -176,11 +176,12 @@ def allocations(run: Run) -> list[Allocation]:
                 on_device=True,
             )
         )
-    if labels and int(t.label_lattice) > 0:
+    lattice = lattice_bytes(run)
+    if labels and lattice > 0:
         found.append(
             Allocation(
                 "train.label_lattice",
-                lattice_bytes(run),
+                lattice,
                 "the density lattice of M17's labels (a float32 value and a boolean mark per vertex, "
                 "(sampler.grid_resolution x train.label_lattice + 1)³ vertices)",
                 on_device=True,
