@@ -498,3 +498,21 @@ def test_nvf_duels_coverage_and_laplace_on_the_same_states(tmp_path, monkeypatch
     for row in (*rows["fvs"], *rows["bayesrays"]):
         assert 0 <= row["rival_pick"] < row["candidates"]
         assert ("gain" in row) == (row["method_pick"] != row["rival_pick"])
+
+
+def test_a_state_is_never_taken_from_a_record_made_on_another_build_of_its_scene(tmp_path, capsys):
+    """A record whose run.json says it was made on another build of the scene (here ``scene_source: mesh`` for
+    the procedural default scene; Room's OBJ against its .blend in practice) is one ``error:`` line naming
+    both and scene.asset, exit 2: its views are not replayed on this build (``decisions.recorded_steps``)."""
+    source = Path("results/runs/default/nvf-argmax-none/cpu/seed_100")
+    copy = run_dir(tmp_path, "default", "nvf", "argmax", "none", "cpu", 100)
+    shutil.copytree(source, copy)
+    scene = load_scene("default")
+    assert len(decisions.recorded_steps(tmp_path, "default", decisions.contender("nvf"), 100, "cpu", 2, scene)) > 2
+    info = json.loads((copy / "run.json").read_text())
+    (copy / "run.json").write_text(json.dumps(info | {"scene_source": "mesh"}))
+    with pytest.raises(SystemExit) as exit_:
+        decisions.recorded_steps(tmp_path, "default", decisions.contender("nvf"), 100, "cpu", 2, scene)
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.count("\n") == 1
+    assert "scene source (mesh in the record, procedural now); set scene.asset" in err

@@ -450,6 +450,23 @@ def test_a_smoke_episode_on_cuda(tmp_path, planner):
     assert all(("opt" in row) == (planner == "opt") for row in rows)  # -OPT recorded its refinement
 
 
+def test_a_run_made_on_another_build_of_its_scene_is_not_resumed_on_this_one(tmp_path, monkeypatch):
+    """A record says which build of its scene it was made on (run.json's scene_source and ground_truth.asset;
+    ``pipeline.scenes.ground_truth.built_differently``): an unfinished record of the default scene marked as
+    built from a mesh file is refused, naming both sources and scene.asset, rather than finished on the
+    procedural scene."""
+    cfg = _cfg(tmp_path, "method=random", "budget.horizon=2")
+    directory = tmp_path / "default" / "random-argmax-none" / "smoke" / "seed_100"
+    record = RunRecord(directory)
+    record.start(run_settings(cfg) | {"torch_threads": 1, "scene_source": "mesh"})
+    pose = [0.0, 0.0, 0.0, 1.0, 1.0, -1.0, 1.0]
+    record.append_step({"step": 0, "n_views": 3, "status": "ok", "metrics": {"psnr": 10.0}, "selected_pose": pose})
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    with pytest.raises(RunRefused, match=r"scene source \(mesh in the record, procedural now\); set scene.asset"):
+        run_episode(cfg)
+    assert len(record.completed_steps()) == 1
+
+
 def test_a_run_started_with_other_threads_is_not_resumed_with_these(tmp_path, monkeypatch):
     """A record's numbers depend on its thread count (one and two threads gave 16.57 and 15.60 dB at one step), so
     an unfinished record started with 7 threads is refused, naming the count, rather than finished with 1."""

@@ -240,6 +240,24 @@ def test_room_development_mesh_is_mapped_to_z_up(assets_dir, tmp_path):
     assert find_asset(scene_config("room"), tmp_path)[0].name == "room.blend"  # a .blend is preferred
 
 
+def test_scene_asset_names_the_one_file_a_scene_is_built_from(assets_dir, tmp_path):
+    """``scene.asset`` picks Room's metric OBJ where the lookup would prefer room.blend (its up axis that of
+    the declared file of that path: Y-up), and a named file that is missing is one line naming it."""
+    (tmp_path / "room").mkdir()
+    for name in ("room_nvf_gt_yup.obj", "room_nvf_gt_yup.mtl"):
+        shutil.copy(assets_dir / "room" / name, tmp_path / "room" / name)
+    (tmp_path / "room" / "room.blend").write_bytes(b"")
+    named = scene_config("room") | {"asset": "room/room_nvf_gt_yup.obj"}
+    assert find_asset(named, tmp_path) == (tmp_path / "room" / "room_nvf_gt_yup.obj", "y")
+    room = load_scene(named, tmp_path)
+    assert room.source == "mesh" and len(room.mesh.faces) == 20100 and room.asset_to_scene[2, 1] == 1.0
+    with pytest.raises(SceneError, match=r"expected .*room/other.obj \(scene.asset names it") as info:
+        load_scene(scene_config("room") | {"asset": "room/other.obj"}, tmp_path)
+    assert "\n" not in str(info.value)
+    with pytest.raises(SceneError, match="scene.asset names a file but source='procedural'"):
+        load_scene(scene_config("default") | {"asset": "room/room_nvf_gt_yup.obj"}, tmp_path)
+
+
 def test_default_scene():
     scene = load_scene("default", None)
     assert scene.source == "procedural" and scene.mesh.visual.kind == "face"

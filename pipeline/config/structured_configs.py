@@ -93,6 +93,10 @@ class SceneConfig:
     """The paper tables (conf/experiment) and experiments it joins."""
     files: list[AssetFile] = dataclasses.field(default_factory=list)
     """Development file names of its mesh, tried after ``<name>/<name>.<ext>``."""
+    asset: str | None = None
+    """``source: mesh``: the one file to build it from, relative to ``paths.assets`` (e.g.
+    ``room/room_nvf_gt_yup.obj``), its up axis that of the ``files`` entry of the same path, else ``z``; null:
+    the first file that exists of the lookup (``pipeline.scenes.loading``)."""
     fit_tight_box: bool = False
     """Scale the mesh uniformly into the tight box (Hubble)."""
     object_aabb: list[list[float]] = MISSING

@@ -36,7 +36,7 @@ from pipeline.records.schema import RunStart, as_json
 from pipeline.records.store import RunRecord, run_dir
 from pipeline.records.verify import verified
 from pipeline.scenes.blender import BlenderTimeout, blender_python
-from pipeline.scenes.ground_truth import ground_truth_info, renderer_problem
+from pipeline.scenes.ground_truth import built_differently, ground_truth_info, renderer_problem
 from pipeline.scenes.loading import load_scene
 from pipeline.scenes.scene import Scene
 
@@ -123,9 +123,9 @@ def run_episode(run: Run) -> Outcome:
     """Run (or resume) one episode of the validated ``run`` under its run's lock (``pipeline.records.lock``).
 
     Raises ``ConfigError`` (a renderer that cannot start, a bad thread count), ``RunLocked`` (another process
-    writes the run), ``RecordError`` (its record fails a check), ``RunRefused`` (a record of other settings),
-    ``SceneError`` (the scene cannot load): all before the record starts. ``StepFailed`` once the run failed
-    (recorded as such) or stopped (``BlenderTimeout``: left unfinished).
+    writes the run), ``RecordError`` (its record fails a check), ``RunRefused`` (a record of other settings, or
+    of the scene built from another file), ``SceneError`` (the scene cannot load): all before the record starts.
+    ``StepFailed`` once the run failed (recorded as such) or stopped (``BlenderTimeout``: left unfinished).
     """
     problem = renderer_problem(run.render, blender_python(run.paths.blender_python))
     if problem is not None:
@@ -164,6 +164,13 @@ def _run_locked(run: Run, directory: Path, threads: int) -> Outcome:
     torch.manual_seed(int(run.seed))
     np.random.seed(int(run.seed) % 2**32)
     scene = load_scene(run.scene, Path(run.paths.assets), blender_python(run.paths.blender_python))
+    built = built_differently(previous, scene) if previous else None
+    if built is not None:
+        raise RunRefused(
+            f"run {directory} was made on another build of scene '{scene.name}': {built}; set scene.asset to the "
+            "file it was built from (or paths.assets to a folder without the preferred file), or pass "
+            "paths.outputs=DIR to record this run elsewhere"
+        )
     device = resolve_device(run.device)
     lpips = LpipsMetric()
     try:

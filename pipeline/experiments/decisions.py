@@ -44,6 +44,8 @@ from pipeline.records.checked_files import Each, Flag, Number, Optional, Text, r
 from pipeline.records.files import RecordError, append_plain_file, refuse_escaping_link
 from pipeline.records.schema import MAX_HORIZON
 from pipeline.records.store import MAX_SEED, dumps, run_dir, to_jsonable
+from pipeline.scenes.ground_truth import built_differently
+from pipeline.scenes.scene import Scene
 from pipeline.tables.load import load_run
 
 PLAIN_NAME = re.compile(r"[A-Za-z0-9_.-]+")
@@ -78,16 +80,24 @@ def contender(name: str) -> Contender:
     )
 
 
-def recorded_steps(records: Path, scene: str, who: Contender, seed: int, budget: str, last: int) -> list[dict]:
+def recorded_steps(
+    records: Path, scene: str, who: Contender, seed: int, budget: str, last: int, built: Scene | None = None
+) -> list[dict]:
     """The step rows of ``who``'s recorded argmax episode of ``budget`` (verified, ``pipeline.records.verify``;
-    never reached through a symbolic link leaving ``records``), which must hold step ``last``; otherwise one
-    ``error:`` line and exit 2."""
+    never reached through a symbolic link leaving ``records``), which must hold step ``last`` and, given the
+    scene as ``built``, have been made on it (``built_differently``); otherwise one ``error:`` line and exit 2."""
     directory = run_dir(records, scene, who.method, "argmax", who.ablation, budget, seed)
     try:
         refuse_escaping_link(records, directory)
-        _, rows = load_run(directory)
+        info, rows = load_run(directory)
     except (ValueError, OSError) as err:
         fail(f"no usable record of {who.name} at {directory}: {err}; pass --records DIR holding it")
+    other = built_differently(info, built) if built is not None else None
+    if other is not None:
+        fail(
+            f"the record at {directory} was made on another build of scene '{scene}': {other}; set scene.asset to "
+            "the file it was built from, or pass --records DIR holding records of this build"
+        )
     if len(rows) <= last:
         fail(f"--steps asks for step {last}: the record at {directory} holds steps 0 to {len(rows) - 1}; measure those")
     return rows

@@ -308,7 +308,7 @@ def duel_seed(call: Call, scene: Scene, seed: int, lpips: LpipsMetric) -> None:
         if any(p is pair for states in todo.values() for pairs in states.values() for p in pairs):
             pair.open(call.command)
     for name, states in todo.items():
-        rows = recorded_steps(call.records, scene.name, owners[name], seed, call.budget, max(call.steps))
+        rows = recorded_steps(call.records, scene.name, owners[name], seed, call.budget, max(call.steps), scene)
         contenders = {c.name: c for pairs in states.values() for p in pairs for c in (p.method, p.rival)}
         episodes: dict[str, Episode] = {}
         try:

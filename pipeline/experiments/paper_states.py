@@ -351,7 +351,7 @@ def measure_owner(
 ) -> None:
     """The states of ``owner``'s record at ``steps`` of one scene and seed at one budget, in one episode; each
     state's row written once it is complete."""
-    rows = recorded_steps(call.records, scene.name, owner, seed, call.state_budget, max(steps))
+    rows = recorded_steps(call.records, scene.name, owner, seed, call.state_budget, max(steps), scene)
     episode = Episode(settings_of(scene, owner, seed, budget, call.overrides), scene, device, lpips)
     try:
         for k in sorted(steps):

@@ -177,7 +177,7 @@ def study_scene(
         todo = [k for k in steps if missing_sets(decisions, scene_name, seed, k, sets)]
         if not todo:
             continue
-        rows = recorded_steps(records, scene_name, contender("nvf"), seed, state_budget, max(steps))
+        rows = recorded_steps(records, scene_name, contender("nvf"), seed, state_budget, max(steps), scene)
         seeded = compose_run([f"scene={scene_name}", f"seed={seed}", *overrides])
         episode = Episode(EpisodeSettings.of(seeded, scene), scene, resolve_device(seeded.device), lpips)
         try:

@@ -1,6 +1,8 @@
 """The ground-truth renderer a run's config asks for (``render.backend``), and what its run record says
-about it: which backend, which asset file, and for Blender the samples, device and version."""
+about it: which backend, which asset file, and for Blender the samples, device and version; whether a record
+was made on the scene as built now."""
 
+from collections.abc import Mapping
 from pathlib import Path
 
 import torch
@@ -54,3 +56,18 @@ def ground_truth_info(scene: Scene, renderer: Renderer, assets: Path) -> dict:
             "blender": renderer.version,
         }
     return {"backend": "pyrender", "asset": asset}
+
+
+def built_differently(info: Mapping, scene: Scene) -> str | None:
+    """How the scene a record's run.json (``info``) was made on differs from ``scene`` as built now: its
+    ``scene_source`` (mesh, blend, proxy, procedural) or, where the record names it, its ``ground_truth.asset``
+    (a path relative to the assets directory, or a file name); None when they agree."""
+    source = info.get("scene_source")
+    if source is not None and source != scene.source:
+        return f"scene source ({source} in the record, {scene.source} now)"
+    ground_truth = info.get("ground_truth")
+    recorded = ground_truth.get("asset") if isinstance(ground_truth, Mapping) else None
+    now = None if scene.asset is None else scene.asset.as_posix()
+    if recorded is not None and (now is None or not ("/" + now).endswith("/" + str(recorded))):
+        return f"scene asset ({recorded} in the record, {now} now)"
+    return None

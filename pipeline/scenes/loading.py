@@ -11,7 +11,8 @@ Where the mesh comes from (``source``):
   scene frame), then the yaml's ``files`` (each ``up: z`` or ``up: y``, a Y-up file rotated by (x, y, z) ->
   (x, -z, y)). With ``fit_tight_box`` the asset is scaled uniformly into the tight box (Hubble); otherwise
   its bounds must match the tight box to 5% of its diagonal (a Y-up export fails this check, with one line
-  naming the fix).
+  naming the fix). ``scene.asset`` names one file instead of the lookup (e.g. Room's metric OBJ where the
+  assets also hold ``room/room.blend``).
 
 A ``.blend`` is read by Blender (``pipeline.scenes.blender.export_blend``): the scene's mesh is its
 render-visible triangles, each coloured with its material's base colour; the Blender backend renders the
@@ -58,10 +59,15 @@ def default_assets_dir() -> Path:
 
 
 def _mesh_candidates(cfg: Mapping[str, Any], assets: Path) -> list[tuple[Path, str]]:
-    """``(path, up axis)`` in lookup order: ``<name>/<name>.<ext>`` (Z-up), then the declared files."""
+    """``(path, up axis)`` in lookup order: ``<name>/<name>.<ext>`` (Z-up), then the declared files; or the one
+    file ``asset`` names (the up axis of the declared file of that path, else Z-up)."""
     name = cfg["name"]
+    declared_files = [(f["path"], f.get("up", "z")) for f in cfg.get("files") or ()]
+    if cfg.get("asset"):
+        up = dict(declared_files).get(cfg["asset"], "z")
+        return [(assets / cfg["asset"], up)]
     own = [(assets / name / f"{name}.{ext}", "z") for ext in ASSET_EXTENSIONS]
-    return own + [(assets / f["path"], f.get("up", "z")) for f in cfg.get("files") or ()]
+    return own + [(assets / path, up) for path, up in declared_files]
 
 
 def find_asset(cfg: Mapping[str, Any], assets: Path) -> tuple[Path, str]:
@@ -77,9 +83,10 @@ def find_asset(cfg: Mapping[str, Any], assets: Path) -> tuple[Path, str]:
         if f"{cfg['name']}_proxy" in scene_names()
         else ""
     )
+    named = " (scene.asset names it; null it for the lookup)" if cfg.get("asset") else ""
     raise SceneError(
-        f"scene '{cfg['name']}': asset not found, expected {expected}; set paths.assets or NVF_ASSETS to the assets "
-        f"directory (the README's 'Scenes and assets' says where each scene's file comes from){proxy}"
+        f"scene '{cfg['name']}': asset not found, expected {expected}{named}; set paths.assets or NVF_ASSETS to the "
+        f"assets directory (the README's 'Scenes and assets' says where each scene's file comes from){proxy}"
     )
 
 
@@ -152,6 +159,8 @@ def _mesh(cfg: Mapping[str, Any], tight: np.ndarray, assets_dir: Path | None, bl
     source = cfg["source"]
     if source not in SOURCES:
         raise SceneError(f"scene '{cfg['name']}': source={source!r} is not one of {', '.join(SOURCES)}")
+    if source != "mesh" and cfg.get("asset"):
+        raise SceneError(f"scene '{cfg['name']}': scene.asset names a file but source={source!r}; null scene.asset")
     if source == "mesh":
         path, up = find_asset(cfg, Path(assets_dir) if assets_dir is not None else default_assets_dir())
         mesh = read_asset(path, blender_python)
