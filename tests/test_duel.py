@@ -215,10 +215,10 @@ def test_a_duel_refused_by_another_writer_writes_no_setting_or_command(tmp_path,
     assert sorted(p.name for p in folder.iterdir()) == [".locks"]
 
 
-def write_episode(root: Path, method: str, seed: int, final_psnr: float, seconds: float) -> None:
-    """A finished two-step smoke record on 'hotdog' ending at ``final_psnr``, each step taking ``seconds``."""
-    record = RunRecord(run_dir(root, "hotdog", method, "argmax", "none", "smoke", seed))
-    keys = {"scene": "hotdog", "method": method, "planner": "argmax", "ablation": "none", "budget": "smoke"}
+def write_episode(root: Path, method: str, seed: int, final_psnr: float, seconds: float, scene: str = "hotdog") -> None:
+    """A finished two-step smoke record on ``scene`` ending at ``final_psnr``, each step taking ``seconds``."""
+    record = RunRecord(run_dir(root, scene, method, "argmax", "none", "smoke", seed))
+    keys = {"scene": scene, "method": method, "planner": "argmax", "ablation": "none", "budget": "smoke"}
     info = {**keys, "seed": seed, "scene_source": "mesh", "field": "hashgrid", "torch_threads": 2}
     record.start(info | {"config": {"budget": {"horizon": 2}}}, repo=root)
     for step, value in enumerate((10.0, final_psnr)):
@@ -273,6 +273,34 @@ def test_summary_pairs_decisions_and_episodes(tmp_path):
     for seed in (101, 102):
         shutil.rmtree(run_dir(records, "hotdog", "wd", "argmax", "none", "smoke", seed))
     assert math.isnan(duel_summary.tables(root, records)[0].iloc[0]["episode_diff"])  # one seed in common
+
+
+def test_pooled_rows_cover_the_scenes_every_pair_holds(tmp_path):
+    """scene=all pools the same scenes for every pair: a scene only one pair holds (Room beside the three every
+    pair has) is its own row there and stays out of that pair's pooled row, and summary.md says so."""
+    root, records = tmp_path / "duel", tmp_path / "runs"
+    for scene in ("hotdog", "room"):
+        for method in ("nvf", "wd", "fvs"):
+            write_episode(records, method, 100, 20.0, 30.0, scene)
+    contenders = {n: {"method": n, "ablation": "none"} for n in ("nvf", "wd", "fvs", "air")}
+    for rival, scenes in (("wd", ("hotdog",)), ("fvs", ("hotdog", "room"))):
+        folder = root / f"nvf_vs_{rival}"
+        folder.mkdir(parents=True)
+        setting = {"method": "nvf", "rival": rival, "overrides": ["budget=smoke"], "budget": "smoke"}
+        (folder / "setting.json").write_text(json.dumps(setting | {"contenders": contenders}))
+        rows = [decision(0, 0.2) | {"scene": s} for s in scenes] + [decision(3, 1.0) | {"scene": "room"}] * (
+            rival == "fvs"
+        )
+        (folder / "decisions.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    (root / "nvf_vs_air").mkdir()  # a pair just started, no decisions yet: it pools nothing away
+    (root / "nvf_vs_air" / "setting.json").write_text(
+        json.dumps({"method": "nvf", "rival": "air", "overrides": [], "budget": "smoke", "contenders": contenders})
+    )
+    summary = duel_summary.tables(root, records)[0].set_index(["rival", "scene"])
+    assert summary.loc[("fvs", "room"), "n"] == 2 and summary.loc[("fvs", "all"), "n"] == 1
+    assert summary.loc[("fvs", "all"), "gain_mean"] == pytest.approx(0.2) == summary.loc[("wd", "all"), "gain_mean"]
+    text = duel_summary.write_summaries(root, records)[2].read_text()
+    assert "Rows `all` pool hotdog, the scenes every pair holds; room in per-scene rows only." in text
 
 
 def test_the_summary_refuses_what_it_cannot_pair(tmp_path):

@@ -1,7 +1,9 @@
 """The duel's tables, from the folders ``python -m pipeline.experiments.duel`` writes under
 ``${paths.results}/pilots/duel/``, beside the recorded episodes of the same contenders.
 
-``summary.csv``: a row per pair and scene and one over its scenes (``scene=all``): ``n`` (the decisions whose
+``summary.csv``: a row per pair and scene and one over the scenes every pair holds (``scene=all``, the same scenes
+for every pair so that pooled rows compare; a scene only some pairs hold, e.g. Room, is its own row only): ``n`` (the
+decisions whose
 picks differ), ``gain_mean, ci_low, ci_high`` (A's pick's held-out PSNR minus B's in dB, with the paired 95%
 Student-t interval over those ``n``), ``same_pick`` (the share of decisions where both pick the same candidate),
 ``episode_diff, episode_ci_low, episode_ci_high`` (A's final PSNR minus B's in their finished episodes, paired by
@@ -145,19 +147,26 @@ def check_state_records(folder: Path, setting: dict, rows: list[dict], records: 
                 )
 
 
-def pair_rows(folder: Path, records: Path) -> tuple[list[dict], list[dict]]:
-    """One pair's ``summary.csv`` and ``details.csv`` rows: per scene, then over its scenes."""
+def pair_setting(folder: Path) -> dict:
+    """A pair folder's checked ``setting.json``."""
     setting = read_json(folder / "setting.json", SETTING)
     if setting is None or "budget" not in setting or "contenders" not in setting or "rival" not in setting:
         raise RecordError(f"{folder / 'setting.json'}: missing or incomplete; a duel writes its setting there")
     absent = [setting[role] for role in ("method", "rival") if setting[role] not in setting["contenders"]]
     if absent:
         raise RecordError(f"{folder / 'setting.json'}: names no contender {absent[0]!r}; a duel writes both there")
-    rows = read_rows(folder / "decisions.jsonl")
+    return setting
+
+
+def pair_rows(folder: Path, rows: list[dict], records: Path, pooled: set[str]) -> tuple[list[dict], list[dict]]:
+    """One pair's ``summary.csv`` and ``details.csv`` rows from its decisions ``rows``: per scene, then over those of
+    its scenes in ``pooled``."""
+    setting = pair_setting(folder)
     check_state_records(folder, setting, rows, records)
     scenes = list(dict.fromkeys(r["scene"] for r in rows))
+    common = [s for s in scenes if s in pooled]
     summary, details = [], []
-    for scene, chosen in [*((s, [s]) for s in scenes), *([(ALL, scenes)] if scenes else [])]:
+    for scene, chosen in [*((s, [s]) for s in scenes), *([(ALL, common)] if common else [])]:
         part = [r for r in rows if r["scene"] in chosen]
         gain = Interval.of(np.array([r["gain"] for r in part if r.get("gain") is not None], dtype=float))
         episode, episode_hours = compare_episodes(records, setting, chosen)
@@ -212,9 +221,12 @@ def check_records(records: Path) -> None:
 def tables(root: Path, records: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
     """``summary.csv``'s and ``details.csv``'s frames over every pair folder under ``root``."""
     check_records(records)
+    decided = {folder: read_rows(folder / "decisions.jsonl") for folder in pair_folders(root)}
+    held = [{r["scene"] for r in rows} for rows in decided.values() if rows]
+    pooled = set.intersection(*held) if held else set()
     summary, details = [], []
-    for folder in pair_folders(root):
-        found = pair_rows(folder, records)
+    for folder, rows in decided.items():
+        found = pair_rows(folder, rows, records, pooled)
         summary += found[0]
         details += found[1]
     return pd.DataFrame(summary, columns=list(COLUMNS)), pd.DataFrame(details, columns=list(DETAIL_COLUMNS))
@@ -240,6 +252,18 @@ def _ratios(scenes: pd.DataFrame, details: pd.DataFrame) -> str:
         f" The means have the same sign in {same_sign} of {len(scenes)}; the episodes' interval is "
         f"{width.median():.1f} times as wide as the duel's (median over rows), and their cpu hours "
         f"{cost:.1f} times the duel's."
+    )
+
+
+def _pooled_sentence(summary: pd.DataFrame) -> str:
+    """The sentence naming the scenes the ``all`` rows pool (those every pair holds), where any are left out."""
+    held = [set(block["scene"]) - {ALL} for _, block in summary.groupby(["method", "rival"], sort=False)]
+    pooled, every = (set.intersection(*held), set.union(*held)) if held else (set(), set())
+    if pooled == every:
+        return ""
+    return (
+        f" Rows `{ALL}` pool {', '.join(sorted(pooled))}, the scenes every pair holds; "
+        f"{', '.join(sorted(every - pooled))} in per-scene rows only."
     )
 
 
@@ -271,7 +295,7 @@ def summary_markdown(summary: pd.DataFrame, details: pd.DataFrame) -> str:
         "",
         "A's pick minus B's pick in held-out PSNR after one step, where they differ (mean [95% Student-t "
         "interval] over the n decisions; per state: over the states' mean gains), beside A's final PSNR minus "
-        "B's in their episodes (paired by seed). Bold: the interval excludes zero.",
+        "B's in their episodes (paired by seed). Bold: the interval excludes zero." + _pooled_sentence(summary),
         "",
         *markdown_table(columns, cells, left=3),
         "",

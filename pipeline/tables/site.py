@@ -645,7 +645,8 @@ def duel_page(summary: pd.DataFrame, at_paper_scale: str | None = None) -> str:
         "measured on the evaluation views. A row: the method's pick minus the rival's in held-out PSNR (dB, mean "
         "[95% Student-t interval] over the decisions whose picks differ), how many decisions differ, the share of "
         "states where both picked the same view, the method's final PSNR minus the rival's in their episodes "
-        "(paired by seed) and the duel's cpu hours. Bold: the interval excludes zero.</p>"
+        "(paired by seed) and the duel's cpu hours. Bold: the interval excludes zero. The table <i>all</i> pools the "
+        "scenes every pair holds, so that its rows compare; a scene only some pairs hold has its own table only.</p>"
     ]
     head = "".join(f"<th>{html.escape(name)}</th>" for name in DUEL_HEAD)
     for scene, block in summary.groupby("scene", sort=False):
