@@ -2,10 +2,10 @@
 ``${paths.results}/pilots/duel/``, beside the recorded episodes of the same contenders.
 
 ``summary.csv``: a row per pair and scene and one over the scenes every pair holds (``scene=all``, the same scenes
-for every pair so that pooled rows compare; a scene only some pairs hold, e.g. Room, is its own row only): ``n`` (the
-decisions whose
-picks differ), ``gain_mean, ci_low, ci_high`` (A's pick's held-out PSNR minus B's in dB, with the paired 95%
-Student-t interval over those ``n``), ``same_pick`` (the share of decisions where both pick the same candidate),
+for every pair so that pooled rows compare; a scene only some pairs hold, e.g. Room, is its own row only): ``n``
+(the decisions whose picks differ), ``gain_mean, ci_low, ci_high`` (A's pick's held-out PSNR minus B's in dB,
+with the paired 95% Student-t interval over those ``n``), ``same_pick`` (the share of decisions where both pick the
+same candidate),
 ``episode_diff, episode_ci_low, episode_ci_high`` (A's final PSNR minus B's in their finished episodes, paired by
 seed, and over scenes by scene and seed; empty unless both have at least 3 seeds on every scene of the row) and
 ``cpu_hours`` (the duel's own, from its decisions' timings: each state's trainings, once where shared, and scorer
