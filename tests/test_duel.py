@@ -283,14 +283,13 @@ def test_pooled_rows_cover_the_scenes_every_pair_holds(tmp_path):
         for method in ("nvf", "wd", "fvs"):
             write_episode(records, method, 100, 20.0, 30.0, scene)
     contenders = {n: {"method": n, "ablation": "none"} for n in ("nvf", "wd", "fvs", "air")}
-    for rival, scenes in (("wd", ("hotdog",)), ("fvs", ("hotdog", "room"))):
+    decided = {"wd": [("hotdog", 0, 0.2)], "fvs": [("hotdog", 0, 0.2), ("room", 0, 0.2), ("room", 3, 1.0)]}
+    for rival, made in decided.items():
         folder = root / f"nvf_vs_{rival}"
         folder.mkdir(parents=True)
         setting = {"method": "nvf", "rival": rival, "overrides": ["budget=smoke"], "budget": "smoke"}
         (folder / "setting.json").write_text(json.dumps(setting | {"contenders": contenders}))
-        rows = [decision(0, 0.2) | {"scene": s} for s in scenes] + [decision(3, 1.0) | {"scene": "room"}] * (
-            rival == "fvs"
-        )
+        rows = [decision(step, gain) | {"scene": scene} for scene, step, gain in made]
         (folder / "decisions.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
     (root / "nvf_vs_air").mkdir()  # a pair just started, no decisions yet: it pools nothing away
     (root / "nvf_vs_air" / "setting.json").write_text(

@@ -147,21 +147,15 @@ def check_state_records(folder: Path, setting: dict, rows: list[dict], records: 
                 )
 
 
-def pair_setting(folder: Path) -> dict:
-    """A pair folder's checked ``setting.json``."""
+def pair_rows(folder: Path, rows: list[dict], records: Path, pooled: set[str]) -> tuple[list[dict], list[dict]]:
+    """One pair's ``summary.csv`` and ``details.csv`` rows from its decisions ``rows``: per scene, then over those of
+    its scenes in ``pooled``."""
     setting = read_json(folder / "setting.json", SETTING)
     if setting is None or "budget" not in setting or "contenders" not in setting or "rival" not in setting:
         raise RecordError(f"{folder / 'setting.json'}: missing or incomplete; a duel writes its setting there")
     absent = [setting[role] for role in ("method", "rival") if setting[role] not in setting["contenders"]]
     if absent:
         raise RecordError(f"{folder / 'setting.json'}: names no contender {absent[0]!r}; a duel writes both there")
-    return setting
-
-
-def pair_rows(folder: Path, rows: list[dict], records: Path, pooled: set[str]) -> tuple[list[dict], list[dict]]:
-    """One pair's ``summary.csv`` and ``details.csv`` rows from its decisions ``rows``: per scene, then over those of
-    its scenes in ``pooled``."""
-    setting = pair_setting(folder)
     check_state_records(folder, setting, rows, records)
     scenes = list(dict.fromkeys(r["scene"] for r in rows))
     common = [s for s in scenes if s in pooled]
