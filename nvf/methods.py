@@ -23,6 +23,7 @@ from typing import Any, ClassVar, Literal
 from beartype.door import is_bearable
 
 from nvf.config import EntropyConfig
+from nvf.cover import CoverScorer
 from nvf.coverage import FarthestViewScorer
 from nvf.training import AuxLoss, activenerf_loss, neurar_loss
 from nvf.uncertainty.baselines import ActiveRMAPScorer, AIRScorer, RenderedVarianceScorer, WDScorer
@@ -30,6 +31,7 @@ from nvf.uncertainty.fisher import FisherRFScorer
 from nvf.uncertainty.laplace import BayesRaysScorer
 from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
 from nvf.uncertainty.scorers import StepScorer, ViewScorer
+from nvf.warp_consistency import WarpScorer
 
 RUN_SETTING = "run_setting"  # a field's metadata key: the run config key its value comes from
 
@@ -245,6 +247,39 @@ class BayesRays(Method):
         if self.cells_per_grid_cell < 1:
             return f"cells_per_grid_cell={self.cells_per_grid_cell} must be at least 1 (docs/METHOD.md M34)"
         return None
+
+
+@dataclass(frozen=True, kw_only=True)
+class COVER(Method):
+    """COVER (CVPR 2026; not in the NVF paper) on NVF's backbone: a candidate scores one minus the mean, over its
+    pixels that see geometry, of how closely it looks along a direction the training views saw each surface
+    element from (METHOD 20, M37-M39; the elements the occupied cells of the backbone's grid). Stage 1 only; it
+    scores whole views, so argmax planning only (-OPT is n/a)."""
+
+    bins: int
+    """Direction bins on the Fibonacci sphere (COVER's ``n_sphere_bins``)."""
+
+    score_unit: ClassVar[str] = "uncovered share"  # 1 - M39's mean, in [0, 1]
+
+    def scorer(self) -> StepScorer:
+        return CoverScorer(self.bins)
+
+    def unsupported(self) -> str | None:
+        if not 1 <= self.bins <= 4096:
+            return f"bins={self.bins} must be 1..4096 (direction bins on the sphere, docs/METHOD.md M37)"
+        return None
+
+
+@dataclass(frozen=True, kw_only=True)
+class WarpRF(Method):
+    """WarpRF (WACV 2026; not in the NVF paper) on NVF's backbone: a candidate scores the mean over its pixels of the
+    smallest colour disagreement between its rendering and a training view's rendering warped into it by its depth
+    (METHOD 21, M40-M42). Stage 1 only; it scores whole views, so argmax planning only (-OPT is n/a)."""
+
+    score_unit: ClassVar[str] = "colour L1"  # summed over the channels, colours in [0, 1]
+
+    def scorer(self) -> StepScorer:
+        return WarpScorer()
 
 
 def _expected(hint: Any) -> str:

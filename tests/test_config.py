@@ -47,6 +47,8 @@ def test_every_group_has_its_options():
             "fvs",
             "bayesrays",
             "fvs_facing",
+            "cover",
+            "warprf",
         ]
     )
     assert _options("ablation") == sorted(["none", "wo_vis", "wo_var", "ind_rays", "loose"])
@@ -102,7 +104,7 @@ def _covering_runs() -> list[tuple[str, str, str, str, str]]:
     return runs
 
 
-WHOLE_VIEW_METHODS = ("fisherrf", "fvs", "bayesrays", "fvs_facing")
+WHOLE_VIEW_METHODS = ("fisherrf", "fvs", "bayesrays", "fvs_facing", "cover", "warprf")
 """The methods whose scorer reads whole views (a ``StepScorer``): -OPT is refused for them."""
 
 

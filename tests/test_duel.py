@@ -17,7 +17,7 @@ from pipeline.episode import shared_training
 from pipeline.episode.loop import Episode
 from pipeline.episode.runner import run_episode
 from pipeline.episode.settings import EpisodeSettings
-from pipeline.experiments import decisions, duel, duel_summary
+from pipeline.experiments import decisions, duel, duel_summary, row_files
 from pipeline.metrics.image import LpipsMetric
 from pipeline.records.checked_files import Number, Text
 from pipeline.records.files import RecordError
@@ -52,9 +52,19 @@ def test_contenders_are_methods_or_nvf_ablations():
         (["method=nvf", "rival=wd", "--sets", "0"], "--sets 0: must be 1..64"),
         (["method=nvf", "rival=wd", "--sets", "99999999999999999999"], "--sets 99999999999999999999"),
         (["method=nvf", "rival=wd", "--threads", "4097"], "--threads 4097: must be 1.."),
-        (["method=nvf", "rival=wd", "--records", "/nonexistent"], "no usable record of"),
+        (["method=nvf", "rival=wd", "--scenes", "default", "--records", "/nonexistent"], "no usable record of"),
         (
-            ["method=nvf", "rival=wd", "--steps", "25", "--records", "results/runs", "budget=cpu"],
+            [
+                "method=nvf",
+                "rival=wd",
+                "--scenes",
+                "default",
+                "--steps",
+                "25",
+                "--records",
+                "results/runs",
+                "budget=cpu",
+            ],
             "--steps asks for step 25",
         ),
     ],
@@ -157,11 +167,11 @@ def test_a_backbone_trained_with_an_auxiliary_loss_serves_the_plan_without_it():
 def test_json_lines_keep_whole_rows_and_drop_a_cut_one(tmp_path):
     path = tmp_path / "decisions.jsonl"
     shape = {"scene": Text(), "step": Number(0, 20, integer=True)}
-    first, second = decisions.JsonLines(path, shape), decisions.JsonLines(path, shape)
+    first, second = row_files.JsonLines(path, shape), row_files.JsonLines(path, shape)
     first.add([{"scene": "hotdog", "step": 0, "spearman": math.nan}])
     second.add([{"scene": "hubble", "step": 0}, {"scene": "hubble", "step": 3}])
     path.write_text(path.read_text() + '{"scene": "hub')
-    reopened = decisions.JsonLines(path, shape)
+    reopened = row_files.JsonLines(path, shape)
     assert [(r["scene"], r["step"]) for r in reopened.rows] == [("hotdog", 0), ("hubble", 0), ("hubble", 3)]
     assert reopened.rows[0]["spearman"] is None and path.read_text().endswith("\n")
 
@@ -171,7 +181,7 @@ def test_a_second_setting_under_the_same_folder_is_refused(tmp_path, capsys):
     folder.mkdir(parents=True)
     (folder / "setting.json").write_text(json.dumps({"method": "nvf", "overrides": ["budget=smoke"]}))
     with pytest.raises(SystemExit) as exit_:
-        duel.main(["method=nvf", "rival=wd", "budget=cpu", f"paths.results={tmp_path}"])
+        duel.main(["method=nvf", "rival=wd", "budget=cpu", "--scenes", "default", f"paths.results={tmp_path}"])
     err = capsys.readouterr().err
     assert exit_.value.code == 2 and "holds a duel with overrides ['budget=smoke']" in err and err.count("\n") == 1
     assert sorted(p.name for p in folder.iterdir()) == ["setting.json"]
@@ -474,7 +484,7 @@ def test_duel_on_smoke_records_resumes_after_a_kill(smoke_records, tmp_path, cap
     with RunLock(folder / "default" / "seed_100", folder), pytest.raises(SystemExit) as exit_:
         run_command(duel.main, argv)  # a second duel on the same pair, scene and seed
     assert exit_.value.code == 2 and "is being written by" in capsys.readouterr().err
-    pair = decisions.JsonLines(folder / "decisions.jsonl", decisions.DECISION, decisions.decision_key)
+    pair = row_files.JsonLines(folder / "decisions.jsonl", decisions.DECISION, decisions.decision_key)
     with pytest.raises(RecordError, match="already holds the row"):
         pair.add([pair.rows[0]])
     (folder / "decisions.jsonl").write_text("".join(lines[:3] + lines[:1]))
@@ -535,7 +545,7 @@ def test_a_state_is_never_taken_from_a_record_made_on_another_build_of_its_scene
     copy = run_dir(tmp_path, "default", "nvf", "argmax", "none", "cpu", 100)
     shutil.copytree(source, copy)
     scene = load_scene("default")
-    assert len(decisions.recorded_steps(tmp_path, "default", decisions.contender("nvf"), 100, "cpu", 2, scene)) > 2
+    assert len(decisions.recorded_steps(tmp_path, "default", decisions.contender("nvf"), 100, "cpu", 2, scene).rows) > 2
     info = json.loads((copy / "run.json").read_text())
     (copy / "run.json").write_text(json.dumps(info | {"scene_source": "mesh"}))
     with pytest.raises(SystemExit) as exit_:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.experiments import paper_states, paper_states_summary
+from pipeline.experiments import paper_states, paper_states_summary, row_files
 from pipeline.records.checked_files import read_json_lines
 from pipeline.records.store import run_dir
 
@@ -48,8 +48,15 @@ def test_states_of_cpu_records_at_another_budget_resume_and_summarise(tmp_path, 
     ]
     for row in rows:
         assert row["views"] == 3 + row["step"] and row["candidates"] == 8
-        assert set(row["contenders"]) == {"nvf", "wo_vis", "fisherrf", "activenerf"}
-        assert set(row["against_nvf"]) == {"wo_vis", "fisherrf", "activenerf"}
+        assert set(row["contenders"]) == {"nvf", "wo_vis", "fisherrf", "activenerf", "fvs_facing", "cover", "warprf"}
+        assert set(row["against_nvf"]) == {"wo_vis", "fisherrf", "activenerf", "fvs_facing", "cover", "warprf"}
+        assert all(len(found["pose"]) == 7 and not found["reused"] for found in row["contenders"].values())
+        made = row["made_with"]
+        assert made["threads"] == 1 and made["budget"] == "smoke" and made["ground_truth"] == "pyrender"
+        assert made["sizes"]["image"] == 24 and made["differs_from_budget"] == {}
+        owner = {"nvf": "nvf-argmax-none", "wo_vis": "nvf-argmax-wo_vis"}[row["source"]]
+        assert row["source_record"]["run"] == f"default/{owner}/cpu/seed_100"
+        assert row["source_record"]["digest"].startswith("sha256:")
         assert row["contenders"]["wo_vis"]["shared_training"] and not row["contenders"]["activenerf"]["shared_training"]
         assert 0.0 <= row["visibility"]["auc_head"] <= 1.0 and 0.0 < row["visibility"]["seen_fraction"] < 1.0
         for name, outcome in row["outcomes"].items():
@@ -59,9 +66,9 @@ def test_states_of_cpu_records_at_another_budget_resume_and_summarise(tmp_path, 
             if not found["same_pick"] and name in ("wo_vis", "fisherrf"):
                 assert name in row["outcomes"]
     setting = json.loads((folder / "setting.json").read_text())
-    assert setting == {"overrides": [], "state_budget": "cpu", "threads": 1}
+    assert setting == {"overrides": [], "state_budget": "cpu", "vis_points": 4096, "threads": 1}
     monkeypatch.setattr("os.sched_getaffinity", lambda pid: {0, 1, 2, 3})
-    for made in (setting, {"overrides": [], "state_budget": "cpu"}):
+    for made in (setting, {"overrides": [], "state_budget": "cpu", "vis_points": 4096}):
         (folder / "setting.json").write_text(json.dumps(made))
         before = {path.name: path.read_bytes() for path in folder.iterdir() if path.is_file()}
         with pytest.raises(SystemExit) as exit_:
@@ -76,7 +83,7 @@ def test_states_of_cpu_records_at_another_budget_resume_and_summarise(tmp_path, 
     assert again == rows
     summary = (folder / "summary.csv").read_text().splitlines()
     assert summary[0].split(",") == list(paper_states_summary.COLUMNS)
-    assert len(summary) == 1 + 2 * 3  # (default, all) x 3 rivals
+    assert len(summary) == 1 + 2 * 3  # (default, all) x the summary's 3 rivals
     assert sum(len(r["outcomes"]) for r in rows) == sum(int(line.split(",")[12]) for line in summary[1:4])
 
 
@@ -92,7 +99,7 @@ def test_one_writer_per_scene_and_seed_and_no_state_twice(tmp_path, capsys):
     """A second process on a scene and seed another holds is refused in one line; a row repeating a state is
     refused on write, and a file holding one twice is refused on read (the summary names it)."""
     from pipeline.cli import run_command
-    from pipeline.experiments.decisions import JsonLines
+    from pipeline.experiments.row_files import JsonLines
     from pipeline.records.files import RecordError
     from pipeline.records.lock import RunLock
 
@@ -109,7 +116,7 @@ def test_one_writer_per_scene_and_seed_and_no_state_twice(tmp_path, capsys):
         states.add([states.rows[0]])
     text = (folder / "states.jsonl").read_text()
     (folder / "states.jsonl").write_text(text + text)
-    with pytest.raises(RecordError, match="twice"):
+    with pytest.raises(RecordError, match="line 2 repeats the row"):
         paper_states_summary.write_summary(folder)
 
 
@@ -181,7 +188,7 @@ def test_a_state_killed_after_its_training_resumes_after_it_with_the_same_row(tm
     monkeypatch.setattr(paper_states, "heldout_psnr", killed_after_one)
     with pytest.raises(Killed):
         paper_states.main([*argv, f"paths.results={tmp_path}", f"paths.outputs={outputs}"])
-    kept = list((outputs / "paper_states").glob("*/default/seed_100/step_2_smoke/trained.pt"))
+    kept = list((outputs / "paper_states").glob("*/default/seed_100/step_2_smoke/nvf-*/trained.pt"))
     assert len(kept) == 1
 
     def refused(*args, **kwargs):
@@ -199,7 +206,7 @@ def test_a_state_killed_after_its_training_resumes_after_it_with_the_same_row(tm
     rows = read_json_lines(tmp_path / "pilots" / "paper_states" / "states.jsonl", paper_states_summary.STATE)[0]
     assert _without_seconds(rows) == _without_seconds(expected)
     assert calls["resumed"] == calls["whole"] - 1  # the kept outcome is not taken again
-    assert not kept[0].parent.exists()
+    assert not kept[0].parent.parent.exists()
 
 
 def _without_seconds(rows: list[dict]) -> list[dict]:
@@ -212,6 +219,7 @@ def _without_seconds(rows: list[dict]) -> list[dict]:
             found.pop("seconds")
         for found in row["outcomes"].values():
             found.pop("seconds")
+        row.pop("made_with")
         out.append(row)
     return out
 
@@ -227,8 +235,9 @@ def test_pooled_tables_join_another_settings_states_and_refuse_a_state_twice(tmp
     folder, other = tmp_path / "pilots" / "paper_states", tmp_path / "pyrender"
     folder.mkdir(parents=True)
     other.mkdir()
-    shutil.copy("results/pilots/paper_states/states.jsonl", folder)
-    shutil.copy("results/pilots/paper_states_pyrender/states.jsonl", other)
+    for name in ("states.jsonl", "setting.json"):
+        shutil.copy(f"results/pilots/paper_states/{name}", folder)
+        shutil.copy(f"results/pilots/paper_states_pyrender/{name}", other)
     paper_states_summary.main([f"paths.results={tmp_path}"])
     alone = (folder / "summary.csv").read_text()
     assert not (folder / "pooled.csv").exists()
@@ -242,6 +251,11 @@ def test_pooled_tables_join_another_settings_states_and_refuse_a_state_twice(tmp
         expected = sum(r["budget"] == budget for r in mine + theirs)
         assert counts[(budget, "all")] == expected and counts[(budget, "hubble")] >= 1
     assert "pyrender" in (folder / "pooled.md").read_text()
+    setting = json.loads((other / "setting.json").read_text())
+    (other / "setting.json").write_text(json.dumps(setting | {"state_budget": "smoke"}))
+    with pytest.raises(RecordError, match="made with state_budget smoke, .* with cpu: their states do not pool"):
+        paper_states_summary.write_pooled(folder, [other])
+    (other / "setting.json").write_text(json.dumps(setting))
     (other / "states.jsonl").write_text((folder / "states.jsonl").read_text())
     with pytest.raises(RecordError, match="twice"):
         paper_states_summary.write_pooled(folder, [other])
@@ -249,3 +263,170 @@ def test_pooled_tables_join_another_settings_states_and_refuse_a_state_twice(tmp
         run_command(paper_states_summary.main, [f"paths.results={tmp_path}", "--pool", str(tmp_path / "none")])
     err = capsys.readouterr().err
     assert exit_.value.code == 2 and "--pool" in err and "no states.jsonl" in err and err.count("\n") == 1
+
+
+def test_a_state_is_extended_with_new_contenders_and_outcomes_as_a_fresh_run_measures_it(tmp_path):
+    """A state measured with some contenders is extended by a call naming more: its candidate draw rebuilt from
+    NVF's stage 1 alone, the backbone-only contenders scored again (FisherRF's pick as the row had it), NVF's and
+    w/o Vis.'s picks kept (``reused``), the new rivals' outcomes trained; the new row names the old one
+    (``extends``), the file keeps both, and the current row's picks, poses and outcomes are those of a fresh run
+    with every contender."""
+    argv = ["--scenes", "default", "--steps", "2", "--budgets", "smoke"]
+    paper_states.main(
+        [*argv, "--contenders", "nvf,wo_vis,fisherrf", "--outcomes", "wo_vis", f"paths.results={tmp_path / 'a'}"]
+    )
+    paper_states.main([*argv, f"paths.results={tmp_path / 'a'}"])
+    paper_states.main([*argv, f"paths.results={tmp_path / 'b'}"])
+    lines, _ = read_json_lines(tmp_path / "a" / "pilots" / "paper_states" / "states.jsonl", paper_states_summary.STATE)
+    first, extended = lines
+    assert extended["extends"] == row_files.row_digest(first)
+    assert [name for name, c in extended["contenders"].items() if c["reused"]] == ["nvf", "wo_vis"]
+    fresh = paper_states_summary.read_states(tmp_path / "b" / "pilots" / "paper_states")[0]
+    for name, found in fresh["contenders"].items():
+        assert (extended["contenders"][name]["pick"], extended["contenders"][name]["pose"]) == (
+            found["pick"],
+            found["pose"],
+        )
+    assert {n: (o["nvf_psnr"], o["rival_psnr"]) for n, o in extended["outcomes"].items()} == {
+        n: (o["nvf_psnr"], o["rival_psnr"]) for n, o in fresh["outcomes"].items()
+    }
+    assert extended["against_nvf"]["fisherrf"]["spearman"] is None  # NVF's scores were not computed again
+    assert paper_states_summary.read_states(tmp_path / "a" / "pilots" / "paper_states") == [extended]
+
+
+@pytest.mark.parametrize(
+    ("made", "says"),
+    [
+        ({"state_budget": "smoke"}, "made with state_budget smoke, not cpu"),
+        ({"vis_points": 64}, "made with vis_points 64, not 4096"),
+    ],
+)
+def test_another_setting_is_refused_before_anything_is_written(made, says, tmp_path, capsys):
+    """A folder of another states' budget or label points took the rows of both (the setting compared overrides and
+    threads only); now such a call is one line and the folder is left as it was."""
+    folder = tmp_path / "pilots" / "paper_states"
+    folder.mkdir(parents=True)
+    setting = {"overrides": [], "state_budget": "cpu", "threads": 1} | made
+    (folder / "setting.json").write_text(json.dumps(setting))
+    with pytest.raises(SystemExit) as exit_:
+        paper_states.main(["--scenes", "default", "--steps", "2", "--budgets", "smoke", f"paths.results={tmp_path}"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and says in err and err.count("\n") == 1
+    assert sorted(p.name for p in folder.iterdir()) == ["setting.json"]
+
+
+def test_a_run_refused_for_its_renderer_or_asset_writes_nothing(tmp_path, capsys):
+    """A missing Blender (the paper budget's ground truth) or a missing asset is one line before any file is written
+    (before, ``setting.json`` and ``command.txt`` locked the folder to a setting that produced nothing)."""
+    for argv, says in (
+        (["--scenes", "default", "--budgets", "paper", f"paths.blender_python={tmp_path / 'none'}"], "Blender"),
+        (["--scenes", "hubble", "--budgets", "smoke", f"paths.assets={tmp_path / 'empty'}"], "hubble"),
+    ):
+        with pytest.raises(SystemExit) as exit_:
+            paper_states.main([*argv, "--steps", "2", f"paths.results={tmp_path}"])
+        err = capsys.readouterr().err
+        assert exit_.value.code == 2 and says in err and err.count("\n") == 1
+        assert not (tmp_path / "pilots").exists()
+
+
+def test_progress_is_kept_by_what_the_state_is(tmp_path, monkeypatch):
+    """Progress was kept by setting, scene, seed and step: with ``--steps 8,2`` step 2 is w/o Vis.'s state, yet it
+    loaded the models NVF's state of ``--steps 2`` had left, and its row claimed a source it was not made from. Now
+    the kept folder is named by the state's owner and the digest of its views."""
+    argv = [
+        "--scenes",
+        "default",
+        "--budgets",
+        "smoke",
+        f"paths.results={tmp_path}",
+        f"paths.outputs={tmp_path / 'out'}",
+    ]
+
+    class Killed(Exception):
+        pass
+
+    def killed(*args):
+        raise Killed
+
+    monkeypatch.setattr(paper_states, "candidate_set", killed)
+    with pytest.raises(Killed):
+        paper_states.main(["--steps", "2", *argv])
+    kept = list((tmp_path / "out" / "paper_states").glob("*/default/seed_100/step_2_smoke/nvf-*/trained.pt"))
+    assert len(kept) == 1
+    trained = []
+    monkeypatch.setattr(paper_states, "train_models", lambda *a: trained.append(1) or killed())
+    with pytest.raises(Killed):
+        paper_states.main(["--steps", "8,2", "--state-budget", "cpu", *argv])
+    assert trained  # w/o Vis.'s state trains its own models
+
+
+def test_corrupt_progress_is_one_line(tmp_path, monkeypatch, capsys):
+    argv = [
+        "--scenes",
+        "default",
+        "--steps",
+        "2",
+        "--budgets",
+        "smoke",
+        f"paths.results={tmp_path}",
+        f"paths.outputs={tmp_path / 'out'}",
+    ]
+
+    class Killed(Exception):
+        pass
+
+    def killed(*args):
+        raise Killed
+
+    monkeypatch.setattr(paper_states, "candidate_set", killed)
+    with pytest.raises(Killed):
+        paper_states.main(argv)
+    (kept,) = (tmp_path / "out" / "paper_states").glob("*/default/seed_100/step_2_smoke/nvf-*")
+    monkeypatch.undo()
+    for name, text in (("trained.pt", b"\x8b\x07not a model"), ("progress.json", b"[" * 100_000 + b"]" * 100_000)):
+        saved = (kept / name).read_bytes()
+        (kept / name).write_bytes(text)
+        with pytest.raises(SystemExit) as exit_:
+            paper_states.main(argv)
+        err = capsys.readouterr().err
+        assert exit_.value.code == 2 and err.count("\n") == 1 and f"remove {kept}" in err
+        (kept / name).write_bytes(saved)
+
+
+def test_a_row_without_nvf_or_naming_a_rival_it_lacks_is_refused(tmp_path):
+    from pipeline.records.files import RecordError
+
+    folder = tmp_path / "paper_states"
+    folder.mkdir()
+    row = json.loads(Path("results/pilots/paper_states/states.jsonl").read_text().splitlines()[0])
+    for broken, says in (
+        (
+            {**row, "contenders": {k: v for k, v in row["contenders"].items() if k != "nvf"}},
+            "contenders.nvf is missing",
+        ),
+        (
+            {**row, "contenders": {k: v for k, v in row["contenders"].items() if k != "fisherrf"}},
+            "against_nvf.fisherrf",
+        ),
+    ):
+        (folder / "states.jsonl").write_text(json.dumps(broken) + "\n")
+        with pytest.raises(RecordError, match=says):
+            paper_states_summary.read_states(folder)
+
+
+def test_a_record_planned_otherwise_than_its_budget_is_refused(tmp_path, capsys):
+    """A record made with other planner settings than its budget's file (here 2 candidates) was taken as NVF's state
+    without comment; now it is one line naming the setting."""
+    records = tmp_path / "runs"
+    source = Path("results/runs/default/nvf-argmax-none/cpu/seed_100")
+    target = run_dir(records, "default", "nvf", "argmax", "none", "cpu", 100)
+    shutil.copytree(source, target)
+    info = json.loads((target / "run.json").read_text())
+    info["config"]["planner"]["num_candidates"] = 2
+    (target / "run.json").write_text(json.dumps(info))
+    argv = ["--scenes", "default", "--seeds", "100", "--steps", "2", "--budgets", "smoke", "--records", str(records)]
+    with pytest.raises(SystemExit) as exit_:
+        paper_states.main([*argv, f"paths.results={tmp_path / 'results'}"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and "planner.num_candidates=2" in err and err.count("\n") == 1
+    assert not (tmp_path / "results").exists()

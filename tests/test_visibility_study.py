@@ -15,7 +15,7 @@ import trimesh
 
 from nvf.cameras import Intrinsics, look_at
 from pipeline.experiments import visibility_study
-from pipeline.experiments.decisions import JsonLines
+from pipeline.experiments.row_files import JsonLines
 from pipeline.experiments.visibility_summary import (
     COLUMNS,
     DECISION,

@@ -14,13 +14,10 @@ a candidate set, each contender's pick from it, and the one-step outcome of a pi
   PSNR on the scene's evaluation views (PROTOCOL 4.1).
 """
 
-import os
 import re
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
@@ -34,16 +31,18 @@ from nvf.seeding import generator_factory, seeded_generator
 from nvf.training import Observations, train_model
 from nvf.uncertainty import ViewScorer, WholeViewScorer
 from nvf.visibility_source import SourcedVisibility
-from pipeline.atomic_write import atomic_write_text
 from pipeline.cli import fail
 from pipeline.config.catalog import ablation_configs, declared
+from pipeline.config.validation import compose_run
 from pipeline.episode.evaluation import render_view
 from pipeline.episode.loop import Episode
+from pipeline.experiments.provenance import flat, source_record
+from pipeline.experiments.row_files import JsonLines
 from pipeline.metrics.image import psnr
-from pipeline.records.checked_files import Each, Flag, Number, Optional, Text, read_json_lines
-from pipeline.records.files import RecordError, append_plain_file, refuse_escaping_link
+from pipeline.records.checked_files import Each, Flag, Number, Optional, Text
+from pipeline.records.files import refuse_escaping_link
 from pipeline.records.schema import MAX_HORIZON
-from pipeline.records.store import MAX_SEED, dumps, run_dir, to_jsonable
+from pipeline.records.store import MAX_SEED, run_dir
 from pipeline.scenes.ground_truth import built_differently
 from pipeline.scenes.scene import Scene
 from pipeline.tables.load import load_run
@@ -80,12 +79,22 @@ def contender(name: str) -> Contender:
     )
 
 
+@dataclass(frozen=True)
+class Recorded:
+    """A recorded episode a study takes its states from: its step rows and what it is (``provenance.source_record``:
+    its digest and the settings it was made with)."""
+
+    rows: list[dict]
+    source: dict
+
+
 def recorded_steps(
     records: Path, scene: str, who: Contender, seed: int, budget: str, last: int, built: Scene | None = None
-) -> list[dict]:
-    """The step rows of ``who``'s recorded argmax episode of ``budget`` (verified, ``pipeline.records.verify``;
-    never reached through a symbolic link leaving ``records``), which must hold step ``last`` and, given the
-    scene as ``built``, have been made on it (``built_differently``); otherwise one ``error:`` line and exit 2."""
+) -> Recorded:
+    """``who``'s recorded argmax episode of ``budget`` (verified, ``pipeline.records.verify``; never reached through a
+    symbolic link leaving ``records``), which must hold step ``last``, have been planned as its budget's file plans
+    (``planner_difference``) and, given the scene as ``built``, have been made on it (``built_differently``);
+    otherwise one ``error:`` line and exit 2."""
     directory = run_dir(records, scene, who.method, "argmax", who.ablation, budget, seed)
     try:
         refuse_escaping_link(records, directory)
@@ -98,9 +107,27 @@ def recorded_steps(
             f"the record at {directory} was made on another build of scene '{scene}': {other}; set scene.asset to "
             "the file it was built from, or pass --records DIR holding records of this build"
         )
+    planned = planner_difference(info, [f"scene={scene}", f"budget={budget}", *who.overrides])
+    if planned is not None:
+        fail(
+            f"the record at {directory} was planned with {planned}: its states are not its budget's; pass --records "
+            "DIR holding records made with the budget's planner"
+        )
     if len(rows) <= last:
         fail(f"--steps asks for step {last}: the record at {directory} holds steps 0 to {len(rows) - 1}; measure those")
-    return rows
+    return Recorded(rows, source_record(records, directory, info))
+
+
+def planner_difference(info: dict, overrides: list[str]) -> str | None:
+    """The first planner setting (``planner.<key>=<value>``, the record's beside the file's) in which a record's
+    run.json (``info``) differs from the config ``overrides`` compose (its scene, method and budget), on the keys
+    both hold; None when they agree."""
+    recorded = (info.get("config") or {}).get("planner") or {}
+    expected = flat(compose_run(overrides).composed["planner"], "planner")
+    for key, value in flat(recorded, "planner").items():
+        if key in expected and expected[key] != value:
+            return f"{key}={value} (its budget's file: {expected[key]})"
+    return None
 
 
 def prepared_scorer(
@@ -220,50 +247,6 @@ OUTCOME = {
     "psnr": Number(0.0, 100.0),
     "seconds": Number(0.0),
 }
-
-
-class JsonLines:
-    """The rows of a JSON-lines file, each checked against ``shape`` when read (``pipeline.records.checked_files``:
-    never through a symbolic link; a bad line is one ``RecordError`` naming it). Rows are appended in one write each
-    call through the file layer (never into a file with another name), so a killed writer leaves whole rows (a
-    row cut off by a kill is dropped when the file is next opened), and writers of other scenes or seeds can
-    append side by side. With ``key`` (a row's identity, e.g. its scene, seed, step and set) a file holding two
-    rows of one key is refused when read, and ``add`` refuses a row whose key the file already holds, rows other
-    writers appended since included."""
-
-    def __init__(self, path: Path, shape: Any, key: Callable[[dict], tuple] | None = None):
-        self.path, self.shape, self.key = path, shape, key
-        self.rows, whole = self._read()
-        if os.path.lexists(path) and os.lstat(path).st_size != whole:
-            atomic_write_text(path, "".join(dumps(row) + "\n" for row in self.rows))
-
-    def _read(self) -> tuple[list[dict], int]:
-        rows, whole = read_json_lines(self.path, self.shape)
-        if self.key is not None:
-            seen: dict[tuple, int] = {}
-            for number, row in enumerate(rows, start=1):
-                found = self.key(row)
-                if found in seen:
-                    raise RecordError(
-                        f"{self.path}: line {number} repeats the row {found} of line {seen[found]} (two writers of "
-                        "one state?); delete one of them"
-                    )
-                seen[found] = number
-        return rows, whole
-
-    def add(self, rows: list[dict[str, Any]]) -> None:
-        rows = [to_jsonable(row) for row in rows]
-        if self.key is not None:
-            held = {self.key(row) for row in self._read()[0]}
-            for row in rows:
-                if self.key(row) in held:
-                    raise RecordError(
-                        f"{self.path} already holds the row {self.key(row)}: another process wrote it; run one "
-                        "writer per scene and seed"
-                    )
-                held.add(self.key(row))
-        self.rows.extend(rows)
-        append_plain_file(self.path, "".join(dumps(row) + "\n" for row in rows).encode(), "a duel's rows")
 
 
 OutcomeKey = tuple[str, int, str, int, tuple[float, ...]]

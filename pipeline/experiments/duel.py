@@ -62,7 +62,6 @@ from pipeline.episode.shared_training import Trained, train_models
 from pipeline.experiments.decisions import (
     DECISION,
     Contender,
-    JsonLines,
     Outcomes,
     Pick,
     candidate_set,
@@ -85,6 +84,7 @@ from pipeline.experiments.options import (
     setting_overrides,
     step_list,
 )
+from pipeline.experiments.row_files import JsonLines
 from pipeline.metrics.image import LpipsMetric
 from pipeline.metrics.ranking import spearman
 from pipeline.records.checked_files import read_json, read_json_lines
@@ -308,7 +308,7 @@ def duel_seed(call: Call, scene: Scene, seed: int, lpips: LpipsMetric) -> None:
         if any(p is pair for states in todo.values() for pairs in states.values() for p in pairs):
             pair.open(call.command)
     for name, states in todo.items():
-        rows = recorded_steps(call.records, scene.name, owners[name], seed, call.budget, max(call.steps), scene)
+        rows = recorded_steps(call.records, scene.name, owners[name], seed, call.budget, max(call.steps), scene).rows
         contenders = {c.name: c for pairs in states.values() for p in pairs for c in (p.method, p.rival)}
         episodes: dict[str, Episode] = {}
         try:

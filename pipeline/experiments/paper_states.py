@@ -1,7 +1,7 @@
 """``python -m pipeline.experiments.paper_states [overrides] [--scenes S,..] [--seeds N,..] [--steps K,..]
-[--budgets paper,cpu] [--state-budget cpu] [--records DIR] [--outcomes R,..] [--threads T]``: do the paper's
-findings hold at its scale? One-step decisions at states trained at the paper's counts, beside the same states
-at the cpu budget.
+[--budgets paper,cpu] [--state-budget cpu] [--records DIR] [--contenders C,..] [--outcomes R,..|all]
+[--vis-points P] [--threads T]``: do the benchmark's verdicts hold at the paper's scale? One-step decisions at
+states trained at the paper's counts, beside the same states at the cpu budget.
 
 A state (scene, seed, step ``k``) is the observations before step ``k`` of a recorded episode of
 ``--state-budget`` (default cpu: the committed episodes; the initial views and the poses selected at steps
@@ -10,34 +10,49 @@ as the duel alternates. For each budget of ``--budgets`` the state is rebuilt at
 rendered at the budget's image size by its ground truth (``budget=paper``: 512 px by Blender Cycles;
 ``render.backend=pyrender`` among the overrides to change it, and the rows say which), then
 
-1. each contender's model trained as its episode's step ``k`` trains it at that budget (NVF, w/o Vis., FisherRF,
-   ActiveNeRF: ``pipeline.experiments.decisions.train_models``, one model where their trainings agree and one
-   stage 1 for NVF's and ActiveNeRF's backbones);
-2. the budget's own candidate draw of step ``k`` (NVF's planner: 512 candidates at 300 px at the paper's budget)
+1. each contender's model trained as its episode's step ``k`` trains it (``--contenders``: NVF and any method or
+   ablation the duel takes; ``pipeline.episode.shared_training.train_models``, one model where their trainings
+   agree);
+2. the budget's own candidate draw of step ``k`` (NVF's planner: 512 candidates at 300 px at the paper's budget),
    scored by every contender, one render per chunk serving the scorers of one model (``score_poses_together``):
-   each contender's pick and its scores' spread (``ScoreSummary``, and the standard deviation over the mean's
-   magnitude: is the score flat?), and against NVF the Spearman correlation and whether the argmax agree;
+   each contender's pick, its pose and its scores' spread (``ScoreSummary``, and the standard deviation over the
+   mean's magnitude: is the score flat?), and against NVF the Spearman correlation and whether the argmax agree;
 3. the visibility field against the scene mesh: at ``--vis-points`` points on the mesh surface (0.01 outside it
    along the face normal) whether some camera of the state sees them (the mesh's exact line of sight, the truth),
    the labels ``V*`` of M17-M18 (bin centres, the budget's label samples) and NVF's head ``v``: the AUC of each;
-4. with ``--outcomes R,..`` (contenders), where NVF's pick and R's differ, each pick's one-step outcome: the plain
-   backbone trained with the pick at the budget's counts (seed of step ``k+1``) and its held-out PSNR on the 20
-   evaluation views (``decisions.heldout_psnr``).
+4. for every rival of ``--outcomes`` (default ``all``: every contender but NVF) whose pick differs from NVF's, the
+   one-step outcome of both picks: the plain backbone trained with the pick at the budget's counts (seed of step
+   ``k+1``) and its held-out PSNR on the 20 evaluation views (``decisions.heldout_psnr``).
+
+A state the folder already holds is extended, not measured again, when the call names contenders or outcomes its
+row lacks: the candidate draw reads only NVF's backbone (M28's density filter; the later stages leave the backbone
+as stage 1 left it, ``shared_training.serves``), so it is rebuilt from stage 1 alone (it cannot be rebuilt without a
+trained model); the contenders that train only that backbone are scored again (a pick the row holds must come out
+the same, else one ``error:`` line: the state was not rebuilt), the others keep the row's picks (``reused``), and
+the outcomes the row lacks are trained. The new row names the one it extends (``extends``, ``row_files``); the
+file keeps both.
+
+Every row says what it was made with (``made_with``: commit, dirty flag, threads, ground truth, the resolved values
+its overrides change in its budget, the sizes: ``pipeline.experiments.provenance``) and where its state came from
+(``source_record``: the record's digest and settings; a record planned otherwise than its budget's file is
+refused).
 
 Writes ``${paths.results}/pilots/paper_states/``: ``states.jsonl`` (a row per scene, seed, step and budget,
 written once the state is complete: a killed run resumes at its first missing state, after the models and the
-one-step outcomes that state had finished, kept under ``${paths.outputs}/paper_states/`` until its row is
-written, ``StateProgress``), ``setting.json`` (the
-overrides and ``--threads``: another set under the same folder is refused, as is another thread count, on which
-the numbers depend), ``command.txt``, then ``summary.csv`` and ``summary.md``
-(``pipeline.experiments.paper_states_summary``). Torch runs with ``--threads`` threads (default 1); run several
-processes on disjoint scenes or seeds to use more cores.
+one-step outcomes that state had finished, kept under ``${paths.outputs}/paper_states/`` by what the state is, its
+owner and its views, until its row is written, ``StateProgress``), ``setting.json`` (the overrides, the states'
+budget, ``--vis-points`` and ``--threads``: another set under the same folder is refused, as is another thread
+count, on which the numbers depend), ``command.txt``, then ``summary.csv`` and ``summary.md``
+(``pipeline.experiments.paper_states_summary``). Nothing is written before every scene, record and renderer the
+call needs is found. Torch runs with ``--threads`` threads (default 1); run several processes on disjoint scenes or
+seeds to use more cores.
 """
 
 import argparse
 import dataclasses
 import hashlib
 import json
+import pickle
 import shutil
 import sys
 import time
@@ -56,10 +71,9 @@ from pipeline.config.catalog import declared
 from pipeline.config.validation import compose_run
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
-from pipeline.episode.shared_training import Trained, load_trained, save_trained, train_models
+from pipeline.episode.shared_training import Trained, load_trained, save_trained, train_models, training_plan
 from pipeline.experiments.decisions import (
     Contender,
-    JsonLines,
     candidate_set,
     contender,
     heldout_psnr,
@@ -76,27 +90,46 @@ from pipeline.experiments.options import (
     setting_overrides,
     step_list,
 )
-from pipeline.experiments.paper_states_summary import FOLDER, SETTING, STATE, state_key, write_summary
+from pipeline.experiments.paper_states_summary import (
+    FOLDER,
+    LEGACY_VIS_POINTS,
+    SETTING,
+    STATE,
+    state_key,
+    write_summary,
+)
+from pipeline.experiments.provenance import made_with
+from pipeline.experiments.row_files import JsonLines, row_digest
 from pipeline.metrics.image import LpipsMetric
 from pipeline.metrics.ranking import auc, spearman
-from pipeline.records.checked_files import read_json, read_json_lines
-from pipeline.records.files import check_directory, make_directory
+from pipeline.records.checked_files import Each, Number, read_json, read_json_lines
+from pipeline.records.files import RecordError, check_directory, make_directory
 from pipeline.records.lock import RunLock
 from pipeline.records.store import check_seed
 from pipeline.repo import RUNS
-from pipeline.scenes.blender import blender_python
-from pipeline.scenes.loading import find_asset, load_scene, scene_config
+from pipeline.scenes.blender import blender_python, missing_python
+from pipeline.scenes.loading import load_scene, scene_config
 from pipeline.scenes.scene import Scene, SceneError
 
 SCENES = ("hubble", "default", "hotdog")
 SETTING_LOCK = ".setting"  # setting.json and command.txt are written under this lock of the folder
 STEPS = (2, 8, 14)
 BUDGETS = ("paper", "cpu")
-CONTENDERS = ("nvf", "wo_vis", "fisherrf", "activenerf")  # NVF first: the others are compared with it
+CONTENDERS = (
+    "nvf",
+    "wo_vis",
+    "fisherrf",
+    "activenerf",
+    "fvs_facing",
+    "cover",
+    "warprf",
+)  # NVF first: the others are compared with it
 OWNERS = ("nvf", "wo_vis")  # whose records the states come from, alternately
+ALL = "all"  # --outcomes: every rival
 VIS_POINTS = 4096
 SURFACE_OFFSET = 0.01  # scene units outside the surface, along the face normal
 OWN_KEYS = ("method", "rival", "ablation", "scene", "seed", "budget")  # the command's own: not config overrides
+DRAW = "(backbone)"  # the model the candidate draw reads when NVF's own is not trained: NVF's stage 1 alone
 
 
 def state_owner(i: int, seed: int) -> Contender:
@@ -136,7 +169,7 @@ def picks_of(
     for names in models.values():
         episode = episodes[names[0]]
         chosen = [scorers[name] for name in names]
-        assert all(scorer is not None for scorer in chosen), "every contender of CONTENDERS scores"
+        assert all(scorer is not None for scorer in chosen), "a contender without a scorer is refused by main"
         start = time.perf_counter()
         found = score_poses_together(
             trained[names[0]].model,
@@ -175,88 +208,196 @@ def visibility_agreement(episode: Episode, trained: Trained, obs: Observations, 
     }
 
 
-def measure_state(
-    call: "Call", scene: Scene, seed: int, k: int, owner: Contender, rows: list[dict], budget: str, episode: Episode
-) -> dict:
-    """One state at one budget: the row of the module docstring (``episode``: the owner's at this budget)."""
+def views_digest(obs: Observations) -> str:
+    """``sha256`` hex of a state's camera poses (float32 bytes, in order): what the state's views are."""
+    return hashlib.sha256(obs.c2w.detach().to(torch.float32).cpu().numpy().tobytes()).hexdigest()
+
+
+def pose_list(pose: torch.Tensor) -> list[float]:
+    """A pose ``[qx, qy, qz, qw, x, y, z]`` as the row records it."""
+    return [float(v) for v in pose.detach().cpu().tolist()]
+
+
+def pose_key(k: int, pose: torch.Tensor) -> tuple:
+    """A pick's outcome's identity at a state of step ``k``: the step and the pose rounded to 7 decimals."""
+    return (k, *(round(v, 7) for v in pose_list(pose)))
+
+
+def reusable(earlier: dict | None, episodes: dict[str, Episode]) -> list[str]:
+    """The contenders whose picks an extended state keeps from ``earlier`` (its row): those it holds whose model is
+    more than the plain backbone (NVF's and its ablations' heads, ActiveNeRF's auxiliary loss); the others are
+    scored again on the backbone the draw needs anyway."""
+    if earlier is None:
+        return []
+    backbone = backbone_plan(episodes["nvf"])
+    return [
+        name
+        for name in episodes
+        if name in earlier["contenders"] and training_plan(episodes[name].settings) != backbone
+    ]
+
+
+def backbone_only(settings: EpisodeSettings) -> EpisodeSettings:
+    """``settings`` with its method's training cut to stage 1 (NVF's: the backbone the candidate draw reads)."""
+    return dataclasses.replace(settings, method=dataclasses.replace(settings.method, stages=["backbone"]))
+
+
+def backbone_plan(episode: Episode) -> tuple[tuple, tuple]:
+    """The training plan of ``episode``'s stage 1 alone (NVF's: no auxiliary loss)."""
+    return training_plan(backbone_only(episode.settings))
+
+
+def measure_state(call: "Call", state: "State", episode: Episode, earlier: dict | None) -> dict:
+    """One state at one budget: the row of the module docstring (``episode``: the owner's at this budget, its
+    views those of the state; ``earlier``: the folder's row of this state, which the new row extends)."""
     start = time.perf_counter()
-    episode.replay(rows[len(episode.poses) - len(episode.scene.init_poses) : k])
+    episode.replay(state.rows[len(episode.poses) - len(episode.scene.init_poses) : state.k])
     replayed = time.perf_counter() - start
     obs = episode.observations()
+    budget = episode.settings.budget.name
     episodes = {
-        name: episode.as_method(settings_of(scene, contender(name), seed, budget, call.overrides))
-        for name in CONTENDERS
+        name: episode.as_method(settings_of(episode.scene, contender(name), state.seed, budget, call.overrides))
+        for name in call.contenders
     }
-    progress = StateProgress.open(call.saved / scene.name / f"seed_{seed}" / f"step_{k}_{budget}", call.saved)
-    trained = load_trained(progress.models, episodes, k)
+    reused = reusable(earlier, episodes)
+    measured = {name: e for name, e in episodes.items() if name not in reused}
+    if "nvf" not in measured:
+        nvf = episodes["nvf"]
+        measured[DRAW] = nvf.as_method(backbone_only(nvf.settings))
+    progress = StateProgress.open(
+        call.saved / state.folder(budget) / f"{state.owner.name}-{views_digest(obs)[:16]}", call.saved
+    )
+    trained = progress.load_models(measured, state.k)
     if trained is None:
-        trained = train_models(episodes, obs, k)
+        trained = train_models(measured, obs, state.k)
         progress.trained(trained, time.perf_counter() - start)
     else:
         progress.resumed(replayed)
-    candidates = candidate_set(episodes["nvf"], trained["nvf"].model, k, 0)
-    scores, prepare, seconds = picks_of(episodes, trained, obs, k, candidates)
+    draw = trained["nvf"] if "nvf" in trained else trained[DRAW]
+    candidates = candidate_set(episodes["nvf"], draw.model, state.k, 0)
+    scorers = {name: e for name, e in measured.items() if name != DRAW}
+    scores, prepare, seconds = picks_of(scorers, trained, obs, state.k, candidates)
     picks = {name: argmax_first(torch.from_numpy(values)) for name, values in scores.items()}
+    if earlier is not None:
+        again = [n for n in picks if n in earlier["contenders"] and earlier["contenders"][n]["pick"] != picks[n]]
+        if again:
+            fail(
+                f"{state.describe(budget)}: rebuilt, {again[0]} picks candidate {picks[again[0]]} where the folder's "
+                f"row has {earlier['contenders'][again[0]]['pick']}: the state was not rebuilt as it was measured; "
+                "move its rows aside to measure it afresh"
+            )
+        picks |= {name: earlier["contenders"][name]["pick"] for name in reused}
+    contenders = {}
+    for name in call.contenders:
+        if name in reused:
+            assert earlier is not None
+            found = dict(earlier["contenders"][name]) | {"reused": True}
+        else:
+            found = {
+                "spread": score_spread(scores[name]),
+                "shared_training": trained[name] is trained.get("nvf", draw),
+                "seconds": {"train": trained[name].seconds, "prepare": prepare[name], "score": seconds[name]},
+                "reused": False,
+            }
+        contenders[name] = found | {"pick": picks[name], "pose": pose_list(candidates[picks[name]])}
+    against = {}
+    for name in call.contenders[1:]:
+        same = picks[name] == picks["nvf"]
+        if name in scores and "nvf" in scores:
+            against[name] = {"spearman": spearman(scores["nvf"], scores[name]), "same_pick": same}
+        elif name in reused and "nvf" in reused and earlier is not None:
+            against[name] = earlier["against_nvf"][name]
+        else:  # NVF's scores and this rival's come from two runs: only the picks compare
+            against[name] = {"spearman": None, "same_pick": same}
     row: dict = {
-        "scene": scene.name,
-        "seed": seed,
-        "step": k,
+        "scene": state.scene.name,
+        "seed": state.seed,
+        "step": state.k,
         "budget": budget,
         "state_budget": call.state_budget,
-        "source": owner.name,
+        "source": state.owner.name,
         "ground_truth": episode.settings.render.backend,
         "views": obs.num_images,
         "candidates": int(candidates.shape[0]),
         "threads": call.threads,
-        "contenders": {
-            name: {
-                "pick": picks[name],
-                "spread": score_spread(scores[name]),
-                "shared_training": trained[name] is trained["nvf"],
-                "seconds": {"train": trained[name].seconds, "prepare": prepare[name], "score": seconds[name]},
-            }
-            for name in CONTENDERS
-        },
-        "against_nvf": {
-            name: {"spearman": spearman(scores["nvf"], scores[name]), "same_pick": picks[name] == picks["nvf"]}
-            for name in CONTENDERS[1:]
-        },
-        "visibility": visibility_agreement(episode, trained["nvf"], obs, call.vis_points, seed),
+        "made_with": made_with(state.scene.name, budget, call.overrides, call.threads),
+        "source_record": state.source,
+        "contenders": contenders,
+        "against_nvf": against,
+        "visibility": (
+            visibility_agreement(episode, trained["nvf"], obs, call.vis_points, state.seed)
+            if "nvf" in trained
+            else earlier["visibility"]  # type: ignore[index]  # NVF is reused only from an earlier row
+        ),
     }
-    outcomes = {}
+    row["outcomes"] = outcomes_of(call, state, episode, obs, candidates, picks, earlier, progress)
+    if earlier is not None:
+        row["extends"] = row_digest(earlier)
+    row["seconds"] = progress.seconds(start)
+    return row
+
+
+def outcomes_of(
+    call: "Call",
+    state: "State",
+    episode: Episode,
+    obs: Observations,
+    candidates: torch.Tensor,
+    picks: dict[str, int],
+    earlier: dict | None,
+    progress: "StateProgress",
+) -> dict:
+    """For every rival of ``call.outcomes`` whose pick differs from NVF's, both picks' held-out PSNR (an outcome the
+    earlier row holds for a pick is kept, ``reused``) and NVF's gain."""
+    known: dict[int, float] = {}  # pick -> held-out PSNR the earlier row holds
+    for name, found in (earlier or {}).get("outcomes", {}).items():
+        if name in earlier["contenders"]:  # type: ignore[index]  # earlier is a row here
+            known[earlier["contenders"]["nvf"]["pick"]] = found["nvf_psnr"]  # type: ignore[index]
+            known[earlier["contenders"][name]["pick"]] = found["rival_psnr"]  # type: ignore[index]
+    out = {}
     for name in call.outcomes:
         if picks[name] == picks["nvf"]:
             continue
-        found = {}
+        found, reused = {}, []
         for who in ("nvf", name):
-            pose = candidates[picks[who]]
-            key = (k, *(round(float(v), 7) for v in pose.tolist()))  # a pick's outcome at this state
+            pick = picks[who]
+            if pick in known:
+                found[who] = (known[pick], 0.0)
+                reused.append(who)
+                continue
+            key = pose_key(state.k, candidates[pick])
             if key not in progress.outcomes:
-                progress.add_outcome(key, heldout_psnr(episode, with_view(obs, episode, pose), k + 1))
+                progress.add_outcome(key, heldout_psnr(episode, with_view(obs, episode, candidates[pick]), state.k + 1))
             found[who] = progress.outcomes[key]
-        outcomes[name] = {
+        out[name] = {
             "nvf_psnr": found["nvf"][0],
             "rival_psnr": found[name][0],
             "gain": found["nvf"][0] - found[name][0],
             "seconds": found["nvf"][1] + found[name][1],
+            "reused": reused,
         }
-    row["outcomes"] = outcomes
-    row["seconds"] = progress.seconds(start)
-    return row
+    return out
+
+
+PROGRESS = {
+    "seconds": Number(0.0),
+    "outcomes": Each({"key": Each(Number()), "psnr": Number(0.0, 100.0), "seconds": Number(0.0)}),
+}
 
 
 @dataclasses.dataclass
 class StateProgress:
     """What a state has finished before its row, kept under ``paths.outputs`` so that a killed state resumes
     after it: its trained models (``models``: ``save_trained``) and, in ``progress.json``, the seconds spent up to
-    them and each one-step outcome taken (pose key, held-out PSNR and seconds). A resumed state's ``seconds`` are
-    those of one run: the earlier run's up to its models, plus this run's after its replay. Removed once the row
-    is written."""
+    them and each one-step outcome taken (pose key, held-out PSNR and seconds). Its folder is named by the state's
+    owner and the digest of its views, so another state never resumes from it. A resumed state's ``seconds`` are
+    those of one run: the earlier run's up to its models, plus this run's after them. Removed once the row is
+    written; a corrupt file is one ``error:`` line naming the folder to remove."""
 
     folder: Path
     spent: float = 0.0  # seconds from the state's start to its saved models
     outcomes: dict[tuple, tuple[float, float]] = dataclasses.field(default_factory=dict)
-    earlier: float = 0.0  # what this run's seconds add to: the earlier run's up to its models, less this replay
+    earlier: float = 0.0  # what this run's seconds add to: the earlier run's up to its models
 
     @property
     def models(self) -> Path:
@@ -266,15 +407,24 @@ class StateProgress:
     def open(folder: Path, root: Path) -> "StateProgress":
         """The progress kept in ``folder`` (below ``root``; created), or a fresh one."""
         make_directory(root, folder)
-        path = folder / "progress.json"
-        if not path.is_file():
-            return StateProgress(folder)
         try:
-            found = json.loads(path.read_text(encoding="utf-8"))
-            outcomes = {tuple(item["key"]): (float(item["psnr"]), float(item["seconds"])) for item in found["outcomes"]}
-            return StateProgress(folder, float(found["seconds"]), outcomes)
-        except (ValueError, KeyError, TypeError) as err:
-            fail(f"{path}: not a state's progress ({err}); remove {folder} to measure the state from the start")
+            found = read_json(folder / "progress.json", PROGRESS)
+        except RecordError as err:
+            fail(f"not a state's progress ({err}); remove {folder} to measure the state from the start")
+        if found is None:
+            return StateProgress(folder)
+        outcomes = {tuple(item["key"]): (float(item["psnr"]), float(item["seconds"])) for item in found["outcomes"]}
+        return StateProgress(folder, float(found["seconds"]), outcomes)
+
+    def load_models(self, episodes: dict[str, Episode], step: int) -> dict[str, Trained] | None:
+        """The models kept for ``episodes`` (``load_trained``), or None; one ``error:`` line for a file that is not
+        theirs."""
+        try:
+            return load_trained(self.models, episodes, step)
+        except (RuntimeError, ValueError, KeyError, TypeError, EOFError, IndexError, pickle.UnpicklingError) as err:
+            fail(
+                f"{self.models}: not a state's models ({type(err).__name__}); remove {self.folder} to train them again"
+            )
 
     def _write(self) -> None:
         outcomes = [{"key": list(key), "psnr": v[0], "seconds": v[1]} for key, v in self.outcomes.items()]
@@ -302,6 +452,25 @@ class StateProgress:
         return self.earlier + time.perf_counter() - start
 
 
+@dataclasses.dataclass(frozen=True)
+class State:
+    """A state: its scene, seed, step, owner, the record its views come from (``provenance.source_record``) and
+    that record's step rows."""
+
+    scene: Scene
+    seed: int
+    k: int
+    owner: Contender
+    source: dict
+    rows: list[dict]
+
+    def folder(self, budget: str) -> Path:
+        return Path(self.scene.name) / f"seed_{self.seed}" / f"step_{self.k}_{budget}"
+
+    def describe(self, budget: str) -> str:
+        return f"{self.scene.name} seed {self.seed} step {self.k} at {budget} ({self.owner.name}'s state)"
+
+
 @dataclasses.dataclass
 class Call:
     """What one command measures and where it writes."""
@@ -310,6 +479,7 @@ class Call:
     overrides: list[str]
     state_budget: str
     records: Path
+    contenders: list[str]
     outcomes: list[str]
     vis_points: int
     threads: int
@@ -317,26 +487,30 @@ class Call:
     saved: Path  # where states in progress keep what they finished (``StateProgress``)
 
 
-def run_scene(call: Call, scene_name: str, seeds: list[int], steps: list[int], budgets: list[str]) -> None:
-    """Every missing state of one scene, budget by budget; one writer per scene and seed (a lock), which reads
-    what is done once it holds it."""
+def complete(row: dict, call: Call) -> bool:
+    """Whether ``row`` holds every contender of ``call`` and the outcome of every rival of ``call.outcomes`` whose
+    pick differs from NVF's."""
+    held = row["contenders"]
+    if any(name not in held for name in call.contenders):
+        return False
+    return all(name in row["outcomes"] or held[name]["pick"] == held["nvf"]["pick"] for name in call.outcomes)
+
+
+def run_scene(call: Call, scene: Scene, seeds: list[int], steps: list[int], budget: str, device: torch.device) -> None:
+    """Every state of one scene at ``budget`` that the folder lacks or holds without what the call asks for; one
+    writer per scene and seed (a lock), which reads what is done once it holds it."""
     lpips = LpipsMetric()
-    for budget in budgets:
-        cfg = compose_run([f"scene={scene_name}", f"budget={budget}", *call.overrides])
-        try:
-            scene = load_scene(cfg.scene, Path(cfg.paths.assets), blender_python(cfg.paths.blender_python))
-        except SceneError as err:
-            fail(str(err))
-        for seed in seeds:
-            with RunLock(call.folder / scene_name / f"seed_{seed}", call.folder):
-                call.states = JsonLines(call.states.path, STATE, state_key)
-                done = {state_key(row) for row in call.states.rows}
-                by_owner: dict[str, list[int]] = {}
-                for i, k in enumerate(steps):
-                    if (scene_name, seed, k, budget) not in done:
-                        by_owner.setdefault(state_owner(i, seed).name, []).append(k)
-                for name, ks in by_owner.items():
-                    measure_owner(call, scene, seed, budget, contender(name), ks, lpips, resolve_device(cfg.device))
+    for seed in seeds:
+        with RunLock(call.folder / scene.name / f"seed_{seed}", call.folder):
+            call.states = JsonLines(call.states.path, STATE, state_key)
+            held = {state_key(row): row for row in call.states.rows}
+            by_owner: dict[str, list[int]] = {}
+            for i, k in enumerate(steps):
+                row = held.get((scene.name, seed, k, budget))
+                if row is None or not complete(row, call):
+                    by_owner.setdefault(state_owner(i, seed).name, []).append(k)
+            for name, ks in by_owner.items():
+                measure_owner(call, scene, seed, budget, contender(name), ks, held, lpips, device)
 
 
 def measure_owner(
@@ -346,53 +520,72 @@ def measure_owner(
     budget: str,
     owner: Contender,
     steps: list[int],
+    held: dict[tuple, dict],
     lpips: LpipsMetric,
     device: torch.device,
 ) -> None:
     """The states of ``owner``'s record at ``steps`` of one scene and seed at one budget, in one episode; each
-    state's row written once it is complete."""
-    rows = recorded_steps(call.records, scene.name, owner, seed, call.state_budget, max(steps), scene)
+    state's row written once it is complete (``held``: the folder's rows, which a state's row extends)."""
+    recorded = recorded_steps(call.records, scene.name, owner, seed, call.state_budget, max(steps), scene)
     episode = Episode(settings_of(scene, owner, seed, budget, call.overrides), scene, device, lpips)
     try:
         for k in sorted(steps):
-            row = measure_state(call, scene, seed, k, owner, rows, budget, episode)
+            state = State(scene, seed, k, owner, recorded.source, recorded.rows)
+            earlier = held.get((scene.name, seed, k, budget))
+            if earlier is not None:
+                check_same_state(state, budget, earlier)
+            row = measure_state(call, state, episode, earlier)
             call.states.add([row])
-            shutil.rmtree(call.saved / scene.name / f"seed_{seed}" / f"step_{k}_{budget}")
+            shutil.rmtree(call.saved / state.folder(budget))
             verdicts = ", ".join(
                 f"{n} {'same' if a['same_pick'] else 'differs'} (rho {a['spearman']})"
                 for n, a in row["against_nvf"].items()
             )
-            hours = row["seconds"] / 3600
-            print(
-                f"{scene.name} seed {seed} step {k} at {budget} ({owner.name}'s state, {hours:.2f} h): {verdicts}",
-                flush=True,
-            )
+            print(f"{state.describe(budget)}, {row['seconds'] / 3600:.2f} h: {verdicts}", flush=True)
     finally:
         episode.close()
 
 
-def check_setting(folder: Path, setting: dict) -> None:
-    """One ``error:`` line when ``folder`` holds another setting, or another thread count than its setting's or,
-    where the setting predates it, its rows'."""
+def check_same_state(state: State, budget: str, earlier: dict) -> None:
+    """One ``error:`` line when the folder's row of this state came from another owner or another record."""
+    theirs = (earlier.get("source_record") or {}).get("digest")
+    if earlier["source"] != state.owner.name or (theirs is not None and theirs != state.source["digest"]):
+        fail(
+            f"{state.describe(budget)}: the folder's row of this state came from {earlier['source']}'s record "
+            f"{theirs or '(digest not recorded)'}, not {state.source['run']} ({state.source['digest']}); pass "
+            "paths.results=DIR for states of other records"
+        )
+
+
+def setting_problem(folder: Path, setting: dict) -> str | None:
+    """Why ``folder`` takes no rows of ``setting``: it holds another setting (overrides, states' budget, label
+    points), or was made with another thread count than its setting's or, where the setting predates it, its
+    rows'; None when it takes them. Reads only."""
     made = read_json(folder / "setting.json", SETTING)
     if made is None:
-        return
-    if made["overrides"] != setting["overrides"]:
-        fail(
-            f"{folder} holds states made with overrides {made['overrides']}, not {setting['overrides']}; pass "
-            "paths.results=DIR for another setting"
-        )
+        return None
+    for key in ("overrides", "state_budget", "vis_points"):
+        theirs = made.get(key, LEGACY_VIS_POINTS if key == "vis_points" else None)
+        if theirs != setting[key]:
+            return (
+                f"{folder} holds states made with {key} {theirs}, not {setting[key]}; pass paths.results=DIR for "
+                "another setting"
+            )
     rows = read_json_lines(folder / "states.jsonl", STATE)[0]
-    other = other_threads(
+    return other_threads(
         folder, setting["threads"], {made["threads"]} if "threads" in made else {r["threads"] for r in rows}
     )
-    if other is not None:
-        fail(other)
+
+
+def check_setting(folder: Path, setting: dict) -> None:
+    """One ``error:`` line when ``folder`` takes no rows of ``setting`` (``setting_problem``)."""
+    problem = setting_problem(folder, setting)
+    if problem is not None:
+        fail(problem)
 
 
 def setting_digest(setting: dict) -> str:
-    """A short name of ``setting`` (overrides, states' budget, threads): states in progress of one setting never
-    resume another's."""
+    """A short name of ``setting``: states in progress of one setting never resume another's."""
     return hashlib.sha256(json.dumps(setting, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -409,6 +602,52 @@ def open_folder(root: Path, setting: dict, command: list[str]) -> Path:
         atomic_write_text(folder / "setting.json", json.dumps(setting, indent=2) + "\n")
         add_command(folder, command)
     return folder
+
+
+def contender_list(names: tuple[str, ...]) -> list[str]:
+    """``--contenders``: NVF first (added when not named), each a method or ablation the duel takes, with a
+    scorer (one ``error:`` line otherwise)."""
+    ordered = list(dict.fromkeys(["nvf", *names]))
+    for name in ordered:
+        try:
+            who = contender(name)
+        except ValueError as err:
+            fail(f"--contenders: {err}")
+        if compose_run(who.overrides).method.scorer() is None:
+            fail(f"--contenders {name}: it scores no view (it picks at random); name contenders that score views")
+    return ordered
+
+
+def outcome_list(names: tuple[str, ...], contenders: list[str]) -> list[str]:
+    """``--outcomes``: ``all`` (every rival) or rivals among the contenders (one ``error:`` line otherwise)."""
+    if names == (ALL,):
+        return contenders[1:]
+    unknown = [name for name in names if name not in contenders[1:]]
+    if unknown:
+        fail(f"--outcomes {unknown[0]}: name rivals among the contenders ({', '.join(contenders[1:])}) or {ALL}")
+    return list(names)
+
+
+def prepare_scenes(names: tuple[str, ...], budgets: list[str], overrides: list[str]) -> dict[tuple[str, str], Scene]:
+    """Each scene as built at each budget, and the ground-truth renderer it needs found, before anything is
+    written (one ``error:`` line for a missing asset, Blender or bad scene)."""
+    scenes = {}
+    for name in names:
+        for budget in budgets:
+            try:
+                scene_config(name)
+            except SceneError as err:
+                fail(str(err))
+            cfg = compose_run([f"scene={name}", f"budget={budget}", *overrides])
+            python = blender_python(cfg.paths.blender_python)
+            missing = missing_python(python) if cfg.render.backend == "blender" else None
+            if missing is not None:
+                fail(f"budget {budget} renders its ground truth with Blender: {missing}")
+            try:
+                scenes[name, budget] = load_scene(cfg.scene, Path(cfg.paths.assets), python)
+            except SceneError as err:
+                fail(str(err))
+    return scenes
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -436,10 +675,16 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("--records", type=Path, default=RUNS, help=f"where the records are (default {RUNS})")
     parser.add_argument(
+        "--contenders",
+        type=name_list,
+        default=CONTENDERS,
+        help=f"methods or ablations scored at each state, NVF first (default {','.join(CONTENDERS)})",
+    )
+    parser.add_argument(
         "--outcomes",
         type=name_list,
-        default=(),
-        help="contenders whose pick's one-step outcome is taken where it differs from NVF's (e.g. wo_vis)",
+        default=(ALL,),
+        help=f"rivals whose pick's one-step outcome is taken where it differs from NVF's (default {ALL})",
     )
     parser.add_argument(
         "--vis-points",
@@ -456,33 +701,29 @@ def main(argv: list[str] | None = None) -> None:
         seeds = [check_seed(seed) for seed in args.seeds]
     except ValueError as err:
         fail(f"--seeds: {err}")
-    unknown = [name for name in args.outcomes if name not in CONTENDERS[1:]]
-    if unknown:
-        fail(f"--outcomes {unknown[0]}: name contenders compared with NVF ({', '.join(CONTENDERS[1:])})")
+    contenders = contender_list(args.contenders)
+    outcomes = outcome_list(args.outcomes, contenders)
     bounded("--threads", args.threads, 1, cores(), "the cores this process may run on")
     bounded("--vis-points", args.vis_points, 1, 1 << 20)
     budgets = list(args.budgets)
     for budget in [*budgets, args.state_budget]:
         if budget not in declared("budget"):
             fail(f"budget {budget!r}: not one of conf/budget ({', '.join(declared('budget'))})")
-    for scene in args.scenes:
-        try:
-            found = scene_config(scene)
-            cfg = compose_run([f"scene={scene}", *args.overrides])
-            if found["source"] == "mesh":
-                find_asset(found, Path(cfg.paths.assets))
-        except SceneError as err:
-            fail(str(err))
-    for scene in args.scenes:  # every record a state needs, before anything is written
+    scenes = prepare_scenes(args.scenes, budgets, list(args.overrides))
+    for scene in args.scenes:  # every record a state needs, made on the scene as built, before anything is written
         for seed in seeds:
             for i, k in enumerate(args.steps):
-                recorded_steps(args.records, scene, state_owner(i, seed), seed, args.state_budget, k)
+                for budget in budgets:
+                    recorded_steps(
+                        args.records, scene, state_owner(i, seed), seed, args.state_budget, k, scenes[scene, budget]
+                    )
     torch.set_num_threads(args.threads)
     cfg = compose_run(args.overrides)
     root = Path(cfg.paths.results) / "pilots"
     setting = {
         "overrides": setting_overrides(list(args.overrides)),
         "state_budget": args.state_budget,
+        "vis_points": args.vis_points,
         "threads": args.threads,
     }
     folder = open_folder(root, setting, ["python", "-m", "pipeline.experiments.paper_states", *argv])
@@ -491,14 +732,16 @@ def main(argv: list[str] | None = None) -> None:
         list(args.overrides),
         args.state_budget,
         args.records,
-        list(args.outcomes),
+        contenders,
+        outcomes,
         args.vis_points,
         args.threads,
         JsonLines(folder / "states.jsonl", STATE, state_key),
         Path(cfg.paths.outputs) / "paper_states" / setting_digest(setting),
     )
     for scene in args.scenes:
-        run_scene(call, scene, seeds, list(args.steps), budgets)
+        for budget in budgets:
+            run_scene(call, scenes[scene, budget], seeds, list(args.steps), budget, resolve_device(cfg.device))
     for path in write_summary(folder):
         print(f"wrote {path}")
 

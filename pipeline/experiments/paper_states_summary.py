@@ -30,7 +30,9 @@ import pandas as pd
 from pipeline.atomic_write import atomic_write_text
 from pipeline.cli import ArgumentParser, description, fail, run_command
 from pipeline.config.validation import compose_run
-from pipeline.records.checked_files import Each, Entries, Number, Optional, Text, read_json_lines
+from pipeline.experiments.provenance import MADE_WITH, SOURCE_RECORD
+from pipeline.experiments.row_files import current_rows
+from pipeline.records.checked_files import Each, Entries, Number, Optional, Text, read_json, read_json_lines
 from pipeline.records.files import RecordError
 from pipeline.records.schema import MAX_HORIZON
 from pipeline.records.store import MAX_SEED
@@ -41,7 +43,13 @@ from pipeline.tables.table_formats import markdown_table
 FOLDER = "paper_states"
 RIVALS = ("wo_vis", "fisherrf", "activenerf")
 ALL = "all"
-SETTING = {"overrides": Each(Text()), "state_budget": Text(), "threads": Optional(Number(1, 4096, integer=True))}
+SETTING = {
+    "overrides": Each(Text()),
+    "state_budget": Text(),
+    "threads": Optional(Number(1, 4096, integer=True)),
+    "vis_points": Optional(Number(1, 1 << 20, integer=True)),
+}
+LEGACY_VIS_POINTS = 4096  # what a setting written before it held ``vis_points`` was made with (its rows say so)
 SPREAD = {
     "count": Number(0, 1 << 31, integer=True),
     "min": Number(),
@@ -63,8 +71,19 @@ STATE = {
     "views": Number(1, 1 << 16, integer=True),
     "candidates": Number(1, 1 << 31, integer=True),
     "threads": Number(1, 4096, integer=True),
+    "made_with": Optional(MADE_WITH),
+    "source_record": Optional(SOURCE_RECORD),
+    "extends": Optional(Text()),
     "contenders": Entries(
-        {"pick": Number(0, 1 << 31, integer=True), "spread": SPREAD, "shared_training": bool, "seconds": SECONDS}
+        {
+            "pick": Number(0, 1 << 31, integer=True),
+            "pose": Optional(Each(Number())),
+            "reused": Optional(bool),
+            "spread": SPREAD,
+            "shared_training": bool,
+            "seconds": SECONDS,
+        },
+        required=("nvf",),
     ),
     "against_nvf": Entries({"spearman": Number(-1.0, 1.0, null=True), "same_pick": bool}),
     "visibility": {
@@ -79,9 +98,10 @@ STATE = {
             "rival_psnr": Number(0.0, 100.0),
             "gain": Number(-100.0, 100.0),
             "seconds": Number(0.0),
+            "reused": Optional(Each(Text())),
         }
     ),
-    "seconds": Number(0.0),
+    "seconds": Number(0.0, 1e7),
 }
 
 
@@ -186,10 +206,26 @@ def twins(states: list[dict]) -> list[dict]:
     return out
 
 
+def state_problem(row: dict) -> str | None:
+    """What makes a state row unusable beyond its shape: a rival compared with NVF, or an outcome, of a contender
+    the row does not hold; None when it is whole."""
+    for part in ("against_nvf", "outcomes"):
+        stray = next((name for name in row[part] if name not in row["contenders"] or name == "nvf"), None)
+        if stray is not None:
+            return f"{part}.{stray} names no rival among its contenders ({', '.join(row['contenders'])})"
+    return None
+
+
 def read_states(folder: Path) -> list[dict]:
-    """``folder``'s ``states.jsonl``; a state held twice is refused (``RecordError`` naming it)."""
-    states, _ = read_json_lines(folder / "states.jsonl", STATE)
-    _refuse_repeats(states, str(folder / "states.jsonl"))
+    """``folder``'s ``states.jsonl``, its current rows (a row extended by a later one is left out,
+    ``decisions.current_rows``); a state held twice otherwise, or a row naming a rival it does not hold, is refused
+    (``RecordError`` naming it)."""
+    path = folder / "states.jsonl"
+    states = current_rows(read_json_lines(path, STATE)[0], state_key, str(path))
+    for row in states:
+        problem = state_problem(row)
+        if problem is not None:
+            raise RecordError(f"{path}: the state {state_key(row)}: {problem}; fix or delete its line")
     return states
 
 
@@ -205,10 +241,37 @@ def write_summary(folder: Path) -> list[Path]:
     return _write_tables(folder, "summary", read_states(folder), "", "`states.jsonl`")
 
 
+POOLED_SETTING = ("state_budget", "vis_points", "threads")  # what pooled folders share; their overrides may differ
+
+
+def pooled_setting(folder: Path) -> dict:
+    """What of ``folder``'s setting its pooled folders must share (``POOLED_SETTING``; a setting that predates
+    ``vis_points`` was made with ``LEGACY_VIS_POINTS``, one that predates ``threads`` with its rows')."""
+    made = read_json(folder / "setting.json", SETTING)
+    if made is None:
+        raise RecordError(f"{folder}: no setting.json; name a folder the paper_states command wrote")
+    threads = made.get("threads")
+    if threads is None:
+        threads = sorted({r["threads"] for r in read_states(folder)})
+    return {
+        "state_budget": made["state_budget"],
+        "vis_points": made.get("vis_points", LEGACY_VIS_POINTS),
+        "threads": threads,
+    }
+
+
 def write_pooled(folder: Path, pooled: list[Path]) -> list[Path]:
-    """``pooled.csv`` and ``pooled.md`` in ``folder``: the summary's tables over its states and ``pooled``'s."""
-    states, sources = read_states(folder), ["`states.jsonl`"]
+    """``pooled.csv`` and ``pooled.md`` in ``folder``: the summary's tables over its states and ``pooled``'s (folders of
+    the same states' budget, label points and threads; ``RecordError`` naming the first that differs)."""
+    states, sources, ours = read_states(folder), ["`states.jsonl`"], pooled_setting(folder)
     for other in pooled:
+        theirs = pooled_setting(other)
+        differs = next((key for key in POOLED_SETTING if theirs[key] != ours[key]), None)
+        if differs is not None:
+            raise RecordError(
+                f"{other} was made with {differs} {theirs[differs]}, {folder} with {ours[differs]}: their states do "
+                "not pool; pool folders of one setting"
+            )
         found = read_states(other)
         truths = ", ".join(sorted({r["ground_truth"] for r in found})) or "none"
         sources.append(f"`{other / 'states.jsonl'}` ({len(found)} states, ground truth {truths})")

@@ -60,7 +60,6 @@ from pipeline.diagnostics.visibility_report import visibility_report
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.experiments.decisions import (
-    JsonLines,
     candidate_set,
     contender,
     heldout_psnr,
@@ -76,6 +75,7 @@ from pipeline.experiments.options import (
     setting_overrides,
     step_list,
 )
+from pipeline.experiments.row_files import JsonLines
 from pipeline.experiments.visibility_summary import DECISION, DIAGNOSTIC, SETTING, STUDY, write_summary, write_surface
 from pipeline.metrics.image import LpipsMetric
 from pipeline.metrics.ranking import render_for_terms, spearman, term_attribution, ties_at_max, view_terms
@@ -177,7 +177,7 @@ def study_scene(
         todo = [k for k in steps if missing_sets(decisions, scene_name, seed, k, sets)]
         if not todo:
             continue
-        rows = recorded_steps(records, scene_name, contender("nvf"), seed, state_budget, max(steps), scene)
+        rows = recorded_steps(records, scene_name, contender("nvf"), seed, state_budget, max(steps), scene).rows
         seeded = compose_run([f"scene={scene_name}", f"seed={seed}", *overrides])
         episode = Episode(EpisodeSettings.of(seeded, scene), scene, resolve_device(seeded.device), lpips)
         try:

@@ -6,9 +6,9 @@ the file, the line or row, and the key.
 
 A shape is a ``Number`` (a range, whole or not, null allowed or not), ``Text``, ``bool`` (``Flag``: null allowed
 too), a dict of keys to shapes (an object with those keys; ``Optional`` for a key that may be missing, other keys
-are not read), ``Each`` (a list of one shape) or ``Entries`` (an object whose every value has one shape). Every
-value is also checked as a record value is (``record_value_problem``: nesting, text length, control characters,
-finite numbers).
+are not read), ``Each`` (a list of one shape), ``Entries`` (an object whose every value has one shape) or
+``Anything`` (any JSON value). Every value is also checked as a record value is (``record_value_problem``:
+nesting, text length, control characters, finite numbers).
 """
 
 import io
@@ -66,10 +66,16 @@ class Each:
 
 
 @dataclass(frozen=True)
+class Anything:
+    """Any JSON value (a setting's value, which may be a number, a text, a list or null)."""
+
+
+@dataclass(frozen=True)
 class Entries:
-    """An object whose every value has ``shape`` (any keys)."""
+    """An object whose every value has ``shape`` (any keys, ``required`` among them)."""
 
     shape: Any
+    required: tuple[str, ...] = ()
 
 
 def _number_problem(value: object, shape: Number) -> str | None:
@@ -89,6 +95,8 @@ def _number_problem(value: object, shape: Number) -> str | None:
 def shape_problem(value: object, shape: Any, where: str = "") -> str | None:
     """``<key>: <problem>`` for the first value of ``value`` that does not have ``shape``, or None."""
     key = where or "the value"
+    if isinstance(shape, Anything):
+        return None
     if isinstance(shape, Number):
         problem = _number_problem(value, shape)
         return None if problem is None else f"{key} is {problem}"
@@ -104,6 +112,9 @@ def shape_problem(value: object, shape: Any, where: str = "") -> str | None:
     if not isinstance(value, Mapping):
         return f"{key} is not an object"
     if isinstance(shape, Entries):
+        missing = [name for name in shape.required if name not in value]
+        if missing:
+            return f"{where}.{missing[0]} is missing" if where else f"{missing[0]} is missing"
         items = [(name, shape.shape) for name in value]
     else:
         items = list(shape.items())
