@@ -15,3 +15,27 @@ def test_a_command_is_added_once_in_first_run_order(tmp_path):
     add_command(tmp_path, ["python", "-m", "x", "--scenes", "hotdog"])  # a rerun is not a new line
     lines = (tmp_path / "command.txt").read_text().splitlines()
     assert lines == ["python -m x --scenes hotdog", "python -m x --label 'a b'"]
+
+
+def test_command_lines_name_folders_outside_the_repository_as_dir(tmp_path):
+    """A committed ``command.txt`` named the folders of the machine a study ran on (``paths.results=/work/...``);
+    now an absolute path outside the repository is kept as ``DIR``, paths inside it and other words as given."""
+    from pipeline.repo import RUNS
+
+    add_command(
+        tmp_path,
+        [
+            "python",
+            "-m",
+            "x",
+            f"paths.results={tmp_path}",
+            "--records",
+            "/elsewhere/runs",
+            "--records",
+            str(RUNS),
+            "seed=3",
+        ],
+    )
+    assert (
+        tmp_path / "command.txt"
+    ).read_text() == f"python -m x paths.results=DIR --records DIR --records {RUNS} seed=3\n"

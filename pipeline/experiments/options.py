@@ -12,6 +12,7 @@ from typing import TypeVar
 from pipeline.atomic_write import atomic_write_text
 from pipeline.records.checked_files import MAX_FILE_BYTES
 from pipeline.records.files import read_plain_file
+from pipeline.repo import REPO
 
 SEEDS = (100, 101, 102)  # the tables' three seeds: every experiment's default
 T = TypeVar("T")
@@ -79,8 +80,20 @@ def other_threads(folder: Path, threads: int, counts: set[int]) -> str | None:
     )
 
 
+def portable(word: str) -> str:
+    """A command's word as ``command.txt`` keeps it: an absolute path outside the repository (``paths.*=PATH``,
+    ``--records PATH``) as ``DIR``, which names no folder of the machine it ran on."""
+    key, _, value = word.rpartition("=")
+    path = Path(value)
+    if path.is_absolute() and not path.resolve().is_relative_to(REPO):
+        return f"{key}=DIR" if key else "DIR"
+    return word
+
+
 def add_command(folder: Path, words: list[str]) -> None:
-    """Add the command ``words`` to ``folder/command.txt`` (one per line, each once, in first-run order)."""
+    """Add the command ``words`` (``portable``) to ``folder/command.txt`` (one per line, each once, in first-run
+    order)."""
     path = folder / "command.txt"
     commands = (read_plain_file(path, MAX_FILE_BYTES) or b"").decode("utf-8", "replace").splitlines()
-    atomic_write_text(path, "\n".join(dict.fromkeys([*commands, shlex.join(words)])) + "\n")
+    line = shlex.join(portable(word) for word in words)
+    atomic_write_text(path, "\n".join(dict.fromkeys([*commands, line])) + "\n")

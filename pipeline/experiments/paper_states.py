@@ -98,7 +98,7 @@ from pipeline.experiments.paper_states_summary import (
     state_key,
     write_summary,
 )
-from pipeline.experiments.provenance import made_with
+from pipeline.experiments.provenance import checkout, made_with
 from pipeline.experiments.row_files import JsonLines, row_digest
 from pipeline.metrics.image import LpipsMetric
 from pipeline.metrics.ranking import auc, spearman
@@ -320,7 +320,7 @@ def measure_state(call: "Call", state: "State", episode: Episode, earlier: dict 
         "views": obs.num_images,
         "candidates": int(candidates.shape[0]),
         "threads": call.threads,
-        "made_with": made_with(state.scene.name, budget, call.overrides, call.threads),
+        "made_with": made_with(call.git, state.scene.name, budget, call.overrides, call.threads),
         "source_record": state.source,
         "contenders": contenders,
         "against_nvf": against,
@@ -485,6 +485,7 @@ class Call:
     threads: int
     states: JsonLines
     saved: Path  # where states in progress keep what they finished (``StateProgress``)
+    git: dict  # the checkout's commit and dirty flag when the command started (``provenance.checkout``)
 
 
 def complete(row: dict, call: Call) -> bool:
@@ -718,6 +719,7 @@ def main(argv: list[str] | None = None) -> None:
                         args.records, scene, state_owner(i, seed), seed, args.state_budget, k, scenes[scene, budget]
                     )
     torch.set_num_threads(args.threads)
+    git = checkout()
     cfg = compose_run(args.overrides)
     root = Path(cfg.paths.results) / "pilots"
     setting = {
@@ -738,6 +740,7 @@ def main(argv: list[str] | None = None) -> None:
         args.threads,
         JsonLines(folder / "states.jsonl", STATE, state_key),
         Path(cfg.paths.outputs) / "paper_states" / setting_digest(setting),
+        git,
     )
     for scene in args.scenes:
         for budget in budgets:

@@ -64,14 +64,18 @@ def flat(value: Any, prefix: str = "") -> dict[str, Any]:
     return out
 
 
-def made_with(scene: str, budget: str, overrides: list[str], threads: int, own: list[str] | None = None) -> dict:
-    """The provenance of a row made at ``budget`` on ``scene`` with ``overrides`` (``own``: the contender's
-    method and ablation, compared with the budget's file under them, so that they are not counted as
-    differences)."""
-    base = [f"scene={scene}", f"budget={budget}", *(own or [])]
+def checkout() -> dict:
+    """The commit and dirty flag of the repository a command runs from, read once when it starts (before it writes
+    its own files, which would make the checkout dirty)."""
+    return git_state(REPO)
+
+
+def made_with(git: dict, scene: str, budget: str, overrides: list[str], threads: int) -> dict:
+    """The provenance of a row made from the checkout ``git`` (``checkout``) at ``budget`` on ``scene`` with
+    ``overrides``."""
+    base = [f"scene={scene}", f"budget={budget}"]
     plain, run = compose_run(base), compose_run([*base, *overrides])
     before, after = flat(plain.composed), flat(run.composed)
-    git = git_state(REPO)
     return {
         "commit": git["commit"],
         "dirty": git["dirty"],
