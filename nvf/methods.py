@@ -34,6 +34,7 @@ from nvf.uncertainty.scorers import StepScorer, ViewScorer
 from nvf.warp_consistency import WarpScorer
 
 RUN_SETTING = "run_setting"  # a field's metadata key: the run config key its value comes from
+MAX_PERTURBATION_VERTICES = 1 << 28  # Bayes' Rays' grid (M34): 2 GB of its float64 Hessian diagonal
 
 
 def run_setting(key: str, default: Callable[[], Any]) -> Any:
@@ -246,6 +247,12 @@ class BayesRays(Method):
     def unsupported(self) -> str | None:
         if self.cells_per_grid_cell < 1:
             return f"cells_per_grid_cell={self.cells_per_grid_cell} must be at least 1 (docs/METHOD.md M34)"
+        vertices = (self.cells_per_grid_cell * self.grid_resolution + 1) ** 3
+        if vertices > MAX_PERTURBATION_VERTICES:
+            return (
+                f"cells_per_grid_cell={self.cells_per_grid_cell} makes M34's grid {vertices:.2e} vertices at "
+                f"sampler.grid_resolution={self.grid_resolution} (at most 2^28, 2 GB of float64 Hessian); lower it"
+            )
         return None
 
 

@@ -457,6 +457,10 @@ def test_duel_on_smoke_records_resumes_after_a_kill(smoke_records, tmp_path, cap
         ]  # fmt: skip
         assert all(r["source_pick_recorded"] for r in found if r["set"] == 0)
         for r in found:
+            assert r["made_with"]["budget"] == "smoke" and r["made_with"]["threads"] == 1
+            assert r["source_record"]["run"].startswith("default/") and r["source_record"]["digest"].startswith(
+                "sha256:"
+            )
             assert r["same_pick"] == (r["method_pick"] == r["rival_pick"])
             assert r["same_pick"] or (math.isfinite(r["gain"]) and r["gain"] == r["method_psnr"] - r["rival_psnr"])
     assert not any(r["shared_training"] for r in rows["activenerf"])

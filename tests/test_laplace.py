@@ -70,3 +70,17 @@ def test_uncertainty_falls_where_a_view_is_added():
     assert hit.sum() > 4 and u_after.mean() < u_before.mean() - 0.01
     assert (u_after[hit] < u_before[hit]).float().mean() > 0.8
     assert torch.isclose(before.view_score(model, origins, dirs, 7), u_before.mean(), rtol=1e-6)
+
+
+def test_a_perturbation_grid_too_large_to_allocate_is_one_line(capsys):
+    """``method.cells_per_grid_cell=1000`` made M34's grid 2.6e14 vertices and died allocating it (262 TB); now the
+    setting is refused before any work, naming the key."""
+    import pytest
+
+    from pipeline.config.validation import compose_run
+
+    with pytest.raises(SystemExit) as exit_:
+        compose_run(["method=bayesrays", "method.cells_per_grid_cell=1000"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and "cells_per_grid_cell=1000" in err and "2^28" in err and err.count("\n") == 1
+    assert compose_run(["method=bayesrays", "budget=paper"]).method.unsupported() is None  # the paper's 256^3

@@ -85,7 +85,9 @@ def test_versions_are_told_apart_by_their_content_before_record_version():
     assert inferred_version({"candidate_filters": True, "steps_digest": "sha256:0"}) == 2
     assert inferred_version({"candidate_filters": True, "record_digest": "sha256:0"}) == 3
     assert inferred_version({"candidate_filters": True}) == 3  # unfinished: versions 2 and 3 wrote the same keys
-    assert record_version({"record_version": 2, "record_digest": "sha256:0"}) == 2  # written: it decides
+    assert record_version({"record_version": 3, "candidate_filters": True}) == 3  # written: it decides
+    with pytest.raises(ValueError, match="holds keys only version 3 and later write"):  # unless its keys contradict it
+        record_version({"record_version": 2, "record_digest": "sha256:0"})
     for bad in (0, RECORD_VERSION + 1, "3", True):
         with pytest.raises(ValueError, match="not a record version from 1 to"):
             record_version({"record_version": bad})
@@ -101,6 +103,8 @@ def test_version_1_to_2_adds_what_version_1_chose_and_keeps_what_it_recorded():
     recorded = {"scene": "room", "collision_free": False, "config": config}
     assert version_1_to_2(recorded, [])[0] == recorded | {"candidate_filters": True}  # recorded: kept, not Room's
     assert version_1_to_2({"scene": "hotdog", "config": {}}, [])[0]["collision_free"] is False
+    held = {"scene": "hotdog", "config": {}, "candidate_filters": False}
+    assert version_1_to_2(held, [])[0]["candidate_filters"] is False  # a value the record holds is never changed
 
 
 def test_version_2_to_3_marks_ties_not_counted_and_leaves_counted_ones():
@@ -131,6 +135,19 @@ def test_a_versioned_record_is_held_to_its_own_version(tmp_path):
         verified(record)
     record.run_json.write_text(json.dumps(info | {"record_version": RECORD_VERSION + 1}))
     with pytest.raises(RecordError, match=rf"run.json: record_version is {RECORD_VERSION + 1}, not a record version"):
+        verified(record)
+
+
+def test_a_version_its_keys_contradict_is_refused(tmp_path):
+    """A finished record edited (PSNR 99), its digest removed and ``record_version: 1`` added read as version 1,
+    which takes no digest, and entered the tables; its ``candidate_filters`` shows a digest-taking version wrote
+    it, so the claim is refused, naming the key."""
+    record = _write(tmp_path, 3, versioned=True)
+    record.steps_path.write_text(record.steps_path.read_text().replace('"psnr": 20.0', '"psnr": 99.0', 1))
+    info = json.loads(record.run_json.read_text())
+    del info["record_digest"]
+    record.run_json.write_text(json.dumps(info | {"record_version": 1}))
+    with pytest.raises(RecordError, match="record_version is 1, but run.json holds keys only version 2 and later"):
         verified(record)
 
 

@@ -328,3 +328,37 @@ def test_show_cli_bad_input(capsys):
         main(["show", "lego", "paths.assets=/nonexistent"])
     err = capsys.readouterr().err
     assert info.value.code == 2 and len(err.strip().splitlines()) == 1 and "lego_proxy" in err
+
+
+def test_show_reads_the_scenes_own_overrides_and_bounds_its_resolution(tmp_path, capsys):
+    """``scenes show`` ignored ``scene.*`` overrides (``scene.asset``, the boxes) and drew the declared scene; it
+    now builds the scene the overrides declare, so a misplaced box is refused as a run refuses it. ``--res
+    100000`` asked for 37 GiB of images; the resolution is bounded."""
+    from pipeline.scenes.__main__ import main
+
+    with pytest.raises(SystemExit) as info:
+        main(["show", "default", "scene.tight_box=[[5,5,5],[6,6,6]]", f"paths.results={tmp_path}"])
+    err = capsys.readouterr().err
+    assert info.value.code == 2 and err.count("\n") == 1 and "box" in err
+    with pytest.raises(SystemExit) as info:
+        main(["show", "default", "--res", "100000", f"paths.results={tmp_path}"])
+    err = capsys.readouterr().err
+    assert info.value.code == 2 and "--res 100000: must be 8..2048" in err
+    assert not (tmp_path / "figures").exists()
+
+
+def test_a_record_predating_its_asset_name_is_held_to_its_scenes_declared_file():
+    """A mesh record that predates ``ground_truth.asset`` (every committed NVF record) took any build of its scene
+    (a box as hotdog's state); it was built from the scene's declared file, so a build from another is refused."""
+    import dataclasses
+    from pathlib import Path
+
+    from pipeline.scenes.ground_truth import built_differently
+
+    declared = ("hotdog/hotdog_nvf_geom_heuristic_colors.ply",)
+    scene = dataclasses.replace(load_scene("default"), source="mesh", declared_files=declared)
+    legacy = {"scene_source": "mesh"}
+    box = dataclasses.replace(scene, asset=Path("/assets/hotdog/hotdog.glb"))
+    assert "predates ground_truth.asset" in (built_differently(legacy, box) or "")
+    assert built_differently(legacy, dataclasses.replace(scene, asset=Path("/assets") / declared[0])) is None
+    assert built_differently({"scene_source": "procedural"}, load_scene("default")) is None

@@ -45,6 +45,8 @@ def make_run(
     config=None,
     source=None,
     ground_truth=None,
+    extra=None,
+    repo=None,
 ) -> RunRecord:
     """A synthetic run: `steps` step rows (smoke's horizon, 3), the last one carrying `final` metric values
     (others 0); its config's horizon is `steps` unless `config` sets one."""
@@ -57,7 +59,7 @@ def make_run(
     if ground_truth is not None:
         info["ground_truth"] = ground_truth
     info["lpips_missing_reason"] = lpips_reason
-    record.start(info, repo=root)
+    record.start({**info, **(extra or {})}, repo=repo or root)
     base = {m: 0.5 for m in METRICS}
     for step in range(steps):
         metrics = {**base, **(final or {})} if step == steps - 1 else {m: 0.0 for m in METRICS}
@@ -483,6 +485,29 @@ def test_rows_planned_with_the_mesh_line_of_sight_are_marked(tmp_path):
     assert md.count("‡") == 2 and "‡ Planned with an oracle: M29's line-of-sight filter used the scene mesh" in md
     assert r"NVF$^\ddagger$" in read(tmp_path / "res" / "tables" / "main.tex")
     assert "‡" not in read(tmp_path / "res" / "tables" / "table34_nerf_assets.md")
+
+
+def test_rows_whose_seeds_were_made_otherwise_are_marked(tmp_path):
+    """A row pooling a seed of another torch thread count, or one made from a checkout with uncommitted changes,
+    is marked (° and a footnote); rows whose seeds were made alike are not."""
+    out, repo = tmp_path / "out", tmp_path / "repo"
+    repo.mkdir()
+    for args in (
+        ["init", "-q"],
+        ["-c", "user.name=t", "-c", "user.email=t@t", "commit", "-q", "--allow-empty", "-m", "x"],
+    ):
+        subprocess.run(["git", "-C", str(repo), *args], check=True)
+    (repo / "changed.py").write_text("")
+    make_run(out, seed=100, extra={"torch_threads": 1})
+    make_run(out, seed=101, extra={"torch_threads": 2})
+    make_run(out, scene="room", seed=100, extra={"torch_threads": 1}, repo=repo)
+    for seed in (100, 101):
+        make_run(out, method="random", seed=seed, extra={"torch_threads": 1})
+    build_tables(out, [], tmp_path / "res", figures=False)
+    table = pd.read_csv(tmp_path / "res" / "tables" / "main.csv", comment="#")
+    rows = set(zip(table["Scene"], table["Method"], strict=True))
+    assert rows == {("hubble", "NVF°"), ("room", "NVF°"), ("hubble", "Random")}
+    assert "° Not made as its siblings" in read(tmp_path / "res" / "tables" / "main.md")
 
 
 def test_rows_scored_with_the_mesh_visibility_are_marked(tmp_path):

@@ -194,6 +194,8 @@ def test_study_on_a_smoke_record(tmp_path):
     rows = [json.loads(line) for line in (folder / "decisions.jsonl").read_text().splitlines()]
     assert [(r["step"], r["set"]) for r in rows] == [(0, 0), (0, 1), (1, 0), (1, 1)]
     for row in rows:
+        assert row["made_with"]["budget"] == "smoke" and row["made_with"]["sizes"]["image"] == 24
+        assert row["source_record"]["run"] == "default/nvf-argmax-none/smoke/seed_100"
         assert row["terms"]["wo_vis"]["terms"]["unknown"]["std"] == 0.0
         assert row["same_argmax"] or math.isfinite(row["gain"])
     assert (folder / "default_diagnostic.json").is_file() and (

@@ -36,7 +36,7 @@ from pipeline.config.catalog import ablation_configs, declared
 from pipeline.config.validation import compose_run
 from pipeline.episode.evaluation import render_view
 from pipeline.episode.loop import Episode
-from pipeline.experiments.provenance import flat, source_record
+from pipeline.experiments.provenance import MADE_WITH, SOURCE_RECORD, flat, source_record
 from pipeline.experiments.row_files import JsonLines
 from pipeline.metrics.image import psnr
 from pipeline.records.checked_files import Each, Flag, Number, Optional, Text
@@ -229,6 +229,8 @@ DECISION = {
     "spearman": Optional(Number(-1.0, 1.0, null=True)),
     "gain": Optional(Number(-100.0, 100.0)),  # dB
     "source_pick_recorded": Optional(Flag(null=True)),
+    "made_with": Optional(MADE_WITH),
+    "source_record": Optional(SOURCE_RECORD),
     "seconds": {"method": SECONDS, "rival": SECONDS},
 }
 

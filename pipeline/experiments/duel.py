@@ -64,6 +64,7 @@ from pipeline.experiments.decisions import (
     Contender,
     Outcomes,
     Pick,
+    Recorded,
     candidate_set,
     contender,
     decision_key,
@@ -84,6 +85,7 @@ from pipeline.experiments.options import (
     setting_overrides,
     step_list,
 )
+from pipeline.experiments.provenance import checkout, made_with
 from pipeline.experiments.row_files import JsonLines
 from pipeline.metrics.image import LpipsMetric
 from pipeline.metrics.ranking import spearman
@@ -166,6 +168,7 @@ class Call:
     threads: int
     outcomes: Outcomes
     budget: str  # of the records the states come from
+    git: dict  # the checkout's commit and dirty flag when the command started (``provenance.checkout``)
     command: list[str] = field(default_factory=list)  # added to each pair's command.txt before its first rows
 
 
@@ -190,7 +193,9 @@ class State:
     prepare: dict[str, float]
     candidates: list[torch.Tensor]
     picks: dict[tuple[str, int], Pick]
+    made_with: dict  # what the state's rows are made with (``provenance.made_with``)
     recorded: int | None  # the owner's record's pick at this step
+    source: dict  # the owner's record (``provenance.source_record``)
 
     def outcome(self, call: Call, pair: Pair, pose: torch.Tensor) -> tuple[float, float]:
         """Held-out PSNR and seconds of the pick at ``pose`` (``heldout_psnr``), computed once per pose."""
@@ -231,6 +236,8 @@ def decision_rows(call: Call, pair: Pair, state: State) -> list[dict]:
             "source_pick_recorded": state.picks[(state.owner, 0)].index == state.recorded if index == 0 else None,
             "shared_training": state.trained[a] is state.trained[b],
             "threads": call.threads,
+            "made_with": state.made_with,
+            "source_record": state.source,
         }
         seconds = {
             name: {"train": state.trained[name].seconds, "prepare": state.prepare[name], "score": picks[name].seconds}
@@ -246,8 +253,11 @@ def decision_rows(call: Call, pair: Pair, state: State) -> list[dict]:
     return rows
 
 
-def measure_state(call: Call, episodes: dict[str, Episode], owner: str, rows: list[dict], k: int, pairs: list[Pair]):
+def measure_state(
+    call: Call, episodes: dict[str, Episode], owner: str, recorded: Recorded, k: int, pairs: list[Pair]
+) -> None:
     """Train, draw and pick at the state of ``owner``'s record before step ``k``, then write each pair's rows."""
+    rows = recorded.rows
     needed = {owner} | {name for pair in pairs for name in (pair.method.name, pair.rival.name)}
     active = {name: episodes[name] for name in episodes if name in needed}
     for episode in active.values():
@@ -268,8 +278,23 @@ def measure_state(call: Call, episodes: dict[str, Episode], owner: str, rows: li
         for index in range(call.sets)
     }
     seed, scene = source.settings.seed, source.scene.name
-    recorded = rows[k].get("selected_index")
-    state = State(owner, scene, seed, k, source, obs, trained, prepare, candidates, picks, recorded)
+    budget = source.settings.budget.name
+    made = made_with(call.git, scene, budget, call.overrides, call.threads)
+    state = State(
+        owner,
+        scene,
+        seed,
+        k,
+        source,
+        obs,
+        trained,
+        prepare,
+        candidates,
+        picks,
+        made,
+        rows[k].get("selected_index"),
+        recorded.source,
+    )
     lines = []
     for pair in pairs:
         found = decision_rows(call, pair, state)
@@ -308,14 +333,14 @@ def duel_seed(call: Call, scene: Scene, seed: int, lpips: LpipsMetric) -> None:
         if any(p is pair for states in todo.values() for pairs in states.values() for p in pairs):
             pair.open(call.command)
     for name, states in todo.items():
-        rows = recorded_steps(call.records, scene.name, owners[name], seed, call.budget, max(call.steps), scene).rows
+        recorded = recorded_steps(call.records, scene.name, owners[name], seed, call.budget, max(call.steps), scene)
         contenders = {c.name: c for pairs in states.values() for p in pairs for c in (p.method, p.rival)}
         episodes: dict[str, Episode] = {}
         try:
             for who in contenders.values():
                 episodes[who.name] = open_episode(call, scene, who, seed, lpips)
             for k in sorted(states):
-                measure_state(call, episodes, name, rows, k, states[k])
+                measure_state(call, episodes, name, recorded, k, states[k])
         finally:
             for episode in episodes.values():
                 episode.close()
@@ -425,7 +450,9 @@ def main(argv: list[str] | None = None) -> None:
     setting = {"method": method.name, "overrides": kept, "budget": cfg.budget.name, "threads": args.threads}
     if state_budget != cfg.budget.name:
         setting["state_budget"] = state_budget  # the states' records are of another budget
-    planned = Call([], overrides, seeds, steps, args.sets, args.records, args.threads, Outcomes([]), state_budget)
+    planned = Call(
+        [], overrides, seeds, steps, args.sets, args.records, args.threads, Outcomes([]), state_budget, checkout()
+    )
     for scene, seed, rival in itertools.product(scenes, seeds, rivals):  # every record a state needs, before writing
         for i, _ in enumerate(steps):
             recorded_steps(

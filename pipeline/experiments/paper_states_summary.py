@@ -260,9 +260,9 @@ def pooled_setting(folder: Path) -> dict:
     }
 
 
-def write_pooled(folder: Path, pooled: list[Path]) -> list[Path]:
-    """``pooled.csv`` and ``pooled.md`` in ``folder``: the summary's tables over its states and ``pooled``'s (folders of
-    the same states' budget, label points and threads; ``RecordError`` naming the first that differs)."""
+def pooled_states(folder: Path, pooled: list[Path]) -> tuple[list[dict], list[str]]:
+    """``folder``'s states and ``pooled``'s (folders of the same states' budget, label points and threads;
+    ``RecordError`` naming the first that differs, or a state held twice), and where each came from."""
     states, sources, ours = read_states(folder), ["`states.jsonl`"], pooled_setting(folder)
     for other in pooled:
         theirs = pooled_setting(other)
@@ -277,6 +277,13 @@ def write_pooled(folder: Path, pooled: list[Path]) -> list[Path]:
         sources.append(f"`{other / 'states.jsonl'}` ({len(found)} states, ground truth {truths})")
         states += found
     _refuse_repeats(states, f"{folder} pooled with {', '.join(map(str, pooled))}")
+    return states, sources
+
+
+def write_pooled(folder: Path, pooled: list[Path]) -> list[Path]:
+    """``pooled.csv`` and ``pooled.md`` in ``folder``: the summary's tables over its states and ``pooled``'s
+    (``pooled_states``)."""
+    states, sources = pooled_states(folder, pooled)
     return _write_tables(folder, "pooled", states, " --pool ...", " and ".join(sources))
 
 

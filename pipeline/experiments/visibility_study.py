@@ -75,6 +75,7 @@ from pipeline.experiments.options import (
     setting_overrides,
     step_list,
 )
+from pipeline.experiments.provenance import checkout, made_with
 from pipeline.experiments.row_files import JsonLines
 from pipeline.experiments.visibility_summary import DECISION, DIAGNOSTIC, SETTING, STUDY, write_summary, write_surface
 from pipeline.metrics.image import LpipsMetric
@@ -167,9 +168,11 @@ def study_scene(
     records: Path,
     decisions: JsonLines,
     state_budget: str,
+    git: dict,
 ) -> None:
     """Every missing (seed, step) state of one scene (``run``: the scene's config with the setting's
-    ``overrides``; ``state_budget``: the budget of the records the states come from)."""
+    ``overrides``; ``state_budget``: the budget of the records the states come from; ``git``: the checkout the
+    command started from, ``provenance.checkout``), each row saying what it was made with and from which record."""
     scene_name = run.scene.name
     scene = load_scene(run.scene, Path(run.paths.assets), blender_python(run.paths.blender_python))
     lpips = LpipsMetric()
@@ -177,7 +180,9 @@ def study_scene(
         todo = [k for k in steps if missing_sets(decisions, scene_name, seed, k, sets)]
         if not todo:
             continue
-        rows = recorded_steps(records, scene_name, contender("nvf"), seed, state_budget, max(steps), scene).rows
+        recorded = recorded_steps(records, scene_name, contender("nvf"), seed, state_budget, max(steps), scene)
+        rows = recorded.rows
+        made = made_with(git, scene_name, run.budget.name, overrides, torch.get_num_threads())
         seeded = compose_run([f"scene={scene_name}", f"seed={seed}", *overrides])
         episode = Episode(EpisodeSettings.of(seeded, scene), scene, resolve_device(seeded.device), lpips)
         try:
@@ -201,6 +206,8 @@ def study_scene(
                             "set": index,
                             "train_seconds": train_seconds,
                             **row,
+                            "made_with": made,
+                            "source_record": recorded.source,
                         }
                     )
                 decisions.add(found)
@@ -245,6 +252,7 @@ def main(argv: list[str] | None = None) -> None:
     bounded("--sets", args.sets, 1, MAX_SETS)
     bounded("--threads", args.threads, 1, cores(), "the cores this process may run on")
     torch.set_num_threads(args.threads)
+    git = checkout()
     cfg = compose_run(args.overrides)
     state_budget = cfg.budget.name if args.state_budget is None else args.state_budget
     if state_budget not in declared("budget"):
@@ -292,7 +300,7 @@ def main(argv: list[str] | None = None) -> None:
             )
             atomic_write_text(out / f"{scene}_diagnostic.json", json.dumps(report, indent=2) + "\n")
         try:
-            study_scene(scene_cfg, args.overrides, seeds, steps, args.sets, args.records, decisions, state_budget)
+            study_scene(scene_cfg, args.overrides, seeds, steps, args.sets, args.records, decisions, state_budget, git)
         except SceneError as err:
             fail(str(err))
     write_summary(Path(cfg.paths.results) / "pilots" / STUDY)

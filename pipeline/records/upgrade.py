@@ -37,9 +37,18 @@ def inferred_version(info: dict) -> int:
     return 3
 
 
+def lowest_version(info: dict) -> int:
+    """The oldest record version that writes every key ``info`` holds: 3 with ``record_digest``, 2 with
+    ``candidate_filters`` (``DIGEST_ERA_KEY``), else 1."""
+    if DIGEST_KEY in info:
+        return 3
+    return 2 if DIGEST_ERA_KEY in info else 1
+
+
 def record_version(info: dict) -> int:
-    """run.json's ``record_version`` (an integer from 1 to ``RECORD_VERSION``), else ``inferred_version``;
-    ValueError for a version this code does not know."""
+    """run.json's ``record_version`` (an integer from 1 to ``RECORD_VERSION``, no older than the keys it holds:
+    ``lowest_version``), else ``inferred_version``; ValueError for a version this code does not know or one its keys
+    contradict (an edited record: a version-1 claim would skip the digest its keys show it took)."""
     if VERSION_KEY not in info:
         return inferred_version(info)
     version = info[VERSION_KEY]
@@ -47,6 +56,11 @@ def record_version(info: dict) -> int:
         raise ValueError(
             f"{VERSION_KEY} is {repr(version)[:40]}, not a record version from 1 to {RECORD_VERSION} "
             "(a newer version's record, or an edited one)"
+        )
+    if version < lowest_version(info):
+        raise ValueError(
+            f"{VERSION_KEY} is {version}, but run.json holds keys only version {lowest_version(info)} and later "
+            "write (an edited record); restore it"
         )
     return version
 
@@ -59,7 +73,8 @@ def version_1_to_2(info: dict, rows: list[dict]) -> Record:
     upgraded = dict(info)
     if not isinstance(info.get("collision_free"), bool):
         upgraded["collision_free"] = chose_collision_free(config, str(info.get("scene")))
-    upgraded["candidate_filters"] = filters_candidates(config)
+    if not isinstance(info.get(DIGEST_ERA_KEY), bool):
+        upgraded[DIGEST_ERA_KEY] = filters_candidates(config)
     return upgraded, rows
 
 

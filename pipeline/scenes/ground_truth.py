@@ -61,7 +61,9 @@ def ground_truth_info(scene: Scene, renderer: Renderer, assets: Path) -> dict:
 def built_differently(info: Mapping, scene: Scene) -> str | None:
     """How the scene a record's run.json (``info``) was made on differs from ``scene`` as built now: its
     ``scene_source`` (mesh, blend, proxy, procedural) or, where the record names it, its ``ground_truth.asset``
-    (a path relative to the assets directory, or a file name); None when they agree."""
+    (a path relative to the assets directory, or a file name). A mesh record that predates ``ground_truth`` was
+    built from one of its scene's declared ``files`` (the lookup of ``<name>/<name>.<ext>`` came later), so a
+    build from another file differs. None when they agree."""
     source = info.get("scene_source")
     if source is not None and source != scene.source:
         return f"scene source ({source} in the record, {scene.source} now)"
@@ -70,4 +72,11 @@ def built_differently(info: Mapping, scene: Scene) -> str | None:
     now = None if scene.asset is None else scene.asset.as_posix()
     if recorded is not None and (now is None or not ("/" + now).endswith("/" + str(recorded))):
         return f"scene asset ({recorded} in the record, {now} now)"
+    declared = scene.declared_files
+    if recorded is None and source == "mesh" and now is not None and declared:
+        if not any(("/" + now).endswith("/" + path) for path in declared):
+            return (
+                f"scene asset (the record predates ground_truth.asset: it was built from the scene's declared file "
+                f"{' or '.join(declared)}; {now} now)"
+            )
     return None

@@ -230,4 +230,5 @@ def load_scene(
         collision_free=bool(cfg["collision_free"]),
         asset=built.asset,
         asset_to_scene=built.asset_to_scene,
+        declared_files=tuple(str(f["path"]) for f in cfg.get("files") or ()),
     )

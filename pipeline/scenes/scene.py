@@ -39,6 +39,7 @@ class Scene:
     collision_free: bool  # M29 candidate sampler (Room)
     asset: Path | None = None
     asset_to_scene: Float[np.ndarray, "4 4"] | None = None
+    declared_files: tuple[str, ...] = ()  # the scene yaml's ``files`` (paths under the assets directory)
 
     @property
     def n_init(self) -> int:

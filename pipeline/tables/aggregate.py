@@ -31,6 +31,17 @@ MESH_VISIBILITY_NOTE = (
 )
 ORACLE_FLAGS = (("mesh_los", MESH_LOS_NOTE), ("mesh_visibility", MESH_VISIBILITY_NOTE))
 NOT_IN_PAPER_MARK = "§"
+IRREGULAR_MARK = "°"
+IRREGULAR_NOTE = (
+    f"{IRREGULAR_MARK} Not made as its siblings: a seed of this row ran from a checkout with uncommitted changes, "
+    "or with another torch thread count than its other seeds (run.json's `git.dirty` and `torch_threads`; a "
+    "record's numbers depend on its thread count)."
+)
+
+
+def irregular(group: pd.DataFrame) -> bool:
+    """Whether a row's runs differ from each other in how they were made: a dirty checkout, or two thread counts."""
+    return bool(group["dirty"].any() or group["threads"].nunique() > 1)
 
 
 def not_in_paper_note(labels: list[str]) -> str:
@@ -74,6 +85,7 @@ def aggregate(final: pd.DataFrame) -> pd.DataFrame:
         }
         for flag, _ in ORACLE_FLAGS:
             row[flag] = bool(group[flag].any())
+        row["irregular"] = irregular(group) or bool(group.get("irregular", pd.Series(dtype=bool)).any())
         for metric in METRIC_KEYS:
             stats = mean_std_valid(group[metric].to_numpy(float))
             row[f"{metric}_mean"], row[f"{metric}_std"], row[f"{metric}_valid"] = stats
@@ -113,7 +125,10 @@ def object_mean(final: pd.DataFrame, runs: Runs) -> tuple[pd.DataFrame, tuple[st
             means = {m: float(seed_rows[m].to_numpy(float).mean()) for m in METRIC_KEYS}
             keys = dict(zip(("budget", "method", "planner", "ablation"), key, strict=True))
             oracles = {flag: bool(seed_rows[flag].any()) for flag, _ in ORACLE_FLAGS}
-            per_seed.append({**keys, "scene": OBJECT_MEAN, "seed": seed, "scene_source": sources, **oracles, **means})
+            made = {"dirty": False, "threads": int(seed_rows["threads"].iloc[0]), "irregular": irregular(seed_rows)}
+            per_seed.append(
+                {**keys, "scene": OBJECT_MEAN, "seed": seed, "scene_source": sources, **oracles, **made, **means}
+            )
     if not per_seed:
         return pd.DataFrame(), (), {}
     rows = aggregate(pd.DataFrame(per_seed))
@@ -256,6 +271,8 @@ def _select(final: pd.DataFrame, spec: Spec, runs: Runs) -> pd.DataFrame:
 def _notes(selected: pd.DataFrame, done: pd.DataFrame, rows: pd.DataFrame, runs: Runs) -> list[str]:
     notes = []
     notes += [note for flag, note in ORACLE_FLAGS if flag in rows and rows[flag].any()]
+    if "irregular" in rows and rows["irregular"].any():
+        notes.append(IRREGULAR_NOTE)
     if "in_paper" in rows and not rows["in_paper"].all():
         notes.append(not_in_paper_note(list(dict.fromkeys(rows.loc[~rows["in_paper"], "label"]))))
     valid = rows[[f"{m}_valid" for m in METRIC_KEYS]].to_numpy() if not rows.empty else np.zeros((0, 1))

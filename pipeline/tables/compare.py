@@ -2,7 +2,7 @@
 
 import pandas as pd
 
-from pipeline.tables.aggregate import ORACLE_FLAGS, Table
+from pipeline.tables.aggregate import IRREGULAR_NOTE, ORACLE_FLAGS, Table
 from pipeline.tables.labels import METRIC_KEYS, OBJECT_MEAN
 from pipeline.tables.load import Runs
 from pipeline.tables.paper import paper_numbers
@@ -43,6 +43,7 @@ def paper_comparison(tables: dict[str, Table], runs: Runs) -> Table:
         "The paper ran the `paper` budget on the original assets: proxies and smaller budgets need not match.",
         *dict.fromkeys(coverage),
         *(note for flag, note in ORACLE_FLAGS if any(row.get(flag) for row in rows)),
+        *((IRREGULAR_NOTE,) if any(row.get("irregular") for row in rows) else ()),
     )
     header = (f"Budget: {', '.join(sorted({r['budget'] for r in rows}))}.",) if rows else ()
     return Table("paper_comparison", "Ours vs the paper", pd.DataFrame(rows), header, notes)

@@ -51,6 +51,7 @@ TEX_SPECIALS = (
     ("‡", r"$^\ddagger$"),
     ("≈", r"$^\approx$"),
     ("§", r"$^\S$"),
+    ("°", r"$^\circ$"),
     ("Δ", r"$\Delta$"),
 )
 
@@ -68,7 +69,7 @@ def markdown(text: object) -> str:
 
 
 def tex_escape(text: object) -> str:
-    """LaTeX for ``plain(text)``: specials escaped, ± ↑ ↓ † ‡ ≈ § Δ as math."""
+    """LaTeX for ``plain(text)``: specials escaped, ± ↑ ↓ † ‡ ≈ § ° Δ as math."""
     specials = dict(TEX_SPECIALS)
     return "".join(specials.get(ch, ch) for ch in plain(text))
 

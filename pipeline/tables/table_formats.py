@@ -1,7 +1,7 @@
 """A ``Table`` as Markdown, CSV and LaTeX texts (and an HTML table for the results site): cells 'mean ± std' (bold
 for the best, † where some seeds lack the value), ‡ after the label of a row planned with the mesh's line of
-sight, § after the label of a row whose method the paper does not have, header lines
-and footnotes. The text cells (budget, scene, label), header lines and footnotes are escaped for their format
+sight, § after the label of a row whose method the paper does not have, ° after the label of a row whose seeds were
+not made alike (a dirty checkout, another thread count), header lines and footnotes. The text cells (budget, scene, label), header lines and footnotes are escaped for their format
 (``pipeline.tables.escape``): labels, sources and reasons come from run records. Only the value cells, which
 this module writes from numbers, carry markup (a best value's bold)."""
 
@@ -11,7 +11,7 @@ import re
 import pandas as pd
 
 from pipeline.metrics.info import PAPER_METRICS
-from pipeline.tables.aggregate import MESH_LOS_MARK, NOT_IN_PAPER_MARK, ORACLE_FLAGS, Table
+from pipeline.tables.aggregate import IRREGULAR_MARK, MESH_LOS_MARK, NOT_IN_PAPER_MARK, ORACLE_FLAGS, Table
 from pipeline.tables.escape import csv_cell, markdown, plain, tex_escape
 from pipeline.tables.stats import Interval
 
@@ -55,6 +55,7 @@ def _grid(table: Table, label_header: str) -> tuple[list[str], list[list[str]], 
     for _, row in table.rows.iterrows():
         label = row["label"] + (MESH_LOS_MARK if any(row.get(flag, False) for flag, _ in ORACLE_FLAGS) else "")
         label += "" if row.get("in_paper", True) else NOT_IN_PAPER_MARK
+        label += IRREGULAR_MARK if row.get("irregular", False) else ""
         line = [str(row[key]) for key in keys] + [row["scene"], label]
         line += [_cell(row, m.name, m.decimals) for m in PAPER_METRICS] + ([_versus_nvf(row)] if versus else [])
         cells.append(line + [str(int(row["n"]))])
