@@ -20,7 +20,6 @@ from pipeline.scenes.loading import load_scene, scene_names
 from pipeline.scenes.scene import SceneError
 from pipeline.scenes.show import show
 
-
 MAX_RES = 2048  # a view of the grid: its 30 views at 2048 px are about 1.5 GB of float32 images
 
 
