@@ -1,9 +1,10 @@
 """A ``Table`` as Markdown, CSV and LaTeX texts (and an HTML table for the results site): cells 'mean ± std' (bold
 for the best, † where some seeds lack the value), ‡ after the label of a row planned with the mesh's line of
-sight, § after the label of a row whose method the paper does not have, ° after the label of a row whose seeds were
-not made alike (a dirty checkout, another thread count), header lines and footnotes. The text cells (budget, scene, label), header lines and footnotes are escaped for their format
-(``pipeline.tables.escape``): labels, sources and reasons come from run records. Only the value cells, which
-this module writes from numbers, carry markup (a best value's bold)."""
+sight, § after the label of a row whose method the paper does not have, ° after the label of a row whose seeds
+were not made alike (a dirty checkout, another thread count), header lines and footnotes. The text cells (budget,
+scene, label), header lines and footnotes are escaped for their format (``pipeline.tables.escape``): labels,
+sources and reasons come from run records. Only the value cells, which this module writes from numbers, carry
+markup (a best value's bold)."""
 
 import html
 import re
