@@ -2,6 +2,8 @@
 
 They are not part of the repository: set NVF_ASSETS to a directory of scene assets and NVF_CALIBRATION
 to the LPIPS calibration pairs (README.md); a test that needs one skips, naming the variable, when it is missing.
+Such a test is marked ``data`` (``pytest -m data`` runs them alone): CI runs the suite once without the variables,
+as a newcomer's ``make test`` does, and the ``data`` tests again with them.
 """
 
 import os
@@ -14,27 +16,37 @@ from pathlib import Path
 import pytest
 import torch
 
-from pipeline.repo import REPO
 
 
-def _shared(env: str, relative: str) -> Path:
-    return Path(os.environ.get(env, REPO.parent / "shared" / relative)).resolve()
+DATA_FIXTURES = ("assets_dir", "lpips_calibration_dir")  # the fixtures of data outside the repository
+
+
+def _given(env: str) -> Path | None:
+    value = os.environ.get(env)
+    return Path(value).resolve() if value else None
 
 
 @pytest.fixture(scope="session")
 def assets_dir() -> Path:
-    path = _shared("NVF_ASSETS", "assets")
-    if not (path / "room").is_dir():
+    path = _given("NVF_ASSETS")
+    if path is None or not (path / "room").is_dir():
         pytest.skip(f"development meshes not found at {path}; set NVF_ASSETS")
     return path
 
 
 @pytest.fixture(scope="session")
 def lpips_calibration_dir() -> Path:
-    path = _shared("NVF_CALIBRATION", "calibration/lpips")
-    if not (path / "I03_ref.png").is_file():
+    path = _given("NVF_CALIBRATION")
+    if path is None or not (path / "I03_ref.png").is_file():
         pytest.skip(f"LPIPS calibration pairs not found at {path}; set NVF_CALIBRATION")
     return path
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """A test that takes a data fixture (``DATA_FIXTURES``) is marked ``data``."""
+    for item in items:
+        if any(name in getattr(item, "fixturenames", ()) for name in DATA_FIXTURES):
+            item.add_marker(pytest.mark.data)
 
 
 @pytest.fixture(autouse=True)
