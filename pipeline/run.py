@@ -24,7 +24,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
-from pipeline.cli import EXPECTED, exit_with, run_command
+from pipeline.cli import EXPECTED, exit_with, fail, run_command
 from pipeline.config import key_help
 from pipeline.config.structured_configs import register_configs
 from pipeline.config.validation import validate
@@ -34,6 +34,17 @@ from pipeline.tables.trajectory import outline_of_scene
 
 register_configs()
 HELP_KEYS = "--help-keys"  # every config key, its default and its line (pipeline.config.key_help)
+HYDRA_FLAGS = {  # the options Hydra's command line takes (with a value: the next word), and this command's own
+    "--help", "-h", "--hydra-help", "--version", "--cfg", "-c", "--resolve", "--package", "-p", "--run", "-r",
+    "--multirun", "-m", "--shell-completion", "-sc", "--config-path", "-cp", "--config-name", "-cn", "--config-dir",
+    "-cd", "--info", "-i", "--experimental-rerun", HELP_KEYS,
+}  # fmt: skip
+
+
+def unknown_flag(argv: list[str]) -> str | None:
+    """The first word of ``argv`` that looks like an option and is none of Hydra's or this command's (Hydra would
+    print its whole usage for it), or None; ``key=value`` overrides are not options."""
+    return next((a for a in argv if a.startswith("-") and "=" not in a and a.split("=")[0] not in HYDRA_FLAGS), None)
 
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
@@ -78,6 +89,9 @@ def hydra_main() -> None:
     resolve, an unknown group option or key) to ``run_command`` instead of printing a report; Ctrl-C says how
     to resume. ``--help-keys`` lists the config keys instead (the other arguments are overrides)."""
     os.environ["HYDRA_FULL_ERROR"] = "1"
+    flag = unknown_flag(sys.argv[1:])
+    if flag is not None:
+        fail(f"python -m pipeline.run: unknown option {flag}; the others are key=value overrides (see --help)")
     if HELP_KEYS in sys.argv[1:]:
         key_help.main([arg for arg in sys.argv[1:] if arg != HELP_KEYS])
         return

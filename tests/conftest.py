@@ -16,8 +16,6 @@ from pathlib import Path
 import pytest
 import torch
 
-
-
 DATA_FIXTURES = ("assets_dir", "lpips_calibration_dir")  # the fixtures of data outside the repository
 
 

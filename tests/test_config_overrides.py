@@ -19,6 +19,8 @@ from pipeline.scenes.loading import load_scene
         ("train.backbone.iters=0", "train.backbone.iters=0 must be positive"),
         ("ablation=ind_rays nvf.entropy.d0=auto", "sets nvf.entropy.d0=0.0, but an override made it auto"),
         ("ablation=wo_vis nvf.entropy.use_visibility=true", "ablation=wo_vis sets nvf.entropy.use_visibility=False"),
+        ("method=fvs ablation=wo_vis", "ablation=wo_vis ablates method=nvf, not method=fvs"),  # else FVS, tabled apart
+        ("method.label=", "method.label is empty"),  # else tabled as the bare mark
     ],
 )
 def test_compose_run_exits_with_one_line_on_any_bad_override(override, needle, capsys):
@@ -104,3 +106,36 @@ def test_d0_resolves_to_the_scene_value_auto_or_the_number_given(d0, want):
 def test_a_step_trains_the_stages_its_scores_read(overrides, stages):
     """METHOD 11: w/o Vis. trains no visibility head where nothing reads it (``nvf.training.stages_to_train``)."""
     assert EpisodeSettings.of(compose_run(overrides), load_scene("default")).stages == stages
+
+
+def test_a_scene_asset_path_is_read_as_its_normal_form_and_an_empty_one_is_refused(tmp_path):
+    """``scene.asset=./room/room_nvf_gt_yup.obj`` missed the declared file's up axis (Y) and read the metric mesh
+    Z-up; ``scene.asset=""`` was accepted as no file."""
+    import dataclasses
+
+    from pipeline.scenes.loading import _mesh_candidates
+    from pipeline.scenes.scene import SceneError
+
+    room = compose_run(["scene=room"]).scene
+    cfg = {
+        "name": "room",
+        "files": [{"path": "room/room_nvf_gt_yup.obj", "up": "y"}],
+        "asset": "./room/room_nvf_gt_yup.obj",
+    }
+    assert _mesh_candidates(cfg, tmp_path) == [(tmp_path / "room" / "room_nvf_gt_yup.obj", "y")]
+    with pytest.raises(SceneError, match="scene.asset is empty"):
+        load_scene(dataclasses.asdict(room) | {"asset": " "}, tmp_path)
+
+
+def test_an_unknown_option_of_the_run_command_is_one_line(capsys, monkeypatch):
+    """``python -m pipeline.run --bogus`` printed Hydra's eight-line usage; now one line and exit 2."""
+    import sys
+
+    from pipeline import run
+
+    monkeypatch.setattr(sys, "argv", ["pipeline.run", "--bogus", "seed=1"])
+    with pytest.raises(SystemExit) as exit_info:
+        run.hydra_main()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exit_info.value.code == 2 and len(err) == 1 and "unknown option --bogus" in err[0]
+    assert run.unknown_flag(["-m", "seed=-1", "--cfg", "job"]) is None

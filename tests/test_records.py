@@ -624,8 +624,12 @@ def test_records_finished_before_the_record_digest_are_checked_against_their_row
     info[LEGACY_DIGEST_KEY] = "sha256:" + hashlib.sha256(record.steps_path.read_bytes()).hexdigest()
     record.run_json.write_text(json.dumps(info))
     assert verified(record)[0] == info
+    record.run_json.write_text(json.dumps({**info, "scene_source": "mesh"}))
+    assert verified(record)[0]["scene_source"] == "mesh"  # an edit the older digest does not cover
     record.run_json.write_text(json.dumps({**info, "scene_source": "edited"}))
-    assert verified(record)[0]["scene_source"] == "edited"
+    with pytest.raises(RecordError, match="scene_source is 'edited', not 'procedural' or 'proxy'"):
+        verified(record)  # a value no version writes is refused all the same
+    record.run_json.write_text(json.dumps(info))
     _changed_value(record)
     with pytest.raises(
         RecordError, match=r"steps.jsonl: differs from the digest run.json took when the run finished \(steps_digest\)"

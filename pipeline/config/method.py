@@ -51,6 +51,8 @@ def presentation(node: Mapping[str, Any]) -> Presentation:
         items = value if isinstance(value, list) else []
         if not is_bearable(value, hint) or not all(is_bearable([item], hint) for item in items):
             raise MethodError(f"method.{key}={value!r} must be a {getattr(hint, '__name__', str(hint))}")
+    if not str(node["label"]).strip():
+        raise MethodError("method.label is empty: tables and figures name the method's rows by it; give it a label")
     return Presentation(**{key: node[key] for key in PRESENTATION_KEYS})
 
 

@@ -99,8 +99,16 @@ MAX_SEGMENT_SAMPLES = 65536
 
 
 def _check_ablation(cfg: DictConfig) -> None:
-    """Every value the ablation's file (``conf/ablation/<name>.yaml``) sets still holds: an override that
-    undoes it (``ablation=ind_rays nvf.entropy.d0=auto``) would label another method as the ablation."""
+    """An ablation applies to the method it ablates (its ``of``: another method would run unchanged and be tabled as
+    a method of its own, ``method=fvs ablation=wo_vis``), and every value its file (``conf/ablation/<name>.yaml``)
+    sets still holds: an override that undoes it (``ablation=ind_rays nvf.entropy.d0=auto``) would label another
+    method as the ablation."""
+    of = OmegaConf.select(cfg, "ablation.of")
+    if cfg.ablation.name != "none" and of is not None and cfg.method.name != of:
+        raise ConfigError(
+            f"ablation={cfg.ablation.name} ablates method={of}, not method={cfg.method.name}; drop the ablation or "
+            f"run method={of}"
+        )
     sets = OmegaConf.to_container(OmegaConf.load(CONF / "ablation" / f"{cfg.ablation.name}.yaml"))
     changed = changed_settings(sets, OmegaConf.to_container(cfg, resolve=True))
     if changed:

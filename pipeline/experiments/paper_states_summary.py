@@ -59,7 +59,8 @@ SPREAD = {
     "ties_at_max": Number(0, 1 << 31, integer=True),
     "relative_std": Number(0.0, null=True),
 }
-SECONDS = {"train": Number(0.0), "prepare": Number(0.0), "score": Number(0.0)}
+MAX_SECONDS = 1e7  # about 116 days: no state takes longer
+SECONDS = {"train": Number(0.0, MAX_SECONDS), "prepare": Number(0.0, MAX_SECONDS), "score": Number(0.0, MAX_SECONDS)}
 STATE = {
     "scene": Text(),
     "seed": Number(0, MAX_SEED, integer=True),
@@ -97,11 +98,11 @@ STATE = {
             "nvf_psnr": Number(0.0, 100.0),
             "rival_psnr": Number(0.0, 100.0),
             "gain": Number(-100.0, 100.0),
-            "seconds": Number(0.0),
+            "seconds": Number(0.0, MAX_SECONDS),
             "reused": Optional(Each(Text())),
         }
     ),
-    "seconds": Number(0.0, 1e7),
+    "seconds": Number(0.0, MAX_SECONDS),
 }
 
 
@@ -207,8 +208,12 @@ def twins(states: list[dict]) -> list[dict]:
 
 
 def state_problem(row: dict) -> str | None:
-    """What makes a state row unusable beyond its shape: a rival compared with NVF, or an outcome, of a contender
-    the row does not hold; None when it is whole."""
+    """What makes a state row unusable beyond its shape: a pick outside its candidates, or a rival compared with NVF,
+    or an outcome, of a contender the row does not hold; None when it is whole."""
+    stray = next((name for name, found in row["contenders"].items() if found["pick"] >= row["candidates"]), None)
+    if stray is not None:
+        pick = row["contenders"][stray]["pick"]
+        return f"contenders.{stray}.pick {pick} is not one of its {row['candidates']} candidates"
     for part in ("against_nvf", "outcomes"):
         stray = next((name for name in row[part] if name not in row["contenders"] or name == "nvf"), None)
         if stray is not None:

@@ -378,8 +378,9 @@ class RunStart:
     """The run's seed: every draw is seeded from (seed, step, purpose)."""
     config: Annotated[dict[str, Any], RecordedConfig]
     """The run's config (``RecordedConfig``, below)."""
-    scene_source: str
-    """Where the scene's mesh came from: ``procedural``, ``proxy`` or ``mesh``."""
+    scene_source: Literal["procedural", "proxy", "mesh", "blend"]
+    """Where the scene's mesh came from: ``procedural``, ``proxy``, ``mesh`` (an asset file) or ``blend`` (a
+    ``.blend`` read by Blender)."""
     ground_truth: Annotated[dict[str, Any] | None, GroundTruth]
     """How the ground truth was rendered (below); absent in records from before it was recorded (pyrender)."""
     collision_free: bool

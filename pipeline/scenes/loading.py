@@ -20,6 +20,7 @@ file itself, the pyrender backend those flat-coloured triangles.
 """
 
 import os
+import posixpath
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -62,9 +63,9 @@ def _mesh_candidates(cfg: Mapping[str, Any], assets: Path) -> list[tuple[Path, s
     """``(path, up axis)`` in lookup order: ``<name>/<name>.<ext>`` (Z-up), then the declared files; or the one
     file ``asset`` names (the up axis of the declared file of that path, else Z-up)."""
     name = cfg["name"]
-    declared_files = [(f["path"], f.get("up", "z")) for f in cfg.get("files") or ()]
+    declared_files = [(posixpath.normpath(f["path"]), f.get("up", "z")) for f in cfg.get("files") or ()]
     if cfg.get("asset"):
-        up = dict(declared_files).get(cfg["asset"], "z")
+        up = dict(declared_files).get(posixpath.normpath(cfg["asset"]), "z")  # ./room/x.obj is room/x.obj
         return [(assets / cfg["asset"], up)]
     own = [(assets / name / f"{name}.{ext}", "z") for ext in ASSET_EXTENSIONS]
     return own + [(assets / path, up) for path, up in declared_files]
@@ -161,6 +162,8 @@ def _mesh(cfg: Mapping[str, Any], tight: np.ndarray, assets_dir: Path | None, bl
         raise SceneError(f"scene '{cfg['name']}': source={source!r} is not one of {', '.join(SOURCES)}")
     if source != "mesh" and cfg.get("asset"):
         raise SceneError(f"scene '{cfg['name']}': scene.asset names a file but source={source!r}; null scene.asset")
+    if cfg.get("asset") is not None and not str(cfg["asset"]).strip():
+        raise SceneError(f"scene '{cfg['name']}': scene.asset is empty; name a file under paths.assets, or null it")
     if source == "mesh":
         path, up = find_asset(cfg, Path(assets_dir) if assets_dir is not None else default_assets_dir())
         mesh = read_asset(path, blender_python)
