@@ -21,6 +21,7 @@ from pipeline.metrics.info import METRICS
 from pipeline.records.store import IDENTITY_KEYS, MAX_SEED
 
 RECORD_VERSION = 3  # the version this code writes (run.json's record_version); pipeline.records.upgrade reads older
+SceneSource = Literal["procedural", "proxy", "mesh", "blend"]  # how a scene's mesh was built (run.json's scene_source)
 MAX_HORIZON = 1000  # steps of a run: every step rewrites steps.jsonl whole; the paper's horizon is 20
 MAX_VIEWS = 1_000_000  # n_views of a row
 INT64 = 2**63 - 1
@@ -378,7 +379,7 @@ class RunStart:
     """The run's seed: every draw is seeded from (seed, step, purpose)."""
     config: Annotated[dict[str, Any], RecordedConfig]
     """The run's config (``RecordedConfig``, below)."""
-    scene_source: Literal["procedural", "proxy", "mesh", "blend"]
+    scene_source: SceneSource
     """Where the scene's mesh came from: ``procedural``, ``proxy``, ``mesh`` (an asset file) or ``blend`` (a
     ``.blend`` read by Blender)."""
     ground_truth: Annotated[dict[str, Any] | None, GroundTruth]

@@ -36,6 +36,7 @@ from torch import Tensor
 from pipeline.config.catalog import declared
 from pipeline.config.plain_containers import as_dict
 from pipeline.config.structured_configs import SceneConfig, register_configs
+from pipeline.records.schema import SceneSource
 from pipeline.repo import CONF, REPO
 from pipeline.scenes import procedural
 from pipeline.scenes.blender import BlenderError, export_blend
@@ -151,7 +152,7 @@ class _Built:
     """A scene's triangles in the scene frame and where they came from."""
 
     mesh: trimesh.Trimesh
-    source: str
+    source: SceneSource
     asset: Path | None = None
     asset_to_scene: np.ndarray | None = None
 
@@ -176,7 +177,9 @@ def _mesh(cfg: Mapping[str, Any], tight: np.ndarray, assets_dir: Path | None, bl
             "(pipeline.scenes.procedural)"
         )
     mesh = procedural.RECIPES[recipe]()
-    return _Built(procedural.fit_into_box(mesh, tight) if source == "proxy" else mesh, source)
+    if source == "proxy":
+        return _Built(procedural.fit_into_box(mesh, tight), "proxy")
+    return _Built(mesh, "procedural")
 
 
 def scene_names() -> list[str]:

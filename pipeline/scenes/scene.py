@@ -11,6 +11,7 @@ from jaxtyping import Float
 from torch import Tensor
 
 from pipeline.cli import BadInput
+from pipeline.records.schema import SceneSource
 
 
 class SceneError(BadInput):
@@ -26,7 +27,7 @@ class Scene:
     Blender backend moves the cameras by its inverse instead)."""
 
     name: str
-    source: str  # blend | mesh | proxy | procedural
+    source: SceneSource
     mesh: trimesh.Trimesh
     object_aabb: Float[Tensor, "2 3"]
     camera_box: Float[Tensor, "2 3"]
