@@ -15,6 +15,7 @@ COMMANDS = {
     "duel-summary": ("pipeline.experiments.duel_summary", "the duel's tables, beside the episodes'"),
     "paper-states": ("pipeline.experiments.paper_states", "decisions at recorded states trained at the paper's budget"),
     "paper-states-summary": ("pipeline.experiments.paper_states_summary", "the paper-size states' tables"),
+    "transfer": ("pipeline.experiments.transfer", "which cpu verdicts hold at the paper's scale"),
     "study": (
         "pipeline.experiments.visibility_study",
         "does the visibility field change a decision, and does it help?",

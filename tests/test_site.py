@@ -335,3 +335,14 @@ def test_a_pilot_note_is_text_and_a_linked_note_is_not_read(tmp_path):
     assert "&lt;img src=x onerror=alert(1)&gt;" in page and "&lt;script&gt;alert(2)&lt;/script&gt;" in page
     assert 'href="../pilots/hostile/run.md"' in page and 'href="https://example.org"' in page
     assert "secret" not in page and f"not shown: {pilots / 'linked' / 'README.md'}: a symbolic link" in page
+
+
+def test_the_overview_prints_the_mean_alone_from_one_seed(tmp_path):
+    """The overview showed "12.85 ± 0.00" from one seed where the tables print the mean alone; now it does too."""
+    out, results = tmp_path / "out", tmp_path / "res"
+    make_run(out, scene="hubble", method="nvf", seed=100, final={"psnr": 20.0})
+    for seed in (100, 101):
+        make_run(out, scene="hubble", method="random", seed=seed, final={"psnr": 18.0 + seed % 2})
+    build_tables(out, [], results, assets=tmp_path / "no_assets")
+    index = (results / "site" / "index.html").read_text(encoding="utf-8")
+    assert '<td title="1 seeds">20.00</td>' in index and '<td title="2 seeds">18.50 ± 0.50</td>' in index

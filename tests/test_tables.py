@@ -547,7 +547,7 @@ def test_a_method_the_paper_lacks_is_marked_and_compared_with_nvf(tmp_path):
     assert main_table.loc[("hubble", "NVF"), "ΔPSNR vs NVF"] == "-"
     md = read(tables / "main.md")
     assert md.count("FisherRF§") == 2  # hubble and the object-scene mean
-    assert "§ Not in the paper: FisherRF, a method this benchmark adds" in md and "-OPT variant of it (n/a)" in md
+    assert "§ Not in the paper: FisherRF, this benchmark's;" in md and "-OPT variant of them (n/a)" in md
     assert r"FisherRF$^\S$" in read(tables / "main.tex")
     objects = pd.read_csv(tables / "table34_nerf_assets.csv", comment="#")
     assert set(objects["Method"]) == {"NVF", "FisherRF§"}

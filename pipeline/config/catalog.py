@@ -42,6 +42,27 @@ def conf_dirs(searchpath: Sequence[str] = ()) -> list[Path]:
     return [CONF, *(Path(entry.removeprefix("file://")) for entry in searchpath if entry.startswith("file://"))]
 
 
+def searchpath_of(overrides: Sequence[str]) -> list[str]:
+    """The entries of a command line's ``hydra.searchpath=[...]`` override (none without one): where a user's own
+    methods and scenes are declared, as ``pipeline.run`` reads them."""
+    for override in overrides:
+        key, _, value = override.partition("=")
+        if key.lstrip("+") == "hydra.searchpath":
+            return [entry.strip().strip("'\"") for entry in value.strip().strip("[]").split(",") if entry.strip()]
+    return []
+
+
+def option_problem(group: str, name: str, dirs: Sequence[Path]) -> str | None:
+    """Why ``name`` is no option of ``group`` in any of ``dirs`` (``conf_dirs``: the project's and a search path's),
+    listing the options each directory declares; None when one declares it."""
+    found = {Path(d): declared(group, d) for d in dirs}
+    if any(name in names for names in found.values()):
+        return None
+    listed = "; ".join(f"{', '.join(names)} ({folder / group})" for folder, names in found.items() if names)
+    outside = "" if len(found) > 1 else "; a config directory of your own joins with hydra.searchpath=[file://DIR]"
+    return f"unknown {group} {name!r}: choose one of {listed}{outside}"
+
+
 def members(group: str, experiment: str, dirs: Sequence[Path] = (CONF,)) -> list[str]:
     """The options of ``group`` (``method`` or ``scene``) whose yaml lists ``experiment`` under ``experiments``
     (an option found in an earlier directory of ``dirs`` hides one of the same name in a later one), sorted."""

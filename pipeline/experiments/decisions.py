@@ -14,8 +14,10 @@ a candidate set, each contender's pick from it, and the one-step outcome of a pi
   PSNR on the scene's evaluation views (PROTOCOL 4.1).
 """
 
+import dataclasses
 import re
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,7 +34,7 @@ from nvf.training import Observations, train_model
 from nvf.uncertainty import ViewScorer, WholeViewScorer
 from nvf.visibility_source import SourcedVisibility
 from pipeline.cli import fail
-from pipeline.config.catalog import ablation_configs, declared
+from pipeline.config.catalog import ablation_configs, conf_dirs, declared, option_problem, searchpath_of
 from pipeline.config.validation import compose_run
 from pipeline.episode.evaluation import render_view
 from pipeline.episode.loop import Episode
@@ -43,8 +45,10 @@ from pipeline.records.checked_files import Each, Flag, Number, Optional, Text
 from pipeline.records.files import refuse_escaping_link
 from pipeline.records.schema import MAX_HORIZON
 from pipeline.records.store import MAX_SEED, run_dir
+from pipeline.repo import CONF
 from pipeline.scenes.ground_truth import built_differently
-from pipeline.scenes.scene import Scene
+from pipeline.scenes.loading import find_asset
+from pipeline.scenes.scene import Scene, SceneError
 from pipeline.tables.load import load_run
 
 PLAIN_NAME = re.compile(r"[A-Za-z0-9_.-]+")
@@ -64,19 +68,36 @@ class Contender:
         return [f"method={self.method}", f"ablation={self.ablation}"]
 
 
-def contender(name: str) -> Contender:
-    """The contender ``name`` names; ValueError (one line) when it is neither a method nor an ablation."""
+def contender(name: str, dirs: Sequence[Path] = (CONF,)) -> Contender:
+    """The contender ``name`` names: a method declared in ``dirs`` (``conf/`` and a search path's, ``conf_dirs``) or an
+    ablation; ValueError (one line) when it is neither."""
     if not PLAIN_NAME.fullmatch(name):
         raise ValueError(f"{name!r} is not a plain name (letters, digits, '_', '-', '.')")
-    if name in declared("method"):
+    if option_problem("method", name, dirs) is None:
         return Contender(name, name, "none")
     ablations = {key: node for key, node in ablation_configs().items() if key != "none"}
     if name in ablations:
         return Contender(name, str(ablations[name]["of"]), name)
+    methods = "; ".join(f"{', '.join(declared('method', d))} ({Path(d) / 'method'})" for d in dirs)
+    outside = "" if len(dirs) > 1 else "; a method of your own joins with hydra.searchpath=[file://DIR]"
     raise ValueError(
-        f"unknown contender {name!r}: name a method of conf/method ({', '.join(declared('method'))}) or an "
-        f"ablation of conf/ablation ({', '.join(ablations)})"
+        f"unknown contender {name!r}: name a method ({methods}) or an ablation of conf/ablation "
+        f"({', '.join(ablations)}){outside}"
     )
+
+
+def check_scene(name: str, overrides: list[str]) -> None:
+    """One ``error:`` line and exit 2 unless ``name`` is a scene declared in ``conf/`` or the overrides' search path
+    (``hydra.searchpath``, as ``pipeline.run`` reads it) whose asset, for a mesh scene, is found."""
+    problem = option_problem("scene", name, conf_dirs(searchpath_of(overrides)))
+    if problem is not None:
+        fail(problem)
+    run = compose_run([f"scene={name}", *overrides])
+    if run.scene.source == "mesh":
+        try:
+            find_asset(dataclasses.asdict(run.scene), Path(run.paths.assets))
+        except SceneError as err:
+            fail(str(err))
 
 
 @dataclass(frozen=True)

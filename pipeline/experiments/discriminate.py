@@ -40,14 +40,13 @@ from pipeline.cli import ArgumentParser, bounded, cores, description, fail, run_
 from pipeline.config.catalog import members, method_configs
 from pipeline.config.settings_beyond_groups import config_label
 from pipeline.config.validation import compose_run
+from pipeline.experiments.decisions import check_scene
 from pipeline.experiments.options import SEEDS, name_list, seed_list
 from pipeline.records.checked_files import read_csv
 from pipeline.records.experiment_columns import DISCRIMINATE_PER_SEED_COLUMNS, DISCRIMINATE_SUMMARY_COLUMNS, only
 from pipeline.records.files import make_directory
 from pipeline.records.store import RunRecord, check_key, record_status, run_dir
 from pipeline.repo import REPO, RUNS
-from pipeline.scenes.loading import find_asset, scene_config
-from pipeline.scenes.scene import SceneError
 from pipeline.tables.escape import as_csv
 from pipeline.tables.load import collect_runs, load_run
 from pipeline.tables.stats import Interval
@@ -384,12 +383,7 @@ def main(argv: list[str]) -> int:
     roots = [outputs] + ([reuse] if reuse is not None and reuse.resolve() != outputs.resolve() else [])
     if not args.summarize_only:
         for scene in scenes:  # a missing scene or asset is one line now, not 18 failed jobs later
-            try:
-                cfg_scene = scene_config(scene)
-                if cfg_scene["source"] == "mesh":
-                    find_asset(cfg_scene, Path(cfg.paths.assets))
-            except SceneError as err:
-                fail(str(err))
+            check_scene(scene, list(args.overrides))
         make_directory(results, out)
         plain = cfg.budget.name
         entries = [

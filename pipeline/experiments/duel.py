@@ -54,7 +54,7 @@ from nvf.device import resolve_device
 from nvf.training import Observations
 from pipeline.atomic_write import atomic_write_text
 from pipeline.cli import ArgumentParser, bounded, cores, fail, help_page, run_command
-from pipeline.config.catalog import declared
+from pipeline.config.catalog import conf_dirs, declared, searchpath_of
 from pipeline.config.validation import compose_run
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
@@ -66,6 +66,7 @@ from pipeline.experiments.decisions import (
     Pick,
     Recorded,
     candidate_set,
+    check_scene,
     contender,
     decision_key,
     heldout_psnr,
@@ -95,7 +96,7 @@ from pipeline.records.lock import RunLock
 from pipeline.records.store import check_seed
 from pipeline.repo import RUNS
 from pipeline.scenes.blender import blender_python
-from pipeline.scenes.loading import find_asset, load_scene, scene_config
+from pipeline.scenes.loading import load_scene
 from pipeline.scenes.scene import Scene, SceneError
 
 SCENES = ("hotdog", "hubble", "default")
@@ -355,9 +356,10 @@ def split_arguments(positional: list[str]) -> tuple[Contender, list[Contender], 
     own = [o for o in overrides if o.split("=", 1)[0].lstrip("+~") in OWN_KEYS]
     if own:
         fail(f"{own[0]}: the contenders and states are the duel's own; use method=, rival=, --scenes and --seeds")
+    dirs = conf_dirs(searchpath_of(overrides))  # a user's own methods, as pipeline.run finds them
     try:
-        rivals = list(dict.fromkeys(contender(name) for name in named["rival"].split(",")))
-        method = contender(named["method"])
+        rivals = list(dict.fromkeys(contender(name, dirs) for name in named["rival"].split(",")))
+        method = contender(named["method"], dirs)
     except ValueError as err:
         fail(str(err))
     if method in rivals:
@@ -435,12 +437,7 @@ def main(argv: list[str] | None = None) -> None:
     if cfg.planner.name != "argmax" or cfg.train.warm_start:
         fail("the duel replays argmax episodes trained from scratch: drop planner= and train.warm_start=")
     for scene in scenes:  # a missing scene or asset is one line now, before anything is written
-        try:
-            found = scene_config(scene)
-            if found["source"] == "mesh":
-                find_asset(found, Path(cfg.paths.assets))
-        except SceneError as err:
-            fail(str(err))
+        check_scene(scene, overrides)
     torch.set_num_threads(args.threads)
     root = Path(cfg.paths.results) / "pilots" / DUEL
     kept = setting_overrides(overrides)

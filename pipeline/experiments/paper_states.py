@@ -67,7 +67,7 @@ from nvf.training import Observations
 from nvf.visibility import visibility_labels
 from pipeline.atomic_write import atomic_write_text
 from pipeline.cli import ArgumentParser, bounded, cores, fail, help_page, run_command
-from pipeline.config.catalog import declared
+from pipeline.config.catalog import conf_dirs, declared, option_problem, searchpath_of
 from pipeline.config.validation import compose_run
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
@@ -108,7 +108,7 @@ from pipeline.records.lock import RunLock
 from pipeline.records.store import check_seed
 from pipeline.repo import RUNS
 from pipeline.scenes.blender import blender_python, missing_python
-from pipeline.scenes.loading import load_scene, scene_config
+from pipeline.scenes.loading import load_scene
 from pipeline.scenes.scene import Scene, SceneError
 
 SCENES = ("hubble", "default", "hotdog")
@@ -256,7 +256,9 @@ def measure_state(call: "Call", state: "State", episode: Episode, earlier: dict 
     obs = episode.observations()
     budget = episode.settings.budget.name
     episodes = {
-        name: episode.as_method(settings_of(episode.scene, contender(name), state.seed, budget, call.overrides))
+        name: episode.as_method(
+            settings_of(episode.scene, contender(name, call.dirs), state.seed, budget, call.overrides)
+        )
         for name in call.contenders
     }
     reused = reusable(earlier, episodes)
@@ -486,6 +488,7 @@ class Call:
     states: JsonLines
     saved: Path  # where states in progress keep what they finished (``StateProgress``)
     git: dict  # the checkout's commit and dirty flag when the command started (``provenance.checkout``)
+    dirs: list[Path]  # where methods and scenes are declared: conf/ and the overrides' hydra.searchpath
 
 
 def complete(row: dict, call: Call) -> bool:
@@ -605,16 +608,16 @@ def open_folder(root: Path, setting: dict, command: list[str]) -> Path:
     return folder
 
 
-def contender_list(names: tuple[str, ...]) -> list[str]:
-    """``--contenders``: NVF first (added when not named), each a method or ablation the duel takes, with a
-    scorer (one ``error:`` line otherwise)."""
+def contender_list(names: tuple[str, ...], overrides: list[str]) -> list[str]:
+    """``--contenders``: NVF first (added when not named), each a method or ablation the duel takes (a method of
+    the overrides' search path too), with a scorer (one ``error:`` line otherwise)."""
     ordered = list(dict.fromkeys(["nvf", *names]))
     for name in ordered:
         try:
-            who = contender(name)
+            who = contender(name, conf_dirs(searchpath_of(overrides)))
         except ValueError as err:
             fail(f"--contenders: {err}")
-        if compose_run(who.overrides).method.scorer() is None:
+        if compose_run([*who.overrides, *overrides]).method.scorer() is None:
             fail(f"--contenders {name}: it scores no view (it picks at random); name contenders that score views")
     return ordered
 
@@ -634,11 +637,10 @@ def prepare_scenes(names: tuple[str, ...], budgets: list[str], overrides: list[s
     written (one ``error:`` line for a missing asset, Blender or bad scene)."""
     scenes = {}
     for name in names:
+        problem = option_problem("scene", name, conf_dirs(searchpath_of(overrides)))
+        if problem is not None:
+            fail(problem)
         for budget in budgets:
-            try:
-                scene_config(name)
-            except SceneError as err:
-                fail(str(err))
             cfg = compose_run([f"scene={name}", f"budget={budget}", *overrides])
             python = blender_python(cfg.paths.blender_python)
             missing = missing_python(python) if cfg.render.backend == "blender" else None
@@ -702,7 +704,7 @@ def main(argv: list[str] | None = None) -> None:
         seeds = [check_seed(seed) for seed in args.seeds]
     except ValueError as err:
         fail(f"--seeds: {err}")
-    contenders = contender_list(args.contenders)
+    contenders = contender_list(args.contenders, list(args.overrides))
     outcomes = outcome_list(args.outcomes, contenders)
     bounded("--threads", args.threads, 1, cores(), "the cores this process may run on")
     bounded("--vis-points", args.vis_points, 1, 1 << 20)
@@ -741,6 +743,7 @@ def main(argv: list[str] | None = None) -> None:
         JsonLines(folder / "states.jsonl", STATE, state_key),
         Path(cfg.paths.outputs) / "paper_states" / setting_digest(setting),
         git,
+        conf_dirs(searchpath_of(list(args.overrides))),
     )
     for scene in args.scenes:
         for budget in budgets:

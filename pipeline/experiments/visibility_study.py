@@ -61,6 +61,7 @@ from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.experiments.decisions import (
     candidate_set,
+    check_scene,
     contender,
     heldout_psnr,
     recorded_steps,
@@ -259,6 +260,7 @@ def main(argv: list[str] | None = None) -> None:
         fail(f"--state-budget {state_budget!r}: not one of conf/budget ({', '.join(declared('budget'))})")
     scenes = list(args.scenes)
     for scene in scenes:  # a bad scene, seed or step is one line now, not after the diagnostics' minutes
+        check_scene(scene, list(args.overrides))
         for seed in seeds:
             recorded_steps(args.records, scene, contender("nvf"), seed, state_budget, max(steps))
     results = Path(cfg.paths.results)

@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 from pipeline.cli import ArgumentParser, bounded, description, fail, run_command
+from pipeline.config.catalog import conf_dirs, option_problem, searchpath_of
 from pipeline.config.validation import compose_run
 from pipeline.scenes.blender import blender_python
 from pipeline.scenes.ground_truth import open_renderer
@@ -27,7 +28,9 @@ def main(argv: list[str] | None = None) -> None:
     parser = ArgumentParser(prog="python -m pipeline.scenes", description=description(__doc__))
     sub = parser.add_subparsers(dest="command", required=True)
     show_parser = sub.add_parser("show", help="write a PNG grid of a scene's views and a top view")
-    show_parser.add_argument("scene", help=f"one of: {', '.join(scene_names())}")
+    show_parser.add_argument(
+        "scene", help=f"one of: {', '.join(scene_names())}, or your own with hydra.searchpath=[file://DIR]"
+    )
     show_parser.add_argument(
         "overrides",
         nargs="*",
@@ -42,6 +45,9 @@ def main(argv: list[str] | None = None) -> None:
         fail(f"python -m pipeline.scenes: unrecognized argument {stray!r} (see --help)")
     args.overrides += later
     bounded("--res", args.res, 8, MAX_RES)
+    problem = option_problem("scene", args.scene, conf_dirs(searchpath_of(args.overrides)))
+    if problem is not None:
+        fail(problem)
     cfg = compose_run([f"scene={args.scene}", *args.overrides])
     out = args.out or Path(cfg.paths.results) / "figures" / "scenes"
     try:

@@ -44,11 +44,14 @@ def irregular(group: pd.DataFrame) -> bool:
     return bool(group["dirty"].any() or group["threads"].nunique() > 1)
 
 
-def not_in_paper_note(labels: list[str]) -> str:
-    """The footnote for rows whose method the paper does not have."""
+def not_in_paper_note(labels: list[str], own: list[str]) -> str:
+    """The footnote for rows whose method the paper does not have: ``labels`` this benchmark adds, ``own`` a user's
+    (declared outside the repository)."""
+    parts = [f"{', '.join(labels)}, this benchmark's"] if labels else []
+    parts += [f"{', '.join(own)}, a method of your own (declared outside this repository)"] if own else []
     return (
-        f"{NOT_IN_PAPER_MARK} Not in the paper: {', '.join(labels)}, a method this benchmark adds; the paper has no "
-        "reference numbers for it, nor for an -OPT variant of it (n/a)."
+        f"{NOT_IN_PAPER_MARK} Not in the paper: {'; '.join(parts)}; the paper has no reference numbers for them, nor "
+        "for an -OPT variant of them (n/a)."
     )
 
 
@@ -274,7 +277,9 @@ def _notes(selected: pd.DataFrame, done: pd.DataFrame, rows: pd.DataFrame, runs:
     if "irregular" in rows and rows["irregular"].any():
         notes.append(IRREGULAR_NOTE)
     if "in_paper" in rows and not rows["in_paper"].all():
-        notes.append(not_in_paper_note(list(dict.fromkeys(rows.loc[~rows["in_paper"], "label"]))))
+        added = rows[~rows["in_paper"]]
+        ours = list(dict.fromkeys(added.loc[added["in_repository"], "label"]))
+        notes.append(not_in_paper_note(ours, list(dict.fromkeys(added.loc[~added["in_repository"], "label"]))))
     valid = rows[[f"{m}_valid" for m in METRIC_KEYS]].to_numpy() if not rows.empty else np.zeros((0, 1))
     if ((valid > 0) & (valid < rows[["n"]].to_numpy())).any():
         notes.append("† some seeds lack this value: the cell averages the others.")
@@ -368,5 +373,6 @@ def _build_table(runs: Runs, spec: Spec) -> Table:
     names = [runs.row(m, p, a) for m, p, a in keys]
     rows["label"] = [name.label for name in names]
     rows["in_paper"] = [name.in_paper for name in names]
+    rows["in_repository"] = [name.in_repository for name in names]
     notes = _notes(selected, done, rows, runs) + [f"{OBJECT_MEAN}: {n}." for n in mean_notes]
     return Table(spec.name, spec.title, rows, _header(done, runs), tuple(notes))

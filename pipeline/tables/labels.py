@@ -8,6 +8,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from pipeline.config.catalog import declared
 from pipeline.metrics.info import PAPER_METRICS
 from pipeline.tables.paper import paper_methods
 
@@ -28,6 +29,7 @@ class RowName:
     order: tuple
     experiments: tuple[str, ...] = ()
     in_paper: bool = True
+    in_repository: bool = True  # its method is this repository's (conf/method); False: a user's own
 
 
 @dataclass(frozen=True)
@@ -53,7 +55,8 @@ def row_name(config: Mapping[str, Any]) -> RowName:
         label = f"{label}-{planner.upper()}"
     order = (planner != "argmax", planner, ablation.get("rank", LAST), method.get("rank", LAST), method["name"])
     in_paper = method.get("label", method["name"]) in paper_methods()
-    return RowName(label, order, tuple(method.get("experiments") or ()), in_paper)
+    ours = method["name"] in declared("method")
+    return RowName(label, order, tuple(method.get("experiments") or ()), in_paper, ours)
 
 
 def scene_name(config: Mapping[str, Any]) -> SceneName:

@@ -339,7 +339,8 @@ def index_page(
             for scene in scenes:
                 psnr = frame.loc[(frame["scene"] == scene) & (frame["row"] == key), "psnr"].to_numpy(float)
                 psnr = psnr[np.isfinite(psnr)]
-                text = f"{psnr.mean():.2f} ± {psnr.std():.2f}" if len(psnr) else "-"
+                spread = f" ± {psnr.std():.2f}" if len(psnr) > 1 else ""  # one seed: the mean alone, as the tables
+                text = f"{psnr.mean():.2f}{spread}" if len(psnr) else "-"
                 cells.append(f'<td title="{len(psnr)} seeds">{text}</td>')
             lines.append(f'<tr><td class="label">{html.escape(runs.row(*key).label)}</td>{"".join(cells)}</tr>')
         parts.append(
