@@ -109,7 +109,7 @@ def test_a_step_trains_the_stages_its_scores_read(overrides, stages):
 
 
 def test_a_scene_asset_path_is_read_as_its_normal_form_and_an_empty_one_is_refused(tmp_path):
-    """``scene.asset=./room/room_nvf_gt_yup.obj`` missed the declared file's up axis (Y) and read the metric mesh
+    """``scene.asset`` written with a leading ``./`` missed the declared file's up axis (Y) and read the metric mesh
     Z-up; ``scene.asset=""`` was accepted as no file."""
     import dataclasses
 

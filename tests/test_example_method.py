@@ -117,3 +117,48 @@ def test_a_newcomers_own_method_and_scene_go_everywhere_the_built_in_ones_go(tmp
     assert (row["scene"], row["method"], row["rival"]) == ("mything", "depth_spread", "nvf")
     shown = run("pipeline.scenes", "show", "mything", search, f"paths.results={results}", "--res", "16")
     assert shown.stdout.strip().endswith("mything.png")
+
+
+SEEN_NOVELTY = REPO / "examples" / "seen_novelty"
+
+
+def test_a_whole_view_example_scores_the_object_it_sees_from_a_new_direction(monkeypatch):
+    """examples/seen_novelty: a view along an observed direction scores 0; one from a new side scores its seen share
+    times the angle; then the method runs an episode at the smoke budget as USAGE's command runs it."""
+    monkeypatch.syspath_prepend(str(SEEN_NOVELTY))
+    from seen_novelty import SeenNoveltyScorer
+
+    from nvf.cameras import Intrinsics, look_at, pixel_rays
+    from nvf.config import FieldConfig, SamplerConfig
+    from nvf.model import SceneModel
+    from nvf.seeding import generator_factory
+    from nvf.training import Observations
+
+    box = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+    model = SceneModel(
+        box, FieldConfig(log2_hashmap_size=10, num_levels=4, max_resolution=32), SamplerConfig(grid_resolution=8)
+    )
+    model.grid.occupied[:] = True
+    intr = Intrinsics.from_fov(8, 8)
+    seen = look_at(torch.tensor([2.6, 0.0, 0.0]), torch.zeros(3))
+    obs = Observations(torch.zeros(1, 8, 8, 4), seen[None], intr)
+    views = SeenNoveltyScorer().prepare(model, obs, generator_factory(0, 0, "cpu"), 64)
+    same = views.view_score(model, *pixel_rays(seen, intr), 64)
+    side = views.view_score(model, *pixel_rays(look_at(torch.tensor([0.0, 2.6, 0.0]), torch.zeros(3)), intr), 64)
+    assert float(same) == pytest.approx(0.0, abs=1e-6) and 0.0 < float(side) <= torch.pi / 2
+
+
+def test_the_whole_view_example_runs_an_episode(tmp_path):
+    env = {**os.environ, "PYTHONPATH": str(SEEN_NOVELTY), "OMP_NUM_THREADS": "1"}
+    run = [
+        sys.executable,
+        "-m",
+        "pipeline.run",
+        "method=seen_novelty",
+        f"hydra.searchpath=[file://{SEEN_NOVELTY / 'conf'}]",
+    ]
+    done = subprocess.run(
+        [*run, "budget=smoke", "budget.horizon=2", f"paths.outputs={tmp_path}"], cwd=REPO, env=env, capture_output=True
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert (tmp_path / "default" / "seen_novelty-argmax-none" / "smoke" / "seed_100" / "DONE").is_file()

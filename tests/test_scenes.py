@@ -362,3 +362,37 @@ def test_a_record_predating_its_asset_name_is_held_to_its_scenes_declared_file()
     assert "predates ground_truth.asset" in (built_differently(legacy, box) or "")
     assert built_differently(legacy, dataclasses.replace(scene, asset=Path("/assets") / declared[0])) is None
     assert built_differently({"scene_source": "procedural"}, load_scene("default")) is None
+
+
+def test_a_scene_of_your_own_from_a_mesh_in_one_command(tmp_path, capsys):
+    """``scenes new NAME --mesh FILE``: the yaml in your config directory with PROTOCOL 2.1's boxes (tight = the
+    mesh's bounds, object 10% wider, camera x 2.5 about (0, 0, z_min)), its picture and the command that runs it;
+    the scene then builds through the search path as a declared one does. A name the benchmark declares, or a
+    yaml that exists, is one line."""
+    import trimesh
+
+    from pipeline.config.validation import compose_run
+    from pipeline.scenes.__main__ import main
+    from pipeline.scenes.new_scene import derived_boxes
+
+    boxes = derived_boxes(np.array([[-1.0, -2.0, 0.0], [1.0, 2.0, 1.0]]))
+    assert boxes["object_aabb"] == [[-1.2, -2.4, -0.1], [1.2, 2.4, 1.1]]
+    assert boxes["camera_box"] == [[-3.0, -6.0, -0.1], [3.0, 6.0, 2.9]]
+    (tmp_path / "assets" / "cup").mkdir(parents=True)
+    mesh = trimesh.creation.icosphere(subdivisions=1, radius=0.4)
+    mesh.apply_translation([0.0, 0.0, 0.4])
+    mesh.export(tmp_path / "assets" / "cup" / "cup.ply")
+    argv = ["new", "cup", "--mesh", str(tmp_path / "assets" / "cup" / "cup.ply"), "--conf", str(tmp_path / "conf")]
+    main([*argv, f"paths.results={tmp_path / 'res'}"])
+    out = capsys.readouterr().out
+    assert "scene=cup" in out and (tmp_path / "res" / "figures" / "scenes" / "cup.png").is_file()
+    run = compose_run(
+        ["scene=cup", f"hydra.searchpath=[file://{tmp_path / 'conf'}]", f"paths.assets={tmp_path / 'assets'}"]
+    )
+    scene = load_scene(run.scene, tmp_path / "assets")
+    assert scene.source == "mesh" and np.allclose(scene.tight_box.numpy(), mesh.bounds, atol=1e-5)
+    for again, says in ((argv, "exists"), (["new", "hubble", *argv[2:]], "the benchmark's own")):
+        with pytest.raises(SystemExit) as info:
+            main(again)
+        err = capsys.readouterr().err
+        assert info.value.code == 2 and says in err and err.count("\n") == 1

@@ -66,7 +66,7 @@ def _mesh_candidates(cfg: Mapping[str, Any], assets: Path) -> list[tuple[Path, s
     name = cfg["name"]
     declared_files = [(posixpath.normpath(f["path"]), f.get("up", "z")) for f in cfg.get("files") or ()]
     if cfg.get("asset"):
-        up = dict(declared_files).get(posixpath.normpath(cfg["asset"]), "z")  # ./room/x.obj is room/x.obj
+        up = dict(declared_files).get(posixpath.normpath(cfg["asset"]), "z")  # a path written with ./ is the same file
         return [(assets / cfg["asset"], up)]
     own = [(assets / name / f"{name}.{ext}", "z") for ext in ASSET_EXTENSIONS]
     return own + [(assets / path, up) for path, up in declared_files]
@@ -118,7 +118,8 @@ def _placed(cfg: Mapping[str, Any], mesh: trimesh.Trimesh, up: str, tight: np.nd
         )
         raise SceneError(
             f"scene '{cfg['name']}': {path} has bounds {np.round(mesh.bounds, 3).tolist()} but the scene's tight box "
-            f"is {tight.tolist()}; {fix}"
+            f"is {tight.tolist()}; {fix}; or, for a scene of your own, declare its boxes from the mesh: python -m "
+            f"pipeline.scenes new NAME --mesh {path}"
         )
     return transform
 
