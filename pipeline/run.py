@@ -81,7 +81,7 @@ def main(cfg: DictConfig) -> dict:
         for name, path, note in shown:
             if path.is_file():
                 print(f"{name} {path} {note}".rstrip())
-    return {"status": outcome.status, "reason": None}
+    return {"status": outcome.status, "reason": None, "directory": str(directory)}
 
 
 def hydra_main() -> None:

@@ -260,6 +260,9 @@ def _check_sweep(tmp_path: Path, proc: subprocess.Popen) -> None:
     records = {d.parts[-3].split("-")[0]: RunRecord(d) for d in tmp_path.glob("*/*/*/seed_*")}
     assert {method: r.status() for method, r in records.items()} == {"random": "done", "nvf": "failed"}
     assert records["nvf"].failure() in lines[1]
+    listed = re.search(r"^job 0 \(.*method=random.*\): (\S+)$", out, flags=re.MULTILINE)  # where the finished job went
+    assert listed is not None and Path(listed.group(1)) == records["random"].directory
+    assert f"the tables of them all: python -m pipeline.tables paths.outputs={tmp_path}" in out
 
 
 def test_a_sweep_with_a_failed_job_exits_nonzero_with_a_summary(tmp_path):
@@ -480,3 +483,20 @@ def test_a_run_started_with_other_threads_is_not_resumed_with_these(tmp_path, mo
     with pytest.raises(RunRefused, match="started with 7 torch threads .* OMP_NUM_THREADS=7"):
         run_episode(cfg)
     assert len(record.completed_steps()) == 1
+
+
+def test_a_whole_view_methods_score_column_shows_its_candidates_from_above(tmp_path):
+    """The grid said "no score map: this method scores no views" for FVS, FisherRF, Bayes' Rays and every method
+    that scores whole views, as if it ran as Random; its score image is now each candidate's score at its camera
+    centre seen from above, with the range and unit its colour bar reads."""
+    import numpy as np
+
+    from pipeline.episode.evaluation import candidate_score_map
+    from pipeline.records.images import map_range
+
+    box = np.array([[-1.0, -1.0, 0.0], [1.0, 1.0, 1.0]])
+    image = candidate_score_map(np.array([[-1.0, 1.0, 0.5], [1.0, -1.0, 0.5]]), np.array([2.0, 5.0]), box, 40)
+    assert image[0, 0] == 2.0 and image[39, 39] == 5.0 and np.isnan(image[20, 20])
+    outcome = run_episode(_cfg(tmp_path, "method=fvs", "budget.horizon=1"))
+    low, high, unit = map_range(outcome.directory / "images" / "step_00_score.png")
+    assert low < high and unit == "radians, candidates from above"

@@ -800,3 +800,15 @@ def test_a_build_removes_the_folders_a_killed_build_left_and_keeps_a_running_one
     build_tables(outputs, [], results, figures=False)
     assert not abandoned.exists() and (running / "main.md").read_text() == "half"
     assert (results / "tables" / "main.md").is_file()
+
+
+def test_the_command_says_each_stage_on_a_terminal_and_nothing_elsewhere(tmp_path, capsys, monkeypatch):
+    """``pipeline.tables`` was silent for minutes on the committed records; on a terminal it now says each stage."""
+    out = tmp_path / "out"
+    make_run(out, seed=100)
+    main([f"paths.outputs={out}", f"paths.results={tmp_path / 'quiet'}"])
+    assert "reading and verifying" not in capsys.readouterr().err
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True)
+    main([f"paths.outputs={out}", f"paths.results={tmp_path / 'res'}"])
+    err = capsys.readouterr().err
+    assert "pipeline.tables: reading and verifying the run records ..." in err and "the results site ..." in err

@@ -205,3 +205,23 @@ class Evaluator:
         shown = renders[view]
         images = {"gt": self.gt[view], "pred": pred[view], "score": shown["score"], "depth": shown["depth"]}
         return metrics, images, view_sums
+
+
+def candidate_score_map(
+    positions: Float[np.ndarray, "m 3"], scores: Float[np.ndarray, " m"], box: Float[np.ndarray, "2 3"], size: int
+) -> Float[np.ndarray, "size size"]:
+    """A whole-view method's scores seen from above: each candidate's score at its camera centre over the camera
+    box's x-y extent (+x right, +y up), a disc ``size / 40`` pixels across, the higher score on top where discs
+    overlap; NaN where no candidate is (what the grid's score column shows for a method with no per-pixel map)."""
+    image = np.full((size, size), np.nan)
+    span = np.maximum(box[1, :2] - box[0, :2], 1e-12)
+    cols = np.round((positions[:, 0] - box[0, 0]) / span[0] * (size - 1)).astype(int)
+    rows = np.round((box[1, 1] - positions[:, 1]) / span[1] * (size - 1)).astype(int)
+    radius = max(1, size // 40)
+    dy, dx = np.mgrid[-radius : radius + 1, -radius : radius + 1]
+    inside = dy**2 + dx**2 <= radius**2
+    for i in np.argsort(scores, kind="stable"):
+        r, c = rows[i] + dy[inside], cols[i] + dx[inside]
+        keep = (r >= 0) & (r < size) & (c >= 0) & (c < size)
+        image[r[keep], c[keep]] = scores[i]
+    return image

@@ -21,8 +21,9 @@ from nvf.model import SceneModel
 from nvf.planning import Selection, argmax_first, prepare_scorer, score_poses, select_next_view
 from nvf.seeding import GeneratorFactory, generator_factory, seeded_generator
 from nvf.training import Observations, TrainStats, train_model
+from nvf.uncertainty import StepScorer
 from nvf.visibility_source import SourcedVisibility, label_visibility
-from pipeline.episode.evaluation import Evaluator
+from pipeline.episode.evaluation import Evaluator, candidate_score_map
 from pipeline.episode.settings import EpisodeSettings
 from pipeline.metrics.image import LpipsMetric
 from pipeline.records.schema import (
@@ -134,6 +135,13 @@ class Episode:
         t2 = time.perf_counter()
         selection, generators = self.plan(planning, obs, step)
         t3 = time.perf_counter()
+        if "score" in images and selection.scores is not None and isinstance(self.scorer, StepScorer):
+            images["score"] = candidate_score_map(  # whole-view scores: no per-pixel map, the candidates from above
+                selection.candidates[:, 4:].cpu().numpy(),  # type: ignore[index]  # set with its scores
+                selection.scores.cpu().numpy(),
+                self.scene.camera_box.numpy(),
+                images["score"].shape[0],
+            )
         self.previous_model = model if s.train.warm_start else None
         scores = selection.candidate_scores
         row = StepRow(

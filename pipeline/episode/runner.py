@@ -23,6 +23,7 @@ from hydra.core.hydra_config import HydraConfig
 from nvf.device import resolve_device
 from nvf.planning import NoCandidatesError
 from nvf.training import TrainingDiverged
+from nvf.uncertainty import StepScorer
 from pipeline.cli import BadInput, Failed, cores
 from pipeline.config.typed_run import Run
 from pipeline.config.validation import ConfigError
@@ -215,12 +216,14 @@ def _record_steps(directory: Path, episode: Episode, record: RunRecord, first: i
     """Steps ``first`` .. horizon - 1, each row (and the step's images) written once the step is complete."""
     s = episode.settings
     label = f"{episode.scene.name}/{s.method.name} {s.budget.name} seed {s.seed}"
+    whole_views = isinstance(episode.scorer, StepScorer)  # its score map: the candidates from above
+    unit = episode.method.score_unit + (", candidates from above" if whole_views else "")
     with EpisodeProgress(label, first, s.budget.horizon, s.stages) as progress:
         for step in range(first, s.budget.horizon):
             start = time.perf_counter()
             row, images = episode.step(step, progress.train)
             if s.save_images:
-                save_step_images(directory / "images", step, images, episode.method.score_unit)
+                save_step_images(directory / "images", step, images, unit)
             record.append_step(as_json(row))
             episode.observe_pose(row.selected_pose)
             psnr = math.nan if row.metrics.psnr is None else row.metrics.psnr

@@ -1,7 +1,8 @@
 """What a sweep reports (``python -m pipeline.run -m ...``): a Hydra callback (``conf/config.yaml``,
 ``hydra.callbacks``) that checks ``paths.outputs`` before Hydra writes anything there, has each job
 leave ``job_report.json`` in its Hydra job directory (status, reason, overrides), and ends the sweep
-with one summary line (done / skipped / failed), one line per failed job and its reason, and a
+with one summary line (done / skipped / failed), one line per failed job and its reason, where each finished
+job's run went (its records, pictures and table: ``summary.md``) and the command that tabulates them all, and a
 non-zero exit when any job failed.
 
 Reports go through files because a launcher may run each job in another process or on another
@@ -38,7 +39,7 @@ def job_result(job: JobReturn) -> dict[str, Any]:
     except Exception as error:
         return {"status": "failed", "reason": f"{type(error).__name__}: {' '.join(str(error).split())}"}
     if isinstance(value, dict) and value.get("status") in STATUSES:
-        return {"status": value["status"], "reason": value.get("reason")}
+        return {"status": value["status"], "reason": value.get("reason"), "directory": value.get("directory")}
     return {"status": "failed", "reason": f"the job returned {value!r}, not a status"}
 
 
@@ -53,6 +54,17 @@ def summary(reports: list[dict]) -> list[str]:
                 f"failed: job {report.get('num', '?')} ({overrides}): {report.get('reason') or 'no reason given'}"
             )
     return lines
+
+
+def where(reports: list[dict], outputs: str) -> list[str]:
+    """Where each finished job's run went (its records, pictures and one-run table, ``summary.md``) and the command
+    that tabulates every run under ``outputs``."""
+    lines = [
+        f"job {r.get('num', '?')} ({' '.join(r.get('overrides') or []) or 'no overrides'}): {r['directory']}"
+        for r in reports
+        if r["status"] != "failed" and r.get("directory")
+    ]
+    return [*lines, f"the tables of them all: python -m pipeline.tables paths.outputs={outputs}"] if lines else []
 
 
 class SweepReport(Callback):
@@ -95,6 +107,7 @@ class SweepReport(Callback):
                 reports.append(json.loads(path.read_text(encoding="utf-8")))
         reports.sort(key=lambda r: r.get("num", -1))
         lines = summary(reports)
-        print("\n".join(lines), file=sys.stderr if len(lines) > 1 else sys.stdout, flush=True)
+        print("\n".join([*where(reports, str(config.paths.outputs)), lines[0]]), flush=True)
         if len(lines) > 1:
+            print("\n".join(lines[1:]), file=sys.stderr, flush=True)
             sys.exit(1)

@@ -59,6 +59,12 @@ def parse(argv: list[str]) -> tuple[dict[str, Path], bool]:
     return paths_from_args(rest, PATH_KEYS), known.with_committed
 
 
+def stage_line(what: str) -> None:
+    """On a terminal, a line per stage (the whole build takes minutes on the committed records); quiet elsewhere."""
+    if sys.stderr.isatty():
+        print(f"pipeline.tables: {what} ...", file=sys.stderr, flush=True)
+
+
 def main(argv: list[str]) -> int:
     """Command-line entry point; returns the exit code."""
     if any(arg in ("-h", "--help") for arg in argv):
@@ -82,7 +88,7 @@ def main(argv: list[str]) -> int:
     roots = [results / "runs", *([RESULTS / "runs"] if with_committed else [])]
     roots = list({root.resolve(): root for root in roots if root.resolve() != outputs.resolve()}.values())  # each once
     try:
-        written, skipped = build_tables(outputs, roots, results, assets=paths["assets"])
+        written, skipped = build_tables(outputs, roots, results, assets=paths["assets"], stage=stage_line)
     except (ValueError, OSError) as err:
         print(f"error: {str(err).splitlines()[0]}", file=sys.stderr)
         return 1

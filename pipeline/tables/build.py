@@ -10,6 +10,7 @@ other commands put there (``pipeline.scenes``' ``figures/scenes/``) is carried i
 """
 
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 from pipeline.atomic_write import atomic_write_text, replace_folder, temp_folder
@@ -49,7 +50,12 @@ def prepare_outputs(results: Path) -> None:
 
 
 def build_tables(
-    outputs: Path, runs_dirs: list[Path], results: Path, figures: bool = True, assets: Path | None = None
+    outputs: Path,
+    runs_dirs: list[Path],
+    results: Path,
+    figures: bool = True,
+    assets: Path | None = None,
+    stage: Callable[[str], None] = lambda _: None,
 ) -> tuple[list[Path], tuple[str, ...]]:
     """Collect runs, write runs.csv, the tables (md/csv/tex), the paper comparison and (unless
     ``figures`` is False) the curves, image grids and the site, with the ``grid.png`` and
@@ -59,14 +65,15 @@ def build_tables(
     Returns the files written (where they lie once in place) and one line per run record skipped (unreadable)
     or left out (settings that conflict with a kept record of the same run, differing finished copies), or whose
     pictures could not be written. Nothing is written before the output directories are checked
-    (``prepare_outputs``).
+    (``prepare_outputs``). ``stage`` hears what each stage is about to do (the command shows it on a terminal).
     """
     results = Path(results)
     prepare_outputs(results)
+    stage("reading and verifying the run records")
     runs = collect_runs([Path(outputs), *map(Path, runs_dirs)])
     built = {name: temp_folder(results / name) for name in BUILT[: 3 if figures else 1]}
     try:
-        written, problems = _build(runs, results, built, assets)
+        written, problems = _build(runs, results, built, assets, stage)
         if "figures" in built:
             _carry_figures(results, built["figures"])
         text_columns = {column: runs.long[column].map(csv_cell) for column in TEXT_COLUMNS}
@@ -83,10 +90,13 @@ def build_tables(
     return [results / "runs.csv", *in_place], (*runs.skipped, *runs.conflicts, *problems)
 
 
-def _build(runs: Runs, results: Path, built: dict[str, Path], assets: Path | None) -> tuple[list[Path], list[str]]:
+def _build(
+    runs: Runs, results: Path, built: dict[str, Path], assets: Path | None, stage: Callable[[str], None]
+) -> tuple[list[Path], list[str]]:
     """Write the tables, and with ``built["figures"]`` the figures and the site, into the new folders ``built``;
     the files written and the lines of runs whose pictures could not be drawn."""
     written = []
+    stage(f"the tables of {len(runs.final)} runs")
     tables = {spec.name: build_table(runs, spec) for spec in SPECS}
     texts = {s.name: render(tables[s.name], LABEL_HEADERS.get(s.name, "Method"), s.experiment) for s in SPECS}
     texts["paper_comparison"] = render(paper_comparison(tables, runs), "Method", "table34_nerf_assets")
@@ -97,8 +107,10 @@ def _build(runs: Runs, results: Path, built: dict[str, Path], assets: Path | Non
             written.append(path)
     if "figures" not in built:
         return written, []
+    stage("the curves")
     written += curves(runs, built["figures"])
     done = runs.final[runs.final["status"] == "done"].sort_values("seed")
+    stage(f"the image grids of {done.drop_duplicates(list(GROUP)).shape[0]} methods and scenes")
     for _, run in done.drop_duplicates(list(GROUP)).iterrows():  # one grid per method and scene: lowest seed
         group = "-".join((run["method"], run["planner"], run["ablation"]))
         name = file_name(["grid", run["scene"], group, run["budget"], f"seed{int(run['seed'])}"], "_", ".png")
@@ -109,6 +121,7 @@ def _build(runs: Runs, results: Path, built: dict[str, Path], assets: Path | Non
             written.append(grid)
         else:  # drawn by an earlier build while the run's images were beside its record (committed ones lack them)
             _carry(results / "figures" / "grids" / name, built["figures"] / "grids" / name, results)
+    stage("each run's pictures")
     pictures, problems = run_pictures_of(runs, built["site"], assets, results / "site")
     written += [
         p
@@ -116,6 +129,7 @@ def _build(runs: Runs, results: Path, built: dict[str, Path], assets: Path | Non
         for p in (found.grid, found.trajectory)
         if p is not None and built["site"] in p.parents
     ]
+    stage("the results site")
     written += write_site(runs, pictures, results, built["site"])
     return written, problems
 
