@@ -19,7 +19,7 @@ sys.path.insert(0, str(REPO))  # this checkout's packages, whichever checkout is
 
 import pandas as pd  # noqa: E402
 
-from pipeline.experiments.transfer import label  # noqa: E402
+from pipeline.config.catalog import contender_label as label  # noqa: E402
 from scripts import generated_section  # noqa: E402
 
 DOC = REPO / "README.md"

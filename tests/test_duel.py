@@ -3,6 +3,7 @@ on the states of their recorded episodes, and the duel's tables."""
 
 import json
 import math
+import re
 import shutil
 from pathlib import Path
 
@@ -557,3 +558,30 @@ def test_a_state_is_never_taken_from_a_record_made_on_another_build_of_its_scene
     err = capsys.readouterr().err
     assert exit_.value.code == 2 and err.count("\n") == 1
     assert "scene source (mesh in the record, procedural now); set scene.asset" in err
+
+
+def test_the_help_gives_every_default_and_steps_follow_the_states_budget(capsys):
+    """``--help`` gave no default for ``--steps`` and ``--sets``, and the default steps (0..18) did not fit smoke
+    records (3 steps); the default is now every third step the states' records hold."""
+    with pytest.raises(SystemExit):
+        duel.main(["--help"])
+    text = " ".join(capsys.readouterr().out.split()).split("options:")[1]
+    for option in ("--scenes", "--seeds", "--steps", "--sets", "--records", "--state-budget", "--threads"):
+        assert re.search(re.escape(option) + r" [A-Z_]+ [^(]*\(default", text), option
+    with pytest.raises(SystemExit) as exit_:  # a smoke duel on the committed cpu records: the cpu budget's steps
+        duel.main(
+            [
+                "method=nvf",
+                "rival=wd",
+                "budget=smoke",
+                "--state-budget",
+                "cpu",
+                "--scenes",
+                "default",
+                "--seeds",
+                "100",
+                "--records",
+                "/nonexistent",
+            ]
+        )
+    assert exit_.value.code == 2 and "no usable record" in capsys.readouterr().err

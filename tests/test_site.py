@@ -133,11 +133,13 @@ def test_the_duel_page_lists_a_row_per_rival_marked_where_the_interval_excludes_
     assert "+0.20 [-0.10, +0.50]" in page and "&lt;b&gt;x" in page and "<b>x" not in page
     assert "<td>+0.40 [-1.00, +1.80]</td>" in page and page.count("<h2>hubble</h2>") == 1
     body = page[page.index("<tbody>") :]
-    assert re.findall(r'<tr><td class="label">([^<]*)</td><td class="label">([^<]*)</td>', body) == [
-        ("wd", "nvf"),
-        ("&lt;b&gt;x", "nvf"),
-    ]  # rivals down the rows, the method beside each
-    assert "<td>12</td><td>50%</td>" in body and "<td>1.50</td></tr>" in body
+    labels = r'<tr><td class="label">([^<]*)</td><td class="label">([^<]*)</td><td class="label">([^<]*)</td>'
+    assert re.findall(labels, body) == [
+        ("NVF", "WD", "-"),
+        ("NVF", "&lt;b&gt;x", "-"),
+    ]  # summary.md's order: the method, each rival down the rows by its label (a name no yaml declares as it is)
+    assert "<td>12</td><td><strong>+0.50" in body and "<td>50%</td>" in body and "<td>1.50</td></tr>" in body
+    assert "An episodes cell reads" in page
     results = tmp_path / "res"
     build_tables(tmp_path / "out", [], results, assets=tmp_path / "none")
     assert 'href="duel.html"' not in (results / "site" / "index.html").read_text()

@@ -36,6 +36,15 @@ def ablation_configs(conf_dir: Path = CONF) -> dict[str, dict[str, Any]]:
     return dict(sorted(configs.items(), key=lambda item: (item[1].get("rank", 100), item[0])))
 
 
+def contender_label(name: str, conf_dir: Path = CONF) -> str:
+    """How tables name a contender of the duel or the paper states: an ablation's label (``w/o Vis.``) or a method's
+    (``FVS (facing)``); a name ``conf_dir`` does not declare (a user's own method) as it is."""
+    ablations = ablation_configs(conf_dir)
+    if name in ablations:
+        return str(ablations[name]["label"])
+    return str(method_configs(conf_dir).get(name, {}).get("label", name))
+
+
 def conf_dirs(searchpath: Sequence[str] = ()) -> list[Path]:
     """``conf/`` and the config directories of a Hydra ``hydra.searchpath`` (its ``file://DIR`` entries), in the
     order Hydra looks in them."""

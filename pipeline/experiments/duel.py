@@ -101,7 +101,7 @@ from pipeline.scenes.scene import Scene, SceneError
 
 SCENES = ("hotdog", "hubble", "default")
 MAX_SETS = 64
-STEPS = (0, 3, 6, 9, 12, 15, 18)
+STEP_EVERY = 3  # --steps' default: every third step of the states' horizon (0, 3, .., 18 of the cpu budget's 20)
 OWN_KEYS = ("method", "rival", "ablation", "scene", "seed")  # the duel's own: not config overrides
 SETTING_LOCK = ".setting"  # a pair's setting.json and command.txt are written under this lock of its folder
 
@@ -417,8 +417,19 @@ def main(argv: list[str] | None = None) -> None:
         "--scenes", type=name_list, default=SCENES, help=f"comma-separated (default {','.join(SCENES)})"
     )
     parser.add_argument("--seeds", type=seed_list, default=SEEDS, help="comma-separated (default 100,101,102)")
-    parser.add_argument("--steps", type=step_list, default=STEPS, help="the recorded steps whose states are used")
-    parser.add_argument("--sets", type=int, default=2, help="candidate sets per state (set 0: the planner's own)")
+    parser.add_argument(
+        "--steps",
+        type=step_list,
+        default=None,
+        help="the recorded steps whose states are used (default every third step the states' records hold: 0,3,..,18 "
+        "at the cpu budget, 0 at smoke)",
+    )
+    parser.add_argument(
+        "--sets",
+        type=int,
+        default=2,
+        help=f"candidate sets per state, 1..{MAX_SETS} (default 2; set 0 is the planner's own draw)",
+    )
     parser.add_argument("--records", type=Path, default=RUNS, help=f"where the records are (default {RUNS})")
     parser.add_argument(
         "--state-budget", default=None, help="the budget of the records the states come from (default: the run's)"
@@ -430,7 +441,7 @@ def main(argv: list[str] | None = None) -> None:
         seeds = [check_seed(seed) for seed in args.seeds]
     except ValueError as err:
         fail(f"--seeds: {err}")
-    steps, scenes = list(args.steps), list(args.scenes)
+    scenes = list(args.scenes)
     bounded("--sets", args.sets, 1, MAX_SETS)
     bounded("--threads", args.threads, 1, cores(), "the cores this process may run on")
     cfg = compose_run([*method.overrides, *overrides])
@@ -444,6 +455,7 @@ def main(argv: list[str] | None = None) -> None:
     state_budget = cfg.budget.name if args.state_budget is None else args.state_budget
     if state_budget not in declared("budget"):
         fail(f"--state-budget {state_budget!r}: not one of conf/budget ({', '.join(declared('budget'))})")
+    steps = list(args.steps or range(0, compose_run([f"budget={state_budget}"]).budget.horizon, STEP_EVERY))
     setting = {"method": method.name, "overrides": kept, "budget": cfg.budget.name, "threads": args.threads}
     if state_budget != cfg.budget.name:
         setting["state_budget"] = state_budget  # the states' records are of another budget

@@ -34,10 +34,16 @@ import pandas as pd
 
 from pipeline.atomic_write import atomic_write_text
 from pipeline.cli import ArgumentParser, description, run_command
+from pipeline.config.catalog import contender_label
 from pipeline.config.validation import compose_run
 from pipeline.experiments.decisions import DECISION
 from pipeline.records.checked_files import Each, Entries, Number, Optional, Text, read_json, read_json_lines
-from pipeline.records.experiment_columns import DUEL_DETAIL_COLUMNS, DUEL_SUMMARY_COLUMNS
+from pipeline.records.experiment_columns import (
+    DUEL_DETAIL_COLUMNS,
+    DUEL_MIN_SEEDS,
+    DUEL_SUMMARY_COLUMNS,
+    EPISODES_MISSING,
+)
 from pipeline.records.files import RecordError, make_directory, refuse_escaping_link
 from pipeline.records.store import check_key, record_status
 from pipeline.repo import RUNS
@@ -58,9 +64,9 @@ SETTING = {
     "threads": Optional(Number(1, 4096, integer=True)),
 }  # a pair's setting.json (the rival and contenders once written for the pair; threads since they are recorded)
 ALL = "all"
-MIN_SEEDS = 3  # episodes compared only with this many paired seeds per scene
+MIN_SEEDS = DUEL_MIN_SEEDS  # episodes compared only with this many paired seeds per scene
 COLUMNS = tuple(DUEL_SUMMARY_COLUMNS)  # summary.csv's, declared with their shapes in pipeline.records
-TEXT = ("method", "rival", "scene")  # the csv columns of names (escaped: pipeline.tables.escape.as_csv)
+TEXT = ("method", "rival", "scene", "budget")  # the csv columns of names (escaped: pipeline.tables.escape.as_csv)
 DETAIL_COLUMNS = tuple(DUEL_DETAIL_COLUMNS)  # details.csv's
 
 
@@ -167,6 +173,7 @@ def pair_rows(folder: Path, rows: list[dict], records: Path, pooled: set[str]) -
         names = {"method": setting["method"], "rival": setting["rival"], "scene": scene}
         summary.append(
             names
+            | {"budget": setting["budget"]}
             | {"n": gain.n, "gain_mean": gain.mean, "ci_low": gain.low, "ci_high": gain.high}
             | {"same_pick": float(np.mean([r["same_pick"] for r in part]))}
             | {"episode_diff": episode.mean, "episode_ci_low": episode.low, "episode_ci_high": episode.high}
@@ -262,13 +269,15 @@ def _pooled_sentence(summary: pd.DataFrame) -> str:
 
 
 def summary_markdown(summary: pd.DataFrame, details: pd.DataFrame) -> str:
-    """``summary.md``: the pairs' rows and the count of rows each instrument separates."""
-    columns = ["method", "rival", "scene", "n", "one-step gain (dB)", "per-state gain (dB)", "same pick"]
+    """``summary.md``: the pairs' rows (contenders by their labels, each with its budget) and the count of rows each
+    instrument separates."""
+    columns = ["method", "rival", "scene", "budget", "n", "one-step gain (dB)", "per-state gain (dB)", "same pick"]
     columns += ["episodes: final PSNR diff (dB)", "duel cpu h", "episodes cpu h"]
     cells = []
     for (_, s), (_, d) in zip(summary.iterrows(), details.iterrows(), strict=True):
+        budget = s["budget"] if isinstance(s["budget"], str) else "-"
         cells.append(
-            [s["method"], s["rival"], s["scene"], str(int(s["n"]))]
+            [contender_label(s["method"]), contender_label(s["rival"]), s["scene"], budget, str(int(s["n"]))]
             + [_interval(s["gain_mean"], s["ci_low"], s["ci_high"])]
             + [_interval(d["state_gain_mean"], d["state_ci_low"], d["state_ci_high"]), f"{s['same_pick']:.0%}"]
             + [_interval(s["episode_diff"], s["episode_ci_low"], s["episode_ci_high"]), f"{s['cpu_hours']:.2f}"]
@@ -291,7 +300,9 @@ def summary_markdown(summary: pd.DataFrame, details: pd.DataFrame) -> str:
         "interval] over the n decisions; per state: over the states' mean gains), beside A's final PSNR minus "
         "B's in their episodes (paired by seed). Bold: the interval excludes zero." + _pooled_sentence(summary),
         "",
-        *markdown_table(columns, cells, left=3),
+        *markdown_table(columns, cells, left=4),
+        "",
+        EPISODES_MISSING,
         "",
         f"Of {len(scenes)} pair-scene rows with episodes of both, the duel separates {sum(duel)} and the "
         f"episodes {sum(runs)}; where both do ({len(both)}), their signs agree in {agree}.{ratios}",

@@ -22,7 +22,7 @@ import pandas as pd
 
 from pipeline.atomic_write import atomic_write_text
 from pipeline.cli import ArgumentParser, description, fail, run_command
-from pipeline.config.catalog import ablation_configs, method_configs
+from pipeline.config.catalog import contender_label
 from pipeline.config.validation import compose_run
 from pipeline.experiments.paper_states_summary import FOLDER, pooled_states
 from pipeline.tables.escape import as_csv
@@ -40,14 +40,6 @@ UNKNOWN_PAPER, UNKNOWN_CPU, NEITHER = (
     "unknown at the cpu budget",
     "separated at neither",
 )
-
-
-def label(name: str) -> str:
-    """A contender's label as the tables print it (its method's or its ablation's, from ``conf/``)."""
-    ablations = ablation_configs()
-    if name in ablations:
-        return str(ablations[name]["label"])
-    return str(method_configs().get(name, {}).get("label", name))
 
 
 def state_gain(row: Mapping, rival: str) -> float | None:
@@ -100,7 +92,7 @@ def transfer_rows(states: list[dict]) -> list[dict]:
         out.append(
             {
                 "rival": rival,
-                "label": label(rival),
+                "label": contender_label(rival),
                 "states": len(pairs),
                 "paper_differ": int((found[:, 0] != 0).sum()),
                 "paper_gain": paper.mean,

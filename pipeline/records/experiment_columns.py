@@ -33,10 +33,16 @@ HOURS = Number(0.0, null=True)
 AUC = Number(0.0, 1.0, null=True)
 SPEARMAN = Number(-1.0, 1.0, null=True)
 
+DUEL_MIN_SEEDS = 3  # a duel's row compares episodes only with this many paired seeds on every scene it covers
+EPISODES_MISSING = (
+    "An episodes cell reads '-' where the pair lacks finished episodes of both contenders for "
+    f"{DUEL_MIN_SEEDS} seeds on every scene of its row (the committed records, --records)."
+)
 DUEL_SUMMARY_COLUMNS = {
     "method": Text(),
     "rival": Text(),
     "scene": Text(),
+    "budget": Optional(Text(null=True)),  # the pair's (its setting's); empty in summaries made before it
     "n": COUNT,  # decisions whose picks differ
     "gain_mean": DB,  # the method's pick's held-out PSNR minus the rival's, over those n
     "ci_low": INTERVAL_DB,

@@ -36,8 +36,9 @@ from PIL import Image
 from plotly.offline import get_plotlyjs
 
 from pipeline.atomic_write import atomic_write_bytes, atomic_write_text
+from pipeline.config.catalog import contender_label
 from pipeline.records.checked_files import read_csv
-from pipeline.records.experiment_columns import DUEL_SUMMARY_COLUMNS
+from pipeline.records.experiment_columns import DUEL_SUMMARY_COLUMNS, EPISODES_MISSING
 from pipeline.records.files import RecordError, escaping_link, is_plain_file, read_plain_file
 from pipeline.tables.aggregate import SPECS, Table, build_table, mean_std_valid, seed_samples
 from pipeline.tables.escape import plot_text
@@ -612,24 +613,29 @@ def bold_interval(interval: Interval) -> str:
 
 
 def duel_row(row: pd.Series) -> str:
-    """One rival's row: the rival, the method, the one-step gain with its interval (bold where it excludes zero), its
-    decisions and share of identical picks, the episodes' final-PSNR difference (bold likewise) and the cpu hours."""
+    """One pair's row, in summary.md's order: the method and the rival (their labels), the budget, the decisions
+    whose picks differ, the one-step gain with its interval (bold where it excludes zero), the share of identical
+    picks, the episodes' final-PSNR difference (bold likewise) and the cpu hours."""
     gain = Interval(row["gain_mean"], row["ci_low"], row["ci_high"], int(row["n"]))
     episode = Interval(row["episode_diff"], row["episode_ci_low"], row["episode_ci_high"], 0)
     same = f"{row['same_pick']:.0%}" if math.isfinite(row["same_pick"]) else "-"
     hours = f"{row['cpu_hours']:.2f}" if math.isfinite(row["cpu_hours"]) else "-"
+    budget = row["budget"] if isinstance(row.get("budget"), str) else "-"
+    names = (contender_label(str(row["method"])), contender_label(str(row["rival"])), budget)
     return (
-        f'<tr><td class="label">{html.escape(str(row["rival"]))}</td><td class="label">'
-        f"{html.escape(str(row['method']))}</td><td>{bold_interval(gain)}</td><td>{int(row['n'])}</td>"
-        f"<td>{same}</td><td>{bold_interval(episode)}</td><td>{hours}</td></tr>"
+        "<tr>"
+        + "".join(f'<td class="label">{html.escape(name)}</td>' for name in names)
+        + f"<td>{int(row['n'])}</td><td>{bold_interval(gain)}</td><td>{same}</td><td>{bold_interval(episode)}</td>"
+        f"<td>{hours}</td></tr>"
     )
 
 
 DUEL_HEAD = (
-    "rival",
     "method",
-    "one-step gain, dB [95% interval]",
+    "rival",
+    "budget",
     "differing decisions",
+    "one-step gain, dB [95% interval]",
     "same pick",
     "episodes' final PSNR difference, dB [95% interval]",
     "cpu hours",
@@ -647,7 +653,8 @@ def duel_page(summary: pd.DataFrame, at_paper_scale: str | None = None) -> str:
         "[95% Student-t interval] over the decisions whose picks differ), how many decisions differ, the share of "
         "states where both picked the same view, the method's final PSNR minus the rival's in their episodes "
         "(paired by seed) and the duel's cpu hours. Bold: the interval excludes zero. The table <i>all</i> pools the "
-        "scenes every pair holds, so that its rows compare; a scene only some pairs hold has its own table only.</p>"
+        "scenes every pair holds, so that its rows compare; a scene only some pairs hold has its own table only. "
+        f"{html.escape(EPISODES_MISSING)}</p>"
     ]
     head = "".join(f"<th>{html.escape(name)}</th>" for name in DUEL_HEAD)
     for scene, block in summary.groupby("scene", sort=False):
