@@ -138,7 +138,11 @@ def test_the_duel_page_lists_a_row_per_rival_marked_where_the_interval_excludes_
         ("NVF", "WD", "-"),
         ("NVF", "&lt;b&gt;x", "-"),
     ]  # summary.md's order: the method, each rival down the rows by its label (a name no yaml declares as it is)
-    assert "<td>12</td><td><strong>+0.50" in body and "<td>50%</td>" in body and "<td>1.50</td></tr>" in body
+    assert (
+        "<td>12</td><td><strong>+0.50" in body
+        and "<td>50%</td>" in body
+        and "<td>1.50</td><td>not measured</td>" in body
+    )
     assert "An episodes cell reads" in page
     results = tmp_path / "res"
     build_tables(tmp_path / "out", [], results, assets=tmp_path / "none")
@@ -348,3 +352,37 @@ def test_the_overview_prints_the_mean_alone_from_one_seed(tmp_path):
     build_tables(out, [], results, assets=tmp_path / "no_assets")
     index = (results / "site" / "index.html").read_text(encoding="utf-8")
     assert '<td title="1 seeds">20.00</td>' in index and '<td title="2 seeds">18.50 ± 0.50</td>' in index
+
+
+def test_the_first_page_and_the_duel_page_say_which_verdicts_hold_at_the_papers_scale(tmp_path):
+    """Where the paper states' transfer table exists, the index and the duel page show it, and each of NVF's duel
+    rows says whether its verdict holds at the paper's scale ("not measured" for a rival the states lack)."""
+    from pipeline.tables.site import DUEL_SUMMARY, TRANSFER
+
+    results = tmp_path / "res"
+    (results / DUEL_SUMMARY).parent.mkdir(parents=True)
+    (results / TRANSFER).parent.mkdir(parents=True)
+    row = {
+        "n": 12,
+        "same_pick": 0.5,
+        "cpu_hours": 1.5,
+        "episode_diff": 0.4,
+        "episode_ci_low": -1.0,
+        "episode_ci_high": 1.8,
+    }
+    pd.DataFrame(
+        [
+            row | {"method": "nvf", "rival": rival, "scene": "all", "gain_mean": 0.5, "ci_low": 0.1, "ci_high": 0.9}
+            for rival in ("wo_vis", "fisherrf")
+        ]
+    ).to_csv(results / DUEL_SUMMARY, index=False)
+    transfer = {"states": 5, "paper_differ": 3, "paper_gain": -0.2, "paper_low": -0.4, "paper_high": -0.05}
+    transfer |= {"cpu_differ": 2, "cpu_gain": 0.2, "cpu_low": 0.1, "cpu_high": 0.3, "sign_agrees": 1}
+    pd.DataFrame([transfer | {"rival": "wo_vis", "label": "w/o Vis.", "verdict": "flips"}]).to_csv(
+        results / TRANSFER, index=False
+    )
+    build_tables(tmp_path / "out", [], results, assets=tmp_path / "none")
+    index = (results / "site" / "index.html").read_text()
+    duel = (results / "site" / "duel.html").read_text()
+    assert "Do the verdicts hold at the paper" in index and "<td>flips</td>" in index
+    assert "<td>flips</td></tr>" in duel and "<td>not measured</td></tr>" in duel

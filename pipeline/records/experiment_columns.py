@@ -53,6 +53,21 @@ DUEL_SUMMARY_COLUMNS = {
     "episode_ci_high": INTERVAL_DB,
     "cpu_hours": HOURS,  # the duel's own
 }
+TRANSFER_COLUMNS = {  # pilots/paper_states/transfer.csv (pipeline.experiments.transfer; the site's pages read it)
+    "rival": Text(),
+    "label": Text(),
+    "states": COUNT,
+    "paper_differ": COUNT,
+    "paper_gain": DB,
+    "paper_low": INTERVAL_DB,
+    "paper_high": INTERVAL_DB,
+    "cpu_differ": COUNT,
+    "cpu_gain": DB,
+    "cpu_low": INTERVAL_DB,
+    "cpu_high": INTERVAL_DB,
+    "sign_agrees": COUNT,
+    "verdict": Text(),
+}
 DUEL_DETAIL_COLUMNS = {
     "method": Text(),
     "rival": Text(),

@@ -38,7 +38,7 @@ from plotly.offline import get_plotlyjs
 from pipeline.atomic_write import atomic_write_bytes, atomic_write_text
 from pipeline.config.catalog import contender_label
 from pipeline.records.checked_files import read_csv
-from pipeline.records.experiment_columns import DUEL_SUMMARY_COLUMNS, EPISODES_MISSING
+from pipeline.records.experiment_columns import DUEL_SUMMARY_COLUMNS, EPISODES_MISSING, TRANSFER_COLUMNS
 from pipeline.records.files import RecordError, escaping_link, is_plain_file, read_plain_file
 from pipeline.tables.aggregate import SPECS, Table, build_table, mean_std_valid, seed_samples
 from pipeline.tables.escape import plot_text
@@ -50,6 +50,7 @@ from pipeline.tables.table_formats import html_table
 
 PLOTLY_JS = "plotly.min.js"
 DUEL_SUMMARY = Path("pilots", "duel", "summary.csv")  # pipeline.experiments.duel_summary's table
+TRANSFER = Path("pilots", "paper_states", "transfer.csv")  # pipeline.experiments.transfer's table
 PAPER_STATES_NOTE = Path("pilots", "paper_states", "README.md")  # the duel page's closing note
 DUEL_COLUMNS = DUEL_SUMMARY_COLUMNS  # the duel summary's columns as its writer declares them, read back checked
 
@@ -135,12 +136,13 @@ def write_site(runs: Runs, pictures: Mapping[str, RunPictures], results: Path, s
             curves[(budget, scene)] = site / scene_picture_name(scene, budget)
             pngs[curves[(budget, scene)]] = psnr_picture(runs, scene, budget, lead)
     duels = read_csv(Path(results) / DUEL_SUMMARY, DUEL_COLUMNS)
+    transfer = read_csv(Path(results) / TRANSFER, TRANSFER_COLUMNS)
     if duels is not None:
         paper_note = Path(results) / PAPER_STATES_NOTE
         at_paper_scale = _note(paper_note, site / "duel.html") if os.path.lexists(paper_note) else None
-        pages_text[site / "duel.html"] = duel_page(duels, at_paper_scale)
+        pages_text[site / "duel.html"] = duel_page(duels, at_paper_scale, transfer)
     index = site / "index.html"
-    pages_text[index] = index_page(runs, done, pages, index, duels is not None, curves)
+    pages_text[index] = index_page(runs, done, pages, index, duels is not None, curves, transfer)
     pilots = site / "pilots.html"
     pages_text[pilots] = pilots_page(Path(results) / "pilots", pilots)
     for png_path, png in pngs.items():
@@ -304,10 +306,12 @@ def index_page(
     page: Path,
     duel: bool = False,
     curves: Mapping[tuple[str, str], Path] | None = None,
+    transfer: pd.DataFrame | None = None,
 ) -> str:
     """Per budget, who wins where (``leads_html``: per scene the best row and its paired interval against the
     runner-up, the PSNR picture of ``curves`` by (budget, scene), the floor's flag), then methods x scenes: final
-    PSNR mean ± population std over seeds, each scene linking to its page; ``duel``: link the duel's page."""
+    PSNR mean ± population std over seeds, each scene linking to its page; ``duel``: link the duel's page;
+    ``transfer``: which of the duel's cpu verdicts hold at the paper's scale (``transfer_html``)."""
     parts = []
     if done.empty:
         parts.append(
@@ -359,7 +363,32 @@ def index_page(
             '<p><a href="duel.html">Duels</a>: which method\'s next view is better from the same state, paired '
             "one-step decisions beside the episodes' final PSNR.</p>"
         )
+    if transfer is not None:
+        parts.append(transfer_html(transfer))
     return _page("nvf-bench results", "".join(parts), style=STYLE + LEAD_STYLE)
+
+
+def transfer_html(transfer: pd.DataFrame) -> str:
+    """Per rival of NVF, its one-step verdict at the cpu budget beside the same states trained at the paper's scale
+    (``pilots/paper_states/transfer.csv``) and whether it holds at both, flips or is unknown at one."""
+    head = "".join(
+        f"<th>{html.escape(name)}</th>"
+        for name in ("rival", "states", "NVF's gain, cpu (dB)", "NVF's gain, paper (dB)", "verdict at both scales")
+    )
+    rows = "".join(
+        f'<tr><td class="label">{html.escape(str(r["label"]))}</td><td>{int(r["states"])}</td>'
+        f"<td>{bold_interval(Interval(r['cpu_gain'], r['cpu_low'], r['cpu_high'], int(r['states'])))}</td>"
+        f"<td>{bold_interval(Interval(r['paper_gain'], r['paper_low'], r['paper_high'], int(r['states'])))}</td>"
+        f"<td>{html.escape(str(r['verdict']))}</td></tr>"
+        for _, r in transfer.iterrows()
+    )
+    return (
+        "<h2>Do the verdicts hold at the paper's scale?</h2><p>The same states trained at the cpu budget and at the "
+        "paper's (its 512-px images, iterations and table size): NVF's pick's one-step held-out PSNR minus the "
+        "rival's, 0 where both pick one view, mean [95% interval] over the states "
+        '(<a href="../pilots/paper_states/transfer.md">transfer.md</a>).</p>'
+        f'<div class="wide"><table><thead><tr>{head}</tr></thead><tbody>{rows}</tbody></table></div>'
+    )
 
 
 def psnr_bands(runs: Runs, scene: str, budget: str) -> list[tuple[str, pd.DataFrame]]:
@@ -612,21 +641,23 @@ def bold_interval(interval: Interval) -> str:
     return f"<strong>{text}</strong>" if interval.excludes_zero else text
 
 
-def duel_row(row: pd.Series) -> str:
+def duel_row(row: pd.Series, verdicts: Mapping[str, str]) -> str:
     """One pair's row, in summary.md's order: the method and the rival (their labels), the budget, the decisions
     whose picks differ, the one-step gain with its interval (bold where it excludes zero), the share of identical
-    picks, the episodes' final-PSNR difference (bold likewise) and the cpu hours."""
+    picks, the episodes' final-PSNR difference (bold likewise), the cpu hours and, for NVF's rivals, whether NVF's
+    verdict against the rival holds at the paper's scale (``verdicts``: the transfer table's, by rival)."""
     gain = Interval(row["gain_mean"], row["ci_low"], row["ci_high"], int(row["n"]))
     episode = Interval(row["episode_diff"], row["episode_ci_low"], row["episode_ci_high"], 0)
     same = f"{row['same_pick']:.0%}" if math.isfinite(row["same_pick"]) else "-"
     hours = f"{row['cpu_hours']:.2f}" if math.isfinite(row["cpu_hours"]) else "-"
     budget = row["budget"] if isinstance(row.get("budget"), str) else "-"
     names = (contender_label(str(row["method"])), contender_label(str(row["rival"])), budget)
+    paper = verdicts.get(str(row["rival"]), "not measured") if row["method"] == "nvf" else "-"
     return (
         "<tr>"
         + "".join(f'<td class="label">{html.escape(name)}</td>' for name in names)
         + f"<td>{int(row['n'])}</td><td>{bold_interval(gain)}</td><td>{same}</td><td>{bold_interval(episode)}</td>"
-        f"<td>{hours}</td></tr>"
+        f"<td>{hours}</td><td>{html.escape(paper)}</td></tr>"
     )
 
 
@@ -634,15 +665,16 @@ DUEL_HEAD = (
     "method",
     "rival",
     "budget",
-    "differing decisions",
-    "one-step gain, dB [95% interval]",
+    "differing",
+    "one-step gain (dB)",
     "same pick",
-    "episodes' final PSNR difference, dB [95% interval]",
-    "cpu hours",
+    "episodes' final PSNR (dB)",
+    "cpu h",
+    "paper's scale",
 )
 
 
-def duel_page(summary: pd.DataFrame, at_paper_scale: str | None = None) -> str:
+def duel_page(summary: pd.DataFrame, at_paper_scale: str | None = None, transfer: pd.DataFrame | None = None) -> str:
     """Per scene (and over scenes), one row per rival (and method) of the duel's one-step gains (``summary.csv`` of
     ``pipeline.experiments.duel_summary``): a long table, as narrow however many rivals and methods it holds; then,
     where given, the note on the same decisions at paper-trained states (``PAPER_STATES_NOTE``, as HTML)."""
@@ -652,15 +684,19 @@ def duel_page(summary: pd.DataFrame, at_paper_scale: str | None = None) -> str:
         "measured on the evaluation views. A row: the method's pick minus the rival's in held-out PSNR (dB, mean "
         "[95% Student-t interval] over the decisions whose picks differ), how many decisions differ, the share of "
         "states where both picked the same view, the method's final PSNR minus the rival's in their episodes "
-        "(paired by seed) and the duel's cpu hours. Bold: the interval excludes zero. The table <i>all</i> pools the "
+        "(paired by seed), the duel's cpu hours and, for NVF's rivals, whether NVF's verdict holds at the paper's scale "
+        "(the table above). Bold: the interval excludes zero. The table <i>all</i> pools the "
         "scenes every pair holds, so that its rows compare; a scene only some pairs hold has its own table only. "
         f"{html.escape(EPISODES_MISSING)}</p>"
     ]
     head = "".join(f"<th>{html.escape(name)}</th>" for name in DUEL_HEAD)
+    verdicts = {} if transfer is None else dict(zip(transfer["rival"], transfer["verdict"], strict=True))
+    if transfer is not None:
+        parts.append(transfer_html(transfer))
     for scene, block in summary.groupby("scene", sort=False):
         rivals = list(dict.fromkeys(block["rival"]))
         ordered = block.assign(_rival=block["rival"].map(rivals.index)).sort_values("_rival", kind="stable")
-        lines = "".join(duel_row(row) for _, row in ordered.iterrows())
+        lines = "".join(duel_row(row, verdicts) for _, row in ordered.iterrows())
         parts.append(
             f'<h2>{html.escape(str(scene))}</h2><div class="wide"><table><thead><tr>{head}</tr></thead><tbody>'
             f"{lines}</tbody></table></div>"
