@@ -684,8 +684,8 @@ def duel_page(summary: pd.DataFrame, at_paper_scale: str | None = None, transfer
         "measured on the evaluation views. A row: the method's pick minus the rival's in held-out PSNR (dB, mean "
         "[95% Student-t interval] over the decisions whose picks differ), how many decisions differ, the share of "
         "states where both picked the same view, the method's final PSNR minus the rival's in their episodes "
-        "(paired by seed), the duel's cpu hours and, for NVF's rivals, whether NVF's verdict holds at the paper's scale "
-        "(the table above). Bold: the interval excludes zero. The table <i>all</i> pools the "
+        "(paired by seed), the duel's cpu hours and, for NVF's rivals, whether NVF's verdict holds at the paper's "
+        "scale (the table above). Bold: the interval excludes zero. The table <i>all</i> pools the "
         "scenes every pair holds, so that its rows compare; a scene only some pairs hold has its own table only. "
         f"{html.escape(EPISODES_MISSING)}</p>"
     ]
