@@ -36,6 +36,12 @@ def ablation_configs(conf_dir: Path = CONF) -> dict[str, dict[str, Any]]:
     return dict(sorted(configs.items(), key=lambda item: (item[1].get("rank", 100), item[0])))
 
 
+def study_defaults(name: str, conf_dir: Path = CONF) -> dict[str, Any]:
+    """A study's defaults, ``conf/study/<name>.yaml`` as plain data (its scenes, steps, contenders, ...): each study's
+    parameters declared once, in a file, not in its code."""
+    return as_dict(OmegaConf.load(Path(conf_dir) / "study" / f"{name}.yaml"), resolve=False)
+
+
 def contender_label(name: str, conf_dir: Path = CONF) -> str:
     """How tables name a contender of the duel or the paper states: an ablation's label (``w/o Vis.``) or a method's
     (``FVS (facing)``); a name ``conf_dir`` does not declare (a user's own method) as it is."""

@@ -26,6 +26,7 @@ from matplotlib.figure import Figure
 
 from pipeline.atomic_write import atomic_write_text
 from pipeline.cli import fail, help_page, run_command
+from pipeline.config.catalog import study_defaults
 from pipeline.config.paths import paths_from_args
 from pipeline.records.checked_files import read_csv
 from pipeline.records.experiment_columns import DISCRIMINATE_SUMMARY_COLUMNS
@@ -34,7 +35,7 @@ from pipeline.records.images import save_figure
 from pipeline.tables.escape import as_csv
 from pipeline.tables.table_formats import markdown_table
 
-SCENES = ("hotdog", "hubble", "default")
+SCENES = tuple(study_defaults("budget_curve")["scenes"])  # conf/study/budget_curve.yaml
 RULE_COMPARISONS = ("nvf-wo_vis", "nvf-best_baseline")
 MAX_MINUTES = 15.0
 SUMMARY = DISCRIMINATE_SUMMARY_COLUMNS  # a discrimination experiment's summary.csv, as its writer declares it
@@ -114,7 +115,7 @@ def plot(curve: pd.DataFrame) -> Figure:
     comparisons = list(dict.fromkeys(curve["comparison"]))
     figure = Figure(figsize=(4.2 * len(comparisons), 3.6))
     axes = figure.subplots(1, len(comparisons), sharey=True, squeeze=False)[0]
-    markers = dict(zip(SCENES, "osD", strict=True))
+    markers = {scene: "osD^v<>"[i % 7] for i, scene in enumerate(SCENES)}
     for ax, comparison in zip(axes, comparisons, strict=True):
         rows = curve[curve["comparison"] == comparison]
         for i, (label, group) in enumerate(rows.groupby("label", sort=True)):

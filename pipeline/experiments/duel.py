@@ -54,7 +54,7 @@ from nvf.device import resolve_device
 from nvf.training import Observations
 from pipeline.atomic_write import atomic_write_text
 from pipeline.cli import ArgumentParser, bounded, cores, fail, help_page, run_command
-from pipeline.config.catalog import conf_dirs, declared, searchpath_of
+from pipeline.config.catalog import conf_dirs, declared, searchpath_of, study_defaults
 from pipeline.config.validation import compose_run
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
@@ -99,7 +99,7 @@ from pipeline.scenes.blender import blender_python
 from pipeline.scenes.loading import load_scene
 from pipeline.scenes.scene import Scene, SceneError
 
-SCENES = ("hotdog", "hubble", "default")
+SCENES = tuple(study_defaults("duel")["scenes"])  # conf/study/duel.yaml
 MAX_SETS = 64
 STEP_EVERY = 3  # --steps' default: every third step of the states' horizon (0, 3, .., 18 of the cpu budget's 20)
 OWN_KEYS = ("method", "rival", "ablation", "scene", "seed")  # the duel's own: not config overrides

@@ -67,7 +67,7 @@ from nvf.training import Observations
 from nvf.visibility import visibility_labels
 from pipeline.atomic_write import atomic_write_text
 from pipeline.cli import ArgumentParser, bounded, cores, fail, help_page, run_command
-from pipeline.config.catalog import conf_dirs, declared, option_problem, searchpath_of
+from pipeline.config.catalog import conf_dirs, declared, option_problem, searchpath_of, study_defaults
 from pipeline.config.validation import compose_run
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
@@ -111,22 +111,15 @@ from pipeline.scenes.blender import blender_python, missing_python
 from pipeline.scenes.loading import load_scene
 from pipeline.scenes.scene import Scene, SceneError
 
-SCENES = ("hubble", "default", "hotdog")
+DEFAULTS = study_defaults("paper_states")  # conf/study/paper_states.yaml: scenes, steps, contenders, label points
+SCENES = tuple(DEFAULTS["scenes"])
 SETTING_LOCK = ".setting"  # setting.json and command.txt are written under this lock of the folder
-STEPS = (2, 8, 14)
+STEPS = tuple(DEFAULTS["steps"])
 BUDGETS = ("paper", "cpu")
-CONTENDERS = (
-    "nvf",
-    "wo_vis",
-    "fisherrf",
-    "activenerf",
-    "fvs_facing",
-    "cover",
-    "warprf",
-)  # NVF first: the others are compared with it
+CONTENDERS = tuple(DEFAULTS["contenders"])  # NVF first: the others are compared with it
 OWNERS = ("nvf", "wo_vis")  # whose records the states come from, alternately
 ALL = "all"  # --outcomes: every rival
-VIS_POINTS = 4096
+VIS_POINTS = int(DEFAULTS["vis_points"])
 SURFACE_OFFSET = 0.01  # scene units outside the surface, along the face normal
 OWN_KEYS = ("method", "rival", "ablation", "scene", "seed", "budget")  # the command's own: not config overrides
 DRAW = "(backbone)"  # the model the candidate draw reads when NVF's own is not trained: NVF's stage 1 alone

@@ -43,7 +43,7 @@ from nvf.training import Observations
 from nvf.uncertainty import ViewScorer
 from pipeline.atomic_write import atomic_write_bytes, atomic_write_text
 from pipeline.cli import ArgumentParser, BadInput, description, fail, run_command
-from pipeline.config.catalog import ablation_configs, method_configs
+from pipeline.config.catalog import ablation_configs, method_configs, study_defaults
 from pipeline.config.method import build_method
 from pipeline.config.settings_beyond_groups import config_label
 from pipeline.config.validation import compose_run
@@ -87,31 +87,34 @@ def _directions(theta: Float[Tensor, " n"], phi: Float[Tensor, " n"]) -> Float[T
 
 
 def partial_views(scene: Scene, generator: torch.Generator) -> Float[Tensor, "n 4 4"]:
-    """PROTOCOL 4.4's one-sided training set: 20 random views of Hubble or Hotdog, Room's 10 initial views.
+    """PROTOCOL 4.4's one-sided training set: 20 random views of a scene ``conf/study/uncertainty.yaml`` declares
+    (Hubble, Hotdog), Room's 10 initial views.
 
     Draw order (ours; the protocol gives only the distributions): theta [20], phi [20], look-at
     targets [20, 3], up vectors [20, 3], all float64 uniforms from ``generator``.
     """
     if scene.name == "room":
         return scene.init_poses.clone()  # the reference's pose file is unreleased (not confirmed)
-    if scene.name not in ("hubble", "hotdog"):
+    draws = study_defaults("uncertainty")["partial_views"]
+    if scene.name not in draws:
         raise SceneError(
-            f"PROTOCOL 4.4 defines the partial training set for hubble, hotdog and room only, not {scene.name!r}; "
-            "pass scene=hubble, scene=hotdog or scene=room"
+            f"PROTOCOL 4.4 defines the partial training set for {', '.join(draws)} and room only, not {scene.name!r} "
+            f"(conf/study/uncertainty.yaml); pass scene={next(iter(draws))} or scene=room"
         )
-    n = PARTIAL_VIEWS
+    draw, n = draws[scene.name], PARTIAL_VIEWS
+    units = {"1": 1.0, "s": S, "2s": 2 * S}
 
     def uniform(*shape: int) -> Tensor:
         return torch.rand(*shape, generator=generator, dtype=torch.float64)
 
-    if scene.name == "hubble":  # theta ~ U[0, pi/2], phi ~ U[pi/4, 3pi/4]
-        theta, phi = uniform(n) * math.pi / 2, math.pi / 4 + uniform(n) * math.pi / 2
-        positions = S * (torch.tensor([0.0, 0.0, 3.0]) + torch.tensor([10.0, 10.0, 15.0]) * _directions(theta, phi))
-        targets = 2 * S * (torch.tensor([-0.5, -0.5, -1.0]) + uniform(n, 3) * torch.tensor([1.0, 1.0, 3.5]))
-    else:  # hotdog: theta ~ U[-pi/4, pi/4], phi ~ U[pi/4, pi/2]
-        theta, phi = -math.pi / 4 + uniform(n) * math.pi / 2, math.pi / 4 + uniform(n) * math.pi / 4
-        positions = torch.tensor([1.5, 1.5, 1.7]) * _directions(theta, phi)
-        targets = torch.tensor([-0.5, -0.5, 0.0]) + uniform(n, 3) * torch.tensor([1.0, 1.0, 0.5])
+    (theta_low, theta_width), (phi_low, phi_width) = draw["theta"], draw["phi"]
+    theta = theta_low * math.pi + uniform(n) * (theta_width * math.pi)
+    phi = phi_low * math.pi + uniform(n) * (phi_width * math.pi)
+    where, looks = draw["position"], draw["target"]
+    positions = units[where["unit"]] * (
+        torch.tensor(where["offset"]) + torch.tensor(where["scale"]) * _directions(theta, phi)
+    )
+    targets = units[looks["unit"]] * (torch.tensor(looks["low"]) + uniform(n, 3) * torch.tensor(looks["width"]))
     ups = uniform(n, 3)
     return torch.stack([look_at(p, t, tuple(u.tolist())) for p, t, u in zip(positions, targets, ups, strict=True)])
 

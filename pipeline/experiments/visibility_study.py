@@ -53,7 +53,7 @@ from nvf.training import Observations
 from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
 from pipeline.atomic_write import atomic_write_text
 from pipeline.cli import ArgumentParser, bounded, cores, description, fail, run_command
-from pipeline.config.catalog import declared
+from pipeline.config.catalog import declared, study_defaults
 from pipeline.config.typed_run import Run
 from pipeline.config.validation import compose_run
 from pipeline.diagnostics.visibility_report import visibility_report
@@ -89,8 +89,8 @@ from pipeline.scenes.blender import blender_python
 from pipeline.scenes.loading import load_scene
 from pipeline.scenes.scene import SceneError
 
-SCENES = ("hotdog", "hubble", "default")
-STEPS = (0, 3, 6, 9, 12, 15, 18)
+DEFAULTS = study_defaults("visibility_study")  # conf/study/visibility_study.yaml
+SCENES, STEPS = tuple(DEFAULTS["scenes"]), tuple(DEFAULTS["steps"])
 MAX_SETS = 64
 
 
