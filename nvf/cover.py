@@ -19,9 +19,9 @@ from jaxtyping import Bool, Float, Int
 from torch import Tensor, nn
 
 from nvf.cameras import Intrinsics, project
+from nvf.observations import Observations
 from nvf.occupancy import OccupancyGrid
 from nvf.seeding import GeneratorFactory
-from nvf.training import Observations
 
 RGB = frozenset({"rgb"})
 NEAR = 0.01  # COVER's near plane for the frustum test (scene units)

@@ -22,9 +22,9 @@ import torch
 from jaxtyping import Float
 from torch import Tensor, nn
 
+from nvf.observations import Observations
 from nvf.occupancy import ray_aabb
 from nvf.seeding import GeneratorFactory
-from nvf.training import Observations
 
 BEHIND = 4.0 * math.pi  # what a candidate that does not face the object loses: more than any distance (2 pi)
 

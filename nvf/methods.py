@@ -25,7 +25,7 @@ from beartype.door import is_bearable
 from nvf.config import EntropyConfig
 from nvf.cover import CoverScorer
 from nvf.coverage import FarthestViewScorer
-from nvf.training import AuxLoss, activenerf_loss, neurar_loss
+from nvf.losses import AuxLoss, activenerf_loss, neurar_loss
 from nvf.uncertainty.baselines import ActiveRMAPScorer, AIRScorer, RenderedVarianceScorer, WDScorer
 from nvf.uncertainty.fisher import FisherRFScorer
 from nvf.uncertainty.laplace import BayesRaysScorer

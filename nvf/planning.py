@@ -29,8 +29,8 @@ from nvf.cameras import (
     se3_update,
 )
 from nvf.config import OptConfig, PlannerConfig
+from nvf.observations import Observations
 from nvf.seeding import GeneratorFactory
-from nvf.training import Observations
 from nvf.uncertainty import StepScorer, ViewScorer, WholeViewScorer
 from nvf.visibility import segment_transmittance
 

@@ -18,8 +18,8 @@ from jaxtyping import Float
 from torch import Tensor, nn
 
 from nvf.cameras import Intrinsics, pixel_rays, project
+from nvf.observations import Observations
 from nvf.seeding import GeneratorFactory
-from nvf.training import Observations
 
 RGB = frozenset({"rgb"})
 

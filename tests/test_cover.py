@@ -7,8 +7,8 @@ from nvf.cameras import Intrinsics, look_at, pixel_rays
 from nvf.config import FieldConfig, SamplerConfig
 from nvf.cover import CoverScorer, element_coverage, fibonacci_sphere, observed_bins
 from nvf.model import SceneModel
+from nvf.observations import Observations
 from nvf.seeding import generator_factory
-from nvf.training import Observations
 from pipeline.config.validation import compose_run
 from pipeline.episode.runner import run_episode
 

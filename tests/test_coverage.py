@@ -8,8 +8,8 @@ from nvf.cameras import Intrinsics, look_at, matrix_to_pose, pixel_rays
 from nvf.config import FieldConfig, SamplerConfig
 from nvf.coverage import BEHIND, FarthestViewScorer, faces, view_distance
 from nvf.model import SceneModel
+from nvf.observations import Observations
 from nvf.planning import argmax_first, score_poses
-from nvf.training import Observations
 
 AABB = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 INTR = Intrinsics.from_fov(8, 8)

@@ -9,7 +9,7 @@ import torch
 from nvf.cameras import Intrinsics, look_at
 from nvf.config import FieldConfig, SamplerConfig
 from nvf.model import SceneModel
-from nvf.training import Observations
+from nvf.observations import Observations
 from pipeline.episode.evaluation import reconstruct_points
 from pipeline.metrics.geometry import points_from_rays
 

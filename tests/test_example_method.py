@@ -131,8 +131,8 @@ def test_a_whole_view_example_scores_the_object_it_sees_from_a_new_direction(mon
     from nvf.cameras import Intrinsics, look_at, pixel_rays
     from nvf.config import FieldConfig, SamplerConfig
     from nvf.model import SceneModel
+    from nvf.observations import Observations
     from nvf.seeding import generator_factory
-    from nvf.training import Observations
 
     box = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
     model = SceneModel(

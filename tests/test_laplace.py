@@ -6,7 +6,7 @@ import torch
 from nvf.cameras import Intrinsics, look_at, pixel_rays
 from nvf.config import FieldConfig, SamplerConfig
 from nvf.model import SceneModel
-from nvf.training import Observations
+from nvf.observations import Observations
 from nvf.uncertainty.laplace import BayesRaysScorer, PerturbationGrid, ray_hessian, ray_uncertainty
 
 AABB = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])

@@ -21,24 +21,26 @@ from nvf.config import (  # noqa: E402
     StageOrder,
     TrainConfig,
 )
-from nvf.model import SceneModel  # noqa: E402
-from nvf.training import (  # noqa: E402
-    Observations,
-    RayBatch,
-    TrainingDiverged,
+from nvf.losses import (  # noqa: E402
     activenerf_loss,
-    backbone_lr,
     balanced_bce_weights,
     composite,
     neurar_loss,
+    variance_nll,
+    visibility_bce,
+)
+from nvf.model import SceneModel  # noqa: E402
+from nvf.observations import Observations  # noqa: E402
+from nvf.stage_recorder import StageRecorder, TrainingDiverged  # noqa: E402
+from nvf.training import (  # noqa: E402
+    RayBatch,
+    backbone_lr,
     stage_order,
     stages_to_train,
     train_backbone,
     train_model,
     train_variance_head,
     train_visibility_head,
-    variance_nll,
-    visibility_bce,
 )
 
 RADIUS = 0.5
@@ -211,7 +213,7 @@ def test_backbone_nan_raises_training_diverged():
 
 
 def _feed(stage: str, losses: list[float]) -> None:
-    recorder = training._Recorder(stage, len(losses), None)
+    recorder = StageRecorder(stage, len(losses), None)
     for iteration, loss in enumerate(losses):
         recorder.end_iteration(iteration, loss)
 

@@ -6,8 +6,8 @@ import torch
 from nvf.cameras import Intrinsics, look_at, pixel_rays
 from nvf.config import FieldConfig, SamplerConfig
 from nvf.model import SceneModel
+from nvf.observations import Observations
 from nvf.seeding import generator_factory
-from nvf.training import Observations
 from nvf.warp_consistency import WarpScorer, warped
 from pipeline.config.validation import compose_run
 from pipeline.episode.runner import run_episode

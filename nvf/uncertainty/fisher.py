@@ -21,8 +21,8 @@ from jaxtyping import Float
 from torch import Tensor, nn
 
 from nvf.cameras import pixel_rays
+from nvf.observations import Observations
 from nvf.seeding import GeneratorFactory
-from nvf.training import Observations
 
 RGB = frozenset({"rgb"})
 TRAIN_PROBES = "fisher/train_probes"  # generator purposes (PROTOCOL 3)

@@ -18,9 +18,9 @@ from jaxtyping import Float, Int
 from torch import Tensor, nn
 
 from nvf.cameras import pixel_rays
+from nvf.observations import Observations
 from nvf.rendering import ray_sum
 from nvf.seeding import GeneratorFactory
-from nvf.training import Observations
 
 PRIOR_SCALE = 1e-4  # lambda_0 of M35 (the reference code's), divided by the grid's cells
 U_MIN, U_MAX = -3.0, 6.0  # M36: a ray's log10 uncertainty is clipped to [U_MIN, U_MAX] (the reference's bounds)

@@ -7,16 +7,14 @@ parameters (``WholeViewScorer``), without a per-pixel score. Each method's score
 in ``nvf.methods``; Random has none.
 """
 
-from typing import TYPE_CHECKING, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 from jaxtyping import Float, Int
 from torch import Tensor, nn
 
 from nvf.model import RenderResult
+from nvf.observations import Observations
 from nvf.seeding import GeneratorFactory
-
-if TYPE_CHECKING:  # nvf.training imports this package
-    from nvf.training import Observations
 
 
 @runtime_checkable
@@ -70,5 +68,5 @@ class StepScorer(Protocol):
     def name(self) -> str: ...
 
     def prepare(
-        self, model: nn.Module, observations: "Observations", generators: GeneratorFactory, chunk_rays: int
+        self, model: nn.Module, observations: Observations, generators: GeneratorFactory, chunk_rays: int
     ) -> WholeViewScorer: ...

@@ -4,7 +4,7 @@ iteration cost only the field's own work, and the MLP floor, the same with only 
 import torch
 
 from nvf.model import SceneModel
-from nvf.training import Observations
+from nvf.observations import Observations
 from pipeline.bench._models import RGB
 from pipeline.bench.field_throughput import median_seconds
 

@@ -15,9 +15,10 @@ import torch
 
 from nvf.cameras import matrix_to_pose
 from nvf.model import SceneModel
+from nvf.observations import Observations
 from nvf.planning import candidate_poses, prepare_scorer, score_poses_together
 from nvf.seeding import generator_factory, seeded_generator
-from nvf.training import Observations, train_model
+from nvf.training import train_model
 from nvf.uncertainty import ViewScorer
 from pipeline.cli import fail
 from pipeline.config.typed_run import Run

@@ -39,9 +39,10 @@ from nvf.cameras import matrix_to_pose
 from nvf.config import LineOfSightSource
 from nvf.device import resolve_device
 from nvf.model import SceneModel
+from nvf.observations import Observations
 from nvf.planning import NoCandidatesError, candidate_poses, refine_poses, top_k_first
 from nvf.seeding import generator_factory, seeded_generator
-from nvf.training import Observations, train_model
+from nvf.training import train_model
 from nvf.uncertainty import ViewScorer
 from nvf.visibility_source import SourcedVisibility
 from pipeline.bench._report import report_path, write_report

@@ -31,10 +31,10 @@ from nvf.device import resolve_device, synchronize
 from nvf.field import INFERENCE_BLOCK, VIS_POSITION_WIDTH
 from nvf.methods import FisherRF, Method
 from nvf.model import SceneModel
+from nvf.observations import Observations
 from nvf.planning import score_poses
 from nvf.precision import precision_dtype
 from nvf.seeding import generator_factory
-from nvf.training import Observations
 from nvf.uncertainty import StepScorer, ViewScorer, WholeViewScorer
 from pipeline.bench._models import (
     RGB,

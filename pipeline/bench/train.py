@@ -25,8 +25,9 @@ from nvf.config import Precision
 from nvf.device import resolve_device, synchronize
 from nvf.encoding import cpp_extension
 from nvf.field import HEADS
+from nvf.observations import Observations
 from nvf.precision import precision_dtype
-from nvf.training import Observations, train_backbone
+from nvf.training import train_backbone
 from pipeline.bench._field_floor import field_floor
 from pipeline.bench._models import (
     HELD_OUT_VIEWS,

@@ -14,9 +14,10 @@ from nvf.cameras import Intrinsics, matrix_to_pose
 from nvf.config import STAGES
 from nvf.device import resolve_device
 from nvf.model import SceneModel
+from nvf.observations import Observations
 from nvf.planning import candidate_poses
 from nvf.seeding import seeded_generator
-from nvf.training import Observations, train_model
+from nvf.training import train_model
 from pipeline.cli import fail
 from pipeline.config.typed_run import Run
 from pipeline.episode.settings import EpisodeSettings

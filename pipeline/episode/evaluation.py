@@ -13,8 +13,8 @@ from torch import Tensor
 
 from nvf.cameras import Intrinsics, pixel_rays
 from nvf.model import SceneModel
+from nvf.observations import Observations
 from nvf.seeding import seeded_generator
-from nvf.training import Observations
 from nvf.uncertainty import ViewScorer
 from nvf.visibility_source import SourcedVisibility
 from pipeline.config.structured_configs import BudgetConfig, MetricsConfig

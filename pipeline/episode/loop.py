@@ -18,9 +18,10 @@ from scipy import stats
 
 from nvf.cameras import Intrinsics, matrix_to_pose, pose_to_matrix
 from nvf.model import SceneModel
+from nvf.observations import Observations
 from nvf.planning import Selection, argmax_first, prepare_scorer, score_poses, select_next_view
 from nvf.seeding import GeneratorFactory, generator_factory, seeded_generator
-from nvf.training import Observations, TrainStats, train_model
+from nvf.training import TrainStats, train_model
 from nvf.uncertainty import StepScorer
 from nvf.visibility_source import SourcedVisibility, label_visibility
 from pipeline.episode.evaluation import Evaluator, candidate_score_map

@@ -22,7 +22,7 @@ from hydra.core.hydra_config import HydraConfig
 
 from nvf.device import resolve_device
 from nvf.planning import NoCandidatesError
-from nvf.training import TrainingDiverged
+from nvf.stage_recorder import TrainingDiverged
 from nvf.uncertainty import StepScorer
 from pipeline.cli import BadInput, Failed, cores
 from pipeline.config.typed_run import Run

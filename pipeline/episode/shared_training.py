@@ -20,8 +20,9 @@ import torch
 from torch import Tensor
 
 from nvf.model import SceneModel
+from nvf.observations import Observations
 from nvf.seeding import seeded_generator
-from nvf.training import Observations, train_model, variance_mixture_config
+from nvf.training import train_model, variance_mixture_config
 from pipeline.atomic_write import atomic_write_bytes
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings

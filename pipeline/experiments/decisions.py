@@ -28,9 +28,10 @@ from torch import Tensor
 
 from nvf.cameras import matrix_to_pose, pose_to_matrix
 from nvf.model import SceneModel
+from nvf.observations import Observations
 from nvf.planning import argmax_first, candidate_poses, prepare_scorer, random_pick, score_poses
 from nvf.seeding import generator_factory, seeded_generator
-from nvf.training import Observations, train_model
+from nvf.training import train_model
 from nvf.uncertainty import ViewScorer, WholeViewScorer
 from nvf.visibility_source import SourcedVisibility
 from pipeline.cli import fail

@@ -51,7 +51,7 @@ from pathlib import Path
 import torch
 
 from nvf.device import resolve_device
-from nvf.training import Observations
+from nvf.observations import Observations
 from pipeline.atomic_write import atomic_write_text
 from pipeline.cli import ArgumentParser, bounded, cores, fail, help_page, run_command
 from pipeline.config.catalog import conf_dirs, declared, searchpath_of, study_defaults

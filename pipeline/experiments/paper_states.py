@@ -62,8 +62,8 @@ import numpy as np
 import torch
 
 from nvf.device import resolve_device
+from nvf.observations import Observations
 from nvf.planning import ScoreSummary, argmax_first, score_poses_together
-from nvf.training import Observations
 from nvf.visibility import visibility_labels
 from pipeline.atomic_write import atomic_write_text
 from pipeline.cli import ArgumentParser, bounded, cores, fail, help_page, run_command

@@ -39,7 +39,7 @@ from tqdm import tqdm
 from nvf.cameras import look_at
 from nvf.device import resolve_device
 from nvf.model import SceneModel
-from nvf.training import Observations
+from nvf.observations import Observations
 from nvf.uncertainty import ViewScorer
 from pipeline.atomic_write import atomic_write_bytes, atomic_write_text
 from pipeline.cli import ArgumentParser, BadInput, description, fail, run_command

@@ -48,8 +48,8 @@ import torch
 from nvf.cameras import Intrinsics, pose_to_matrix
 from nvf.device import resolve_device
 from nvf.methods import NVF
+from nvf.observations import Observations
 from nvf.planning import argmax_first, score_poses
-from nvf.training import Observations
 from nvf.uncertainty.nvf_entropy import NVFEntropyScorer
 from pipeline.atomic_write import atomic_write_text
 from pipeline.cli import ArgumentParser, bounded, cores, description, fail, run_command

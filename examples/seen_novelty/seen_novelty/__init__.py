@@ -20,8 +20,8 @@ from jaxtyping import Float
 from torch import Tensor, nn
 
 from nvf.methods import Method
+from nvf.observations import Observations
 from nvf.seeding import GeneratorFactory
-from nvf.training import Observations
 
 RGB = frozenset({"rgb"})
 
