@@ -98,7 +98,6 @@ def segment_transmittance(
     aabb: Float[Tensor, "2 3"] | None = None,
     chunk_samples: int = 1 << 18,
     margin: float = 0.0,
-    clip: bool = True,
     grid: OccupancyGrid | None = None,
     cutoff: float = 0.0,
 ) -> Float[Tensor, " P"]:
@@ -109,20 +108,20 @@ def segment_transmittance(
     ``delta = L / K``; the last interval is excluded, so ``K - 1`` densities per point. Sample ``k`` sits
     at the centre of bin ``k`` (``generator=None``) or uniformly inside it (one ``[chunk, K - 1]`` draw per
     chunk of points). ``aabb``: a box outside which the density is 0 (the object AABB, or the model's
-    ``density_support``): samples outside it are not evaluated. With ``clip`` only the bins between a
-    segment's entry into and exit from the box are placed and tested, and with ``grid`` (the occupancy grid
-    whose empty cells ``density_fn`` reads as 0, ``SceneModel.density``) only the samples in its occupied
-    cells reach ``density_fn``; those are the samples in the same order that ``density_fn`` evaluates
-    either way, so the result is bitwise the same as with ``clip=False``, which places every sample (the
-    reference, for benchmarks and tests). At most ``chunk_samples`` samples per chunk of points.
+    ``density_support``): only the bins between a segment's entry into and exit from the box are placed and
+    tested, and with ``grid`` (the occupancy grid whose empty cells ``density_fn`` reads as 0,
+    ``SceneModel.density``) only the samples in its occupied cells reach ``density_fn``; those are the samples,
+    in the same order, that placing every bin and testing it gives (the code this replaced, kept for the
+    benchmarks and tests: ``pipeline.bench.replaced_labels``), so the result is bitwise the same. At most
+    ``chunk_samples`` samples per chunk of points.
 
-    ``cutoff`` above 0 (with ``aabb`` and ``clip``; M17's early stop, ``train.label_cutoff``): a segment's bins
+    ``cutoff`` above 0 (with ``aabb``; M17's early stop, ``train.label_cutoff``): a segment's bins
     are evaluated from the camera outwards, ``STOP_BLOCK`` at a time, and a segment whose transmittance so far
     is below ``cutoff`` evaluates no more; its result is that transmittance, which is at least the exact one
     and below ``cutoff``, so each ``T`` is off by less than ``cutoff`` (and by rounding: the sums are taken
     in another order).
 
-    ``density_fn`` a ``DensityLattice`` (``train.label_lattice``; with ``aabb`` and ``clip``): on the CPU its kernel
+    ``density_fn`` a ``DensityLattice`` (``train.label_lattice``; with ``aabb``): on the CPU its kernel
     sums each segment's samples in one pass (``DensityLattice.segment_sums``, the early stop checked per sample),
     elsewhere the samples read the lattice through the paths above.
     """
@@ -146,19 +145,19 @@ def segment_transmittance(
             offsets = offsets.to(device=points.device, dtype=points.dtype)
         part = seg[start:stop]
         delta = torch.linalg.norm(part, dim=-1) / num_samples
-        if aabb is not None and clip and isinstance(density_fn, DensityLattice):
+        if aabb is not None and isinstance(density_fn, DensityLattice):
             first, count = _bin_range(origin, part, num_samples, aabb)
             limit = -math.log(cutoff) if cutoff > 0 else math.inf
             sums = density_fn.segment_sums(origin, part, offsets, first, count, num_samples, aabb, delta, limit)
             if sums is not None:
                 optical[start:stop] = sums * delta
                 continue
-        if aabb is not None and clip and cutoff > 0:
+        if aabb is not None and cutoff > 0:
             optical[start:stop] = _stopped_optical_depth(
                 density_fn, origin, part, offsets, num_samples, aabb, grid, delta, cutoff
             )
             continue
-        if aabb is not None and clip:
+        if aabb is not None:
             first, count = _bin_range(origin, part, num_samples, aabb)
             flat, pos = _samples_in_box(origin, part, offsets, num_samples, aabb, grid, first, count)
             sigma = torch.zeros(offsets.shape, dtype=points.dtype, device=points.device)
@@ -168,13 +167,7 @@ def segment_transmittance(
             bins = torch.arange(n_bins, dtype=points.dtype, device=points.device)
             frac = (bins + offsets) / num_samples  # [C, K-1] in [0, (K-1)/K)
             pos = origin + frac[..., None] * part[:, None, :]  # [C, K-1, 3]
-            if aabb is None:
-                sigma = density_fn(pos.reshape(-1, 3)).reshape(frac.shape)
-            else:
-                sigma = torch.zeros(frac.shape, dtype=points.dtype, device=points.device)
-                inside = ((pos >= aabb[0]) & (pos <= aabb[1])).all(-1)
-                if inside.any():
-                    sigma[inside] = density_fn(pos[inside]).to(sigma.dtype)
+            sigma = density_fn(pos.reshape(-1, 3)).reshape(frac.shape)
         optical[start:stop] = sigma.sum(-1) * delta
     return torch.exp(-optical)
 
@@ -221,7 +214,6 @@ def visibility_labels(
     generator: torch.Generator | None = None,
     aabb: Float[Tensor, "2 3"] | None = None,
     chunk_samples: int = 1 << 18,
-    clip: bool = True,
     grid: OccupancyGrid | None = None,
 ) -> Float[Tensor, " N"]:
     """(M18) Soft label ``V*(x) = 1 - prod_{j in F(x)} (1 - T_j(x))`` in ``[0, 1]``.
@@ -229,9 +221,9 @@ def visibility_labels(
     ``F(x)``: the cameras whose frustum (``cfg.label_max_depth``) contains ``x``; points outside
     every frustum get 0. Cameras are processed in order and a point whose running product is
     ``<= 0.01`` skips the rest, so labels saturate near 0.99. ``T_j`` is (M17) with
-    ``cfg.label_samples`` samples, stopping ``cfg.label_margin`` short of the point, and with ``aabb`` and ``clip``
-    a segment stops once its transmittance is below ``cfg.label_cutoff`` (see ``segment_transmittance`` for
-    ``generator``, ``aabb``, ``chunk_samples``, ``clip``, ``grid`` and the cutoff; each label is then off by less
+    ``cfg.label_samples`` samples, stopping ``cfg.label_margin`` short of the point, and with ``aabb`` a segment
+    stops once its transmittance is below ``cfg.label_cutoff`` (see ``segment_transmittance`` for
+    ``generator``, ``aabb``, ``chunk_samples``, ``grid`` and the cutoff; each label is then off by less
     than the cutoff times the number of cameras); density is evaluated only for in-frustum, not yet saturated
     pairs.
     """
@@ -250,9 +242,8 @@ def visibility_labels(
             aabb,
             chunk_samples,
             cfg.label_margin,
-            clip,
             grid,
-            cfg.label_cutoff if aabb is not None and clip else 0.0,
+            cfg.label_cutoff if aabb is not None else 0.0,
         )
         prod[idx] = prod[idx] * (1.0 - trans)
     return 1.0 - prod

@@ -74,7 +74,7 @@ def test_kernel_sums_are_the_lattice_read_through_torch(cutoff):
     out = {}
     for name, density in (("kernel", lattice), ("torch", lambda x: lattice(x))):
         draw = torch.Generator().manual_seed(1)
-        out[name] = segment_transmittance(density, origin, points, 200, draw, box, 1 << 18, 0.0, True, grid, cutoff)
+        out[name] = segment_transmittance(density, origin, points, 200, draw, box, 1 << 18, 0.0, grid, cutoff)
     assert (out["kernel"] - out["torch"]).abs().max() <= max(cutoff, 1e-6)
     assert (out["kernel"] < 0.01).any() and (out["kernel"] > 0.99).any()  # segments through the shell and beside it
 

@@ -8,6 +8,7 @@ import torch
 from nvf.cameras import Intrinsics, look_at
 from nvf.config import TrainConfig
 from nvf.visibility import SATURATION, frustum_mask, segment_transmittance, visibility_labels
+from pipeline.bench.replaced_labels import every_sample_transmittance
 from pipeline.scenes.loading import load_scene
 from pipeline.scenes.mesh_renderer import GroundTruthRenderer
 
@@ -196,9 +197,10 @@ def test_exact_density_labels_of_the_default_scene_agree_with_line_of_sight():
 
 @pytest.mark.parametrize("jitter", [False, True])
 def test_clipped_bins_evaluate_the_reference_samples_bitwise(jitter):
-    """(M17) With ``clip`` only the bins between a segment's entry into and exit from the box are placed: the
-    density sees exactly the samples (same positions, same order) that placing every bin and testing it
-    gives, so the transmittances are bitwise the same; segments that miss the box evaluate nothing."""
+    """(M17) Only the bins between a segment's entry into and exit from the box are placed: the density sees
+    exactly the samples (same positions, same order) that placing every bin and testing it gives (the code this
+    replaced, ``pipeline.bench.replaced_labels``), so the transmittances are bitwise the same; segments that miss
+    the box evaluate nothing."""
     box = torch.tensor([[-0.6, -0.4, -0.5], [0.7, 0.5, 0.3]])
     origin = torch.tensor([0.3, -3.0, 0.2])
     points = torch.rand(700, 3, generator=torch.Generator().manual_seed(2)) * 3.0 - 1.5
@@ -211,7 +213,8 @@ def test_clipped_bins_evaluate_the_reference_samples_bitwise(jitter):
             return sphere_density(x) * 0.01 + x[:, 0].abs()
 
         gen = torch.Generator().manual_seed(7) if jitter else None
-        out[clip] = segment_transmittance(density, origin, points, 64, gen, box, chunk_samples=2000, clip=clip)
+        compute = segment_transmittance if clip else every_sample_transmittance
+        out[clip] = compute(density, origin, points, 64, gen, box, chunk_samples=2000)
     assert torch.equal(out[True], out[False])
     assert len(seen[True]) == len(seen[False]) > 1
     for want, got in zip(seen[False], seen[True], strict=True):

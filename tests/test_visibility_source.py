@@ -8,6 +8,7 @@ from nvf.config import FieldConfig, SamplerConfig, TrainConfig
 from nvf.model import SceneModel
 from nvf.visibility import segment_transmittance, visibility_labels
 from nvf.visibility_source import SourcedVisibility, label_visibility
+from pipeline.bench.replaced_labels import every_sample_labels
 
 AABB = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 INTR = Intrinsics.from_fov(8, 8)
@@ -109,7 +110,8 @@ def test_a_margin_uncovers_the_shell_of_a_seen_surface():
 def test_labels_inside_the_density_support_are_bitwise_the_aabbs():
     """(M17, M18) ``SceneModel.density_support`` (the occupied cells' box, grown by half a cell) bounds where
     ``density`` is non-zero, so labels that evaluate only inside it are bitwise the labels over the whole AABB
-    (every bin placed, ``clip=False``); with no occupied cell the support is empty (free space everywhere)."""
+    (every bin placed, ``pipeline.bench.replaced_labels``); with no occupied cell the support is empty (free space
+    everywhere)."""
     model = small_model()
     res = model.grid.resolution
     cells = model.grid.occupied.view(res, res, res)
@@ -129,7 +131,7 @@ def test_labels_inside_the_density_support_are_bitwise_the_aabbs():
     def density(x: torch.Tensor) -> torch.Tensor:  # the model's, dense enough to occlude
         return 1e3 * model.density(x)
 
-    reference = visibility_labels(density, points, cams, INTR, cfg, torch.Generator().manual_seed(3), AABB, clip=False)
+    reference = every_sample_labels(density, points, cams, INTR, cfg, torch.Generator().manual_seed(3), AABB)
     clipped = visibility_labels(density, points, cams, INTR, cfg, torch.Generator().manual_seed(3), support, grid=grid)
     boxed = visibility_labels(density, points, cams, INTR, cfg, torch.Generator().manual_seed(3), support)
     assert torch.equal(reference, boxed)
@@ -138,7 +140,7 @@ def test_labels_inside_the_density_support_are_bitwise_the_aabbs():
     model.grid.occupied[:] = False
     empty, grid = model.density_support()
     assert (empty[0] > empty[1]).all()
-    free = visibility_labels(model.density, points, cams, INTR, cfg, aabb=AABB, clip=False)
+    free = every_sample_labels(model.density, points, cams, INTR, cfg, aabb=AABB)
     assert torch.equal(visibility_labels(model.density, points, cams, INTR, cfg, aabb=empty, grid=grid), free)
 
 

@@ -59,6 +59,7 @@ from pipeline.bench._state import (
     state_candidates,
     trained_backbone,
 )
+from pipeline.bench.replaced_labels import every_sample_labels
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.validation import compose_run
 from pipeline.diagnostics.initial_view_model import load
@@ -168,12 +169,14 @@ def labels_pairs(model: SceneModel, episode: Episode, repeats: int) -> dict:
     exact = dataclasses.replace(s.train, label_cutoff=0.0)
 
     def labels(box: torch.Tensor, clip: bool, grid, cutoff: float = 0.0, density=model.density) -> Callable:
+        """The labels with today's code (``clip``: the bins placed inside the box only), or the code it replaced."""
         train = dataclasses.replace(exact, label_cutoff=cutoff)
 
         def run() -> torch.Tensor:
             generator = seeded_generator(s.seed, 0, "bench_labels", device)
-            intrinsics = obs.intrinsics
-            return visibility_labels(density, points, obs.c2w, intrinsics, train, generator, box, clip=clip, grid=grid)
+            if clip:
+                return visibility_labels(density, points, obs.c2w, obs.intrinsics, train, generator, box, grid=grid)
+            return every_sample_labels(density, points, obs.c2w, obs.intrinsics, train, generator, box)
 
         return run
 
