@@ -120,7 +120,8 @@ def test_the_duel_page_lists_a_row_per_rival_marked_where_the_interval_excludes_
     """Duel.html from pilots/duel/summary.csv: per scene one row per rival (a long table, as narrow for one method as
     for many), a gain whose interval excludes zero in bold, one that spans zero not, names escaped; the overview
     links it only when the table exists."""
-    from pipeline.tables.site import DUEL_SUMMARY, duel_page
+    from pipeline.tables.site import DUEL_SUMMARY
+    from pipeline.tables.site.duel_page import duel_page
 
     row = {"n": 12, "same_pick": 0.5, "cpu_hours": 1.5, "episode_diff": 0.4, "episode_ci_low": -1.0}
     rows = [
@@ -196,7 +197,7 @@ def test_the_index_names_the_best_per_scene_with_its_paired_interval_its_picture
     """The index leads, per scene, with the best method by mean final PSNR and its interval paired by seed against
     the runner-up (separated on Hubble, not on Room), a PSNR picture linking the scene's page, and the floor's flag
     on Room (every method below PSNR_FLOOR_DB, one NVF seed above it) but not on Hubble."""
-    from pipeline.tables.site import PSNR_FLOOR_DB
+    from pipeline.tables.site.index_page import PSNR_FLOOR_DB
     from pipeline.tables.stats import paired
 
     psnr = {
@@ -242,7 +243,7 @@ def test_the_index_names_the_best_per_scene_with_its_paired_interval_its_picture
 
 def test_a_lead_says_when_there_is_no_interval_or_no_runner_up():
     """A lead line without a runner-up, with one seed in common, and with identical values on every seed."""
-    from pipeline.tables.site import SceneLead, lead_text
+    from pipeline.tables.site.index_page import SceneLead, lead_text
     from pipeline.tables.stats import Interval
 
     alone = SceneLead((("NVF", 20.0, 3),), Interval.of(np.array([])))
@@ -323,7 +324,7 @@ def test_a_pilot_note_is_text_and_a_linked_note_is_not_read(tmp_path):
     script ran in headless Chromium), and a README that is a symbolic link to a system file was rendered too. Now
     raw HTML is shown as text, links go only to http(s), mailto and the files beside the note, and a linked note is
     one line saying it is not shown."""
-    from pipeline.tables.site import pilots_page
+    from pipeline.tables.site.pilot_notes import pilots_page
 
     pilots = tmp_path / "pilots"
     (pilots / "hostile").mkdir(parents=True)

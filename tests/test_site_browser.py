@@ -116,7 +116,7 @@ def test_a_pilot_notes_html_does_not_run_in_chromium(browser, tmp_path):
     """In a browser: a pilot README's raw HTML (an image whose onerror runs a script, a script
     element, a javascript: link) is shown as text on pilots.html and runs nothing."""
     from pipeline.atomic_write import atomic_write_text
-    from pipeline.tables.site import pilots_page
+    from pipeline.tables.site.pilot_notes import pilots_page
 
     (tmp_path / "pilots" / "hostile").mkdir(parents=True)
     (tmp_path / "pilots" / "hostile" / "README.md").write_text(
@@ -155,7 +155,8 @@ def test_the_index_says_who_wins_where_and_the_duel_fits_in_chromium(browser, tm
     the floor and NVF's lead spans zero (not separated, flagged); each box's picture loads and opens the scene's
     page. The committed duel summary's page fits 1400 px with one row per rival a scene has."""
     from pipeline.tables.build import build_tables
-    from pipeline.tables.site import DUEL_SUMMARY, PSNR_FLOOR_DB
+    from pipeline.tables.site import DUEL_SUMMARY
+    from pipeline.tables.site.index_page import PSNR_FLOOR_DB
 
     psnr = {
         ("hubble", "nvf"): (22.0, 23.0, 24.0),
