@@ -13,7 +13,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def test_every_command_names_a_module_and_every_command_module_is_listed():
-    modules = {module for module, _ in commands.COMMANDS.values()}
+    modules = {module for module, _ in (commands.COMMANDS | commands.STUDIES).values()}
     assert all(importlib.util.find_spec(module) is not None for module in modules)
     runnable = {
         f"pipeline.experiments.{path.stem}"
@@ -28,11 +28,19 @@ def test_help_lists_every_command_and_an_unknown_one_is_one_line(capsys):
     with pytest.raises(SystemExit) as exit_:
         commands.main(["--help"])
     out = capsys.readouterr().out
-    assert exit_.value.code == 0 and all(f"  {name} " in out for name in commands.COMMANDS)
+    assert exit_.value.code == 0 and all(f"  {name} " in out for name in commands.COMMANDS) and "  study NAME " in out
     with pytest.raises(SystemExit) as exit_:
         commands.main(["nosuch"])
     err = capsys.readouterr().err
     assert exit_.value.code == 2 and err.startswith("error: unknown command 'nosuch'") and err.count("\n") == 1
+    with pytest.raises(SystemExit) as exit_:
+        commands.main(["study", "--help"])
+    out = capsys.readouterr().out
+    assert exit_.value.code == 0 and all(f"  {name} " in out for name in commands.STUDIES)
+    with pytest.raises(SystemExit) as exit_:
+        commands.main(["study", "nosuch"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.startswith("error: unknown study 'nosuch'") and err.count("\n") == 1
 
 
 def test_a_command_is_its_module_run_as_python_m():
@@ -52,13 +60,15 @@ def test_a_command_is_its_module_run_as_python_m():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", list(commands.COMMANDS))
-def test_every_command_and_its_python_m_form_print_the_same_help(name):
-    """Each command's ``--help`` through the console script ``nvf-bench`` (the installed entry point) and as
-    ``python -m <module>``: both exit 0 and print the same page (its first line names the program)."""
-    module = commands.COMMANDS[name][0]
+@pytest.mark.parametrize(
+    "words", [[name] for name in commands.COMMANDS] + [["study", name] for name in commands.STUDIES]
+)
+def test_every_command_and_its_python_m_form_print_the_same_help(words):
+    """Each command's and study's ``--help`` through the console script ``nvf-bench`` (the installed entry point) and
+    as ``python -m <module>``: both exit 0 and print the same page (its first line names the program)."""
+    module = (commands.STUDIES if words[0] == commands.STUDY else commands.COMMANDS)[words[-1]][0]
     script = Path(sys.executable).with_name("nvf-bench")
-    as_script = subprocess.run([script, name, "--help"], capture_output=True, text=True, cwd=REPO)
+    as_script = subprocess.run([script, *words, "--help"], capture_output=True, text=True, cwd=REPO)
     as_module = subprocess.run([sys.executable, "-m", module, "--help"], capture_output=True, text=True, cwd=REPO)
     assert as_script.returncode == 0, as_script.stderr
     assert as_module.returncode == 0, as_module.stderr
