@@ -112,7 +112,7 @@ def segment_transmittance(
     tested, and with ``grid`` (the occupancy grid whose empty cells ``density_fn`` reads as 0,
     ``SceneModel.density``) only the samples in its occupied cells reach ``density_fn``; those are the samples,
     in the same order, that placing every bin and testing it gives (the code this replaced, kept for the
-    benchmarks and tests: ``pipeline.bench.replaced_labels``), so the result is bitwise the same. At most
+    benchmarks and tests: ``pipeline.bench._replaced_labels``), so the result is bitwise the same. At most
     ``chunk_samples`` samples per chunk of points.
 
     ``cutoff`` above 0 (with ``aabb``; M17's early stop, ``train.label_cutoff``): a segment's bins

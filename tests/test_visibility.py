@@ -8,7 +8,7 @@ import torch
 from nvf.cameras import Intrinsics, look_at
 from nvf.config import TrainConfig
 from nvf.visibility import SATURATION, frustum_mask, segment_transmittance, visibility_labels
-from pipeline.bench.replaced_labels import every_sample_transmittance
+from pipeline.bench._replaced_labels import every_sample_transmittance
 from pipeline.scenes.loading import load_scene
 from pipeline.scenes.mesh_renderer import GroundTruthRenderer
 
@@ -199,7 +199,7 @@ def test_exact_density_labels_of_the_default_scene_agree_with_line_of_sight():
 def test_clipped_bins_evaluate_the_reference_samples_bitwise(jitter):
     """(M17) Only the bins between a segment's entry into and exit from the box are placed: the density sees
     exactly the samples (same positions, same order) that placing every bin and testing it gives (the code this
-    replaced, ``pipeline.bench.replaced_labels``), so the transmittances are bitwise the same; segments that miss
+    replaced, ``pipeline.bench._replaced_labels``), so the transmittances are bitwise the same; segments that miss
     the box evaluate nothing."""
     box = torch.tensor([[-0.6, -0.4, -0.5], [0.7, 0.5, 0.3]])
     origin = torch.tensor([0.3, -3.0, 0.2])

@@ -8,7 +8,7 @@ from nvf.config import FieldConfig, SamplerConfig, TrainConfig
 from nvf.model import SceneModel
 from nvf.visibility import segment_transmittance, visibility_labels
 from nvf.visibility_source import SourcedVisibility, label_visibility
-from pipeline.bench.replaced_labels import every_sample_labels
+from pipeline.bench._replaced_labels import every_sample_labels
 
 AABB = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 INTR = Intrinsics.from_fov(8, 8)
@@ -110,7 +110,7 @@ def test_a_margin_uncovers_the_shell_of_a_seen_surface():
 def test_labels_inside_the_density_support_are_bitwise_the_aabbs():
     """(M17, M18) ``SceneModel.density_support`` (the occupied cells' box, grown by half a cell) bounds where
     ``density`` is non-zero, so labels that evaluate only inside it are bitwise the labels over the whole AABB
-    (every bin placed, ``pipeline.bench.replaced_labels``); with no occupied cell the support is empty (free space
+    (every bin placed, ``pipeline.bench._replaced_labels``); with no occupied cell the support is empty (free space
     everywhere)."""
     model = small_model()
     res = model.grid.resolution

@@ -50,6 +50,7 @@ from nvf.uncertainty import ViewScorer
 from nvf.uncertainty.fisher import _flat, colour_parameters, probe_fisher_diagonal, rademacher
 from nvf.visibility import visibility_labels
 from pipeline.bench._paired import ratio_spread
+from pipeline.bench._replaced_labels import every_sample_labels
 from pipeline.bench._report import report_path, write_report
 from pipeline.bench._state import (
     add_state_arguments,
@@ -59,7 +60,6 @@ from pipeline.bench._state import (
     state_candidates,
     trained_backbone,
 )
-from pipeline.bench.replaced_labels import every_sample_labels
 from pipeline.cli import ArgumentParser, description, fail
 from pipeline.config.validation import compose_run
 from pipeline.diagnostics.initial_view_model import load
