@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.experiments import paper_states, paper_states_summary, row_files
+from pipeline.experiments import paper_states, paper_states_folder, paper_states_summary, row_files
 from pipeline.records.checked_files import read_json_lines
 from pipeline.records.store import run_dir
 
@@ -142,15 +142,17 @@ def test_a_setting_another_process_wrote_meanwhile_is_refused_not_overwritten(tm
     under the folder's lock before it is written: the setting another process wrote in between stays, one line."""
     root = tmp_path / "pilots"
     theirs = {"overrides": ["render.backend=pyrender"], "state_budget": "cpu", "threads": 1}
-    made = paper_states.make_directory
+    made = paper_states_folder.make_directory
 
     def racing(under, folder):
         made(under, folder)
         (folder / "setting.json").write_text(json.dumps(theirs))
 
-    monkeypatch.setattr(paper_states, "make_directory", racing)
+    monkeypatch.setattr(paper_states_folder, "make_directory", racing)
     with pytest.raises(SystemExit) as exit_:
-        paper_states.open_folder(root, {"overrides": [], "state_budget": "cpu", "threads": 1}, ["python", "-m", "x"])
+        paper_states_folder.open_folder(
+            root, {"overrides": [], "state_budget": "cpu", "threads": 1}, ["python", "-m", "x"]
+        )
     err = capsys.readouterr().err
     folder = root / "paper_states"
     assert exit_.value.code == 2 and err.count("\n") == 1 and "made with overrides ['render.backend=pyrender']" in err

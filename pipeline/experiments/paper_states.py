@@ -51,8 +51,6 @@ seeds to use more cores.
 import argparse
 import dataclasses
 import hashlib
-import json
-import pickle
 import shutil
 import sys
 import time
@@ -65,13 +63,12 @@ from nvf.device import resolve_device
 from nvf.observations import Observations
 from nvf.planning import ScoreSummary, argmax_first, score_poses_together
 from nvf.visibility import visibility_labels
-from pipeline.atomic_write import atomic_write_text
 from pipeline.cli import ArgumentParser, bounded, cores, fail, help_page, run_command
 from pipeline.config.catalog import conf_dirs, declared, option_problem, searchpath_of, study_defaults
 from pipeline.config.validation import compose_run
 from pipeline.episode.loop import Episode
 from pipeline.episode.settings import EpisodeSettings
-from pipeline.episode.shared_training import Trained, load_trained, save_trained, train_models, training_plan
+from pipeline.episode.shared_training import Trained, train_models, training_plan
 from pipeline.experiments.decisions import (
     Contender,
     candidate_set,
@@ -83,17 +80,14 @@ from pipeline.experiments.decisions import (
 )
 from pipeline.experiments.options import (
     SEEDS,
-    add_command,
     name_list,
-    other_threads,
     seed_list,
     setting_overrides,
     step_list,
 )
+from pipeline.experiments.paper_state_progress import StateProgress
+from pipeline.experiments.paper_states_folder import open_folder, setting_digest
 from pipeline.experiments.paper_states_summary import (
-    FOLDER,
-    LEGACY_VIS_POINTS,
-    SETTING,
     STATE,
     state_key,
     write_summary,
@@ -102,8 +96,6 @@ from pipeline.experiments.provenance import checkout, made_with
 from pipeline.experiments.row_files import JsonLines, row_digest
 from pipeline.metrics.image import LpipsMetric
 from pipeline.metrics.ranking import auc, spearman
-from pipeline.records.checked_files import Each, Number, read_json, read_json_lines
-from pipeline.records.files import RecordError, check_directory, make_directory
 from pipeline.records.lock import RunLock
 from pipeline.records.store import check_seed
 from pipeline.repo import RUNS
@@ -113,7 +105,6 @@ from pipeline.scenes.scene import Scene, SceneError
 
 DEFAULTS = study_defaults("paper_states")  # conf/study/paper_states.yaml: scenes, steps, contenders, label points
 SCENES = tuple(DEFAULTS["scenes"])
-SETTING_LOCK = ".setting"  # setting.json and command.txt are written under this lock of the folder
 STEPS = tuple(DEFAULTS["steps"])
 BUDGETS = ("paper", "cpu")
 CONTENDERS = tuple(DEFAULTS["contenders"])  # NVF first: the others are compared with it
@@ -340,7 +331,7 @@ def outcomes_of(
     candidates: torch.Tensor,
     picks: dict[str, int],
     earlier: dict | None,
-    progress: "StateProgress",
+    progress: StateProgress,
 ) -> dict:
     """For every rival of ``call.outcomes`` whose pick differs from NVF's, both picks' held-out PSNR (an outcome the
     earlier row holds for a pick is kept, ``reused``) and NVF's gain."""
@@ -372,79 +363,6 @@ def outcomes_of(
             "reused": reused,
         }
     return out
-
-
-PROGRESS = {
-    "seconds": Number(0.0),
-    "outcomes": Each({"key": Each(Number()), "psnr": Number(0.0, 100.0), "seconds": Number(0.0)}),
-}
-
-
-@dataclasses.dataclass
-class StateProgress:
-    """What a state has finished before its row, kept under ``paths.outputs`` so that a killed state resumes
-    after it: its trained models (``models``: ``save_trained``) and, in ``progress.json``, the seconds spent up to
-    them and each one-step outcome taken (pose key, held-out PSNR and seconds). Its folder is named by the state's
-    owner and the digest of its views, so another state never resumes from it. A resumed state's ``seconds`` are
-    those of one run: the earlier run's up to its models, plus this run's after them. Removed once the row is
-    written; a corrupt file is one ``error:`` line naming the folder to remove."""
-
-    folder: Path
-    spent: float = 0.0  # seconds from the state's start to its saved models
-    outcomes: dict[tuple, tuple[float, float]] = dataclasses.field(default_factory=dict)
-    earlier: float = 0.0  # what this run's seconds add to: the earlier run's up to its models
-
-    @property
-    def models(self) -> Path:
-        return self.folder / "trained.pt"
-
-    @staticmethod
-    def open(folder: Path, root: Path) -> "StateProgress":
-        """The progress kept in ``folder`` (below ``root``; created), or a fresh one."""
-        make_directory(root, folder)
-        try:
-            found = read_json(folder / "progress.json", PROGRESS)
-        except RecordError as err:
-            fail(f"not a state's progress ({err}); remove {folder} to measure the state from the start")
-        if found is None:
-            return StateProgress(folder)
-        outcomes = {tuple(item["key"]): (float(item["psnr"]), float(item["seconds"])) for item in found["outcomes"]}
-        return StateProgress(folder, float(found["seconds"]), outcomes)
-
-    def load_models(self, episodes: dict[str, Episode], step: int) -> dict[str, Trained] | None:
-        """The models kept for ``episodes`` (``load_trained``), or None; one ``error:`` line for a file that is not
-        theirs."""
-        try:
-            return load_trained(self.models, episodes, step)
-        except (RuntimeError, ValueError, KeyError, TypeError, EOFError, IndexError, pickle.UnpicklingError) as err:
-            fail(
-                f"{self.models}: not a state's models ({type(err).__name__}); remove {self.folder} to train them again"
-            )
-
-    def _write(self) -> None:
-        outcomes = [{"key": list(key), "psnr": v[0], "seconds": v[1]} for key, v in self.outcomes.items()]
-        text = json.dumps({"seconds": self.spent, "outcomes": outcomes}) + "\n"
-        atomic_write_text(self.folder / "progress.json", text)
-
-    def trained(self, trained: dict[str, Trained], seconds: float) -> None:
-        """The state's models, trained ``seconds`` after its start, kept."""
-        save_trained(trained, self.models)
-        self.spent = seconds
-        self._write()
-
-    def resumed(self, replayed: float) -> None:
-        """This run took its models from an earlier one, after a replay of ``replayed`` seconds (the earlier run
-        replayed too): its seconds add to the earlier run's from after that replay."""
-        self.earlier = self.spent - replayed
-
-    def add_outcome(self, key: tuple, found: tuple[float, float]) -> None:
-        """The held-out PSNR and seconds of the pick ``key``, kept."""
-        self.outcomes[key] = found
-        self._write()
-
-    def seconds(self, start: float) -> float:
-        """The state's seconds: this run's since ``start``, after an earlier run's (``resumed``)."""
-        return self.earlier + time.perf_counter() - start
 
 
 @dataclasses.dataclass(frozen=True)
@@ -552,53 +470,6 @@ def check_same_state(state: State, budget: str, earlier: dict) -> None:
             f"{theirs or '(digest not recorded)'}, not {state.source['run']} ({state.source['digest']}); pass "
             "paths.results=DIR for states of other records"
         )
-
-
-def setting_problem(folder: Path, setting: dict) -> str | None:
-    """Why ``folder`` takes no rows of ``setting``: it holds another setting (overrides, states' budget, label
-    points), or was made with another thread count than its setting's or, where the setting predates it, its
-    rows'; None when it takes them. Reads only."""
-    made = read_json(folder / "setting.json", SETTING)
-    if made is None:
-        return None
-    for key in ("overrides", "state_budget", "vis_points"):
-        theirs = made.get(key, LEGACY_VIS_POINTS if key == "vis_points" else None)
-        if theirs != setting[key]:
-            return (
-                f"{folder} holds states made with {key} {theirs}, not {setting[key]}; pass paths.results=DIR for "
-                "another setting"
-            )
-    rows = read_json_lines(folder / "states.jsonl", STATE)[0]
-    return other_threads(
-        folder, setting["threads"], {made["threads"]} if "threads" in made else {r["threads"] for r in rows}
-    )
-
-
-def check_setting(folder: Path, setting: dict) -> None:
-    """One ``error:`` line when ``folder`` takes no rows of ``setting`` (``setting_problem``)."""
-    problem = setting_problem(folder, setting)
-    if problem is not None:
-        fail(problem)
-
-
-def setting_digest(setting: dict) -> str:
-    """A short name of ``setting``: states in progress of one setting never resume another's."""
-    return hashlib.sha256(json.dumps(setting, sort_keys=True).encode()).hexdigest()[:16]
-
-
-def open_folder(root: Path, setting: dict, command: list[str]) -> Path:
-    """The folder, its ``setting.json`` checked (``check_setting``: before anything is written) and, under the
-    folder's own lock, checked again (another process may have written one since) and written, and the command
-    added to ``command.txt``."""
-    folder = root / FOLDER
-    check_directory(root.parent, folder)
-    check_setting(folder, setting)
-    make_directory(root.parent, folder)
-    with RunLock(folder / SETTING_LOCK, folder):
-        check_setting(folder, setting)
-        atomic_write_text(folder / "setting.json", json.dumps(setting, indent=2) + "\n")
-        add_command(folder, command)
-    return folder
 
 
 def contender_list(names: tuple[str, ...], overrides: list[str]) -> list[str]:
