@@ -144,32 +144,43 @@ def segment_transmittance(
             offsets = torch.rand(stop - start, n_bins, generator=generator, device=generator.device)
             offsets = offsets.to(device=points.device, dtype=points.dtype)
         part = seg[start:stop]
-        delta = torch.linalg.norm(part, dim=-1) / num_samples
-        if aabb is not None and isinstance(density_fn, DensityLattice):
-            first, count = _bin_range(origin, part, num_samples, aabb)
-            limit = -math.log(cutoff) if cutoff > 0 else math.inf
-            sums = density_fn.segment_sums(origin, part, offsets, first, count, num_samples, aabb, delta, limit)
-            if sums is not None:
-                optical[start:stop] = sums * delta
-                continue
-        if aabb is not None and cutoff > 0:
-            optical[start:stop] = _stopped_optical_depth(
-                density_fn, origin, part, offsets, num_samples, aabb, grid, delta, cutoff
-            )
-            continue
-        if aabb is not None:
-            first, count = _bin_range(origin, part, num_samples, aabb)
-            flat, pos = _samples_in_box(origin, part, offsets, num_samples, aabb, grid, first, count)
-            sigma = torch.zeros(offsets.shape, dtype=points.dtype, device=points.device)
-            if flat.numel():
-                sigma.view(-1)[flat] = density_fn(pos).to(sigma.dtype)
-        else:
-            bins = torch.arange(n_bins, dtype=points.dtype, device=points.device)
-            frac = (bins + offsets) / num_samples  # [C, K-1] in [0, (K-1)/K)
-            pos = origin + frac[..., None] * part[:, None, :]  # [C, K-1, 3]
-            sigma = density_fn(pos.reshape(-1, 3)).reshape(frac.shape)
-        optical[start:stop] = sigma.sum(-1) * delta
+        optical[start:stop] = _optical_depth(density_fn, origin, part, offsets, num_samples, aabb, grid, cutoff)
     return torch.exp(-optical)
+
+
+def _optical_depth(
+    density_fn: DensityFn,
+    origin: Float[Tensor, "3"],
+    seg: Float[Tensor, "C 3"],
+    offsets: Float[Tensor, "C B"],
+    num_samples: int,
+    aabb: Float[Tensor, "2 3"] | None,
+    grid: OccupancyGrid | None,
+    cutoff: float,
+) -> Float[Tensor, " C"]:
+    """M17's optical depth ``sum_k sigma(y_k) delta`` of a chunk of segments by the path
+    ``segment_transmittance`` describes: the lattice's kernel, the early stop, the in-box samples, or every bin."""
+    delta = torch.linalg.norm(seg, dim=-1) / num_samples
+    if aabb is not None and isinstance(density_fn, DensityLattice):
+        first, count = _bin_range(origin, seg, num_samples, aabb)
+        limit = -math.log(cutoff) if cutoff > 0 else math.inf
+        sums = density_fn.segment_sums(origin, seg, offsets, first, count, num_samples, aabb, delta, limit)
+        if sums is not None:
+            return sums * delta
+    if aabb is not None and cutoff > 0:
+        return _stopped_optical_depth(density_fn, origin, seg, offsets, num_samples, aabb, grid, delta, cutoff)
+    if aabb is not None:
+        first, count = _bin_range(origin, seg, num_samples, aabb)
+        flat, pos = _samples_in_box(origin, seg, offsets, num_samples, aabb, grid, first, count)
+        sigma = torch.zeros(offsets.shape, dtype=seg.dtype, device=seg.device)
+        if flat.numel():
+            sigma.view(-1)[flat] = density_fn(pos).to(sigma.dtype)
+    else:
+        bins = torch.arange(offsets.shape[1], dtype=seg.dtype, device=seg.device)
+        frac = (bins + offsets) / num_samples  # [C, K-1] in [0, (K-1)/K)
+        pos = origin + frac[..., None] * seg[:, None, :]  # [C, K-1, 3]
+        sigma = density_fn(pos.reshape(-1, 3)).reshape(frac.shape)
+    return sigma.sum(-1) * delta
 
 
 def _stopped_optical_depth(

@@ -27,6 +27,13 @@ def test_no_two_modules_share_a_file_name():
     assert not shared, shared
 
 
+def test_results_hold_data_and_notes_not_code():
+    """``results/`` holds records, tables, READMEs and the commands that made them; a pilot's own code lives in
+    ``scripts/pilots/`` (linted and type-checked with the rest), never beside its data."""
+    code = sorted(str(p.relative_to(REPO)) for p in (REPO / "results").rglob("*.py"))
+    assert not code, code
+
+
 def test_the_method_library_knows_nothing_of_tables():
     """How results show a method (its label, row order, the experiments it joins) is the harness's: a method
     yaml declares it beside the method's own keys, ``build_method`` checks it, and no ``nvf.methods.Method``

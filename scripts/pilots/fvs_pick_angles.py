@@ -1,7 +1,7 @@
 """How far from the object each method's picked views look: the angle between a picked view's axis (the
 camera's -z) and the direction from its centre to the object AABB's centre, over the committed cpu records
 (seeds 100-102, 20 picks each). Run from the repository root:
-``python results/pilots/fvs_pick_angles/pick_angles.py > results/pilots/fvs_pick_angles/angles.txt``."""
+``python scripts/pilots/fvs_pick_angles.py > results/pilots/fvs_pick_angles/angles.txt``."""
 
 import json
 from pathlib import Path

@@ -1,8 +1,8 @@
 """A 2-step cpu episode (two torch threads) alone and beside one busy process, with the project's passive wait
 policy and ``GOMP_SPINCOUNT`` set to each count given (libgomp spins that many times before it sleeps; the count
-overrides the policy's own, 0 for passive). Appends a line per run to runs.jsonl beside this script.
+overrides the policy's own, 0 for passive). Appends a line per run to ``results/pilots/omp_spin_count/runs.jsonl``.
 
-    python results/pilots/omp_spin_count/spin.py 300000 20000
+    python scripts/pilots/omp_spin_count.py 300000 20000
 """
 
 import json
@@ -11,8 +11,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE.parents[2]))
+REPO = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(REPO))  # this checkout's packages
 
 from pipeline.bench.contention import timed_run, with_defaults  # noqa: E402
 
@@ -24,5 +24,5 @@ with tempfile.TemporaryDirectory() as tmp:
         for beside in (False, True):
             found = timed_run(overrides, Path(tmp) / f"{spin}{beside}", base | {"GOMP_SPINCOUNT": spin}, beside)
             print(spin, "beside" if beside else "alone", round(found["seconds_per_step"], 2), flush=True)
-            with open(HERE / "runs.jsonl", "a") as out:
+            with open(REPO / "results" / "pilots" / "omp_spin_count" / "runs.jsonl", "a") as out:
                 out.write(json.dumps({"spin": spin, "beside": beside, **found}) + "\n")

@@ -2,7 +2,7 @@
 FVS (METHOD 18) and of FVS among the candidates that look at the object (``fvs_facing``), paired by seed (the 95%
 Student-t interval of ``pipeline.tables.stats.paired``), per scene and over the three scenes' nine seeds. Run from
 the repository root:
-``python results/pilots/uncertainty_vs_coverage/episodes.py > results/pilots/uncertainty_vs_coverage/episodes.txt``."""
+``python scripts/pilots/uncertainty_vs_coverage.py > results/pilots/uncertainty_vs_coverage/episodes.txt``."""
 
 import json
 from pathlib import Path
