@@ -21,6 +21,7 @@ from pipeline.episode.settings import EpisodeSettings
 from pipeline.experiments import decisions, duel, duel_summary, row_files
 from pipeline.metrics.image import LpipsMetric
 from pipeline.records.checked_files import Number, Text
+from pipeline.records.experiment_columns import TRANSFER_TABLE
 from pipeline.records.files import RecordError
 from pipeline.records.lock import RunLock
 from pipeline.records.store import RunRecord, run_dir
@@ -311,6 +312,32 @@ def test_pooled_rows_cover_the_scenes_every_pair_holds(tmp_path):
     assert summary.loc[("fvs", "all"), "gain_mean"] == pytest.approx(0.2) == summary.loc[("wd", "all"), "gain_mean"]
     text = duel_summary.write_summaries(root, records)[2].read_text()
     assert "Rows `all` pool hotdog, the scenes every pair holds; room in per-scene rows only." in text
+    assert "| not measured |" in text and "| hotdog | smoke | 1 |" in text  # no transfer table yet
+
+
+def test_the_summary_says_which_verdicts_hold_at_the_papers_scale(tmp_path):
+    """summary.md's rows over the scenes carry the transfer table's verdict for their rival ("not measured" for a
+    rival the paper states lack); a scene's row carries none."""
+    root, records = tmp_path / "pilots" / "duel", tmp_path / "runs"
+    contenders = {n: {"method": n, "ablation": "none"} for n in ("nvf", "wd", "fvs")}
+    for rival in ("wd", "fvs"):
+        write_episode(records, rival, 100, 20.0, 30.0)
+        folder = root / f"nvf_vs_{rival}"
+        folder.mkdir(parents=True)
+        setting = {"method": "nvf", "rival": rival, "overrides": ["budget=smoke"], "budget": "smoke"}
+        (folder / "setting.json").write_text(json.dumps(setting | {"contenders": contenders}))
+        (folder / "decisions.jsonl").write_text(json.dumps(decision(0, 0.2)) + "\n")
+    write_episode(records, "nvf", 100, 21.0, 60.0)
+    transfer = {"states": 5, "paper_differ": 3, "paper_gain": -0.2, "paper_low": -0.4, "paper_high": -0.05}
+    transfer |= {"cpu_differ": 2, "cpu_gain": 0.2, "cpu_low": 0.1, "cpu_high": 0.3, "sign_agrees": 1}
+    (tmp_path / TRANSFER_TABLE).parent.mkdir(parents=True)
+    duel_summary.pd.DataFrame([transfer | {"rival": "wd", "label": "WD", "verdict": "flips"}]).to_csv(
+        tmp_path / TRANSFER_TABLE, index=False
+    )
+    lines = duel_summary.write_summaries(root, records)[2].read_text().splitlines()
+    rows = {tuple(cell.strip() for cell in line.split("|")[2:4]): line for line in lines if line.startswith("| NVF")}
+    assert rows[("WD", "all")].endswith("| flips |") and rows[("FVS", "all")].endswith("| not measured |")
+    assert rows[("WD", "hotdog")].endswith("| - |")
 
 
 def test_the_summary_refuses_what_it_cannot_pair(tmp_path):

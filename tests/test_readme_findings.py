@@ -25,6 +25,8 @@ def test_the_committed_findings_are_the_ones_the_summaries_give():
     doc = script.DOC.read_text(encoding="utf-8")
     assert script.with_findings(doc) == doc
     assert len(doc.splitlines()) <= MAX_LINES
+    duel_doc = script.DUEL_DOC.read_text(encoding="utf-8")
+    assert script.with_findings(duel_doc, script.DUEL_DOC) == duel_doc
 
 
 def test_an_edited_figure_is_caught():

@@ -358,7 +358,8 @@ def test_the_overview_prints_the_mean_alone_from_one_seed(tmp_path):
 def test_the_first_page_and_the_duel_page_say_which_verdicts_hold_at_the_papers_scale(tmp_path):
     """Where the paper states' transfer table exists, the index and the duel page show it, and each of NVF's duel
     rows says whether its verdict holds at the paper's scale ("not measured" for a rival the states lack)."""
-    from pipeline.tables.site import DUEL_SUMMARY, TRANSFER
+    from pipeline.records.experiment_columns import TRANSFER_TABLE as TRANSFER
+    from pipeline.tables.site import DUEL_SUMMARY
 
     results = tmp_path / "res"
     (results / DUEL_SUMMARY).parent.mkdir(parents=True)

@@ -19,7 +19,9 @@ the replayed training reproduces the episode), and ``episode_cpu_hours``, the ho
 (their records' per-step seconds times their torch threads).
 
 ``summary.md``: both, with how many rows the duel and the episodes separate (interval excluding zero) and
-whether their signs agree where both do. ``python -m pipeline.experiments.duel_summary [paths.results=DIR]
+whether their signs agree where both do; on each row over the scenes (``all``), whether NVF's verdict against
+that rival holds at the paper's scale (the paper states' ``transfer.csv`` beside the duel's folder: its verdict,
+or "not measured"). ``python -m pipeline.experiments.duel_summary [paths.results=DIR]
 [--records DIR]`` rewrites the three; ``--records`` (default: the repository's ``results/runs``, wherever the
 command runs from) must hold the records of each pair's states, or the pair is refused in one line.
 """
@@ -37,12 +39,23 @@ from pipeline.cli import ArgumentParser, description, run_command
 from pipeline.config.catalog import contender_label
 from pipeline.config.validation import compose_run
 from pipeline.experiments.decisions import DECISION
-from pipeline.records.checked_files import Each, Entries, Number, Optional, Text, read_json, read_json_lines
+from pipeline.records.checked_files import (
+    Each,
+    Entries,
+    Number,
+    Optional,
+    Text,
+    read_csv,
+    read_json,
+    read_json_lines,
+)
 from pipeline.records.experiment_columns import (
     DUEL_DETAIL_COLUMNS,
     DUEL_MIN_SEEDS,
     DUEL_SUMMARY_COLUMNS,
     EPISODES_MISSING,
+    TRANSFER_COLUMNS,
+    TRANSFER_TABLE,
 )
 from pipeline.records.files import RecordError, make_directory, refuse_escaping_link
 from pipeline.records.store import check_key, record_status
@@ -268,11 +281,20 @@ def _pooled_sentence(summary: pd.DataFrame) -> str:
     )
 
 
-def summary_markdown(summary: pd.DataFrame, details: pd.DataFrame) -> str:
-    """``summary.md``: the pairs' rows (contenders by their labels, each with its budget) and the count of rows each
-    instrument separates."""
+def paper_scale(row: pd.Series, verdicts: dict[str, str]) -> str:
+    """The summary.md cell saying whether NVF's verdict against ``row``'s rival holds at the paper's scale: the
+    transfer table's verdict on a row over the scenes of NVF's duel, "not measured" where it has none, "-" on a
+    scene's row or another method's duel."""
+    if row["scene"] != ALL or row["method"] != "nvf":
+        return "-"
+    return verdicts.get(row["rival"], "not measured")
+
+
+def summary_markdown(summary: pd.DataFrame, details: pd.DataFrame, verdicts: dict[str, str]) -> str:
+    """``summary.md``: the pairs' rows (contenders by their labels, each with its budget, and ``verdicts``, the
+    transfer table's by rival) and the count of rows each instrument separates."""
     columns = ["method", "rival", "scene", "budget", "n", "one-step gain (dB)", "per-state gain (dB)", "same pick"]
-    columns += ["episodes: final PSNR diff (dB)", "duel cpu h", "episodes cpu h"]
+    columns += ["episodes: final PSNR diff (dB)", "duel cpu h", "episodes cpu h", "at the paper's scale"]
     cells = []
     for (_, s), (_, d) in zip(summary.iterrows(), details.iterrows(), strict=True):
         budget = s["budget"] if isinstance(s["budget"], str) else "-"
@@ -282,6 +304,7 @@ def summary_markdown(summary: pd.DataFrame, details: pd.DataFrame) -> str:
             + [_interval(d["state_gain_mean"], d["state_ci_low"], d["state_ci_high"]), f"{s['same_pick']:.0%}"]
             + [_interval(s["episode_diff"], s["episode_ci_low"], s["episode_ci_high"]), f"{s['cpu_hours']:.2f}"]
             + ["-" if not math.isfinite(d["episode_cpu_hours"]) else f"{d['episode_cpu_hours']:.2f}"]
+            + [paper_scale(s, verdicts)]
         )
     scenes = summary[(summary["scene"] != ALL) & summary["episode_diff"].notna()]
     duel = [separates(low, high) for low, high in zip(scenes["ci_low"], scenes["ci_high"], strict=True)]
@@ -298,7 +321,10 @@ def summary_markdown(summary: pd.DataFrame, details: pd.DataFrame) -> str:
         "",
         "A's pick minus B's pick in held-out PSNR after one step, where they differ (mean [95% Student-t "
         "interval] over the n decisions; per state: over the states' mean gains), beside A's final PSNR minus "
-        "B's in their episodes (paired by seed). Bold: the interval excludes zero." + _pooled_sentence(summary),
+        "B's in their episodes (paired by seed). Bold: the interval excludes zero. At the paper's scale: NVF's "
+        "verdict against the rival at the same states trained at the paper's counts ([transfer.md]"
+        '(../paper_states/transfer.md)); "not measured": not known to hold at the paper\'s model size.'
+        + _pooled_sentence(summary),
         "",
         *markdown_table(columns, cells, left=4),
         "",
@@ -313,10 +339,12 @@ def summary_markdown(summary: pd.DataFrame, details: pd.DataFrame) -> str:
 def write_summaries(root: Path, records: Path) -> list[Path]:
     """Write ``summary.csv``, ``details.csv`` and ``summary.md`` under ``root`` (atomically); their paths."""
     summary, details = tables(root, records)
+    transfer = read_csv(root.parent.parent / TRANSFER_TABLE, TRANSFER_COLUMNS)  # root: <paths.results>/pilots/duel
+    verdicts = {} if transfer is None else dict(zip(transfer["rival"], transfer["verdict"], strict=True))
     paths = [root / "summary.csv", root / "details.csv", root / "summary.md"]
     atomic_write_text(paths[0], as_csv(summary, TEXT, "%.4g"))
     atomic_write_text(paths[1], as_csv(details, TEXT, "%.4g"))
-    atomic_write_text(paths[2], summary_markdown(summary, details))
+    atomic_write_text(paths[2], summary_markdown(summary, details, verdicts))
     return paths
 
 

@@ -16,6 +16,7 @@ A column missing from the oldest files of its kind is ``Optional`` (read as empt
 """
 
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any
 
 from pipeline.records.checked_files import Number, Optional, Text
@@ -53,7 +54,8 @@ DUEL_SUMMARY_COLUMNS = {
     "episode_ci_high": INTERVAL_DB,
     "cpu_hours": HOURS,  # the duel's own
 }
-TRANSFER_COLUMNS = {  # pilots/paper_states/transfer.csv (pipeline.experiments.transfer; the site's pages read it)
+TRANSFER_TABLE = Path("pilots", "paper_states", "transfer.csv")  # under paths.results: pipeline.experiments.transfer's
+TRANSFER_COLUMNS = {  # TRANSFER_TABLE's (the site's pages and the duel's summary.md read it)
     "rival": Text(),
     "label": Text(),
     "states": COUNT,

@@ -21,7 +21,7 @@ from plotly.offline import get_plotlyjs
 
 from pipeline.atomic_write import atomic_write_bytes, atomic_write_text
 from pipeline.records.checked_files import read_csv
-from pipeline.records.experiment_columns import DUEL_SUMMARY_COLUMNS, TRANSFER_COLUMNS
+from pipeline.records.experiment_columns import DUEL_SUMMARY_COLUMNS, TRANSFER_COLUMNS, TRANSFER_TABLE
 from pipeline.tables.load import Runs
 from pipeline.tables.site.duel_page import duel_page
 from pipeline.tables.site.index_page import index_page, psnr_picture, scene_lead
@@ -30,9 +30,6 @@ from pipeline.tables.site.pilot_notes import note_html, pilots_page
 from pipeline.tables.site.scene_pages import scene_page, scene_page_name, scene_picture_name
 
 DUEL_SUMMARY = Path("pilots", "duel", "summary.csv")  # pipeline.experiments.duel_summary's table
-
-
-TRANSFER = Path("pilots", "paper_states", "transfer.csv")  # pipeline.experiments.transfer's table
 
 
 PAPER_STATES_NOTE = Path("pilots", "paper_states", "README.md")  # the duel page's closing note
@@ -58,7 +55,7 @@ def write_site(runs: Runs, pictures: Mapping[str, RunPictures], results: Path, s
             curves[(budget, scene)] = site / scene_picture_name(scene, budget)
             pngs[curves[(budget, scene)]] = psnr_picture(runs, scene, budget, lead)
     duels = read_csv(Path(results) / DUEL_SUMMARY, DUEL_COLUMNS)
-    transfer = read_csv(Path(results) / TRANSFER, TRANSFER_COLUMNS)
+    transfer = read_csv(Path(results) / TRANSFER_TABLE, TRANSFER_COLUMNS)
     if duels is not None:
         paper_note = Path(results) / PAPER_STATES_NOTE
         at_paper_scale = note_html(paper_note, site / "duel.html") if os.path.lexists(paper_note) else None
