@@ -110,8 +110,8 @@ class CoveredViews:
     ) -> Float[Tensor, ""]:
         """(M39) ``M(p) = sum_i w_i m(x_i)`` along pixel ``p``'s ray (M2's weights, ``m`` of the element whose cell
         holds the sample), ``S = mean M(p)`` over the pixels whose accumulated opacity is positive (1 when none
-        is: nothing to cover), and the score ``1 - S`` (COVER takes the lowest ``S``)."""
-        coverage = element_coverage(self.elements, self.seen, self.directions, origins[0])
+        is: nothing to cover), and the score ``1 - S`` (COVER takes the lowest ``S``). ``m`` is taken only for the
+        elements the view's samples reach, not for every element."""
         grid = model.grid
         assert isinstance(grid, OccupancyGrid), "a SceneModel's occupancy grid"
         total = torch.zeros((), dtype=torch.float64, device=origins.device)
@@ -123,7 +123,10 @@ class CoveredViews:
             x = o[rays] + result.samples.t_mid[:, None] * d[rays]
             cell, inside = grid.cell_index(x)
             element = torch.where(inside, self.element_of[cell], -1)
-            m = torch.where(element >= 0, coverage[element.clamp(min=0)], torch.zeros_like(result.weights))
+            hit = element >= 0
+            wanted, which = torch.unique(element[hit], return_inverse=True)  # M38 for the elements this chunk hits
+            m = torch.zeros_like(result.weights)
+            m[hit] = element_coverage(self.elements[wanted], self.seen[wanted], self.directions, origins[0])[which]
             composite = torch.zeros(o.shape[0], dtype=torch.float64, device=o.device)
             composite.index_add_(0, rays, (result.weights * m).to(torch.float64))
             sees = result.acc > 0

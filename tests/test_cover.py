@@ -73,6 +73,27 @@ def test_a_candidate_seeing_an_unseen_side_scores_above_one_seeing_covered_direc
     assert 0.0 <= covered < unseen <= 1.0 and unseen - covered > 0.4
 
 
+def test_a_view_reads_the_coverage_of_the_elements_its_samples_reach_as_of_every_element():
+    """(M39) ``view_score`` takes M38 only for the elements its samples reach; the score is bitwise the one that
+    takes every element's coverage first and reads it at the samples (M39 as written)."""
+    model = ball_model()
+    train = torch.stack([look_at(torch.tensor([2.6, y, 0.3]), torch.zeros(3)) for y in (-0.5, 0.5)])
+    obs = Observations(torch.zeros(2, 8, 8, 4), train, INTR)
+    views = CoverScorer(bins=64).prepare(model, obs, generator_factory(0, 0, "cpu"), 4096)
+    origins, dirs = pixel_rays(look_at(torch.tensor([-2.0, 1.0, 0.5]), torch.zeros(3)), INTR)
+    every = element_coverage(views.elements, views.seen, views.directions, origins[0])
+    result = model.render(origins, dirs, heads=frozenset({"rgb"}))
+    x = origins[result.samples.ray_idx] + result.samples.t_mid[:, None] * dirs[result.samples.ray_idx]
+    cell, inside = model.grid.cell_index(x)
+    element = torch.where(inside, views.element_of[cell], -1)
+    m = torch.where(element >= 0, every[element.clamp(min=0)], torch.zeros_like(result.weights))
+    composite = torch.zeros(origins.shape[0], dtype=torch.float64)
+    composite.index_add_(0, result.samples.ray_idx, (result.weights * m).to(torch.float64))
+    sees = result.acc > 0
+    assert int(sees.sum()) > 0 and bool((m > 0).any())
+    assert torch.equal(views.view_score(model, origins, dirs, 4096), 1.0 - composite[sees].sum() / int(sees.sum()))
+
+
 def test_cover_runs_an_episode_at_the_smoke_budget(tmp_path):
     run = compose_run(
         ["budget=smoke", "scene=default", "method=cover", "budget.horizon=2", f"paths.outputs={tmp_path}"]
