@@ -347,6 +347,33 @@ def test_show_reads_the_scenes_own_overrides_and_bounds_its_resolution(tmp_path,
     assert not (tmp_path / "figures").exists()
 
 
+def test_an_asset_outside_the_assets_folder_is_recorded_by_its_whole_path(tmp_path):
+    """``ground_truth.asset`` of a file outside ``paths.assets`` is its absolute path, so a file of the same name in
+    another folder is another asset (``built_differently``); one under it (through a link too) is its path
+    relative to the folder."""
+    import dataclasses
+
+    from pipeline.scenes.ground_truth import built_differently, ground_truth_info
+    from pipeline.scenes.mesh_renderer import GroundTruthRenderer
+
+    for folder in ("mine", "other", "assets/hotdog"):
+        (tmp_path / folder).mkdir(parents=True)
+        (tmp_path / folder / "hotdog.ply").write_bytes(b"ply")
+    scene = dataclasses.replace(load_scene("default"), source="mesh", asset=tmp_path / "mine" / "hotdog.ply")
+    renderer = GroundTruthRenderer(scene.mesh)
+    info = {"scene_source": "mesh", "ground_truth": ground_truth_info(scene, renderer, tmp_path / "assets")}
+    assert info["ground_truth"] == {"backend": "pyrender", "asset": (tmp_path / "mine" / "hotdog.ply").as_posix()}
+    assert built_differently(info, scene) is None
+    other = dataclasses.replace(scene, asset=tmp_path / "other" / "hotdog.ply")
+    assert "scene asset" in (built_differently(info, other) or "")
+    inside = dataclasses.replace(scene, asset=tmp_path / "assets" / "hotdog" / "hotdog.ply")
+    assert ground_truth_info(inside, renderer, tmp_path / "assets")["asset"] == "hotdog/hotdog.ply"
+    (tmp_path / "linked").mkdir()  # an assets folder whose scene folder links elsewhere: the path inside it
+    (tmp_path / "linked" / "hotdog").symlink_to(tmp_path / "mine")
+    linked = dataclasses.replace(scene, asset=tmp_path / "linked" / "hotdog" / "hotdog.ply")
+    assert ground_truth_info(linked, renderer, tmp_path / "linked")["asset"] == "hotdog/hotdog.ply"
+
+
 def test_a_record_predating_its_asset_name_is_held_to_its_scenes_declared_file():
     """A mesh record that predates ``ground_truth.asset`` (every committed NVF record) took any build of its scene
     (a box as hotdog's state); it was built from the scene's declared file, so a build from another is refused."""

@@ -349,7 +349,8 @@ class GroundTruth:
     backend: str
     """``pyrender`` or ``blender``."""
     asset: str | None
-    """The mesh file, relative to paths.assets where it lies under it; null for a procedural scene."""
+    """The mesh file, relative to paths.assets where it lies under it, else its absolute path; null for a procedural
+    scene."""
     samples: Annotated[int, COUNT] | None = None
     """Cycles' samples per pixel; only with Blender."""
     device: str | None = None

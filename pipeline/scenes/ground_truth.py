@@ -2,6 +2,7 @@
 about it: which backend, which asset file, and for Blender the samples, device and version; whether a record
 was made on the scene as built now."""
 
+import os
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -39,14 +40,19 @@ def open_renderer(scene: Scene, render: RenderConfig, python: Path, threads: int
 
 
 def ground_truth_info(scene: Scene, renderer: Renderer, assets: Path) -> dict:
-    """The run record's ``ground_truth``: backend, asset (relative to ``assets`` where it lies under it) and,
-    for Blender, samples per pixel, Cycles device and Blender version."""
+    """The run record's ``ground_truth``: backend, asset (relative to ``assets`` where it lies under it, through
+    its links or with them followed, else its absolute path: a file of the same name elsewhere is another asset)
+    and, for Blender, samples per pixel, Cycles device and Blender version."""
     asset = None
     if scene.asset is not None:
-        try:
-            asset = scene.asset.resolve().relative_to(Path(assets).resolve()).as_posix()
-        except ValueError:
-            asset = scene.asset.name
+        asset = scene.asset.resolve().as_posix()
+        for file, folder in (
+            (Path(os.path.abspath(scene.asset)), Path(os.path.abspath(assets))),  # links kept
+            (scene.asset.resolve(), Path(assets).resolve()),
+        ):
+            if file.is_relative_to(folder):
+                asset = file.relative_to(folder).as_posix()
+                break
     if isinstance(renderer, BlenderRenderer):
         return {
             "backend": "blender",
@@ -61,9 +67,9 @@ def ground_truth_info(scene: Scene, renderer: Renderer, assets: Path) -> dict:
 def built_differently(info: Mapping, scene: Scene) -> str | None:
     """How the scene a record's run.json (``info``) was made on differs from ``scene`` as built now: its
     ``scene_source`` (mesh, blend, proxy, procedural) or, where the record names it, its ``ground_truth.asset``
-    (a path relative to the assets directory, or a file name). A mesh record that predates ``ground_truth`` was
-    built from one of its scene's declared ``files`` (the lookup of ``<name>/<name>.<ext>`` came later), so a
-    build from another file differs. None when they agree."""
+    (a path relative to the assets directory, or an absolute path; older records may name a file alone). A mesh
+    record that predates ``ground_truth`` was built from one of its scene's declared ``files`` (the lookup of
+    ``<name>/<name>.<ext>`` came later), so a build from another file differs. None when they agree."""
     source = info.get("scene_source")
     if source is not None and source != scene.source:
         return f"scene source ({source} in the record, {scene.source} now)"
