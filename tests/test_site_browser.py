@@ -201,3 +201,39 @@ def test_the_index_says_who_wins_where_and_the_duel_fits_in_chromium(browser, tm
     assert sorted(row[1] for row in rows[: len(first)]) == labels  # first scene: a row per rival it has, by its label
     browser.save_screenshot(str(tmp_path / "duel.png"))
     print(f"screenshots: {tmp_path / 'index.png'}, {tmp_path / 'duel.png'}")
+
+
+@pytest.mark.skipif(
+    bool(missing), reason=f"needs {' and '.join(missing)} (Debian's chromium, chromium-driver: make browser)"
+)
+def test_a_newcomers_method_and_scene_show_on_the_site_in_chromium(browser, tmp_path):
+    """The newcomer's path ends on the site: an outside method (examples/depth_spread) and an outside scene run at
+    smoke, the tables build, and in Chromium the index lists the scene with the method by its label, marked as the
+    newcomer's own, and the scene's page loads with both methods' rows and pictures."""
+    example = REPO / "examples" / "depth_spread"
+    conf = tmp_path / "conf"
+    (conf / "scene").mkdir(parents=True)
+    (conf / "method").mkdir()
+    (conf / "method" / "depth_spread.yaml").write_text((example / "conf" / "method" / "depth_spread.yaml").read_text())
+    scene = (REPO / "conf" / "scene" / "default.yaml").read_text().replace("name: default", "name: mything", 1)
+    (conf / "scene" / "mything.yaml").write_text(scene)
+    env = {**os.environ, "PYTHONPATH": str(example), "OMP_NUM_THREADS": "1", "GIT_DIR": str(tmp_path / "no-git")}
+    outputs, results = tmp_path / "outputs", tmp_path / "results"
+    search = f"hydra.searchpath=[file://{conf}]"
+    for command in (
+        ["pipeline.run", "-m", "method=depth_spread,nvf", "budget=smoke", "budget.horizon=2", "scene=mything", search]
+        + [f"paths.outputs={outputs}"],
+        ["pipeline.tables", f"paths.outputs={outputs}", f"paths.results={results}"],
+    ):
+        subprocess.run(
+            [sys.executable, "-m", *command], cwd=REPO, env=env, check=True, capture_output=True, timeout=1800
+        )
+    browser.get((results / "site" / "index.html").as_uri())
+    assert errors(browser) == [] and broken_images(browser) == []
+    assert sorted(row[0] for row in table_rows(browser, "table")) == ["DepthSpread", "NVF"]
+    assert "a method of your own" in browser.find_element("tag name", "body").text
+    lead_of(browser, "mything").find_element("link text", "mything").click()
+    assert browser.title == "mything, smoke budget" and errors(browser) == []
+    assert sorted(row[1] for row in table_rows(browser, ".wide table")) == ["DepthSpread§", "NVF"]
+    assert len(browser.find_elements("css selector", ".run img")) == 4 and broken_images(browser) == []
+    browser.save_screenshot(str(tmp_path / "newcomer.png"))

@@ -235,6 +235,12 @@ def index_page(
             f'<h3>Every method, {html.escape(budget)} budget</h3><div class="wide"><table><thead><tr><th>method</th>'
             f"{head}</tr></thead><tbody>{''.join(lines)}</tbody></table></div>"
         )
+        own = [runs.row(*key).label for key in groups if not runs.row(*key).in_repository]
+        if own:
+            parts.append(
+                f'<p class="note">{html.escape(", ".join(own))}: a method of your own (declared outside this '
+                "repository), not the benchmark's.</p>"
+            )
     parts.append(
         '<p class="note">Tables: final PSNR (dB) on the evaluation views, mean ± population std over seeds (hover a '
         "cell for the number of seeds). A scene's page has every metric with paired 95% intervals, the curves over "
