@@ -26,6 +26,7 @@ STUDIES = {
     "discriminate": ("pipeline.experiments.discriminate", "does a budget tell the methods apart? (paired intervals)"),
     "budget-curve": ("pipeline.experiments.budget_curve", "the discrimination experiments' leads against their cost"),
     "uncertainty": ("pipeline.experiments.uncertainty", "the stand-alone uncertainty experiment (PROTOCOL 4.4)"),
+    "fan-out": ("pipeline.experiments.fan_out", "a study's scene-and-seed units through Hydra's launchers (-m)"),
 }
 
 

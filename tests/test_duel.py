@@ -3,8 +3,11 @@ on the states of their recorded episodes, and the duel's tables."""
 
 import json
 import math
+import os
 import re
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +32,7 @@ from pipeline.scenes.loading import load_scene
 from pipeline.tables.site import DUEL_COLUMNS
 
 SMOKE = ["budget=smoke", "scene=default"]
+REPO = Path(__file__).resolve().parents[1]
 
 
 def test_contenders_are_methods_or_nvf_ablations():
@@ -612,3 +616,50 @@ def test_the_help_gives_every_default_and_steps_follow_the_states_budget(capsys)
             ]
         )
     assert exit_.value.code == 2 and "no usable record" in capsys.readouterr().err
+
+
+def test_a_fan_out_unit_is_the_studys_own_command_on_one_scene_and_seed():
+    """pipeline.experiments.fan_out: each study that fans out is one nvf-bench knows by the same module; a unit's
+    command is the study's with its scene and seed; a study without units, or args naming the unit's own options,
+    is one line."""
+    from pipeline import commands
+    from pipeline.experiments import fan_out
+
+    known = {name: module for name, (module, _) in (commands.COMMANDS | commands.STUDIES).items()}
+    assert all(known[name] == module for name, module in fan_out.UNITS.items())
+    command = fan_out.unit_command("duel", "hotdog", 101, ["method=nvf", "rival=fvs", "--steps", "0,3"])
+    assert command[1:] == ["-m", "pipeline.experiments.duel", "method=nvf", "rival=fvs", "--steps", "0,3"] + [
+        "--scenes", "hotdog", "--seeds", "101"
+    ]  # fmt: skip
+    with pytest.raises(ValueError, match="not one that fans out; choose one of duel"):
+        fan_out.unit_command("tables", "hotdog", 100, [])
+    with pytest.raises(ValueError, match="--seeds=100 is the unit's own; sweep scene= and seed= instead"):
+        fan_out.unit_command("duel", "hotdog", 100, ["--seeds=100"])
+
+
+@pytest.mark.slow
+def test_a_duel_fans_out_over_seeds_through_hydras_joblib_launcher(tmp_path):
+    """Two seeds' smoke records of NVF and WD; ``fan_out -m study=duel seed=100,101`` with the joblib launcher runs
+    a duel per seed side by side into one pair folder, and reports both units done."""
+    records = tmp_path / "records"
+    for method in ("nvf", "wd"):
+        for seed in (100, 101):
+            run_episode(
+                compose_run(
+                    [*SMOKE, "budget.horizon=2", f"method={method}", f"seed={seed}", f"paths.outputs={records}"]
+                )
+            )
+    study_args = ["method=nvf", "rival=wd", "budget=smoke", f"paths.results={tmp_path}", "--steps", "0"]
+    args = "args=[" + ",".join(f'"{arg}"' for arg in [*study_args, "--records", str(records)]) + "]"
+    found = subprocess.run(
+        [sys.executable, "-m", "pipeline.experiments.fan_out", "-m", "study=duel", "scene=default", "seed=100,101"]
+        + [args, "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", f"paths.outputs={tmp_path / 'outputs'}"],
+        cwd=REPO,
+        env={**os.environ, "OMP_NUM_THREADS": "1"},
+        capture_output=True,
+        text=True,
+    )
+    assert found.returncode == 0, found.stderr[-2000:]
+    assert "sweep: 2 jobs: 2 done, 0 skipped, 0 failed" in found.stdout + found.stderr
+    rows = read(tmp_path / "pilots" / "duel" / "nvf_vs_wd")
+    assert sorted({(r["seed"], r["step"]) for r in rows}) == [(100, 0), (101, 0)]
