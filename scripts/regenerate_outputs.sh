@@ -27,6 +27,7 @@ mkdir "$pyrender/pilots" && ln -s "$PWD/results/pilots/paper_states_pyrender" "$
 $PY -m pipeline.experiments.paper_states_summary paths.results="$pyrender"
 $PY -m pipeline.experiments.transfer paths.results=results --pool results/pilots/paper_states_pyrender
 $PY scripts/readme_findings.py
+$PY scripts/pilots/uncertainty_vs_coverage.py
 
 git status --short -- results README.md
 if $check; then

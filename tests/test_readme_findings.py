@@ -47,3 +47,20 @@ def test_a_line_per_pooled_rival_and_its_paper_scale_verdict():
         script.interval(0.1234, -0.5, 0.75) == "+0.12 [-0.50, +0.75]"
         and script.interval(0.1, float("nan"), 1) == "+0.10"
     )
+
+
+def test_the_coverage_pilots_figures_are_the_ones_the_records_give():
+    """results/pilots/uncertainty_vs_coverage: its episodes.txt and its README's tables and figures equal what
+    ``scripts/pilots/uncertainty_vs_coverage.py`` computes from the committed records (a record remade, or a figure
+    edited by hand, without running it fails here)."""
+    path = SCRIPT.parent / "pilots" / "uncertainty_vs_coverage.py"
+    spec = importlib.util.spec_from_file_location("uncertainty_vs_coverage", path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    assert module.main(["--check"]) == 0
+    doc = module.DOC.read_text(encoding="utf-8")
+    edited = doc.replace("| NVF | ", "| NVF | +9.99 ", 1)
+    found = {baseline: module.differences(baseline) for baseline in module.COVERAGE}
+    regenerated = module.generated_section.with_section(edited, module.BEGIN, module.END, module.section(found), path)
+    assert edited != doc and regenerated == doc
