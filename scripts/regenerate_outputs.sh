@@ -4,9 +4,10 @@
 #   bash scripts/regenerate_outputs.sh [--check]
 #
 # The tables, figures and results site (from results/runs), the duel's, the visibility study's and the paper
-# states' summaries, the transfer table, README.md's findings and the coverage pilot's figures. With --check, exit 1 when any tracked file
-# differs afterwards (git diff): a refactor that changes no output leaves the checkout clean. The command
-# writes into the checkout; run it from a clean one (git stash or a worktree) to see only its own changes.
+# states' summaries, the transfer table, README.md's findings and the coverage pilot's figures. With --check,
+# exit 1 when any tracked file differs afterwards (git diff): a refactor that changes no output leaves the
+# checkout clean. The command writes into the checkout; run it from a clean one (git stash or a worktree) to see
+# only its own changes.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PY:-.venv/bin/python}
