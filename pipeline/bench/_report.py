@@ -6,9 +6,9 @@ folder (``${paths.results}/bench/<name>.json``); the repository's committed repo
 import json
 import os
 import stat
-import tempfile
 from pathlib import Path
 
+from pipeline.atomic_write import atomic_write_text
 from pipeline.cli import fail
 
 
@@ -39,17 +39,8 @@ def report_path(out: Path | None, results: str | Path, name: str) -> Path:
 
 
 def write_report(report: dict, path: Path) -> None:
-    """Write ``report`` as JSON to ``path`` atomically: into a new temporary file of its own beside it (no name
-    another file could hold), then renamed over ``path`` (parent folders created; ``path`` still a plain file or
-    none, as ``report_path`` checked)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
+    """Write ``report`` as JSON to ``path`` atomically (``pipeline.atomic_write``; parent folders created; ``path``
+    still a plain file or none, as ``report_path`` checked)."""
     if os.path.lexists(path) and not stat.S_ISREG(os.lstat(path).st_mode):
         fail(f"the report {path}: not a plain file any more (a link, device, FIFO or folder); nothing written")
-    handle, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(handle, "w") as file:
-            file.write(json.dumps(report, indent=2) + "\n")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_write_text(path, json.dumps(report, indent=2) + "\n")

@@ -7,6 +7,7 @@ a decision takes it, timed (``measure_state``)."""
 import argparse
 import dataclasses
 import hashlib
+import io
 import json
 import time
 from pathlib import Path
@@ -20,6 +21,7 @@ from nvf.planning import candidate_poses, prepare_scorer, score_poses_together
 from nvf.seeding import generator_factory, seeded_generator
 from nvf.training import train_model
 from nvf.uncertainty import ViewScorer
+from pipeline.atomic_write import atomic_write_bytes
 from pipeline.cli import fail
 from pipeline.config.typed_run import Run
 from pipeline.config.validation import compose_run
@@ -107,10 +109,9 @@ def trained_backbone(episode: Episode, cache: Path | None) -> tuple[SceneModel, 
     generator = seeded_generator(s.seed, step, "train", episode.device)
     stats = train_model(model, obs, s.train, {"backbone"}, s.entropy, generator)
     if path is not None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp")
-        torch.save(model.state_dict(), tmp)
-        tmp.replace(path)
+        buffer = io.BytesIO()
+        torch.save(model.state_dict(), buffer)
+        atomic_write_bytes(path, buffer.getvalue())
     return model, stats.stages["backbone"]["seconds"]
 
 
