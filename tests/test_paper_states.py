@@ -247,8 +247,8 @@ def test_pooled_tables_join_another_settings_states_and_refuse_a_state_twice(tmp
     assert (folder / "summary.csv").read_text() == alone
     pooled = list(csv.DictReader((folder / "pooled.csv").open()))
     counts = {(r["budget"], r["scene"]): int(r["states"]) for r in pooled if r["rival"] == "wo_vis"}
-    mine = [json.loads(line) for line in (folder / "states.jsonl").read_text().splitlines()]
-    theirs = [json.loads(line) for line in (other / "states.jsonl").read_text().splitlines()]
+    mine = paper_states_summary.read_states(folder)  # the current rows: an extended row counts once
+    theirs = paper_states_summary.read_states(other)
     for budget in ("paper", "cpu"):
         expected = sum(r["budget"] == budget for r in mine + theirs)
         assert counts[(budget, "all")] == expected and counts[(budget, "hubble")] >= 1
@@ -292,8 +292,15 @@ def test_a_state_is_extended_with_new_contenders_and_outcomes_as_a_fresh_run_mea
     assert {n: (o["nvf_psnr"], o["rival_psnr"]) for n, o in extended["outcomes"].items()} == {
         n: (o["nvf_psnr"], o["rival_psnr"]) for n, o in fresh["outcomes"].items()
     }
-    assert extended["against_nvf"]["fisherrf"]["spearman"] is None  # NVF's scores were not computed again
-    assert paper_states_summary.read_states(tmp_path / "a" / "pilots" / "paper_states") == [extended]
+    kept = first["against_nvf"]["fisherrf"]["spearman"]  # NVF's scores were not computed again: the earlier row's
+    assert kept is not None and extended["against_nvf"]["fisherrf"]["spearman"] == kept
+    assert kept == pytest.approx(fresh["against_nvf"]["fisherrf"]["spearman"])
+    folder = tmp_path / "a" / "pilots" / "paper_states"
+    assert paper_states_summary.read_states(folder) == [extended]
+    without = extended | {"against_nvf": extended["against_nvf"] | {"fisherrf": {"spearman": None, "same_pick": False}}}
+    (folder / "states.jsonl").write_text("".join(json.dumps(row) + "\n" for row in (first, without)))
+    [read] = paper_states_summary.read_states(folder)  # an extension row written without it reads the earlier's
+    assert read["against_nvf"]["fisherrf"] == {"spearman": kept, "same_pick": False}
 
 
 @pytest.mark.parametrize(

@@ -291,8 +291,8 @@ def measure_state(call: "Call", state: "State", episode: Episode, earlier: dict 
         same = picks[name] == picks["nvf"]
         if name in scores and "nvf" in scores:
             against[name] = {"spearman": spearman(scores["nvf"], scores[name]), "same_pick": same}
-        elif name in reused and "nvf" in reused and earlier is not None:
-            against[name] = earlier["against_nvf"][name]
+        elif "nvf" in reused and earlier is not None and name in earlier["against_nvf"]:
+            against[name] = earlier["against_nvf"][name]  # the rival's pick as the earlier row's (checked above)
         else:  # NVF's scores and this rival's come from two runs: only the picks compare
             against[name] = {"spearman": None, "same_pick": same}
     row: dict = {

@@ -1,10 +1,10 @@
 """The tables of ``python -m pipeline.experiments.paper_states``, from its ``states.jsonl``; the shapes of its
 files as they are read back (``STATE``, ``SETTING``).
 
-``summary.csv``: a row per budget, scene (and ``all``, over the scenes) and rival of NVF (w/o Vis., FisherRF,
-ActiveNeRF): ``states``; ``spearman_mean, spearman_low, spearman_high`` (the rank correlation of NVF's and the
-rival's scores over a state's candidates: the mean over the states, and a 95% Student-t interval over them
-taken on Fisher's z, ``correlation_interval``);
+``summary.csv``: a row per budget, scene (and ``all``, over the scenes) and rival of NVF the states hold (w/o
+Vis., FisherRF, ActiveNeRF, and any contender a call added): ``states``; ``spearman_mean, spearman_low,
+spearman_high`` (the rank correlation of NVF's and the rival's scores over a state's candidates: the mean over the
+states, and a 95% Student-t interval over them taken on Fisher's z, ``correlation_interval``);
 ``same_pick`` (the share of states where both pick the same candidate); ``nvf_relative_std`` and
 ``rival_relative_std`` (the mean over states of each score's standard deviation over its mean's magnitude:
 near 0, a flat score); ``auc_labels`` and ``auc_head`` (mean over states of the labels' and NVF's head's AUC
@@ -31,7 +31,7 @@ from pipeline.atomic_write import atomic_write_text
 from pipeline.cli import ArgumentParser, description, fail, run_command
 from pipeline.config.validation import compose_run
 from pipeline.experiments.provenance import MADE_WITH, SOURCE_RECORD
-from pipeline.experiments.row_files import current_rows
+from pipeline.experiments.row_files import EXTENDS, current_rows, row_digest
 from pipeline.records.checked_files import Each, Entries, Number, Optional, Text, read_json, read_json_lines
 from pipeline.records.files import RecordError
 from pipeline.records.schema import MAX_HORIZON
@@ -41,7 +41,6 @@ from pipeline.tables.stats import Interval
 from pipeline.tables.table_formats import markdown_table
 
 FOLDER = "paper_states"
-RIVALS = ("wo_vis", "fisherrf", "activenerf")
 ALL = "all"
 SETTING = {
     "overrides": Each(Text()),
@@ -142,7 +141,7 @@ def summary_rows(states: list[dict]) -> list[dict]:
         scenes = sorted({r["scene"] for r in rows})
         for scene in [*scenes, ALL]:
             chosen = [r for r in rows if scene == ALL or r["scene"] == scene]
-            for rival in RIVALS:
+            for rival in dict.fromkeys(name for r in rows for name in r["against_nvf"]):  # in the rows' order
                 have = [r for r in chosen if rival in r["against_nvf"]]
                 if not have:
                     continue
@@ -226,12 +225,33 @@ def read_states(folder: Path) -> list[dict]:
     ``decisions.current_rows``); a state held twice otherwise, or a row naming a rival it does not hold, is refused
     (``RecordError`` naming it)."""
     path = folder / "states.jsonl"
-    states = current_rows(read_json_lines(path, STATE)[0], state_key, str(path))
+    rows = read_json_lines(path, STATE)[0]
+    states = [with_kept_spearman(row, rows) for row in current_rows(rows, state_key, str(path))]
     for row in states:
         problem = state_problem(row)
         if problem is not None:
             raise RecordError(f"{path}: the state {state_key(row)}: {problem}; fix or delete its line")
     return states
+
+
+def with_kept_spearman(row: dict, rows: list[dict]) -> dict:
+    """``row`` with the Spearman correlations of the row it extends (``row_files.EXTENDS``, among ``rows``) where it
+    has none: an extension that scores a rival again on the backbone but keeps NVF's pick from the earlier row has
+    no NVF scores to correlate with, while the earlier row measured both on the same state (the extension checked
+    that the rival's pick came out the same); a rival whose pick differs from the earlier row's keeps None."""
+    earlier = next((r for r in rows if row.get(EXTENDS) is not None and row_digest(r) == row[EXTENDS]), None)
+    if earlier is None:
+        return row
+    against = dict(row["against_nvf"])
+    for name, found in against.items():
+        before = earlier["against_nvf"].get(name)
+        same = all(
+            who in earlier["contenders"] and earlier["contenders"][who]["pick"] == row["contenders"][who]["pick"]
+            for who in ("nvf", name)
+        )
+        if found["spearman"] is None and before is not None and before["spearman"] is not None and same:
+            against[name] = found | {"spearman": before["spearman"]}
+    return row | {"against_nvf": against}
 
 
 def _refuse_repeats(states: list[dict], where: str) -> None:
