@@ -13,6 +13,7 @@ together, as ``python -m pipeline.bench paper_shape`` measures it (docs/USAGE.md
 
 import math
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from nvf.config import FieldConfig
@@ -69,164 +70,213 @@ class Allocation:
     also: tuple[str, ...] = ()
 
 
-def allocations(run: Run) -> list[Allocation]:
-    """The largest array each size key of ``run`` makes the run allocate (lower bounds)."""
-    b, s, f, p, t = run.budget, run.sampler, run.field, run.planner, run.train
-    side = int(b.image_size) * int(b.gt_samples)
-    pixels = int(b.image_size) ** 2
-    view_rays = int(p.resolution) ** 2
-    stages = set(run.method.stages)
-    found = [
-        Allocation(
-            "budget.image_size",
-            16.0 * side**2,
-            f"one ground-truth render of {side}x{side} RGBA float32 samples "
-            "(budget.image_size x budget.gt_samples per side)",
-            on_device=False,
+@dataclass(frozen=True)
+class Term:
+    """One row of ``TERMS``: the array a size key makes a run allocate, where ``applies`` to the run (every run when
+    None): its bytes and its description as functions of the run, where it lives and the other keys that size it."""
+
+    key: str
+    nbytes: Callable[[Run], float]
+    what: Callable[[Run], str]
+    on_device: bool
+    also: tuple[str, ...] = ()
+    applies: Callable[[Run], bool] | None = None
+
+
+def _side(run: Run) -> int:
+    """A ground-truth render's samples per side (``budget.image_size x budget.gt_samples``)."""
+    return int(run.budget.image_size) * int(run.budget.gt_samples)
+
+
+def _hash_entries(run: Run, resolution: int) -> int:
+    """Entries of a hash level of ``resolution`` (at most the table's size)."""
+    return min(2 ** int(run.field.log2_hashmap_size), (resolution + 1) ** 3)
+
+
+def _labels(run: Run) -> bool:
+    """Whether the run computes M17's labels: stage 3's, or the scores' (``visibility_source=labels``)."""
+    return "visibility" in run.method.stages or run.nvf.entropy.visibility_source == "labels"
+
+
+def _collision_free(run: Run) -> bool:
+    """Whether the planner draws with the collision-free sampler (the planner's setting, else the scene's)."""
+    p = run.planner
+    return bool(p.collision_free if p.collision_free is not None else run.scene.collision_free)
+
+
+def _stage_batch(stage: str) -> Term:
+    return Term(
+        f"train.{stage}.batch",
+        lambda r: XYZ * int(getattr(r.train, stage).batch),
+        lambda r: "one batch's ray origins or points (float32 xyz)",
+        on_device=True,
+    )
+
+
+TERMS: tuple[Term, ...] = (  # the largest array each size key makes a run allocate, in the order they are checked
+    Term(
+        "budget.image_size",
+        lambda r: 16.0 * _side(r) ** 2,
+        lambda r: (
+            f"one ground-truth render of {_side(r)}x{_side(r)} RGBA float32 samples "
+            "(budget.image_size x budget.gt_samples per side)"
         ),
-        Allocation(
-            "budget.eval_size",
-            12.0 * EVAL_VIEWS * int(b.eval_size) ** 2,
-            f"the {EVAL_VIEWS} evaluation views' RGB float32 ground truth",
-            on_device=False,
-        ),
-        Allocation(
-            "budget.horizon",
-            4 * FLOAT32 * pixels * int(b.horizon),
-            "the training images of the last step (RGBA float32, at least one per step)",
-            on_device=True,
-            also=("budget.image_size",),
-        ),
-        Allocation(
-            "planner.resolution", XYZ * view_rays, "one candidate view's ray directions (float32)", on_device=True
-        ),
-        Allocation(
-            "planner.num_candidates",
-            CANDIDATE_FLOATS * FLOAT32 * drawn_poses(run),
+        on_device=False,
+    ),
+    Term(
+        "budget.eval_size",
+        lambda r: 12.0 * EVAL_VIEWS * int(r.budget.eval_size) ** 2,
+        lambda r: f"the {EVAL_VIEWS} evaluation views' RGB float32 ground truth",
+        on_device=False,
+    ),
+    Term(
+        "budget.horizon",
+        lambda r: 4 * FLOAT32 * int(r.budget.image_size) ** 2 * int(r.budget.horizon),
+        lambda r: "the training images of the last step (RGBA float32, at least one per step)",
+        on_device=True,
+        also=("budget.image_size",),
+    ),
+    Term(
+        "planner.resolution",
+        lambda r: XYZ * int(r.planner.resolution) ** 2,
+        lambda r: "one candidate view's ray directions (float32)",
+        on_device=True,
+    ),
+    Term(
+        "planner.num_candidates",
+        lambda r: CANDIDATE_FLOATS * FLOAT32 * drawn_poses(r),
+        lambda r: (
             "the candidate draw (3 x planner.num_candidates poses for the collision-free sampler, else "
-            "planner.oversample x): per "
-            "pose its 7 float32s, the draw's intermediates and the density filter's hash encoding (M28)",
-            on_device=True,
+            "planner.oversample x): per pose its 7 float32s, the draw's intermediates and the density filter's hash "
+            "encoding (M28)"
         ),
-        Allocation(
-            "sampler.grid_resolution",
-            6.0 * int(s.grid_resolution) ** 3,
-            "the occupancy grid (float32 values and two boolean masks per cell)",
-            on_device=True,
+        on_device=True,
+    ),
+    Term(
+        "sampler.grid_resolution",
+        lambda r: 6.0 * int(r.sampler.grid_resolution) ** 3,
+        lambda r: "the occupancy grid (float32 values and two boolean masks per cell)",
+        on_device=True,
+    ),
+    Term(
+        "budget.gt_points",
+        lambda r: 24.0 * int(r.budget.gt_points),
+        lambda r: "the ground-truth surface points (float64 xyz)",
+        on_device=False,
+    ),
+    Term(
+        "budget.recon_points",
+        lambda r: XYZ * int(r.budget.recon_points),
+        lambda r: "the reconstructed points (float32 xyz)",
+        on_device=True,
+    ),
+    Term(
+        "budget.recon_batch",
+        lambda r: XYZ * int(r.budget.recon_batch),
+        lambda r: "one point-cloud batch's ray directions (float32 xyz)",
+        on_device=True,
+    ),
+    Term(
+        "field.dense_resolution",
+        lambda r: FLOAT32 * int(r.field.dense_resolution) ** 3 * int(r.field.dense_features),
+        lambda r: "the dense feature grid (float32)",
+        on_device=True,
+        applies=lambda r: r.field.kind == "densegrid",
+    ),
+    Term(
+        "field.log2_hashmap_size",
+        lambda r: FLOAT32 * int(r.field.features_per_level) * _hash_entries(r, int(r.field.max_resolution)),
+        lambda r: "the finest level's hash table (float32)",
+        on_device=True,
+        applies=lambda r: r.field.kind != "densegrid",
+    ),
+    Term(
+        "field.num_levels",
+        lambda r: (
+            FLOAT32
+            * int(r.field.features_per_level)
+            * _hash_entries(r, int(r.field.base_resolution))
+            * int(r.field.num_levels)
         ),
-        Allocation(
-            "budget.gt_points",
-            24.0 * int(b.gt_points),
-            "the ground-truth surface points (float64 xyz)",
-            on_device=False,
+        lambda r: "the hash table of every level (float32; each level at least the coarsest one's entries)",
+        on_device=True,
+        applies=lambda r: r.field.kind != "densegrid",
+    ),
+    Term(
+        "field.hidden_dim",
+        lambda r: FLOAT32 * int(r.field.hidden_dim) * int(r.train.visibility.batch),
+        lambda r: "one hidden layer's outputs for a visibility batch (float32)",
+        on_device=True,
+        also=("train.visibility.batch",),
+        applies=lambda r: "visibility" in r.method.stages,
+    ),
+    Term(
+        "field.hidden_dim",
+        lambda r: FLOAT32 * int(r.field.hidden_dim) ** 2,
+        lambda r: "one hidden layer's weights (float32)",
+        on_device=True,
+        applies=lambda r: "visibility" not in r.method.stages,
+    ),
+    Term(
+        "train.label_samples",
+        lambda r: SEGMENT_BYTES * (int(r.train.label_samples) - 1),
+        lambda r: (
+            "one chunk of M17's label samples (float32 offsets, fractions, xyz and densities and boolean box "
+            "tests, at least train.label_samples - 1 per point)"
         ),
-        Allocation(
-            "budget.recon_points", XYZ * int(b.recon_points), "the reconstructed points (float32 xyz)", on_device=True
+        on_device=True,
+        applies=_labels,
+    ),
+    Term(
+        "train.label_lattice",
+        lambda r: lattice_bytes(r),
+        lambda r: (
+            "the density lattice of M17's labels (a float32 value and a boolean mark per vertex, "
+            "(sampler.grid_resolution x train.label_lattice + 1)³ vertices)"
         ),
-        Allocation(
-            "budget.recon_batch",
-            XYZ * int(b.recon_batch),
-            "one point-cloud batch's ray directions (float32 xyz)",
-            on_device=True,
+        on_device=True,
+        also=("sampler.grid_resolution",),
+        applies=lambda r: _labels(r) and lattice_bytes(r) > 0,
+    ),
+    *(_stage_batch(stage) for stage in ("backbone", "variance", "visibility")),
+    Term(
+        "train.target_samples",
+        lambda r: XYZ * max(1, int(r.train.target_samples) // int(r.sampler.max_samples_per_ray)),
+        lambda r: "the dynamic batch's first rays (float32 xyz, train.target_samples / sampler.max_samples_per_ray)",
+        on_device=True,
+        applies=lambda r: r.train.schedule == "reference",
+    ),
+    Term(
+        "planner.los_samples",
+        lambda r: SEGMENT_BYTES * (int(r.planner.los_samples) - 1),
+        lambda r: (
+            "one chunk of M29's line-of-sight samples (float32 offsets, fractions, xyz and densities and "
+            "boolean box tests, at least planner.los_samples - 1 per candidate)"
         ),
+        on_device=True,
+        applies=lambda r: _collision_free(r) and r.planner.los_source == "model",
+    ),
+    Term(
+        "sampler.uniform_samples",
+        lambda r: (
+            INT64
+            * min(int(r.planner.score_chunk_rays), int(r.planner.resolution) ** 2)
+            * int(r.sampler.uniform_samples)
+        ),
+        lambda r: "one scoring chunk's uniform samples (their int64 ray indices)",
+        on_device=True,
+        applies=lambda r: r.nvf.entropy.sampler == "uniform",
+    ),
+)
+
+
+def allocations(run: Run) -> list[Allocation]:
+    """The largest array each size key of ``run`` makes the run allocate (lower bounds): ``TERMS`` that apply."""
+    return [
+        Allocation(term.key, term.nbytes(run), term.what(run), term.on_device, term.also)
+        for term in TERMS
+        if term.applies is None or term.applies(run)
     ]
-    if f.kind == "densegrid":
-        voxels = int(f.dense_resolution) ** 3 * int(f.dense_features)
-        found.append(
-            Allocation("field.dense_resolution", FLOAT32 * voxels, "the dense feature grid (float32)", on_device=True)
-        )
-    else:
-        finest = min(2 ** int(f.log2_hashmap_size), (int(f.max_resolution) + 1) ** 3)
-        coarsest = min(2 ** int(f.log2_hashmap_size), (int(f.base_resolution) + 1) ** 3)
-        features = FLOAT32 * int(f.features_per_level)
-        found += [
-            Allocation(
-                "field.log2_hashmap_size", features * finest, "the finest level's hash table (float32)", on_device=True
-            ),
-            Allocation(
-                "field.num_levels",
-                features * coarsest * int(f.num_levels),
-                "the hash table of every level (float32; each level at least the coarsest one's entries)",
-                on_device=True,
-            ),
-        ]
-    hidden = int(f.hidden_dim)
-    if "visibility" in stages:
-        found.append(
-            Allocation(
-                "field.hidden_dim",
-                FLOAT32 * hidden * int(t.visibility.batch),
-                "one hidden layer's outputs for a visibility batch (float32)",
-                on_device=True,
-                also=("train.visibility.batch",),
-            )
-        )
-    else:
-        found.append(
-            Allocation("field.hidden_dim", FLOAT32 * hidden**2, "one hidden layer's weights (float32)", on_device=True)
-        )
-    labels = "visibility" in stages or run.nvf.entropy.visibility_source == "labels"  # M17: stage 3's, or the scores'
-    if labels:
-        found.append(
-            Allocation(
-                "train.label_samples",
-                SEGMENT_BYTES * (int(t.label_samples) - 1),
-                "one chunk of M17's label samples (float32 offsets, fractions, xyz and densities and "
-                "boolean box tests, at least train.label_samples - 1 per point)",
-                on_device=True,
-            )
-        )
-    lattice = lattice_bytes(run)
-    if labels and lattice > 0:
-        found.append(
-            Allocation(
-                "train.label_lattice",
-                lattice,
-                "the density lattice of M17's labels (a float32 value and a boolean mark per vertex, "
-                "(sampler.grid_resolution x train.label_lattice + 1)³ vertices)",
-                on_device=True,
-                also=("sampler.grid_resolution",),
-            )
-        )
-    for stage in ("backbone", "variance", "visibility"):
-        batch = int(getattr(t, stage).batch)
-        found.append(
-            Allocation(
-                f"train.{stage}.batch", XYZ * batch, "one batch's ray origins or points (float32 xyz)", on_device=True
-            )
-        )
-    if t.schedule == "reference":
-        rays = max(1, int(t.target_samples) // int(s.max_samples_per_ray))
-        found.append(
-            Allocation(
-                "train.target_samples",
-                XYZ * rays,
-                "the dynamic batch's first rays (float32 xyz, train.target_samples / sampler.max_samples_per_ray)",
-                on_device=True,
-            )
-        )
-    collision_free = p.collision_free if p.collision_free is not None else run.scene.collision_free
-    if collision_free and p.los_source == "model":
-        found.append(
-            Allocation(
-                "planner.los_samples",
-                SEGMENT_BYTES * (int(p.los_samples) - 1),
-                "one chunk of M29's line-of-sight samples (float32 offsets, fractions, xyz and densities "
-                "and boolean box tests, at least planner.los_samples - 1 per candidate)",
-                on_device=True,
-            )
-        )
-    if run.nvf.entropy.sampler == "uniform":
-        chunk = min(int(p.score_chunk_rays), view_rays)
-        found.append(
-            Allocation(
-                "sampler.uniform_samples",
-                INT64 * chunk * int(s.uniform_samples),
-                "one scoring chunk's uniform samples (their int64 ray indices)",
-                on_device=True,
-            )
-        )
-    return found
 
 
 def lattice_bytes(run: Run) -> float:
@@ -246,10 +296,8 @@ def host_memory() -> float:
 def drawn_poses(run: Run) -> int:
     """The poses the planner draws for ``planner.num_candidates`` (METHOD 13): 3 N for the collision-free
     sampler, else ``floor(planner.oversample N)``."""
-    p = run.planner
-    collision_free = p.collision_free if p.collision_free is not None else run.scene.collision_free
-    n = int(p.num_candidates)
-    return 3 * n if collision_free else math.floor(float(p.oversample) * n)
+    n = int(run.planner.num_candidates)
+    return 3 * n if _collision_free(run) else math.floor(float(run.planner.oversample) * n)
 
 
 def too_large(run: Run, host_bytes: float, device_bytes: float, device_name: str) -> str | None:
