@@ -6,11 +6,12 @@ states, the visibility study, the discrimination experiment); each Hydra job run
 unit (``python -m <module> ARGS --scenes A --seeds 100``) in a process of its own, so every unit resumes on its own
 as the study does (a state, a decision set, an episode at a time) and writes into the study's shared folder under
 the study's locks. ``args`` are the study's other arguments (its overrides and options, e.g.
-``'args=["method=nvf","rival=fvs","--steps","0,3,6"]'``). The launcher is Hydra's: the basic one runs the units one
-after another, ``hydra/launcher=joblib hydra.launcher.n_jobs=2`` side by side (one torch thread each: the studies'
-``--threads`` default), ``hydra/launcher=submitit_slurm`` one cluster job per unit (docs/USAGE.md, "Sweeps on a
-cluster"). The fan-out ends with one line per failed unit and exits 1 when any failed
-(``pipeline.episode.sweep.SweepReport``); the config is ``conf/study/fan_out.yaml``.
+``'args=["method=nvf","rival=fvs","--steps","0,3,6"]'``). The launcher is Hydra's: the basic one runs the
+units one after another, ``hydra/launcher=joblib hydra.launcher.n_jobs=2`` side by side (one torch thread each:
+the studies' ``--threads`` default), ``hydra/launcher=submitit_slurm`` one cluster job per unit (its settings as
+for the episodes' sweeps, docs/USAGE.md, "The paper budget on a GPU"). The fan-out ends with one line per failed
+unit and exits 1 when any failed (``pipeline.episode.sweep.SweepReport``); the config is
+``conf/study/fan_out.yaml``.
 """
 
 import subprocess
