@@ -577,7 +577,7 @@ def test_a_state_is_never_taken_from_a_record_made_on_another_build_of_its_scene
     """A record whose run.json says it was made on another build of the scene (here ``scene_source: mesh`` for
     the procedural default scene; Room's OBJ against its .blend in practice) is one ``error:`` line naming
     both and scene.asset, exit 2: its views are not replayed on this build (``decisions.recorded_steps``)."""
-    source = Path("results/runs/default/nvf-argmax-none/cpu/seed_100")
+    source = Path("results/runs_superseded/default/nvf-argmax-none/cpu/seed_100")  # from before records' digests
     copy = run_dir(tmp_path, "default", "nvf", "argmax", "none", "cpu", 100)
     shutil.copytree(source, copy)
     scene = load_scene("default")

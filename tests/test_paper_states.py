@@ -83,8 +83,9 @@ def test_states_of_cpu_records_at_another_budget_resume_and_summarise(tmp_path, 
     assert again == rows
     summary = (folder / "summary.csv").read_text().splitlines()
     assert summary[0].split(",") == list(paper_states_summary.COLUMNS)
-    assert len(summary) == 1 + 2 * 3  # (default, all) x the summary's 3 rivals
-    assert sum(len(r["outcomes"]) for r in rows) == sum(int(line.split(",")[12]) for line in summary[1:4])
+    rivals = len(paper_states.CONTENDERS) - 1  # every contender the states hold but NVF
+    assert len(summary) == 1 + 2 * rivals  # (default, all) x the rivals
+    assert sum(len(r["outcomes"]) for r in rows) == sum(int(line.split(",")[12]) for line in summary[1 : 1 + rivals])
 
 
 def test_correlation_interval_stays_inside_its_range():
@@ -427,7 +428,7 @@ def test_a_record_planned_otherwise_than_its_budget_is_refused(tmp_path, capsys)
     """A record made with other planner settings than its budget's file (here 2 candidates) was taken as NVF's state
     without comment; now it is one line naming the setting."""
     records = tmp_path / "runs"
-    source = Path("results/runs/default/nvf-argmax-none/cpu/seed_100")
+    source = Path("results/runs_superseded/default/nvf-argmax-none/cpu/seed_100")  # from before records' digests
     target = run_dir(records, "default", "nvf", "argmax", "none", "cpu", 100)
     shutil.copytree(source, target)
     info = json.loads((target / "run.json").read_text())
