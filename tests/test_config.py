@@ -121,6 +121,9 @@ def test_every_pair_of_group_options_composes(composer):
         if method in WHOLE_VIEW_METHODS and planner == "opt":  # whole-view scores: nothing for -OPT to refine
             with pytest.raises(ConfigError, match=f"planner=opt: {method} scores whole views"):
                 validate(cfg)
+        elif ablation != "none" and method != "nvf":  # an ablation of NVF on another method would be mislabelled
+            with pytest.raises(ConfigError, match=f"ablation={ablation} ablates method=nvf, not method={method}"):
+                validate(cfg)
         else:
             validate(cfg)
 

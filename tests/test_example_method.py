@@ -111,10 +111,11 @@ def test_a_newcomers_own_method_and_scene_go_everywhere_the_built_in_ones_go(tmp
         str(outputs),
         f"paths.results={results}",
     )
-    [row] = [
+    rows = [
         json.loads(line) for line in (results / "pilots" / "duel" / "depth_spread_vs_nvf" / "decisions.jsonl").open()
     ]
-    assert (row["scene"], row["method"], row["rival"]) == ("mything", "depth_spread", "nvf")
+    assert [r["set"] for r in rows] == [0, 1]  # the duel's two candidate sets by default
+    assert {(r["scene"], r["method"], r["rival"]) for r in rows} == {("mything", "depth_spread", "nvf")}
     shown = run("pipeline.scenes", "show", "mything", search, f"paths.results={results}", "--res", "16")
     assert shown.stdout.strip().endswith("mything.png")
 

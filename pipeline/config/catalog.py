@@ -57,6 +57,12 @@ def conf_dirs(searchpath: Sequence[str] = ()) -> list[Path]:
     return [CONF, *(Path(entry.removeprefix("file://")) for entry in searchpath if entry.startswith("file://"))]
 
 
+def searchpath_override(overrides: Sequence[str]) -> list[str]:
+    """The command line's ``hydra.searchpath=[...]`` override alone (an empty list without one): what a config of
+    the command's own methods and scenes needs beyond the project's ``conf/``, without its other settings."""
+    return [o for o in overrides if o.partition("=")[0].lstrip("+") == "hydra.searchpath"]
+
+
 def searchpath_of(overrides: Sequence[str]) -> list[str]:
     """The entries of a command line's ``hydra.searchpath=[...]`` override (none without one): where a user's own
     methods and scenes are declared, as ``pipeline.run`` reads them."""

@@ -35,7 +35,14 @@ from nvf.training import train_model
 from nvf.uncertainty import ViewScorer, WholeViewScorer
 from nvf.visibility_source import SourcedVisibility
 from pipeline.cli import fail
-from pipeline.config.catalog import ablation_configs, conf_dirs, declared, option_problem, searchpath_of
+from pipeline.config.catalog import (
+    ablation_configs,
+    conf_dirs,
+    declared,
+    option_problem,
+    searchpath_of,
+    searchpath_override,
+)
 from pipeline.config.validation import compose_run
 from pipeline.episode.evaluation import render_view
 from pipeline.episode.loop import Episode
@@ -111,11 +118,19 @@ class Recorded:
 
 
 def recorded_steps(
-    records: Path, scene: str, who: Contender, seed: int, budget: str, last: int, built: Scene | None = None
+    records: Path,
+    scene: str,
+    who: Contender,
+    seed: int,
+    budget: str,
+    last: int,
+    built: Scene | None = None,
+    overrides: Sequence[str] = (),
 ) -> Recorded:
     """``who``'s recorded argmax episode of ``budget`` (verified, ``pipeline.records.verify``; never reached through a
     symbolic link leaving ``records``), which must hold step ``last``, have been planned as its budget's file plans
-    (``planner_difference``) and, given the scene as ``built``, have been made on it (``built_differently``);
+    (``planner_difference``; a method or scene of the user's own found through the command ``overrides``'
+    ``hydra.searchpath``) and, given the scene as ``built``, have been made on it (``built_differently``);
     otherwise one ``error:`` line and exit 2."""
     directory = run_dir(records, scene, who.method, "argmax", who.ablation, budget, seed)
     try:
@@ -129,7 +144,8 @@ def recorded_steps(
             f"the record at {directory} was made on another build of scene '{scene}': {other}; set scene.asset to "
             "the file it was built from, or pass --records DIR holding records of this build"
         )
-    planned = planner_difference(info, [f"scene={scene}", f"budget={budget}", *who.overrides])
+    search = searchpath_override(overrides)
+    planned = planner_difference(info, [f"scene={scene}", f"budget={budget}", *who.overrides, *search])
     if planned is not None:
         fail(
             f"the record at {directory} was planned with {planned}: its states are not its budget's; pass --records "

@@ -276,7 +276,9 @@ def duel_seed(call: Call, scene: Scene, seed: int, lpips: LpipsMetric) -> None:
         if any(p is pair for states in todo.values() for pairs in states.values() for p in pairs):
             pair.open(call.command)
     for name, states in todo.items():
-        recorded = recorded_steps(call.records, scene.name, owners[name], seed, call.budget, max(call.steps), scene)
+        recorded = recorded_steps(
+            call.records, scene.name, owners[name], seed, call.budget, max(call.steps), scene, call.overrides
+        )
         contenders = {c.name: c for pairs in states.values() for p in pairs for c in (p.method, p.rival)}
         episodes: dict[str, Episode] = {}
         try:
@@ -369,7 +371,13 @@ def main(argv: list[str] | None = None) -> None:
     for scene, seed, rival in itertools.product(scenes, seeds, rivals):  # every record a state needs, before writing
         for i, _ in enumerate(steps):
             recorded_steps(
-                planned.records, scene, Pair.owner_of(method, rival, i, seed), seed, planned.budget, max(planned.steps)
+                planned.records,
+                scene,
+                Pair.owner_of(method, rival, i, seed),
+                seed,
+                planned.budget,
+                max(planned.steps),
+                overrides=overrides,
             )
     check_directory(Path(cfg.paths.results), root)  # never read through a link leaving paths.results
     pairs = pairs_of(root, method, rivals, setting)

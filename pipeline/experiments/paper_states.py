@@ -441,7 +441,9 @@ def measure_owner(
 ) -> None:
     """The states of ``owner``'s record at ``steps`` of one scene and seed at one budget, in one episode; each
     state's row written once it is complete (``held``: the folder's rows, which a state's row extends)."""
-    recorded = recorded_steps(call.records, scene.name, owner, seed, call.state_budget, max(steps), scene)
+    recorded = recorded_steps(
+        call.records, scene.name, owner, seed, call.state_budget, max(steps), scene, call.overrides
+    )
     episode = Episode(settings_of(scene, owner, seed, budget, call.overrides), scene, device, lpips)
     try:
         for k in sorted(steps):
@@ -582,7 +584,14 @@ def main(argv: list[str] | None = None) -> None:
             for i, k in enumerate(args.steps):
                 for budget in budgets:
                     recorded_steps(
-                        args.records, scene, state_owner(i, seed), seed, args.state_budget, k, scenes[scene, budget]
+                        args.records,
+                        scene,
+                        state_owner(i, seed),
+                        seed,
+                        args.state_budget,
+                        k,
+                        scenes[scene, budget],
+                        list(args.overrides),
                     )
     torch.set_num_threads(args.threads)
     git = checkout()

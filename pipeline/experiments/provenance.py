@@ -13,6 +13,7 @@ import hashlib
 from pathlib import Path
 from typing import Any
 
+from pipeline.config.catalog import searchpath_override
 from pipeline.config.validation import compose_run
 from pipeline.records.checked_files import Anything, Entries, Flag, Number, Text
 from pipeline.records.files import read_plain_file
@@ -72,8 +73,8 @@ def checkout() -> dict:
 
 def made_with(git: dict, scene: str, budget: str, overrides: list[str], threads: int) -> dict:
     """The provenance of a row made from the checkout ``git`` (``checkout``) at ``budget`` on ``scene`` with
-    ``overrides``."""
-    base = [f"scene={scene}", f"budget={budget}"]
+    ``overrides`` (a scene of the user's own found through their ``hydra.searchpath``)."""
+    base = [f"scene={scene}", f"budget={budget}", *searchpath_override(overrides)]
     plain, run = compose_run(base), compose_run([*base, *overrides])
     before, after = flat(plain.composed), flat(run.composed)
     return {

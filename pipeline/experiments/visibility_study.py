@@ -181,7 +181,9 @@ def study_scene(
         todo = [k for k in steps if missing_sets(decisions, scene_name, seed, k, sets)]
         if not todo:
             continue
-        recorded = recorded_steps(records, scene_name, contender("nvf"), seed, state_budget, max(steps), scene)
+        recorded = recorded_steps(
+            records, scene_name, contender("nvf"), seed, state_budget, max(steps), scene, overrides
+        )
         rows = recorded.rows
         made = made_with(git, scene_name, run.budget.name, overrides, torch.get_num_threads())
         seeded = compose_run([f"scene={scene_name}", f"seed={seed}", *overrides])
@@ -262,7 +264,9 @@ def main(argv: list[str] | None = None) -> None:
     for scene in scenes:  # a bad scene, seed or step is one line now, not after the diagnostics' minutes
         check_scene(scene, list(args.overrides))
         for seed in seeds:
-            recorded_steps(args.records, scene, contender("nvf"), seed, state_budget, max(steps))
+            recorded_steps(
+                args.records, scene, contender("nvf"), seed, state_budget, max(steps), overrides=list(args.overrides)
+            )
     results = Path(cfg.paths.results)
     out = results / "pilots" / STUDY / args.setting
     check_directory(results, out)
