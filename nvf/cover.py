@@ -3,11 +3,11 @@ from directions the training views have not covered (METHOD.md section 20, M37-M
 
 Each surface element keeps, per direction bin on a Fibonacci sphere, whether some training camera has seen it
 from that direction (COVER's per-Gaussian counts; only ``count > 0`` matters there). Here the elements are the
-centres of the occupied cells of the backbone's occupancy grid (M5), the backbone's geometry, where COVER has
-Gaussians. A candidate reads, per element, how close its own viewing direction comes to an observed bin (M38),
-composites that along its rays with the backbone's rendering weights (M39, as COVER alpha-composites it) and
-averages it over the pixels that see geometry: a low mean sees poorly covered geometry, so the planner takes the
-argmax of one minus it.
+centres of the occupied cells of the backbone's occupancy grid (M5) that some training view holds in its frustum,
+the geometry the views put there, as COVER's Gaussians. A candidate reads, per element, how close its own viewing
+direction comes to an observed bin (M38), composites that along its rays with the backbone's rendering weights
+over the samples the 3DGS rasteriser would composite (M39, as COVER alpha-composites it), and scores the geometry
+it sees that is poorly covered: the composited opacity less the composited coverage, over the image.
 """
 
 import math
@@ -25,6 +25,7 @@ from nvf.seeding import GeneratorFactory
 
 RGB = frozenset({"rgb"})
 NEAR = 0.01  # COVER's near plane for the frustum test (scene units)
+ALPHA_FLOOR = 1.0 / 255.0  # a Gaussian's least opacity the 3DGS rasteriser composites at a pixel (M39)
 
 
 def fibonacci_sphere(bins: int) -> Float[Tensor, "B 3"]:
@@ -73,8 +74,9 @@ def element_coverage(
 
 @dataclass(frozen=True)
 class CoverScorer:
-    """COVER's scorer (a ``StepScorer``): ``prepare`` takes the elements (the occupied cells' centres) and their
-    observed bins (M37) from the step's model and training views; ``bins``: the Fibonacci sphere's directions."""
+    """COVER's scorer (a ``StepScorer``): ``prepare`` takes the elements (the centres of the occupied cells some
+    training view holds in its frustum) and their observed bins (M37) from the step's model and training views;
+    ``bins``: the Fibonacci sphere's directions."""
 
     bins: int = 128
     name: ClassVar[str] = "cover"
@@ -85,9 +87,11 @@ class CoverScorer:
         grid = model.grid
         assert isinstance(grid, OccupancyGrid), "a SceneModel's occupancy grid"
         cells = grid.occupied.nonzero().flatten()
-        elements = grid.cell_centers()[cells]
-        directions = fibonacci_sphere(self.bins).to(elements.device)
-        seen = observed_bins(elements, observations.c2w.to(elements), observations.intrinsics, directions)
+        centres = grid.cell_centers()[cells]
+        directions = fibonacci_sphere(self.bins).to(centres.device)
+        seen = observed_bins(centres, observations.c2w.to(centres), observations.intrinsics, directions)
+        kept = seen.any(dim=-1)  # the geometry some training view holds in its frustum, as COVER's Gaussians
+        cells, elements, seen = cells[kept], centres[kept], seen[kept]
         element_of = torch.full((grid.occupied.numel(),), -1, dtype=torch.long, device=elements.device)
         element_of[cells] = torch.arange(cells.numel(), device=elements.device)
         return CoveredViews(elements, seen, directions, element_of)
@@ -108,14 +112,22 @@ class CoveredViews:
     def view_score(
         self, model: nn.Module, origins: Float[Tensor, "R 3"], dirs: Float[Tensor, "R 3"], chunk_rays: int
     ) -> Float[Tensor, ""]:
-        """(M39) ``M(p) = sum_i w_i m(x_i)`` along pixel ``p``'s ray (M2's weights, ``m`` of the element whose cell
-        holds the sample), ``S = mean M(p)`` over the pixels whose accumulated opacity is positive (1 when none
-        is: nothing to cover), and the score ``1 - S`` (COVER takes the lowest ``S``). ``m`` is taken only for the
-        elements the view's samples reach, not for every element."""
+        """(M39) The score ``mean_p (A(p) - M(p))`` over all ``R`` pixels (``opacity_and_coverage``): how much of
+        what the view sees is seen from uncovered directions, 0 for a view that sees no element."""
+        opacity, coverage = self.opacity_and_coverage(model, origins, dirs, chunk_rays)
+        return (opacity - coverage).mean()
+
+    @torch.no_grad()
+    def opacity_and_coverage(
+        self, model: nn.Module, origins: Float[Tensor, "R 3"], dirs: Float[Tensor, "R 3"], chunk_rays: int
+    ) -> tuple[Float[Tensor, " R"], Float[Tensor, " R"]]:
+        """(M39) Per pixel ``p``, ``A(p) = sum_i w_i`` and ``M(p) = sum_i w_i m(x_i)`` along its ray over its samples
+        in an element's cell with opacity ``alpha_i >= 1/255`` (M2's weights, ``m`` of that element; float64).
+        ``m`` is taken only for the elements the view's samples reach."""
         grid = model.grid
         assert isinstance(grid, OccupancyGrid), "a SceneModel's occupancy grid"
-        total = torch.zeros((), dtype=torch.float64, device=origins.device)
-        pixels = 0
+        opacity = torch.zeros(origins.shape[0], dtype=torch.float64, device=origins.device)
+        coverage = torch.zeros_like(opacity)
         for start in range(0, origins.shape[0], chunk_rays):
             o, d = origins[start : start + chunk_rays], dirs[start : start + chunk_rays]
             result = model.render(o, d, heads=RGB)  # type: ignore[operator]  # a duck-typed nn.Module's attribute
@@ -123,14 +135,11 @@ class CoveredViews:
             x = o[rays] + result.samples.t_mid[:, None] * d[rays]
             cell, inside = grid.cell_index(x)
             element = torch.where(inside, self.element_of[cell], -1)
-            hit = element >= 0
+            hit = (element >= 0) & (result.alpha >= ALPHA_FLOOR)  # what the rasteriser would composite
             wanted, which = torch.unique(element[hit], return_inverse=True)  # M38 for the elements this chunk hits
             m = torch.zeros_like(result.weights)
             m[hit] = element_coverage(self.elements[wanted], self.seen[wanted], self.directions, origins[0])[which]
-            composite = torch.zeros(o.shape[0], dtype=torch.float64, device=o.device)
-            composite.index_add_(0, rays, (result.weights * m).to(torch.float64))
-            sees = result.acc > 0
-            total += composite[sees].sum()
-            pixels += int(sees.sum())
-        mean = total / pixels if pixels else torch.ones((), dtype=torch.float64, device=origins.device)
-        return 1.0 - mean
+            weights = torch.where(hit, result.weights, torch.zeros_like(result.weights)).to(torch.float64)
+            opacity.index_add_(0, rays + start, weights)
+            coverage.index_add_(0, rays + start, weights * m.to(torch.float64))
+        return opacity, coverage

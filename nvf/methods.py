@@ -258,15 +258,15 @@ class BayesRays(Method):
 
 @dataclass(frozen=True, kw_only=True)
 class COVER(Method):
-    """COVER (CVPR 2026; not in the NVF paper) on NVF's backbone: a candidate scores one minus the mean, over its
-    pixels that see geometry, of how closely it looks along a direction the training views saw each surface
-    element from (METHOD 20, M37-M39; the elements the occupied cells of the backbone's grid). Stage 1 only; it
-    scores whole views, so argmax planning only (-OPT is n/a)."""
+    """COVER (CVPR 2026; not in the NVF paper) on NVF's backbone: a candidate scores the mean over its pixels of the
+    opacity it sees less how closely it looks along a direction the training views saw each surface element from
+    (METHOD 20, M37-M39; the elements the occupied cells of the backbone's grid a training view holds). Stage 1
+    only; it scores whole views, so argmax planning only (-OPT is n/a)."""
 
     bins: int
     """Direction bins on the Fibonacci sphere (COVER's ``n_sphere_bins``)."""
 
-    score_unit: ClassVar[str] = "uncovered share"  # 1 - M39's mean, in [0, 1]
+    score_unit: ClassVar[str] = "uncovered opacity"  # M39's mean over the pixels, in [0, 1]
 
     def scorer(self) -> StepScorer:
         return CoverScorer(self.bins)
