@@ -1,9 +1,11 @@
 """Hydra config tree: every group option composes, validates, and impossible values are rejected."""
 
+import dataclasses
 import itertools
 import math
 import os
 import re
+import typing
 from pathlib import Path
 
 import pytest
@@ -12,11 +14,12 @@ from hydra import compose, initialize_config_dir
 from hydra.errors import HydraException
 from omegaconf import OmegaConf, open_dict
 
+from nvf.config import POSITIVE
 from pipeline.config import validation
 from pipeline.config.catalog import declared
 from pipeline.config.memory import SIZE_KEYS_BOUNDED, allocations, too_large
 from pipeline.config.plain_containers import as_dict, as_list
-from pipeline.config.structured_configs import register_configs
+from pipeline.config.structured_configs import RunConfig, register_configs
 from pipeline.config.validation import ConfigError, error_line, typed_run, validate
 from pipeline.repo import CONF
 
@@ -268,7 +271,43 @@ def test_every_positive_size_key_has_an_allocation_or_a_reason_it_has_none():
     either in SCALED (an allocation of its own) or in SIZE_KEYS_BOUNDED (time, a rate, a cap, or bounded by
     another key's allocation), never neither."""
     scaled = {key for key, _, _ in SCALED}
-    assert set(validation._POSITIVE) == scaled | set(SIZE_KEYS_BOUNDED) and not scaled & set(SIZE_KEYS_BOUNDED)
+    positive = {key for key, allowed in validation.RANGES.items() if allowed == POSITIVE}
+    assert positive == scaled | set(SIZE_KEYS_BOUNDED) and not scaled & set(SIZE_KEYS_BOUNDED)
+
+
+def _numeric_keys(schema: type, prefix: str = "") -> list[str]:
+    """The dotted keys of ``schema``'s int and float fields (optional ones too), nested dataclasses walked."""
+    keys, hints = [], typing.get_type_hints(schema)
+    for item in dataclasses.fields(schema):
+        kind = hints[item.name]
+        if dataclasses.is_dataclass(kind):
+            keys += _numeric_keys(kind, f"{prefix}{item.name}.")
+        elif kind in (int, float, int | None, float | None):
+            keys.append(prefix + item.name)
+    return keys
+
+
+def test_every_numeric_setting_declares_its_range_once_on_its_field():
+    """(One declaration per setting) every int and float field of the run's schema carries its ``Range``
+    (``nvf.config.ranged``), which validation reads: a new field without one fails here."""
+    keys = _numeric_keys(RunConfig)
+    assert len(keys) > 70 and sorted(keys) == sorted(validation.RANGES)
+
+
+@pytest.mark.parametrize(
+    ("override", "says"),
+    [
+        ("planner.los_threshold=1.5", "planner.los_threshold=1.5 must be in [0, 1]"),
+        ("planner.opt.ray_fraction=0", "planner.opt.ray_fraction=0.0 must be in (0, 1]"),
+        ("train.label_cutoff=1", "train.label_cutoff=1.0 must be in [0, 1)"),
+        ("planner.oversample=0.5", "planner.oversample=0.5 must be in [1, inf]"),
+        ("sampler.near=-1", "sampler.near=-1.0 must be in [0, inf]"),
+        ("nvf.entropy.var_bg=0", "nvf.entropy.var_bg=0.0 must be positive"),
+    ],
+)
+def test_a_value_outside_its_declared_range_is_one_line_naming_it(composer, override, says):
+    with pytest.raises(ConfigError, match=f"^{re.escape(says)}$"):
+        validate(composer(override))
 
 
 @pytest.mark.parametrize(("key", "value", "overrides"), SCALED, ids=[key for key, _, _ in SCALED])

@@ -96,7 +96,9 @@ def dataclass_keys(cls: type, instance: Any, prefix: str) -> Iterator[KeyHelp]:
             yield KeyHelp(key, "", docs.get(field.name, ""), section=True)
             yield from dataclass_keys(hint, default if dataclasses.is_dataclass(default) else None, f"{key}.")
         else:
-            yield KeyHelp(key, value_text(default), docs.get(field.name, ""))
+            allowed = field.metadata.get("range")
+            doc = docs.get(field.name, "") + (f" Values: {allowed.text()}." if allowed is not None else "")
+            yield KeyHelp(key, value_text(default), doc.strip())
 
 
 def method_keys(node: dict[str, Any]) -> list[KeyHelp]:

@@ -55,6 +55,14 @@ SIZE_KEYS_BOUNDED = {
     "sampler.max_samples_per_ray": "a cap on samples per ray",
     "sampler.uniform_far": "a length",
     "render.timeout": "seconds",
+    "scene.density_threshold": "a density",
+    "planner.density_threshold": "a density",
+    "scene.cr_threshold": "a length",
+    "sampler.far": "a length: samples per ray are capped by sampler.max_samples_per_ray",
+    "nvf.entropy.chunk_rays": "the rows that share one depth (depth_mode=chunk): no array of its own",
+    "nvf.entropy.var_un": "a variance",
+    "nvf.entropy.var_bg": "a variance",
+    "metrics.ssim_data_range": "an intensity range",
 }
 
 

@@ -15,8 +15,20 @@ from typing import Any
 from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING
 
-from nvf.config import EntropyConfig, FieldConfig, PlannerConfig, SamplerConfig, TrainConfig
+from nvf.config import (
+    ANY,
+    NON_NEGATIVE,
+    POSITIVE,
+    EntropyConfig,
+    FieldConfig,
+    PlannerConfig,
+    Range,
+    SamplerConfig,
+    TrainConfig,
+    ranged,
+)
 from pipeline.config.catalog import register_resolvers
+from pipeline.records.store import MAX_SEED
 
 
 @dataclass
@@ -53,9 +65,9 @@ class RenderConfig:
 
     backend: RenderBackend = RenderBackend.pyrender
     """The ground truth's RGB: ``pyrender`` (flat, unlit) or ``blender`` (Cycles, lit; the paper's)."""
-    samples: int = 64
+    samples: int = ranged(64, POSITIVE)
     """Cycles samples per pixel (blender only)."""
-    timeout: float = 1800.0
+    timeout: float = ranged(1800.0, POSITIVE)
     """Seconds Blender's worker may take to answer one request (a view, opening a scene; blender only) before the
     run stops, left to resume: a 512-px view takes 24-75 s at 64 samples on a 2-core CPU (docs/BUDGETS.md)."""
 
@@ -87,7 +99,7 @@ class SceneConfig:
     """The paper scene it is or stands in for (tables set the paper's numbers beside it)."""
     nerf_asset: bool = False
     """One of the paper's eight NeRF-asset scenes: averaged into the object-scene mean."""
-    rank: int = 100
+    rank: int = ranged(100, ANY)
     """Its order in tables."""
     experiments: list[str] = dataclasses.field(default_factory=list)
     """The paper tables (conf/experiment) and experiments it joins."""
@@ -105,11 +117,11 @@ class SceneConfig:
     """Where candidate positions are drawn, and -OPT's clipping."""
     tight_box: list[list[float]] = MISSING
     """The ground-truth mesh's bounds."""
-    density_threshold: float = 1e-4
+    density_threshold: float = ranged(1e-4, POSITIVE)
     """M28's ``tau``: a candidate's camera centre must have density below it."""
-    d0: float = 1.0
+    d0: float = ranged(1.0, NON_NEGATIVE)
     """M13's correlation length (NVF's ``nvf.entropy.d0=null`` takes it)."""
-    cr_threshold: float = 0.01
+    cr_threshold: float = ranged(0.01, POSITIVE)
     """The completion ratio's distance, in scene units (PROTOCOL 4.2)."""
     collision_free: bool = False
     """M29's collision-free candidate sampler (Room)."""
@@ -127,7 +139,7 @@ class AblationConfig:
     """The ablation's name (``none``: full NVF)."""
     label: str = "NVF"
     """Its row name in tables."""
-    rank: int = 100
+    rank: int = ranged(100, ANY)
     """Its row order in tables."""
     of: str = "nvf"
     """The method it ablates."""
@@ -139,19 +151,19 @@ class BudgetConfig:
 
     name: str = "paper"
     """The budget's name (``paper``, ``cpu``, ``smoke``): tables never average runs of different budgets."""
-    image_size: int = 512
+    image_size: int = ranged(512, POSITIVE)
     """Ground-truth and training images, pixels per side (square, 90 degree field of view)."""
-    eval_size: int = 512
+    eval_size: int = ranged(512, POSITIVE)
     """Evaluation renders of the 20 evaluation views, pixels per side."""
-    horizon: int = 20
+    horizon: int = ranged(20, POSITIVE)
     """Active-mapping steps."""
-    gt_points: int = 500_000
+    gt_points: int = ranged(500_000, POSITIVE)
     """Area-uniform samples of the ground-truth mesh (PROTOCOL 4.2)."""
-    recon_points: int = 500_000
+    recon_points: int = ranged(500_000, POSITIVE)
     """Reconstructed points from training-view rays (PROTOCOL 4.2)."""
-    recon_batch: int = 16_384
+    recon_batch: int = ranged(16_384, POSITIVE)
     """Pixels drawn per point-cloud batch."""
-    gt_samples: int = 1
+    gt_samples: int = ranged(1, POSITIVE)
     """Each ground-truth pixel (training, evaluation) the mean of k x k sub-pixel samples."""
 
 
@@ -159,7 +171,7 @@ class BudgetConfig:
 class MetricsConfig:
     """How the image metrics are computed (PROTOCOL 4.1)."""
 
-    ssim_data_range: float | None = None
+    ssim_data_range: float | None = ranged(None, POSITIVE)
     """SSIM's data range: null inferred from the image stacks (PROTOCOL 4.1), or a number such as 1.0."""
 
 
@@ -211,7 +223,7 @@ class RunConfig:
     """How the image metrics are computed."""
     diagnostics: DiagnosticsConfig = dataclasses.field(default_factory=DiagnosticsConfig)
     """Extra measurements that never change the run."""
-    seed: int = 100
+    seed: int = ranged(100, Range(0, MAX_SEED))
     """The run's seed: every random draw comes from a generator seeded from (seed, step, purpose)."""
     device: str = "auto"
     """Where the model runs: ``auto`` (CUDA where torch sees it), ``cpu``, ``cuda`` or ``cuda:N``."""

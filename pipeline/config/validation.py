@@ -17,6 +17,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.errors import HydraException
 from omegaconf import DictConfig, OmegaConf
 
+from nvf.config import field_ranges
 from nvf.density_lattice import MAX_SUBDIVISIONS, MAX_VERTICES, lattice_vertices
 from nvf.device import resolve_device
 from nvf.methods import Method
@@ -45,52 +46,8 @@ class ConfigError(BadInput, ValueError):
 LOGDET_COEFFS = (0.5, 1.0)
 MIN_EVAL_SIZE = 32  # budget.eval_size: LPIPS' AlexNet needs inputs of at least this many pixels a side
 
-_POSITIVE = (
-    "budget.image_size",
-    "budget.eval_size",
-    "budget.horizon",
-    "budget.gt_points",
-    "budget.recon_points",
-    "budget.recon_batch",
-    "budget.gt_samples",
-    "render.samples",
-    "planner.num_candidates",
-    "planner.resolution",
-    "planner.los_samples",
-    "planner.score_chunk_rays",
-    "planner.opt.top_k",
-    "planner.opt.iters",
-    "planner.opt.chunk_rays",
-    "train.backbone.iters",
-    "train.backbone.batch",
-    "train.variance.iters",
-    "train.variance.batch",
-    "train.visibility.iters",
-    "train.visibility.batch",
-    "train.lr_decay_horizon",
-    "train.label_samples",
-    "train.target_samples",
-    "field.num_levels",
-    "field.features_per_level",
-    "field.log2_hashmap_size",
-    "field.base_resolution",
-    "field.max_resolution",
-    "field.dense_resolution",
-    "field.dense_features",
-    "field.hidden_dim",
-    "sampler.grid_resolution",
-    "sampler.step_size",
-    "sampler.update_every",
-    "sampler.max_samples_per_ray",
-    "sampler.uniform_samples",
-    "sampler.uniform_far",
-    "train.backbone.lr",
-    "train.variance.lr",
-    "train.visibility.lr",
-    "planner.opt.lr",
-    "train.label_max_depth",
-    "render.timeout",
-)
+RANGES = field_ranges(RunConfig)
+"""Every numeric setting's range, declared once on its field (``nvf.config.ranged``), by dotted key."""
 
 
 # samples per camera-to-point segment (M17's train.label_samples, M29's planner.los_samples): the paper takes 200;
@@ -229,10 +186,11 @@ def validate(cfg: DictConfig) -> Run:
     if cfg.ablation.name not in declared("ablation"):
         raise ConfigError(f"ablation.name={cfg.ablation.name!r} is not one of {', '.join(declared('ablation'))}")
     _check_ablation(cfg)
-    for key in _POSITIVE:
+    for key, allowed in RANGES.items():
         value = OmegaConf.select(cfg, key)
-        if value is None or value <= 0:
-            raise ConfigError(f"{key}={value!r} must be positive")
+        problem = None if value is None else allowed.problem(key, value)  # None: an optional setting left unset
+        if problem is not None:
+            raise ConfigError(problem)
     for key in ("train.label_samples", "planner.los_samples"):
         if OmegaConf.select(cfg, key) > MAX_SEGMENT_SAMPLES:
             raise ConfigError(
@@ -243,12 +201,6 @@ def validate(cfg: DictConfig) -> Run:
         raise ConfigError(
             f"budget.horizon={cfg.budget.horizon} is more than {MAX_HORIZON} steps (every step rewrites the run's "
             f"steps.jsonl, and records of more steps are refused when read); lower budget.horizon"
-        )
-    if cfg.train.label_margin < 0:
-        raise ConfigError(f"train.label_margin={cfg.train.label_margin} must be >= 0 (scene units; 0 = METHOD's M17)")
-    if not 0.0 <= cfg.train.label_cutoff < 1.0:
-        raise ConfigError(
-            f"train.label_cutoff={cfg.train.label_cutoff} must be in [0, 1) (a transmittance; 0 = every sample of M17)"
         )
     lattice = cfg.train.label_lattice
     if not 0 <= lattice <= MAX_SUBDIVISIONS:
