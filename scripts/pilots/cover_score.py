@@ -1,7 +1,7 @@
 """COVER's own view score against the port's (docs/METHOD.md M39) on the planner's candidates: default seed 100's
 first step (its three initial views, trained as the cpu episode trains them), every candidate scored both ways,
 then the picks of two whole episodes, one per score. Run from the repository root with one torch thread:
-``OMP_NUM_THREADS=1 python scripts/pilots/cover_score.py``, its output kept beside the pilot's README.
+``OMP_NUM_THREADS=1 python scripts/pilots/cover_score.py > results/pilots/cover_score/output.txt``.
 
 COVER's score ``S`` is the mean of ``M(p)`` over the pixels with ``A(p) > 0`` (the lowest taken: here its
 complement ``1 - S``, the highest); the port's ``U`` is the mean of ``A(p) - M(p)`` over every pixel. The episode
