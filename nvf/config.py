@@ -4,7 +4,9 @@ These are plain dataclasses: Hydra's structured configs in ``pipeline.config.str
 value has exactly one home and one default. Defaults are the ``paper`` budget; smaller budgets
 override resolutions and iteration counts only. A setting with a fixed set of values is a ``StrEnum``
 field: OmegaConf refuses any other value when a config is composed, and a member compares equal to its
-name (``entropy.bound == "huber"``). A method's own settings are its class's fields (``nvf.methods``).
+name (``entropy.bound == "huber"``). A numeric setting's allowed values are a ``Range`` declared on its field
+(``ranged``), which validation and ``--help-keys`` read. A method's own settings are its class's fields
+(``nvf.methods``).
 """
 
 import dataclasses
