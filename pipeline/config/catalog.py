@@ -66,11 +66,11 @@ def searchpath_override(overrides: Sequence[str]) -> list[str]:
 def searchpath_of(overrides: Sequence[str]) -> list[str]:
     """The entries of a command line's ``hydra.searchpath=[...]`` override (none without one): where a user's own
     methods and scenes are declared, as ``pipeline.run`` reads them."""
-    for override in overrides:
-        key, _, value = override.partition("=")
-        if key.lstrip("+") == "hydra.searchpath":
-            return [entry.strip().strip("'\"") for entry in value.strip().strip("[]").split(",") if entry.strip()]
-    return []
+    found = searchpath_override(overrides)
+    if not found:
+        return []
+    value = found[0].partition("=")[2]
+    return [entry.strip().strip("'\"") for entry in value.strip().strip("[]").split(",") if entry.strip()]
 
 
 def option_problem(group: str, name: str, dirs: Sequence[Path]) -> str | None:
